@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# Runs every check of `make test`: xref, dialyzer, EUnit, Common Test (with
+# the PropEr properties inside), and cover. Each check's own output goes to
+# the terminal and to _build/test-report/; the last line is the plain count
+# `N passed, N failed` over every test case (xref and dialyzer count as one
+# case each), and the exit status is non-zero when anything failed.
+set -u
+cd "$(dirname "$0")/.."
+
+REPORT=_build/test-report
+mkdir -p "$REPORT"
+passed=0
+failed=0
+summary=()
+
+note() { summary+=("$1"); echo "== $1"; }
+
+# step NAME CMD...: runs one rebar3 step, tee'd to a log.
+step() {
+  local name=$1; shift
+  echo
+  echo "== $name: $*"
+  "$@" 2>&1 | tee "$REPORT/$name.log"
+  return "${PIPESTATUS[0]}"
+}
+
+# A whole-tool check (xref, dialyzer): one case, passed or failed.
+check() {
+  local name=$1; shift
+  if step "$name" "$@"; then
+    passed=$((passed + 1)); note "$name: passed"
+  else
+    failed=$((failed + 1)); note "$name: FAILED (see $REPORT/$name.log)"
+  fi
+}
+
+# Counts EUnit's or Common Test's own summary lines (rebar3's formats:
+# EUnit "7 tests, 1 failures, 2 cancelled"; Common Test "All 5 tests passed."
+# or "Failed 1 tests. Skipped 2 (0, 2) tests. Passed 1 tests."). A run that
+# died before it could count (a compile error) is a failure, and so are
+# cancelled cases and cases skipped because their init failed.
+count_cases() {
+  local name=$1 rc=$2 log="$REPORT/$1.log"
+  local p=0 f=0 s=0 auto=0 line clean
+  clean=$(sed -E 's/\x1b\[[0-9;]*m//g' "$log")
+  if line=$(echo "$clean" | grep -E '^\s*[0-9]+ tests, [0-9]+ failures' | tail -1); [ -n "$line" ]; then
+    local total fails canc skip
+    total=$(echo "$line" | sed -E 's/^\s*([0-9]+) tests.*/\1/')
+    fails=$(echo "$line" | sed -E 's/.* ([0-9]+) failures.*/\1/')
+    canc=$(echo "$line" | grep -oE '[0-9]+ cancelled' | grep -oE '[0-9]+'); canc=${canc:-0}
+    skip=$(echo "$line" | grep -oE '[0-9]+ skipped' | grep -oE '[0-9]+'); skip=${skip:-0}
+    f=$((fails + canc)); s=$skip; p=$((total - fails - canc - skip))
+  fi
+  if line=$(echo "$clean" | grep -E '^\s*All [0-9]+ tests passed\.' | tail -1); [ -n "$line" ]; then
+    p=$(echo "$line" | grep -oE '[0-9]+' | head -1)
+  fi
+  if line=$(echo "$clean" | grep -E '^(Failed [0-9]+ tests?\.|Skipped [0-9]+ \(|Passed [0-9]+ tests?\.)' | tail -1); [ -n "$line" ]; then
+    f=$(echo "$line" | grep -oE 'Failed [0-9]+' | grep -oE '[0-9]+'); f=${f:-0}
+    p=$(echo "$line" | grep -oE 'Passed [0-9]+' | grep -oE '[0-9]+'); p=${p:-0}
+    s=$(echo "$line" | grep -oE 'Skipped [0-9]+ \([0-9]+, [0-9]+\)' | sed -E 's/Skipped [0-9]+ \(([0-9]+),.*/\1/'); s=${s:-0}
+    auto=$(echo "$line" | grep -oE 'Skipped [0-9]+ \([0-9]+, [0-9]+\)' | sed -E 's/.*, ([0-9]+)\)/\1/'); auto=${auto:-0}
+    f=$((f + auto))
+  fi
+  if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  if [ "$p" -eq 0 ] && [ "$f" -eq 0 ]; then f=1; fi   # nothing ran at all
+  passed=$((passed + p)); failed=$((failed + f))
+  if [ "$s" -gt 0 ]; then note "$name: $p passed, $f failed, $s skipped"
+  else note "$name: $p passed, $f failed"; fi
+}
+
+check xref rebar3 xref
+check dialyzer rebar3 dialyzer
+
+step eunit rebar3 eunit --cover; count_cases eunit $?
+step ct rebar3 ct --cover; count_cases ct $?
+
+if step cover rebar3 cover --verbose; then
+  note "cover: report in _build/test/cover/index.html"
+else
+  note "cover: could not build the report (see $REPORT/cover.log)"
+fi
+
+echo
+echo "== summary"
+for line in "${summary[@]}"; do echo "   $line"; done
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ]
