@@ -1,0 +1,37 @@
+%% @doc Internal. The evatar application: starts the supervision tree, then
+%% the pairings listed in the application environment
+%% (`{evatar, [{pairings, [#{id => <<"home">>, agent_credential => ...,
+%% avatar_credential => ...}]}]}').
+-module(evatar_app).
+-behaviour(application).
+
+-export([start/2, stop/1]).
+
+%% @private
+-spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
+start(_Type, _Args) ->
+    {ok, Sup} = evatar_sup:start_link(),
+    case start_configured(application:get_env(evatar, pairings, [])) of
+        ok -> {ok, Sup};
+        {error, _} = Error -> Error
+    end.
+
+%% @private
+-spec stop(term()) -> ok.
+stop(_State) ->
+    ok.
+
+%% A bad entry stops the application from starting: configuration mistakes
+%% are found when the node boots, not when the first client is refused.
+start_configured([#{id := Id} = Spec | Rest]) ->
+    Opts = maps:remove(id, Spec),
+    case evatar:create_pairing(Id, Opts) of
+        {ok, _} -> start_configured(Rest);
+        {error, Reason} -> {error, {bad_pairing_config, Id, Reason}}
+    end;
+start_configured([Other | _]) ->
+    {error, {bad_pairing_config, Other, missing_id}};
+start_configured([]) ->
+    ok;
+start_configured(Other) ->
+    {error, {bad_pairing_config, Other, not_a_list}}.

@@ -1,0 +1,615 @@
+%% @doc Internal. The whole decision logic of one pairing, pure: the state is
+%% one value (Service Registration List, Body Mapping Registry with its
+%% routing index, pending requests with absolute deadlines, per-entity
+%% sequence numbers, counters, epoch) and {@link handle/3} maps an event to
+%% the new state and a list of effects, which are data that
+%% `evatar_pairing' executes (send a message, start a timer, log).
+%%
+%% Nothing here holds a pid, a monitor or a timer reference, and time comes
+%% in as an argument: this value is what issue 5 copies to a standby, which
+%% re-arms the timers from {@link timers/2} after a takeover. Entities are
+%% known by their entity ids; the process maps them to pids.
+-module(evatar_pairing_logic).
+
+-export([config/1, new/2, handle/3]).
+-export([phase/1, summary/1, bindings/1, registration_list/1, stats/1,
+         timers/2, pairing_id/1, epoch/1, entity_ids/1]).
+
+-export_type([state/0, config/0, event/0, effect/0, timer_key/0, phase/0]).
+
+-define(MEDIATOR, <<"EVATAR">>).
+
+-record(entity, {id :: binary(),
+                 role :: evatar:role(),
+                 joined_at :: integer(),
+                 join_deadline :: integer(),
+                 description = undefined :: bil:description() | undefined,
+                 seq = 0 :: non_neg_integer()}).
+
+%% An open `request': who asked whom, and until when the answer may come.
+-record(pending, {requester :: binary(),          % entity id
+                  provider :: binary(),           % component id
+                  provider_entity :: binary(),
+                  deadline :: integer()}).
+
+-record(st, {id :: evatar:pairing_id(),
+             config :: config(),
+             epoch = 1 :: pos_integer(),
+             entities = #{} :: #{binary() => #entity{}},
+             agent = undefined :: binary() | undefined,
+             avatars = 0 :: non_neg_integer(),
+             %% Described entities in registration order (first description).
+             order = [] :: [binary()],
+             %% ComponentID -> entity id, over every registered description.
+             components = #{} :: #{binary() => binary()},
+             bound = [] :: [bil:binding()],
+             unbound = [] :: [bil:unbound()],
+             %% {Sender, Receiver} component pairs allowed to talk.
+             routes = #{} :: #{{binary(), binary()} => forward | reverse},
+             %% Keyed by {requester ComponentID, request SignalID}.
+             pending = #{} :: #{{binary(), binary()} => #pending{}},
+             counters = #{} :: #{term() => non_neg_integer()},
+             next_id = 1 :: pos_integer()}).
+
+-opaque state() :: #st{}.
+-type config() :: #{agent_credential := binary(),
+                    avatar_credential := binary(),
+                    join_timeout := non_neg_integer(),
+                    feedback_timeout := non_neg_integer(),
+                    max_avatars := pos_integer()}.
+-type timer_key() :: {join, EntityId :: binary()}
+                   | {feedback, RequesterComponent :: binary(), SignalId :: binary()}.
+-type event() :: {join, evatar:role(), EntityId :: binary(), Credential :: binary()}
+               | {describe, EntityId :: binary(), bil:description()}
+               | {signal, EntityId :: binary(), bil:signal()}
+               | {leave, EntityId :: binary(), left | down}
+               | {timeout, timer_key()}.
+-type effect() :: {reply, term()}
+                | {deliver, EntityId :: binary(), bil:signal()}
+                | {report, EntityId :: binary(), evatar:binding_report()}
+                | {drop, EntityId :: binary(), evatar:drop_code(), Reason :: binary()}
+                | {start_timer, timer_key(), Ms :: non_neg_integer()}
+                | {cancel_timer, timer_key()}
+                | {log, logger:level(), logger:report()}.
+-type phase() :: waiting | bound.
+
+-define(DEFAULTS, #{join_timeout => 5000, feedback_timeout => 5000, max_avatars => 64}).
+
+%% ---------------------------------------------------------------------------
+%% Construction
+%% ---------------------------------------------------------------------------
+
+%% @doc Checks pairing options (see `evatar:pairing_opts()') and fills in
+%% the defaults.
+-spec config(term()) -> {ok, config()} | {error, {bad_option, term()}}.
+config(#{agent_credential := A, avatar_credential := V} = Opts)
+  when is_binary(A), is_binary(V) ->
+    check_options(maps:to_list(maps:merge(?DEFAULTS, Opts)), Opts);
+config(#{agent_credential := A, avatar_credential := _} = Opts) when not is_binary(A) ->
+    {error, {bad_option, {agent_credential, maps:get(agent_credential, Opts)}}};
+config(#{agent_credential := _, avatar_credential := V}) ->
+    {error, {bad_option, {avatar_credential, V}}};
+config(Opts) when is_map(Opts) ->
+    {error, {bad_option, {missing, [K || K <- [agent_credential, avatar_credential],
+                                        not maps:is_key(K, Opts)]}}};
+config(Other) ->
+    {error, {bad_option, Other}}.
+
+check_options([{K, V} | Rest], Opts)
+  when (K =:= join_timeout orelse K =:= feedback_timeout), is_integer(V), V >= 0;
+       K =:= max_avatars, is_integer(V), V > 0;
+       K =:= agent_credential; K =:= avatar_credential ->
+    check_options(Rest, Opts);
+check_options([Bad | _], _Opts) ->
+    {error, {bad_option, Bad}};
+check_options([], Opts) ->
+    {ok, maps:merge(?DEFAULTS, Opts)}.
+
+%% @doc A pairing with nobody joined yet, at epoch 1.
+-spec new(evatar:pairing_id(), config()) -> state().
+new(PairingId, Config) ->
+    #st{id = PairingId, config = Config}.
+
+%% ---------------------------------------------------------------------------
+%% Events
+%% ---------------------------------------------------------------------------
+
+%% @doc Applies one event at time `Now' (milliseconds since the epoch).
+%% Call-like events (join, describe, leave) produce exactly one
+%% `{reply, Reply}' effect.
+-spec handle(event(), integer(), state()) -> {state(), [effect()]}.
+handle({signal, EntityId, Signal}, Now, St) ->
+    route(EntityId, Signal, Now, St);
+handle({join, Role, EntityId, Credential}, Now, St) ->
+    join(Role, EntityId, Credential, Now, St);
+handle({describe, EntityId, Description}, Now, St) ->
+    describe(EntityId, Description, Now, St);
+handle({leave, EntityId, Why}, Now, St) ->
+    {St1, Effects} = leave(EntityId, Why, Now, St),
+    {St1, [{reply, ok} | Effects]};
+handle({timeout, {join, EntityId}}, Now, St) ->
+    join_timeout(EntityId, Now, St);
+handle({timeout, {feedback, Component, SignalId}}, Now, St) ->
+    feedback_timeout({Component, SignalId}, Now, St).
+
+%% --- join ------------------------------------------------------------------
+
+join(Role, EntityId, Credential, Now,
+     #st{config = Config, entities = Entities} = St) ->
+    Check = case credential_ok(Role, Credential, Config) of
+                false -> {error, bad_credential};
+                true when is_map_key(EntityId, Entities) -> {error, entity_exists};
+                true when Role =:= agent, St#st.agent =/= undefined -> {error, occupied};
+                true when Role =:= avatar ->
+                    case St#st.avatars < maps:get(max_avatars, Config) of
+                        true -> ok;
+                        false -> {error, too_many_entities}
+                    end;
+                true -> ok
+            end,
+    case Check of
+        {error, Reason} = Error ->
+            {St, [{reply, Error},
+                  {log, notice, #{what => join_refused, entity => EntityId,
+                                  role => Role, reason => Reason}}]};
+        ok ->
+            Timeout = maps:get(join_timeout, Config),
+            Entity = #entity{id = EntityId, role = Role, joined_at = Now,
+                             join_deadline = Now + Timeout},
+            St1 = St#st{entities = Entities#{EntityId => Entity}},
+            St2 = case Role of
+                      agent -> St1#st{agent = EntityId};
+                      avatar -> St1#st{avatars = St1#st.avatars + 1}
+                  end,
+            {St2, [{reply, ok},
+                   {start_timer, {join, EntityId}, Timeout},
+                   {log, info, #{what => entity_joined, entity => EntityId,
+                                 role => Role}}]}
+    end.
+
+%% Hashing first gives equal-length inputs, as crypto:hash_equals/2 needs,
+%% so the comparison time does not depend on where the inputs differ.
+credential_ok(Role, Given, Config) when is_binary(Given) ->
+    Expected = case Role of
+                   agent -> maps:get(agent_credential, Config);
+                   avatar -> maps:get(avatar_credential, Config)
+               end,
+    crypto:hash_equals(crypto:hash(sha256, Given), crypto:hash(sha256, Expected));
+credential_ok(_Role, _Given, _Config) ->
+    false.
+
+join_timeout(EntityId, Now, #st{entities = Entities, config = Config} = St) ->
+    case Entities of
+        #{EntityId := #entity{description = undefined}} ->
+            Ms = maps:get(join_timeout, Config),
+            Message = iolist_to_binary(
+                        io_lib:format("no description within the join timeout (~b ms)", [Ms])),
+            {Error, St1} = mediator_signal(error, EntityId, undefined, <<"ERROR">>,
+                                           <<"JoinTimeout">>, Message, Now, St),
+            {St2, Deliver} = stamp(EntityId, Error, St1),
+            {St3, _} = remove_entity(EntityId, St2),
+            {count(dropped, St3),
+             [Deliver, {drop, EntityId, join_timeout, Message},
+              {log, warning, #{what => join_timeout, entity => EntityId}}]};
+        _ ->
+            {St, []}
+    end.
+
+%% --- describe --------------------------------------------------------------
+
+describe(EntityId, Description, Now, #st{entities = Entities} = St) ->
+    case Entities of
+        #{EntityId := Entity} ->
+            case check_description(Entity, Description, St) of
+                ok ->
+                    register(Entity, Description, Now, St);
+                {error, Message} ->
+                    {St, [{reply, {error, Message}},
+                          {log, notice, #{what => description_refused,
+                                          entity => EntityId, reason => Message}}]}
+            end;
+        #{} ->
+            {St, [{reply, {error, <<"this entity has not joined the pairing">>}}]}
+    end.
+
+check_description(#entity{id = Id, role = Role},
+                  #{entity_id := DescId, entity_type := Type,
+                    components := Components} = Description, St) ->
+    case well_formed(Description) of
+        false ->
+            {error, <<"malformed description">>};
+        true when DescId =/= Id ->
+            {error, <<"EntityID '", DescId/binary, "' differs from the joined entity id '",
+                      Id/binary, "'">>};
+        true when Type =/= Role ->
+            {error, <<"EntityType ", (type_name(Type))/binary,
+                      " does not match the role ", (type_name(Role))/binary>>};
+        true ->
+            check_components([C || #{id := C} <- Components], Id, #{}, St)
+    end;
+check_description(_Entity, _Description, _St) ->
+    {error, <<"malformed description">>}.
+
+check_components([C | Rest], Id, Seen, #st{components = Owners} = St) ->
+    case Owners of
+        _ when is_map_key(C, Seen) ->
+            {error, <<"ComponentID '", C/binary, "' appears twice">>};
+        #{C := Owner} when Owner =/= Id ->
+            {error, <<"ComponentID '", C/binary, "' is already used by entity '",
+                      Owner/binary, "'">>};
+        #{} ->
+            check_components(Rest, Id, Seen#{C => true}, St)
+    end;
+check_components([], _Id, _Seen, _St) ->
+    ok.
+
+%% The bridge hands over parser output; this guards the Erlang API against
+%% terms that would make the binding code raise.
+well_formed(#{entity_id := E, entity_type := T, components := Cs})
+  when is_binary(E), (T =:= agent orelse T =:= avatar), is_list(Cs) ->
+    lists:all(fun(#{id := C, services := S, consumes := U})
+                    when is_binary(C), is_list(S), is_list(U) ->
+                      lists:all(fun well_formed_entry/1, S ++ U);
+                 (_) ->
+                      false
+              end, Cs);
+well_formed(_) ->
+    false.
+
+well_formed_entry(#{category := C, type := T, parameters := Ps})
+  when is_binary(C), is_binary(T), is_list(Ps) ->
+    lists:all(fun({N, V}) -> is_binary(N) andalso is_binary(V);
+                 (_) -> false
+              end, Ps);
+well_formed_entry(_) ->
+    false.
+
+type_name(agent) -> <<"Agent">>;
+type_name(avatar) -> <<"Avatar">>;
+type_name(Other) when is_binary(Other) -> Other;
+type_name(_) -> <<"(invalid)">>.
+
+register(#entity{id = Id, description = Old} = Entity, Description, Now, St) ->
+    Components0 = maps:without(component_ids(Old), St#st.components),
+    Components = lists:foldl(fun(C, Acc) -> Acc#{C => Id} end, Components0,
+                             component_ids(Description)),
+    {Order, JoinEffects} = case Old of
+                               undefined -> {St#st.order ++ [Id],
+                                             [{cancel_timer, {join, Id}}]};
+                               _ -> {St#st.order, []}
+                           end,
+    St1 = St#st{entities = (St#st.entities)#{Id => Entity#entity{description = Description}},
+                components = Components, order = Order},
+    {St2, Effects} = rebind(Now, St1),
+    {St2, [{reply, ok} | JoinEffects] ++
+         [{log, info, #{what => registered, entity => Id,
+                        components => length(component_ids(Description))}} | Effects]}.
+
+component_ids(undefined) -> [];
+component_ids(#{components := Components}) -> [C || #{id := C} <- Components].
+
+%% --- binding ---------------------------------------------------------------
+
+%% Recomputes the Body Mapping Registry after any registration change, closes
+%% requests whose provider is no longer bound to their requester, and reports
+%% the result to every registered entity.
+rebind(Now, #st{order = Order, entities = Entities} = St) ->
+    Descriptions = [D || Id <- Order, #entity{description = D} <- [maps:get(Id, Entities)]],
+    #{bound := Bound, unbound := Unbound} = bil:bind(Descriptions),
+    St1 = count(rebinds, St#st{bound = Bound, unbound = Unbound, routes = routes(Bound)}),
+    {St2, GoneEffects} = close_unbound_requests(Now, St1),
+    Report = #{bound => Bound, unbound => Unbound, entities => Order},
+    {St2, GoneEffects ++ [{report, Id, Report} || Id <- Order] ++
+         [{log, info, #{what => bound, bound => length(Bound),
+                        unbound => length(Unbound), entities => Order}}]}.
+
+routes(Bound) ->
+    Reverse = maps:from_list([{{P, C}, reverse} || #{consumer := #{component := C},
+                                                      provider := #{component := P}} <- Bound]),
+    lists:foldl(fun(#{consumer := #{component := C}, provider := #{component := P}}, Acc) ->
+                        Acc#{{C, P} => forward}
+                end, Reverse, Bound).
+
+close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
+    Gone = [{Key, P} || {{Req, _} = Key, #pending{provider = Prov} = P} <- maps:to_list(Pending),
+                        not is_map_key({Req, Prov}, Routes)],
+    lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov}},
+                    {StAcc, Acc}) ->
+                        StAcc1 = StAcc#st{pending = maps:remove(Key, StAcc#st.pending)},
+                        {Sig, StAcc2} = mediator_signal(
+                                          feedback, Req, SigId, <<"EVATAR">>, <<"ProviderGone">>,
+                                          <<"the provider component '", Prov/binary,
+                                            "' is no longer bound; the request is void">>,
+                                          Now, StAcc1),
+                        {StAcc3, Deliver} = stamp(Entity, Sig, StAcc2),
+                        {count(provider_gone, StAcc3),
+                         Acc ++ [{cancel_timer, {feedback, Req, SigId}}, Deliver,
+                                 {log, notice, #{what => provider_gone, entity => Entity,
+                                                 signal => SigId, provider => Prov}}]}
+                end, {St, []}, Gone).
+
+%% --- leave -----------------------------------------------------------------
+
+leave(EntityId, Why, Now, #st{entities = Entities} = St) ->
+    case Entities of
+        #{EntityId := #entity{description = Description}} ->
+            {St1, Effects} = remove_entity(EntityId, St),
+            Log = {log, info, #{what => entity_left, entity => EntityId, why => Why}},
+            case Description of
+                undefined ->
+                    {St1, [Log | Effects]};
+                _ ->
+                    {St2, RebindEffects} = rebind(Now, St1),
+                    {St2, [Log | Effects] ++ RebindEffects}
+            end;
+        #{} ->
+            {St, []}
+    end.
+
+%% Forgets the entity, its components and the requests it was waiting on;
+%% the caller rebinds when the entity had registered.
+remove_entity(EntityId, #st{entities = Entities} = St) ->
+    #entity{role = Role, description = Description} = maps:get(EntityId, Entities),
+    St1 = case Role of
+              agent -> St#st{agent = undefined};
+              avatar -> St#st{avatars = St#st.avatars - 1}
+          end,
+    {Mine, Others} = maps:fold(fun(K, #pending{requester = R}, {M, O}) when R =:= EntityId ->
+                                       {[K | M], O};
+                                  (K, P, {M, O}) ->
+                                       {M, O#{K => P}}
+                               end, {[], #{}}, St#st.pending),
+    St2 = St1#st{entities = maps:remove(EntityId, Entities),
+                 order = lists:delete(EntityId, St#st.order),
+                 components = maps:without(component_ids(Description), St#st.components),
+                 pending = Others},
+    JoinTimer = case Description of
+                    undefined -> [{cancel_timer, {join, EntityId}}];
+                    _ -> []
+                end,
+    {St2, JoinTimer ++ [{cancel_timer, {feedback, C, S}} || {C, S} <- Mine]}.
+
+%% --- routing ---------------------------------------------------------------
+
+route(EntityId, #{id := Id, context := Context, sender := Sender, receiver := Receiver,
+                  body := Body} = Signal, Now, #st{entities = Entities} = St)
+  when is_binary(Id), is_atom(Context), is_binary(Sender), is_binary(Receiver),
+       is_map(Body) ->
+    case Entities of
+        #{EntityId := #entity{description = undefined}} ->
+            refuse(EntityId, Signal, <<"NotDescribed">>,
+                   <<"send your description before any signal">>, Now, St);
+        #{EntityId := _} ->
+            route_known(EntityId, Signal, Now, St);
+        #{} ->
+            %% Left or dropped while the signal was in flight: nobody to tell.
+            {count(unknown_entity, St), []}
+    end;
+route(EntityId, Signal, Now, St) ->
+    case is_map_key(EntityId, St#st.entities) of
+        true ->
+            Fake = #{id => field(id, Signal), sender => field(sender, Signal)},
+            refuse(EntityId, Fake, <<"BadSignal">>, <<"malformed signal">>, Now, St);
+        false ->
+            {count(unknown_entity, St), []}
+    end.
+
+field(Key, Signal) when is_map(Signal) ->
+    case maps:get(Key, Signal, undefined) of
+        V when is_binary(V) -> V;
+        _ -> <<>>
+    end;
+field(_Key, _Signal) ->
+    <<>>.
+
+route_known(EntityId, #{sender := Sender, receiver := Receiver} = Signal, Now,
+            #st{components = Components, routes = Routes} = St) ->
+    case Components of
+        #{Sender := EntityId} ->
+            case Components of
+                #{Receiver := Target} when is_map_key({Sender, Receiver}, Routes) ->
+                    route_bound(Target, Signal, Now, St);
+                #{Receiver := _} ->
+                    refuse(EntityId, Signal, <<"NotBound">>,
+                           <<"'", Receiver/binary, "' is not bound to '", Sender/binary, "'">>,
+                           Now, St);
+                #{} ->
+                    refuse(EntityId, Signal, <<"UnknownReceiver">>,
+                           <<"no component '", Receiver/binary, "' in this pairing">>, Now, St)
+            end;
+        #{} ->
+            refuse(EntityId, Signal, <<"BadSender">>,
+                   <<"'", Sender/binary, "' is not a component of your description">>, Now, St)
+    end.
+
+route_bound(Target, #{context := request, id := Id, sender := Sender,
+                      receiver := Receiver} = Signal, Now, St) ->
+    Key = {Sender, Id},
+    case is_map_key(Key, St#st.pending) of
+        true ->
+            refuse(maps:get(Sender, St#st.components), Signal, <<"DuplicateRequest">>,
+                   <<"a request with this SignalID is still open">>, Now, St);
+        false ->
+            Timeout = maps:get(feedback_timeout, St#st.config),
+            P = #pending{requester = maps:get(Sender, St#st.components), provider = Receiver,
+                         provider_entity = Target, deadline = Now + Timeout},
+            St1 = St#st{pending = (St#st.pending)#{Key => P}},
+            {St2, Deliver} = stamp(Target, Signal, St1),
+            {count({routed, request}, St2),
+             [Deliver, {start_timer, {feedback, Sender, Id}, Timeout}]}
+    end;
+route_bound(Target, #{context := Context} = Signal, Now, St)
+  when Context =:= feedback; Context =:= progress; Context =:= error ->
+    answer(Target, Signal, Now, St);
+route_bound(Target, #{context := Context} = Signal, _Now, St)
+  when Context =:= sensor_data; Context =:= request_no_feedback; Context =:= event ->
+    {St1, Deliver} = stamp(Target, Signal, St),
+    {count({routed, Context}, St1), [Deliver]};
+route_bound(_Target, #{sender := Sender} = Signal, Now, St) ->
+    refuse(maps:get(Sender, St#st.components), Signal, <<"BadSignal">>,
+           <<"unknown signal context">>, Now, St).
+
+%% Feedback closes the open request it answers, progress keeps it open and
+%% moves its deadline to a full feedback timeout from now, an error answering
+%% a request closes it like feedback. An answer matching no open request
+%% (late, or never asked) is dropped and counted; an error signal that
+%% answers nothing is delivered as ordinary traffic.
+answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = Signal,
+       Now, #st{pending = Pending} = St) ->
+    InReplyTo = maps:get(in_reply_to, Signal, undefined),
+    Key = {Receiver, InReplyTo},
+    case Pending of
+        #{Key := #pending{provider = Sender} = P} when Context =:= progress ->
+            Timeout = maps:get(feedback_timeout, St#st.config),
+            St1 = St#st{pending = Pending#{Key => P#pending{deadline = Now + Timeout}}},
+            {St2, Deliver} = stamp(Target, Signal, St1),
+            {count({routed, progress}, St2),
+             [Deliver, {start_timer, {feedback, Receiver, InReplyTo}, Timeout}]};
+        #{Key := #pending{provider = Sender}} ->
+            St1 = St#st{pending = maps:remove(Key, Pending)},
+            {St2, Deliver} = stamp(Target, Signal, St1),
+            {count({routed, Context}, St2),
+             [{cancel_timer, {feedback, Receiver, InReplyTo}}, Deliver]};
+        #{} when Context =:= error ->
+            {St1, Deliver} = stamp(Target, Signal, St),
+            {count({routed, error}, St1), [Deliver]};
+        #{} ->
+            {count(late_feedback, St),
+             [{log, notice, #{what => late_feedback, entity => maps:get(Sender, St#st.components),
+                              signal => maps:get(id, Signal), in_reply_to => InReplyTo}}]}
+    end.
+
+feedback_timeout({Requester, SignalId} = Key, Now, #st{pending = Pending} = St) ->
+    case Pending of
+        #{Key := #pending{requester = Entity, provider = Provider}} ->
+            St1 = St#st{pending = maps:remove(Key, Pending)},
+            Message = <<"no feedback from '", Provider/binary, "' within the feedback timeout">>,
+            {Sig, St2} = mediator_signal(feedback, Requester, SignalId, <<"EVATAR">>,
+                                         <<"Timeout">>, Message, Now, St1),
+            {St3, Deliver} = stamp(Entity, Sig, St2),
+            {count(timeouts, St3),
+             [Deliver, {log, warning, #{what => feedback_timeout, entity => Entity,
+                                        signal => SignalId, provider => Provider}}]};
+        #{} ->
+            {St, []}
+    end.
+
+%% An error signal back to the sending entity, and nothing else.
+refuse(EntityId, Signal, Code, Message, Now, St) ->
+    Receiver = case maps:get(sender, Signal, <<>>) of
+                   <<>> -> EntityId;
+                   S -> S
+               end,
+    InReplyTo = case maps:get(id, Signal, <<>>) of
+                    <<>> -> undefined;
+                    I -> I
+                end,
+    {Sig, St1} = mediator_signal(error, Receiver, InReplyTo, <<"ERROR">>, Code, Message, Now, St),
+    {St2, Deliver} = stamp(EntityId, Sig, St1),
+    {count({error, Code}, St2),
+     [Deliver, {log, notice, #{what => signal_refused, entity => EntityId, code => Code,
+                               signal => InReplyTo}}]}.
+
+mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now,
+                #st{next_id = N} = St) ->
+    Sig = #{id => <<"evatar-", (integer_to_binary(N))/binary>>,
+            context => Context,
+            sender => ?MEDIATOR,
+            receiver => Receiver,
+            in_reply_to => InReplyTo,
+            timestamp => max(Now, 0),
+            seq => undefined,
+            epoch => undefined,
+            body => #{category => Category, type => Type,
+                      parameters => [{<<"Message">>, Message}]}},
+    {Sig, St#st{next_id = N + 1}}.
+
+%% Stamps the receiving entity's next sequence number and the epoch.
+stamp(EntityId, Signal, #st{entities = Entities, epoch = Epoch} = St) ->
+    #entity{seq = Seq} = Entity = maps:get(EntityId, Entities),
+    Next = Seq + 1,
+    {St#st{entities = Entities#{EntityId := Entity#entity{seq = Next}}},
+     {deliver, EntityId, Signal#{seq => Next, epoch => Epoch}}}.
+
+count(Key, #st{counters = Counters} = St) ->
+    St#st{counters = maps:update_with(Key, fun(N) -> N + 1 end, 1, Counters)}.
+
+%% ---------------------------------------------------------------------------
+%% Queries
+%% ---------------------------------------------------------------------------
+
+%% @doc `bound' once an agent and at least one avatar have registered.
+-spec phase(state()) -> phase().
+phase(#st{agent = Agent, entities = Entities, order = Order}) ->
+    AgentRegistered = Agent =/= undefined andalso lists:member(Agent, Order),
+    AvatarRegistered = lists:any(fun(Id) -> (maps:get(Id, Entities))#entity.role =:= avatar end,
+                                 Order),
+    case AgentRegistered andalso AvatarRegistered of
+        true -> bound;
+        false -> waiting
+    end.
+
+%% @doc The pairing's id.
+-spec pairing_id(state()) -> evatar:pairing_id().
+pairing_id(#st{id = Id}) -> Id.
+
+%% @doc The pairing's epoch (stamped on every delivered signal).
+-spec epoch(state()) -> pos_integer().
+epoch(#st{epoch = Epoch}) -> Epoch.
+
+%% @doc The ids of the joined entities.
+-spec entity_ids(state()) -> [binary()].
+entity_ids(#st{entities = Entities}) -> lists:sort(maps:keys(Entities)).
+
+%% @doc One line of `evatar:pairings()'.
+-spec summary(state()) -> map().
+summary(#st{} = St) ->
+    #{state => phase(St),
+      agent => St#st.agent,
+      avatars => St#st.avatars,
+      registered => length(St#st.order),
+      bound => length(St#st.bound),
+      unbound => length(St#st.unbound),
+      pending => map_size(St#st.pending),
+      epoch => St#st.epoch}.
+
+%% @doc The Body Mapping Registry.
+-spec bindings(state()) -> evatar:binding_report().
+bindings(#st{bound = Bound, unbound = Unbound, order = Order}) ->
+    #{bound => Bound, unbound => Unbound, entities => Order}.
+
+%% @doc The Service Registration List: every joined entity, registered ones
+%% first in registration order, then the ones still expected to describe
+%% themselves, by join time.
+-spec registration_list(state()) -> [map()].
+registration_list(#st{entities = Entities, order = Order}) ->
+    Waiting = lists:sort([{J, Id} || #entity{id = Id, description = undefined,
+                                             joined_at = J} <- maps:values(Entities)]),
+    [entry(maps:get(Id, Entities)) || Id <- Order ++ [Id || {_, Id} <- Waiting]].
+
+entry(#entity{id = Id, role = Role, joined_at = J, description = D, seq = Seq}) ->
+    #{entity => Id, role => Role, joined_at => J, registered => D =/= undefined,
+      description => D, delivered => Seq}.
+
+%% @doc Counters since the pairing started.
+-spec stats(state()) -> map().
+stats(#st{counters = C, pending = Pending}) ->
+    Routed = maps:from_list([{Ctx, N} || {{routed, Ctx}, N} <- maps:to_list(C)]),
+    Errors = maps:from_list([{Code, N} || {{error, Code}, N} <- maps:to_list(C)]),
+    #{routed => Routed,
+      errors => Errors,
+      timeouts => maps:get(timeouts, C, 0),
+      late_feedback => maps:get(late_feedback, C, 0),
+      provider_gone => maps:get(provider_gone, C, 0),
+      dropped => maps:get(dropped, C, 0),
+      rebinds => maps:get(rebinds, C, 0),
+      unknown_entity => maps:get(unknown_entity, C, 0),
+      pending => map_size(Pending)}.
+
+%% @doc The timers the state needs at time `Now', with their remaining time:
+%% what a process taking over this state (issue 5) arms before going on.
+-spec timers(state(), integer()) -> [{timer_key(), non_neg_integer()}].
+timers(#st{entities = Entities, pending = Pending}, Now) ->
+    [{{join, Id}, max(0, D - Now)} || #entity{id = Id, description = undefined,
+                                              join_deadline = D} <- maps:values(Entities)] ++
+    [{{feedback, C, S}, max(0, D - Now)} || {{C, S}, #pending{deadline = D}} <- maps:to_list(Pending)].

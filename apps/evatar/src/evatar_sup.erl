@@ -1,0 +1,29 @@
+%% @doc Internal. The top supervisor of evatar: the pairing registry, then
+%% the supervisor of all pairings. `rest_for_one': should the registry ever
+%% die, its table dies with it, so every pairing is restarted to register
+%% again; a pairing's own faults stay inside its own tree.
+-module(evatar_sup).
+-behaviour(supervisor).
+
+-export([start_link/0, init/1]).
+
+%% @doc Starts the top supervisor, registered as `evatar_sup'.
+-spec start_link() -> {ok, pid()} | ignore | {error, term()}.
+start_link() ->
+    supervisor:start_link({local, ?MODULE}, ?MODULE, []).
+
+%% @private
+-spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init([]) ->
+    Flags = #{strategy => rest_for_one, intensity => 3, period => 10},
+    Children = [#{id => evatar_registry,
+                  start => {evatar_registry, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_pairings_sup,
+                  start => {evatar_pairings_sup, start_link, []},
+                  restart => permanent,
+                  shutdown => infinity,
+                  type => supervisor}],
+    {ok, {Flags, Children}}.

@@ -1,0 +1,154 @@
+%% @doc Runs the `make demo' narrative (evatar_demo:main/1) with its output
+%% captured, and checks that it tells the story it promises (the binding,
+%% the round trips, the timeout, the NotBound refusal, the operator's tables)
+%% and cleans up after itself.
+-module(evatar_demo_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
+         end_per_testcase/2]).
+
+-define(APPS, [agent_bridge, evatar]).
+
+-export([demo_from_scratch/1, demo_on_running_node/1]).
+
+suite() ->
+    [{timetrap, {seconds, 60}}].
+
+all() ->
+    [demo_from_scratch, demo_on_running_node].
+
+%% The suites that run after this one load the applications themselves.
+init_per_suite(Config) ->
+    Loaded = [App || {App, _, _} <- application:loaded_applications()],
+    [{loaded_before, [App || App <- ?APPS, lists:member(App, Loaded)]} | Config].
+
+end_per_suite(Config) ->
+    _ = [application:unload(App) || App <- ?APPS,
+                                    not lists:member(App, ?config(loaded_before, Config))],
+    ok.
+
+init_per_testcase(_Case, Config) ->
+    #{level := Level} = logger:get_primary_config(),
+    [{logger_level, Level} | Config].
+
+end_per_testcase(_Case, _Config) ->
+    _ = application:stop(agent_bridge),
+    _ = application:stop(evatar),
+    ok.
+
+%% @doc On a node where EVATAR is not running, the demo starts it, narrates
+%% every step, returns ok and stops what it started.
+demo_from_scratch(Config) ->
+    _ = application:stop(agent_bridge),
+    _ = application:stop(evatar),
+    {ok, Output} = run_demo(),
+    ok = check_story(Output),
+    ?assertNot(lists:keymember(agent_bridge, 1, application:which_applications())),
+    ?assertNot(lists:keymember(evatar, 1, application:which_applications())),
+    ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())).
+
+%% @doc On a node already running EVATAR with other pairings, the demo uses
+%% its own listener and pairing, and leaves the rest running as it was.
+demo_on_running_node(Config) ->
+    {ok, _} = application:ensure_all_started(agent_bridge),
+    {ok, _} = evatar:create_pairing(<<"bystander">>, #{agent_credential => <<"a">>,
+                                                      avatar_credential => <<"b">>}),
+    Listeners = agent_bridge:listeners(),
+    Pairings = [Id || #{id := Id} <- evatar:pairings()],
+    true = lists:member(<<"bystander">>, Pairings),
+    {ok, Output} = run_demo(),
+    ok = check_story(Output),
+    ?assert(lists:keymember(agent_bridge, 1, application:which_applications())),
+    ?assertEqual(Pairings, [Id || #{id := Id} <- evatar:pairings()]),
+    ?assertEqual(Listeners, agent_bridge:listeners()),
+    ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())),
+    ok = evatar:delete_pairing(<<"bystander">>).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+check_story(Output) ->
+    ct:log("~ts", [Output]),
+    Expected = [%% Part one (BIL) is still there.
+                "1. BIL descriptions and signals",
+                "refused in",
+                %% Joining, and the Welcome's join timeout.
+                "agent  golem-lego-va-01 joined",
+                "avatar lego-nxt-01 joined",
+                "must describe itself within 5000 ms",
+                %% The binding: what is bound and what is not.
+                "bound: 23 consumer/provider pairs",
+                "unbound: 1",
+                "lego-nxt-01/TouchSensor",
+                %% The round trips, fine and coarse grain.
+                "feedback MotorA -> MotorAEmulator: ACTUATOR/ACTION FEEDBACK Done=yes",
+                "round trip",
+                "progress ForwardBehaviour -> ForwardBehaviourEmulator",
+                "Value=55",
+                "feedback EVATAR -> GrabBehaviourEmulator",
+                "EVATAR/Timeout",
+                "ERROR/NotBound",
+                "rebound at once: 25 bound, 0 unbound",
+                %% The operator's tables.
+                "Bound (25)",
+                "pairing deleted, listener stopped"],
+    Missing = [E || E <- Expected, string:find(Output, E) =:= nomatch],
+    ?assertEqual([], Missing),
+    %% Table columns are as wide as their widest cell: match loosely.
+    Patterns = ["golem-lego-va-01/MotorAEmulator +-> lego-nxt-01/MotorA +ACTUATOR/Rotate",
+                "round trip [0-9]+\\.[0-9]{2} ms",
+                "PAIRING +STATE +AGENT",
+                "demo-lego +bound +golem-lego-va-01 +1 +2 +25 +0 +0",
+                "timeouts +1\n",
+                "error NotBound +1\n"],
+    ?assertEqual([], [P || P <- Patterns, re:run(Output, P) =:= nomatch]),
+    %% Nothing of the demo is left on the node.
+    {error, not_found} = agent_bridge_address(),
+    ok.
+
+agent_bridge_address() ->
+    case lists:keymember(agent_bridge, 1, application:which_applications()) of
+        true -> agent_bridge:address(evatar_demo);
+        false -> {error, not_found}
+    end.
+
+%% Runs the demo with this process's group leader replaced by one that
+%% collects the text; the processes the demo starts inherit it.
+run_demo() ->
+    Old = group_leader(),
+    Capture = spawn_link(fun() -> capture([]) end),
+    true = group_leader(Capture, self()),
+    Result = try evatar_demo:main([])
+             after true = group_leader(Old, self())
+             end,
+    ok = Result,
+    Capture ! {done, self()},
+    receive {output, Capture, Text} -> {ok, Text} end.
+
+%% A minimal I/O server: keeps what is written, refuses to read.
+capture(Acc) ->
+    receive
+        {io_request, From, ReplyAs, Request} ->
+            {Reply, Acc1} = io_request(Request, Acc),
+            From ! {io_reply, ReplyAs, Reply},
+            capture(Acc1);
+        {done, From} ->
+            From ! {output, self(), unicode:characters_to_list(lists:reverse(Acc))}
+    end.
+
+io_request({put_chars, Encoding, Chars}, Acc) ->
+    {ok, [unicode:characters_to_binary(Chars, Encoding) | Acc]};
+io_request({put_chars, Encoding, M, F, A}, Acc) ->
+    io_request({put_chars, Encoding, apply(M, F, A)}, Acc);
+io_request({put_chars, Chars}, Acc) ->
+    io_request({put_chars, latin1, Chars}, Acc);
+io_request({put_chars, M, F, A}, Acc) ->
+    io_request({put_chars, latin1, apply(M, F, A)}, Acc);
+io_request({requests, Requests}, Acc) ->
+    lists:foldl(fun(R, {_, A}) -> io_request(R, A) end, {ok, Acc}, Requests);
+io_request(_Other, Acc) ->
+    {{error, enotsup}, Acc}.
