@@ -1,0 +1,383 @@
+%% @doc Internal. One client connection (a TCP socket or an external
+%% program's port): decodes frames, runs the handshake, then relays signals
+%% and descriptions to the client's pairing and the pairing's traffic back.
+%%
+%% ```
+%%  start --shoot/open--> handshaking --Hello ok / Welcome--> joined
+%%                          |  bad Hello, timeout             | description accepted
+%%                          v                                 v
+%%                       closing <--Refused/Bye/dropped---- active
+%% '''
+%% `joined' waits for the first accepted description (the pairing enforces
+%% the join timeout and drops the entity); `active' relays in both
+%% directions; `closing' sends the last frame, half-closes, drains what the
+%% peer still sends for a short linger, then stops. Writes never block:
+%% see agent_bridge_outq and docs/protocol.md, "Backpressure".
+-module(agent_bridge_conn).
+-behaviour(gen_statem).
+
+-export([start_link/1, default_opts/0]).
+-export([init/1, callback_mode/0, handle_event/4, terminate/3]).
+
+-export_type([opts/0]).
+
+-include_lib("kernel/include/logger.hrl").
+
+-type opts() :: #{handshake_timeout => pos_integer(),
+                  handshake_max_frame => pos_integer(),
+                  max_frame => pos_integer(),
+                  max_out_bytes => pos_integer(),
+                  max_out_frames => pos_integer(),
+                  pairing_watermark => pos_integer(),
+                  active_n => pos_integer(),
+                  linger => non_neg_integer(),
+                  retry_interval => pos_integer()}.
+
+-type start_arg() :: {tcp, opts()}
+                   | {port, {file:filename_all(), [string()], [{string(), string()}]}, opts()}.
+
+-record(d, {transport :: agent_bridge_transport:t() | undefined,
+            opts :: map(),
+            outq :: agent_bridge_outq:outq(),
+            flushing = false :: boolean(),
+            session :: term(),
+            pairing :: binary() | undefined,
+            pairing_pid :: pid() | undefined,
+            monitor :: reference() | undefined,
+            entity = <<>> :: binary(),
+            peer_closed = false :: boolean()}).
+
+-define(PROTOCOL_VERSION, 1).
+
+%% @doc Defaults of every connection option (docs/protocol.md, "Limits").
+-spec default_opts() -> opts().
+default_opts() ->
+    #{handshake_timeout => 5000,
+      handshake_max_frame => 65536,
+      max_frame => 1048576,
+      max_out_bytes => 4194304,
+      max_out_frames => 8192,
+      pairing_watermark => 5000,
+      active_n => 32,
+      linger => 1000,
+      retry_interval => 10}.
+
+-spec start_link(start_arg()) -> {ok, pid()}.
+start_link(Arg) ->
+    gen_statem:start_link(?MODULE, Arg, []).
+
+-spec callback_mode() -> gen_statem:callback_mode_result().
+callback_mode() -> handle_event_function.
+
+-spec init(start_arg()) -> gen_statem:init_result(handshaking).
+init(Arg) ->
+    process_flag(trap_exit, true),
+    Opts = maps:merge(default_opts(), element(tuple_size(Arg), Arg)),
+    D = #d{opts = Opts,
+           outq = agent_bridge_outq:new(maps:get(max_out_bytes, Opts),
+                                        maps:get(max_out_frames, Opts))},
+    Timeout = {state_timeout, maps:get(handshake_timeout, Opts), handshake},
+    case Arg of
+        {tcp, _} -> {ok, handshaking, D, [Timeout]};
+        {port, Spec, _} -> {ok, handshaking, D, [Timeout, {next_event, internal, {open, Spec}}]}
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Events
+%% ---------------------------------------------------------------------------
+
+-spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
+          gen_statem:event_handler_result(atom()).
+handle_event(info, {agent_bridge_shoot, Sock}, handshaking, #d{transport = undefined} = D) ->
+    T = {tcp, Sock},
+    ok = agent_bridge_transport:set_max_frame(T, opt(handshake_max_frame, D)),
+    ok = agent_bridge_transport:activate(T, once),
+    logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
+    {keep_state, D#d{transport = T}};
+handle_event(internal, {open, {Exe, Args, Env}}, handshaking, D) ->
+    Port = open_port({spawn_executable, Exe},
+                     [{args, Args}, {env, Env}, {packet, 4}, binary, exit_status, use_stdio]),
+    T = {port, Port},
+    logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
+    {keep_state, D#d{transport = T}};
+
+%% Frames in.
+handle_event(info, {tcp, _, Frame}, State, D) when State =/= closing ->
+    frame(Frame, State, D);
+handle_event(info, {Port, {data, Frame}}, State, #d{transport = {port, Port}} = D)
+  when State =/= closing ->
+    frame(Frame, State, D);
+handle_event(info, {tcp_passive, _}, State, D) when State =/= closing ->
+    resume_reading(D);
+handle_event({timeout, resume}, _, State, D) when State =/= closing ->
+    resume_reading(D);
+handle_event({timeout, resume}, _, closing, _D) ->
+    keep_state_and_data;
+handle_event(info, {tcp_error, _, emsgsize}, State, D) when State =/= closing ->
+    ?LOG_NOTICE(#{what => frame_too_large}),
+    close(agent_bridge_frame:refusal(emsgsize), D);
+
+%% Traffic from the pairing.
+handle_event(info, {evatar, P, {signal, Signal}}, State, #d{pairing = P} = D)
+  when State =/= closing ->
+    send(bil:encode_signal(Signal), D);
+handle_event(info, {evatar, P, {bound, Report}}, State, #d{pairing = P} = D)
+  when State =/= closing ->
+    send(bil_control:encode({binding, Report}), D);
+handle_event(info, {evatar, P, {dropped, Code, Reason}}, State, #d{pairing = P} = D)
+  when State =/= closing ->
+    ?LOG_NOTICE(#{what => dropped_by_pairing, code => Code, reason => Reason}),
+    close(refused(dropped_code(Code), Reason), forget_session(D));
+handle_event(info, {evatar, _, _}, closing, _D) ->
+    keep_state_and_data;
+handle_event(info, {'DOWN', Ref, process, _, Why}, State, #d{monitor = Ref} = D) ->
+    D1 = D#d{monitor = undefined, session = undefined},
+    case {State, Why} of
+        {closing, _} -> {keep_state, D1};
+        {_, Normal} when Normal =:= normal; Normal =:= shutdown;
+                         element(1, Normal) =:= shutdown ->
+            close({bye, <<"the pairing was stopped">>}, D1);
+        _ ->
+            ?LOG_WARNING(#{what => pairing_down, reason => Why}),
+            close({refused, #{code => <<"PairingDown">>,
+                              message => <<"the pairing stopped unexpectedly">>}}, D1)
+    end;
+
+%% Writes.
+handle_event({timeout, flush}, _, State, D) ->
+    flush(State, D#d{flushing = false});
+handle_event(internal, flush, State, D) ->
+    flush(State, D);
+handle_event(info, {inet_reply, _, ok}, _State, _D) ->
+    keep_state_and_data;
+handle_event(info, {inet_reply, _, {error, _}}, _State, D) ->
+    {stop, normal, D};
+
+%% Timeouts and endings.
+handle_event(state_timeout, handshake, handshaking, D) ->
+    close({refused, #{code => <<"HandshakeTimeout">>,
+                      message => <<"no Hello within the handshake timeout">>}}, D);
+handle_event(state_timeout, linger, closing, D) ->
+    {stop, normal, D};
+handle_event(info, {tcp, _, _}, closing, #d{transport = T}) ->
+    ok = agent_bridge_transport:drain(T),
+    keep_state_and_data;
+handle_event(info, {tcp_closed, _}, closing, D) ->
+    maybe_done(D#d{peer_closed = true});
+handle_event(info, {tcp_error, _, _}, closing, D) ->
+    maybe_done(D#d{peer_closed = true});
+handle_event(info, {tcp_closed, _}, _State, D) ->
+    {stop, normal, D};
+handle_event(info, {tcp_error, _, Why}, _State, D) ->
+    ?LOG_INFO(#{what => socket_error, reason => Why}),
+    {stop, normal, D};
+handle_event(info, {Port, {exit_status, Status}}, _State, #d{transport = {port, Port}} = D) ->
+    ?LOG_NOTICE(#{what => program_exited, status => Status}),
+    {stop, {shutdown, {exit_status, Status}}, D#d{transport = undefined}};
+handle_event(info, {'EXIT', Port, Why}, _State, #d{transport = {port, Port}} = D) ->
+    {stop, {shutdown, {port_closed, Why}}, D#d{transport = undefined}};
+handle_event(info, Other, _State, _D) ->
+    ?LOG_DEBUG(#{what => unexpected_message, message => Other}),
+    keep_state_and_data.
+
+-spec terminate(term(), atom(), #d{}) -> ok.
+terminate(_Why, _State, #d{transport = T}) ->
+    agent_bridge_transport:close(T).
+
+%% ---------------------------------------------------------------------------
+%% Inbound frames
+%% ---------------------------------------------------------------------------
+
+frame(Frame, State, D) ->
+    Max = case State of
+              handshaking -> opt(handshake_max_frame, D);
+              _ -> opt(max_frame, D)
+          end,
+    case agent_bridge_frame:check(Frame, Max) of
+        ok -> document(bil_control:parse_frame(Frame, #{}), State, D);
+        {error, Why} -> close(agent_bridge_frame:refusal(Why), D)
+    end.
+
+document({ok, {control, {hello, Hello}}}, handshaking, D) ->
+    hello(Hello, D);
+document({ok, _}, handshaking, D) ->
+    close(refused(<<"BadHandshake">>, <<"the first frame must be a Hello">>), D);
+document({error, Reason}, handshaking, D) ->
+    close(agent_bridge_frame:refusal({malformed, Reason}), D);
+document({ok, {signal, Signal}}, _State, #d{session = Session}) ->
+    ok = evatar:send(Session, Signal),
+    keep_state_and_data;
+document({ok, {description, Description}}, _State, #d{session = Session} = D) ->
+    case evatar:describe(Session, Description) of
+        ok ->
+            {next_state, active, D};
+        {error, Reason} ->
+            ?LOG_NOTICE(#{what => description_refused, reason => Reason}),
+            send(bil:encode_signal(error_signal(<<"DescriptionRefused">>, Reason, D)), D)
+    end;
+document({ok, {control, {bye, _}}}, _State, D) ->
+    close({bye, <<>>}, D);
+document({ok, {control, {Other, _}}}, _State, D) ->
+    Message = <<"a client does not send ", (atom_to_binary(Other))/binary, " documents">>,
+    send(bil:encode_signal(error_signal(<<"UnexpectedDocument">>, Message, D)), D);
+document({error, Reason}, _State, D) ->
+    ?LOG_INFO(#{what => malformed_document, reason => Reason}),
+    Signal = error_signal(<<"Malformed">>, bil:format_error(Reason), D),
+    send(bil:encode_signal(Signal), D).
+
+hello(#{protocol_version := V}, D) when V =/= ?PROTOCOL_VERSION ->
+    close(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1">>), D);
+hello(#{pairing := P, role := Role, entity_id := E, credential := C}, D) ->
+    case evatar:join(P, Role, E, C) of
+        {ok, Session} ->
+            Pid = evatar:session_pid(Session),
+            logger:update_process_metadata(#{pairing => P, entity => E}),
+            ?LOG_INFO(#{what => joined, role => Role}),
+            D1 = D#d{session = Session, pairing = P, pairing_pid = Pid,
+                     monitor = monitor(process, Pid), entity = E},
+            Welcome = {welcome, #{pairing => P, entity_id => E,
+                                  session_id => session_id(),
+                                  join_timeout => maps:get(join_timeout,
+                                                           evatar:session_info(Session)),
+                                  max_frame => opt(max_frame, D)}},
+            ok = agent_bridge_transport:set_max_frame(D1#d.transport, opt(max_frame, D)),
+            ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
+            case enqueue(bil_control:encode(Welcome), D1) of
+                {ok, D2, Actions} -> {next_state, joined, D2, Actions};
+                overflow -> slow_consumer(D1)
+            end;
+        {error, Why} ->
+            ?LOG_NOTICE(#{what => join_refused, pairing => P, entity => E, reason => Why}),
+            close(join_refusal(Why), D)
+    end.
+
+join_refusal(unknown_pairing) -> refused(<<"UnknownPairing">>, <<"no such pairing">>);
+join_refusal(bad_credential) -> refused(<<"BadCredential">>, <<"wrong credential">>);
+join_refusal(occupied) ->
+    refused(<<"Occupied">>, <<"this pairing already has its agent">>);
+join_refusal(entity_exists) ->
+    refused(<<"EntityExists">>, <<"an entity with this id is already joined">>);
+join_refusal(too_many_entities) ->
+    refused(<<"TooManyEntities">>, <<"this pairing is full">>).
+
+%% The Refused code of each of the pairing's drop codes (docs/protocol.md).
+-spec dropped_code(evatar:drop_code()) -> binary().
+dropped_code(join_timeout) -> <<"JoinTimeout">>;
+dropped_code(pairing_deleted) -> <<"PairingDeleted">>.
+
+refused(Code, Message) -> {refused, #{code => Code, message => Message}}.
+
+error_signal(Type, Message, #d{entity = E}) ->
+    agent_bridge_frame:error_signal(E, Type, Message, undefined).
+
+session_id() ->
+    binary:encode_hex(crypto:strong_rand_bytes(16)).
+
+%% Stops reading while the pairing has more than the watermark waiting, so
+%% a flooding client cannot grow the pairing's mailbox without bound.
+resume_reading(#d{pairing_pid = Pid, transport = T} = D) ->
+    case pairing_backlog(Pid) > opt(pairing_watermark, D) of
+        true ->
+            {keep_state_and_data, [{{timeout, resume}, opt(retry_interval, D), resume}]};
+        false ->
+            ok = agent_bridge_transport:activate(T, opt(active_n, D)),
+            keep_state_and_data
+    end.
+
+pairing_backlog(Pid) when is_pid(Pid), node(Pid) =:= node() ->
+    case erlang:process_info(Pid, message_queue_len) of
+        {message_queue_len, N} -> N;
+        undefined -> 0
+    end;
+pairing_backlog(_) ->
+    0.
+
+%% ---------------------------------------------------------------------------
+%% Outbound frames and closing
+%% ---------------------------------------------------------------------------
+
+send(Doc, D) ->
+    case enqueue(Doc, D) of
+        {ok, D1, Actions} -> {keep_state, D1, Actions};
+        overflow -> slow_consumer(D)
+    end.
+
+enqueue(Doc, #d{outq = Q} = D) ->
+    case agent_bridge_outq:push(Doc, Q) of
+        {ok, Q1} ->
+            try_flush(D#d{outq = Q1});
+        {error, overflow} ->
+            overflow
+    end.
+
+try_flush(#d{outq = Q, transport = T} = D) ->
+    case agent_bridge_outq:flush(agent_bridge_transport:send_fun(T), Q) of
+        {empty, Q1} ->
+            {ok, D#d{outq = Q1}, []};
+        {busy, Q1} when D#d.flushing ->
+            {ok, D#d{outq = Q1}, []};
+        {busy, Q1} ->
+            {ok, D#d{outq = Q1, flushing = true},
+             [{{timeout, flush}, opt(retry_interval, D), flush}]}
+    end.
+
+%% The peer stopped reading: the Refused goes out only if the transport
+%% happens to take it.
+slow_consumer(#d{outq = Q, transport = T} = D) ->
+    {C, B} = agent_bridge_outq:size(Q),
+    ?LOG_WARNING(#{what => slow_consumer, frames => C, bytes => B}),
+    Refused = bil_control:encode(refused(<<"SlowConsumer">>, <<"the outbound queue is full">>)),
+    _ = (agent_bridge_transport:send_fun(T))(Refused),
+    ok = leave(D),
+    {stop, normal, forget_session(D)}.
+
+flush(closing, D) ->
+    case try_flush(D) of
+        {ok, #d{outq = Q} = D1, Actions} ->
+            case agent_bridge_outq:is_empty(Q) of
+                true ->
+                    ok = agent_bridge_transport:shutdown(D1#d.transport),
+                    case maybe_done(D1) of
+                        {keep_state, D2} -> {keep_state, D2, Actions};
+                        Stop -> Stop
+                    end;
+                false ->
+                    {keep_state, D1, Actions}
+            end
+    end;
+flush(_State, D) ->
+    {ok, D1, Actions} = try_flush(D),
+    {keep_state, D1, Actions}.
+
+%% Sends Last, leaves the pairing and lingers in `closing'.
+close(Last, #d{transport = T} = D) ->
+    ok = leave(D),
+    D1 = forget_session(D),
+    case agent_bridge_outq:push(bil_control:encode(Last), D1#d.outq) of
+        {ok, Q} ->
+            ok = agent_bridge_transport:drain(T),
+            {next_state, closing, D1#d{outq = Q},
+             [{state_timeout, opt(linger, D), linger},
+              {next_event, internal, flush}]};
+        {error, overflow} ->
+            {stop, normal, D1}
+    end.
+
+maybe_done(#d{peer_closed = true, outq = Q} = D) ->
+    case agent_bridge_outq:is_empty(Q) of
+        true -> {stop, normal, D};
+        false -> {keep_state, D}
+    end;
+maybe_done(D) ->
+    {keep_state, D}.
+
+leave(#d{session = undefined}) -> ok;
+leave(#d{session = Session}) -> evatar:leave(Session).
+
+forget_session(#d{monitor = undefined} = D) ->
+    D#d{session = undefined};
+forget_session(#d{monitor = Ref} = D) ->
+    demonitor(Ref, [flush]),
+    D#d{session = undefined, monitor = undefined}.
+
+opt(Key, #d{opts = Opts}) -> maps:get(Key, Opts).

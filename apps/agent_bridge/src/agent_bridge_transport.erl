@@ -1,0 +1,68 @@
+%% @doc Internal. The two transports a connection runs over: a TCP socket
+%% accepted by a listener, or an Erlang port running an external program.
+%% Both carry `{packet, 4}' frames; writes never suspend the caller.
+-module(agent_bridge_transport).
+
+-export([send_fun/1, activate/2, set_max_frame/2, drain/1, shutdown/1, close/1,
+         peer/1]).
+
+-export_type([t/0]).
+
+-type t() :: {tcp, gen_tcp:socket()} | {port, port()}.
+
+%% @doc A function that writes one frame without suspending: false when the
+%% transport is busy (its queue is over the high watermark). A transport
+%% already closed takes the frame and drops it; the close arrives as a
+%% message.
+-spec send_fun(t()) -> agent_bridge_outq:send_fun().
+send_fun({_, Port}) ->
+    fun(Frame) ->
+            try erlang:port_command(Port, Frame, [nosuspend])
+            catch error:badarg -> true
+            end
+    end.
+
+%% @doc Lets the next N frames in (`once' for one). Ports cannot be paused.
+-spec activate(t(), once | pos_integer()) -> ok.
+activate({tcp, S}, N) -> ok_or_closed(inet:setopts(S, [{active, N}]));
+activate({port, _}, _) -> ok.
+
+-spec set_max_frame(t(), pos_integer()) -> ok.
+set_max_frame({tcp, S}, Max) -> ok_or_closed(inet:setopts(S, [{packet_size, Max}]));
+set_max_frame({port, _}, _) -> ok.
+
+%% @doc While closing: read what the peer still sends and throw it away, so
+%% unread data is less likely to turn our close into a reset that loses our
+%% last frame. Framing stays on (it applies to our output too); a nonsense
+%% length ends the drain with an error, which is fine.
+-spec drain(t()) -> ok.
+drain({tcp, S}) -> ok_or_closed(inet:setopts(S, [{active, once}]));
+drain({port, _}) -> ok.
+
+%% @doc Half-closes after the queued output; inet delays it until its queue
+%% is empty.
+-spec shutdown(t()) -> ok.
+shutdown({tcp, S}) -> ok_or_closed(gen_tcp:shutdown(S, write));
+shutdown({port, _}) -> ok.
+
+-spec close(t() | undefined) -> ok.
+close({tcp, S}) -> gen_tcp:close(S);
+close({port, P}) ->
+    try port_close(P) of true -> ok
+    catch error:badarg -> ok
+    end;
+close(undefined) -> ok.
+
+%% @doc The peer's address for logs.
+-spec peer(t()) -> binary().
+peer({tcp, S}) ->
+    case inet:peername(S) of
+        {ok, {Ip, Port}} -> iolist_to_binary([inet:ntoa(Ip), ":", integer_to_binary(Port)]);
+        {error, _} -> <<"unknown">>
+    end;
+peer({port, P}) ->
+    iolist_to_binary(io_lib:format("~p", [P])).
+
+%% A closed socket is reported separately as tcp_closed.
+ok_or_closed(ok) -> ok;
+ok_or_closed({error, _}) -> ok.

@@ -1,0 +1,597 @@
+%% Common Test suite of the bridge over real TCP sockets: handshake, the
+%% documented refusals of docs/protocol.md (each while a bystander pairing
+%% on the same node keeps doing round trips), routing through the client
+%% library, backpressure in both directions and the port connector.
+-module(agent_bridge_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-compile([export_all, nowarn_export_all]).
+
+-define(NS, "xmlns:bil=\"urn:evatar:bil:1\"").
+-define(VA_CRED, <<"va-secret">>).
+-define(AV_CRED, <<"avatar-secret">>).
+
+suite() -> [{timetrap, {seconds, 60}}].
+
+all() ->
+    [{group, handshake}, {group, bad_input}, {group, traffic}, {group, backpressure},
+     {group, port}].
+
+groups() ->
+    [{handshake, [], [handshake_ok, client_connects, endpoints_in_order, bye_leaves]},
+     {bad_input, [], [wrong_credential, unknown_pairing, second_va, garbage_bytes,
+                      oversize_hello, oversize_frame, empty_frame, bad_first_document,
+                      silent_client, malformed_signal_keeps_connection,
+                      join_timeout_drops]},
+     {traffic, [], [request_feedback, binding_report, sensor_stream, feedback_timeout,
+                    not_bound_error, re_register, pairing_deleted]},
+     {backpressure, [], [never_reading_client, flooding_client]},
+     {port, [], [port_round_trip]}].
+
+%% ---------------------------------------------------------------------------
+%% Setup
+%% ---------------------------------------------------------------------------
+
+init_per_suite(Config) ->
+    ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+    {ok, _} = application:ensure_all_started(agent_bridge),
+    {ok, _} = agent_bridge:start_listener(test, #{port => 0,
+                                                 conn => #{handshake_timeout => 500,
+                                                           linger => 200}}),
+    {ok, _} = agent_bridge:start_listener(small, #{port => 0,
+                                                  conn => #{max_out_frames => 50,
+                                                            max_out_bytes => 65536,
+                                                            pairing_watermark => 20,
+                                                            active_n => 4}}),
+    {ok, Addr} = agent_bridge:address(test),
+    {ok, Small} = agent_bridge:address(small),
+    Bystander = start_bystander(Addr),
+    [{addr, Addr}, {small, Small}, {bystander, Bystander} | Config].
+
+end_per_suite(Config) ->
+    {Va, Av, _} = ?config(bystander, Config),
+    ok = agent_bridge_client:close(Va),
+    exit(Av, shutdown),
+    ok = agent_bridge:stop_listener(test),
+    ok = agent_bridge:stop_listener(small),
+    ok = application:stop(agent_bridge),
+    ok.
+
+init_per_testcase(Case, Config) ->
+    Pairing = atom_to_binary(Case),
+    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
+                                               avatar_credential => ?AV_CRED,
+                                               join_timeout => 2000,
+                                               feedback_timeout => 300}),
+    [{pairing, Pairing} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = evatar:delete_pairing(?config(pairing, Config)),
+    %% Every refusal case must leave the node and other pairings working.
+    ok = bystander_round_trip(Config).
+
+%% ---------------------------------------------------------------------------
+%% Handshake
+%% ---------------------------------------------------------------------------
+
+%% A Hello with the right credential gets a Welcome naming the session.
+handshake_ok(Config) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
+    {control, {welcome, W}} = recv_doc(S),
+    %% JoinTimeout is the pairing's (init_per_testcase), not a listener default.
+    #{pairing := P, entity_id := <<"va">>, session_id := Sid, max_frame := 1048576,
+      join_timeout := 2000} = W,
+    P = ?config(pairing, Config),
+    32 = byte_size(Sid),
+    ok = gen_tcp:close(S).
+
+%% The client library joins as a VA and reports its session.
+client_connects(Config) ->
+    {ok, C} = client(Config, agent, <<"va">>),
+    {ok, #{entity_id := <<"va">>}} = agent_bridge_client:session(C),
+    ok = agent_bridge_client:close(C).
+
+%% Endpoints that refuse connections are skipped in order.
+endpoints_in_order(Config) ->
+    {ok, Dead} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, DeadPort} = inet:port(Dead),
+    ok = gen_tcp:close(Dead),
+    {Ip, Port} = ?config(addr, Config),
+    {ok, C} = agent_bridge_client:connect([{Ip, DeadPort}, {Ip, Port}],
+                                          client_opts(Config, agent, <<"va">>)),
+    ok = agent_bridge_client:close(C),
+    {error, {unreachable, [{{Ip, DeadPort}, econnrefused}]}} =
+        agent_bridge_client:connect([{Ip, DeadPort}], client_opts(Config, agent, <<"va">>)).
+
+%% A Bye gets a Bye back and frees the entity id for a new connection.
+bye_leaves(Config) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
+    {control, {welcome, _}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
+    {control, {bye, _}} = recv_doc(S),
+    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    {ok, C} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:close(C).
+
+%% ---------------------------------------------------------------------------
+%% Bad input
+%% ---------------------------------------------------------------------------
+
+%% A wrong credential is refused with BadCredential, then closed.
+wrong_credential(Config) ->
+    refused_hello(Config, hello(Config, agent, <<"va">>, <<"guess">>), <<"BadCredential">>),
+    {error, {refused, <<"BadCredential">>, _}} =
+        agent_bridge_client:connect([?config(addr, Config)],
+                                    (client_opts(Config, avatar, <<"av">>))#{credential => <<"x">>}).
+
+%% A pairing that does not exist is refused with UnknownPairing.
+unknown_pairing(Config) ->
+    Hello = bil_control:encode({hello, #{pairing => <<"no-such-pairing">>, role => agent,
+                                         entity_id => <<"va">>, credential => ?VA_CRED,
+                                         protocol_version => 1}}),
+    refused_hello(Config, Hello, <<"UnknownPairing">>).
+
+%% A second VA for a pairing that has one is refused with Occupied; the first
+%% keeps its connection.
+second_va(Config) ->
+    {ok, C} = client(Config, agent, <<"va">>),
+    refused_hello(Config, hello(Config, agent, <<"va2">>, ?VA_CRED), <<"Occupied">>),
+    {ok, _} = agent_bridge_client:session(C),
+    ok = agent_bridge_client:close(C).
+
+%% Bytes that are not a frame read as a huge length: FrameTooLarge, closed.
+garbage_bytes(Config) ->
+    {Ip, Port} = ?config(addr, Config),
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {active, false}]),
+    ok = gen_tcp:send(S, <<"GET / HTTP/1.1\r\nHost: x\r\n\r\n">>),
+    {control, {refused, #{code := <<"FrameTooLarge">>}}} = recv_raw_doc(S),
+    {error, closed} = gen_tcp:recv(S, 0, 5000).
+
+%% A first frame over the handshake limit (64 KiB) is refused.
+oversize_hello(Config) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, binary:copy(<<" ">>, 70000)),
+    expect_refused(S, <<"FrameTooLarge">>).
+
+%% After the handshake a frame over MaxFrame (1 MiB) is refused and closes.
+oversize_frame(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    ok = gen_tcp:send(S, binary:copy(<<" ">>, 1048577)),
+    expect_refused(S, <<"FrameTooLarge">>).
+
+%% A frame of length 0 is refused as Malformed.
+empty_frame(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    ok = gen_tcp:send(S, <<>>),
+    expect_refused(S, <<"Malformed">>).
+
+%% A first frame that is not a Hello is refused: BadHandshake or Malformed.
+bad_first_document(Config) ->
+    S1 = raw_connect(Config),
+    ok = gen_tcp:send(S1, bil_control:encode({bye, <<>>})),
+    expect_refused(S1, <<"BadHandshake">>),
+    S2 = raw_connect(Config),
+    ok = gen_tcp:send(S2, <<"<bil:Hello " ?NS "><Pairing>">>),
+    expect_refused(S2, <<"Malformed">>),
+    S3 = raw_connect(Config),
+    ok = gen_tcp:send(S3, bil_control:encode({hello, #{pairing => ?config(pairing, Config),
+                                                      role => agent, entity_id => <<"va">>,
+                                                      credential => ?VA_CRED,
+                                                      protocol_version => 2}})),
+    expect_refused(S3, <<"BadHandshake">>).
+
+%% A client that connects and sends nothing gets HandshakeTimeout.
+silent_client(Config) ->
+    S = raw_connect(Config),
+    expect_refused(S, <<"HandshakeTimeout">>).
+
+%% A malformed document after the handshake is answered with an error signal
+%% and the connection keeps working.
+malformed_signal_keeps_connection(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    ok = gen_tcp:send(S, <<"<bil:Envelope " ?NS "><bil:Header></bil:Envelope>">>),
+    {signal, #{context := error, body := #{type := <<"Malformed">>}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil_control:encode({welcome, #{pairing => <<"p">>, entity_id => <<"e">>,
+                                                       session_id => <<"s">>, join_timeout => 1,
+                                                       max_frame => 1}})),
+    {signal, #{context := error, body := #{type := <<"UnexpectedDocument">>}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil:encode_description(va_description(<<"va">>))),
+    {control, {binding, _}} = recv_doc(S),
+    ok = gen_tcp:close(S).
+
+%% An entity that never describes itself is dropped after the join timeout.
+join_timeout_drops(Config) ->
+    Pairing = <<"join_timeout_short">>,
+    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
+                                               avatar_credential => ?AV_CRED,
+                                               join_timeout => 200}),
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, bil_control:encode({hello, #{pairing => Pairing, role => avatar,
+                                                      entity_id => <<"av">>,
+                                                      credential => ?AV_CRED,
+                                                      protocol_version => 1}})),
+    {control, {welcome, #{join_timeout := 200}}} = recv_doc(S),
+    {signal, #{context := error, body := #{type := <<"JoinTimeout">>}}} = recv_doc(S),
+    expect_refused(S, <<"JoinTimeout">>),
+    ok = evatar:delete_pairing(Pairing).
+
+%% ---------------------------------------------------------------------------
+%% Traffic
+%% ---------------------------------------------------------------------------
+
+%% A request gets its feedback through the pairing; seq and epoch are stamped.
+request_feedback(Config) ->
+    {Va, _Av} = bound_pair(Config),
+    {ok, #{context := feedback, in_reply_to := Id, seq := Seq, epoch := 1}} =
+        agent_bridge_client:request(Va, light_request(), 5000),
+    true = is_binary(Id) andalso is_integer(Seq),
+    ok = agent_bridge_client:close(Va).
+
+%% Both sides get the Binding report, with what was bound and left unbound.
+binding_report(Config) ->
+    _Av = start_responder(Config, <<"av">>),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    #{bound := Bound, unbound := Unbound, entities := Entities} =
+        wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    [<<"av">>, <<"va">>] = lists:sort(Entities),
+    true = lists:any(fun(#{provider := #{component := C}}) -> C =:= <<"Light01">> end, Bound),
+    true = lists:any(fun(#{reason := R}) -> R =:= no_provider end, Unbound),
+    ok = agent_bridge_client:close(Va).
+
+%% A stream of sensor events from the Avatar arrives in order at the VA.
+sensor_stream(Config) ->
+    {Va, Av} = bound_pair(Config),
+    N = 2000,
+    Av ! {stream, N},
+    Received = collect_sensor(Va, N, []),
+    N = length(Received),
+    %% Sent order kept end to end; the mediator's sequence numbers increase.
+    Numbers = [binary_to_integer(I) || {_, I} <- Received],
+    Numbers = lists:seq(1, N),
+    Seqs = [Seq || {Seq, _} <- Received],
+    Seqs = lists:usort(Seqs),
+    ok = agent_bridge_client:close(Va).
+
+%% An Avatar that does not answer: the VA gets EVATAR's Timeout feedback.
+feedback_timeout(Config) ->
+    {Va, Av} = bound_pair(Config),
+    Av ! mute,
+    {ok, #{context := feedback, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
+        agent_bridge_client:request(Va, light_request(), 5000),
+    ok = agent_bridge_client:close(Va).
+
+%% A receiver outside the sender's bindings gets a NotBound error back.
+not_bound_error(Config) ->
+    {Va, _Av} = bound_pair(Config),
+    {error, #{context := error, body := #{type := <<"NotBound">>}}} =
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>}, 5000),
+    {error, #{context := error, body := #{type := <<"UnknownReceiver">>}}} =
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Nobody">>}, 5000),
+    ok = agent_bridge_client:close(Va).
+
+%% A new description from the Avatar rebinds; the new component is reachable.
+re_register(Config) ->
+    {Va, Av} = bound_pair(Config),
+    {error, #{body := #{type := <<"UnknownReceiver">>}}} =
+        agent_bridge_client:request(Va, door_request(), 5000),
+    Av ! {describe, avatar_description(<<"av">>, true)},
+    #{bound := Bound} = wait_binding(Va, fun(#{bound := B}) -> length(B) >= 2 end),
+    true = lists:any(fun(#{provider := #{component := C}}) -> C =:= <<"Door01">> end, Bound),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, door_request(), 5000),
+    ok = agent_bridge_client:close(Va).
+
+%% Deleting a pairing closes its connections with a reason.
+pairing_deleted(Config) ->
+    {Va, _Av} = bound_pair(Config),
+    ok = evatar:delete_pairing(?config(pairing, Config)),
+    receive
+        {agent_bridge, Va, {closed, {refused, <<"PairingDeleted">>, <<"the pairing was deleted">>}}} -> ok
+    after 5000 -> ct:fail(not_closed)
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Backpressure
+%% ---------------------------------------------------------------------------
+
+%% A VA that never reads while its Avatar streams: the bounded outbound
+%% queue overflows and the connection is closed (SlowConsumer); the Avatar
+%% and the node carry on.
+never_reading_client(Config) ->
+    Small = ?config(small, Config),
+    S = joined_raw([{addr, Small} | Config], agent, <<"va">>, ?VA_CRED, [{recbuf, 4096}]),
+    ok = gen_tcp:send(S, bil:encode_description(va_description(<<"va">>))),
+    {ok, Av} = client([{addr, Small} | Config], avatar, <<"av">>),
+    ok = agent_bridge_client:describe(Av, avatar_description(<<"av">>, false)),
+    Payload = binary:copy(<<"x">>, 2000),
+    N = 5000,
+    [ok = agent_bridge_client:send(Av, sensor(I, Payload)) || I <- lists:seq(1, N)],
+    %% Only now read: what was queued arrives, then the close.
+    {Frames, Codes} = drain(S, 0, []),
+    ct:log("read ~b of ~b frames before the close; refusals ~p", [Frames, N, Codes]),
+    true = Frames < N,
+    true = Codes =:= [] orelse Codes =:= [<<"SlowConsumer">>],
+    ok = agent_bridge_client:close(Av).
+
+%% A VA that floods while its pairing cannot keep up: the connection stops
+%% reading, so the pairing's mailbox stays near the watermark; after the
+%% pairing resumes every signal is delivered.
+flooding_client(Config) ->
+    Small = ?config(small, Config),
+    C2 = [{addr, Small} | Config],
+    {ok, Av} = client(C2, avatar, <<"av">>),
+    ok = agent_bridge_client:describe(Av, avatar_description(<<"av">>, false)),
+    {ok, Va} = client(C2, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    Pid = evatar_registry:whereis_name(?config(pairing, Config)),
+    ok = sys:suspend(Pid),
+    N = 3000,
+    Self = self(),
+    Flooder = spawn_link(fun() ->
+                                 [ok = agent_bridge_client:send(Av, sensor(I, <<"x">>))
+                                  || I <- lists:seq(1, N)],
+                                 Self ! flooded
+                         end),
+    Watermark = 20,
+    ok = wait_until(fun() -> queue_len(Pid) >= Watermark end),
+    %% The reader is paused; more waiting does not grow the mailbox.
+    Peak = lists:max([begin timer:sleep(20), queue_len(Pid) end || _ <- lists:seq(1, 25)]),
+    ct:log("pairing mailbox peak ~b (watermark ~b, active_n 4)", [Peak, Watermark]),
+    true = Peak =< Watermark + 4 + 2,
+    ok = sys:resume(Pid),
+    receive flooded -> ok after 30000 -> ct:fail(flooder_stuck) end,
+    N = length(collect_sensor(Va, N, [])),
+    unlink(Flooder),
+    ok = agent_bridge_client:close(Va),
+    ok = agent_bridge_client:close(Av).
+
+%% ---------------------------------------------------------------------------
+%% Port connector
+%% ---------------------------------------------------------------------------
+
+%% An external program joins as an Avatar over stdin/stdout, answers a
+%% request, has its stderr logged, and is restarted with back-off when it
+%% exits.
+port_round_trip(Config) ->
+    case os:find_executable("python3") of
+        false -> {skip, no_python3};
+        Python -> port_round_trip(Config, Python)
+    end.
+
+port_round_trip(Config, Python) ->
+    #{level := Level} = logger:get_primary_config(),
+    ok = logger:set_primary_config(level, notice),
+    Script = filename:join(?config(data_dir, Config), "port_avatar.py"),
+    ok = logger:add_handler(port_test, ?MODULE, #{config => #{pid => self()}}),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    {ok, Keeper} = agent_bridge:start_port(port_test,
+                                           #{command => Python,
+                                             args => [Script, binary_to_list(?config(pairing, Config)),
+                                                      binary_to_list(?AV_CRED)],
+                                             backoff_min => 50, backoff_max => 200}),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    {ok, #{context := feedback, sender := <<"Light01">>}} =
+        agent_bridge_client:request(Va, light_request(), 5000),
+    receive {stderr_line, <<"port_avatar: answered", _/binary>>} -> ok
+    after 5000 -> ct:fail(no_stderr_logged)
+    end,
+    %% The script exits after its first answer; the keeper starts it again.
+    ok = wait_until(fun() -> agent_bridge_port:runs(Keeper) >= 2 end),
+    ok = agent_bridge:stop_port(port_test),
+    ok = logger:remove_handler(port_test),
+    ok = logger:set_primary_config(level, Level),
+    ok = agent_bridge_client:close(Va).
+
+%% logger handler callback: forwards the port connector's stderr lines.
+log(#{msg := {report, #{what := program_stderr, line := Line}}}, #{config := #{pid := Pid}}) ->
+    Pid ! {stderr_line, Line};
+log(_, _) ->
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+client_opts(Config, Role, Entity) ->
+    #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
+      credential => case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end}.
+
+client(Config, Role, Entity) ->
+    agent_bridge_client:connect([?config(addr, Config)], client_opts(Config, Role, Entity)).
+
+hello(Config, Role, Entity, Cred) ->
+    bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,
+                                 entity_id => Entity, credential => Cred,
+                                 protocol_version => 1}}).
+
+raw_connect(Config) -> raw_connect(Config, []).
+
+raw_connect(Config, Extra) ->
+    {Ip, Port} = ?config(addr, Config),
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false} | Extra]),
+    S.
+
+joined_raw(Config, Role, Entity, Cred) -> joined_raw(Config, Role, Entity, Cred, []).
+
+joined_raw(Config, Role, Entity, Cred, Extra) ->
+    S = raw_connect(Config, Extra),
+    ok = gen_tcp:send(S, hello(Config, Role, Entity, Cred)),
+    {control, {welcome, _}} = recv_doc(S),
+    S.
+
+recv_doc(S) ->
+    {ok, Frame} = gen_tcp:recv(S, 0, 5000),
+    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
+    Doc.
+
+recv_raw_doc(S) ->
+    {ok, <<Len:32>>} = gen_tcp:recv(S, 4, 5000),
+    {ok, Frame} = gen_tcp:recv(S, Len, 5000),
+    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
+    Doc.
+
+expect_refused(S, Code) ->
+    {control, {refused, #{code := Code, message := Message}}} = recv_doc(S),
+    true = is_binary(Message) andalso Message =/= <<>>,
+    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    ok.
+
+refused_hello(Config, Hello, Code) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, Hello),
+    expect_refused(S, Code).
+
+%% Reads until the server closes; counts signal frames, collects Refused codes.
+drain(S, Frames, Codes) ->
+    case gen_tcp:recv(S, 0, 10000) of
+        {ok, Frame} ->
+            case bil_control:parse_frame(Frame, #{}) of
+                {ok, {control, {refused, #{code := Code}}}} -> drain(S, Frames, [Code | Codes]);
+                {ok, _} -> drain(S, Frames + 1, Codes)
+            end;
+        {error, closed} ->
+            {Frames, Codes}
+    end.
+
+queue_len(Pid) ->
+    {message_queue_len, N} = erlang:process_info(Pid, message_queue_len),
+    N.
+
+wait_until(Fun) -> wait_until(Fun, 500).
+
+wait_until(_Fun, 0) -> {error, timeout};
+wait_until(Fun, N) ->
+    case Fun() of
+        true -> ok;
+        false -> timer:sleep(20), wait_until(Fun, N - 1)
+    end.
+
+%% A VA and an Avatar bound to each other; the Avatar runs a responder.
+bound_pair(Config) ->
+    Av = start_responder(Config, <<"av">>),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    {Va, Av}.
+
+wait_binding(Va, Pred) ->
+    receive
+        {agent_bridge, Va, {binding, Report}} ->
+            case Pred(Report) of
+                true -> Report;
+                false -> wait_binding(Va, Pred)
+            end
+    after 5000 -> ct:fail(no_binding)
+    end.
+
+collect_sensor(_Va, 0, Acc) ->
+    lists:reverse(Acc);
+collect_sensor(Va, N, Acc) ->
+    receive
+        {agent_bridge, Va, {signal, #{context := sensor_data, seq := Seq,
+                                      body := #{parameters := Params}}}} ->
+            {_, I} = lists:keyfind(<<"N">>, 1, Params),
+            collect_sensor(Va, N - 1, [{Seq, I} | Acc])
+    after 10000 -> lists:reverse(Acc)
+    end.
+
+%% An Avatar client that answers every request with a feedback, streams on
+%% demand, and can be told to go quiet or to describe itself again.
+start_responder(Config, Entity) ->
+    Self = self(),
+    Pid = spawn_link(fun() ->
+                             {ok, C} = client(Config, avatar, Entity),
+                             ok = agent_bridge_client:describe(C, avatar_description(Entity, false)),
+                             Self ! {responder, self()},
+                             responder(C, true)
+                     end),
+    receive {responder, Pid} -> Pid after 5000 -> ct:fail(responder_not_started) end.
+
+responder(C, Answer) ->
+    receive
+        {agent_bridge, C, {signal, #{context := request, id := Id, sender := From,
+                                     receiver := To, body := Body}}} when Answer ->
+            ok = agent_bridge_client:send(C, #{context => feedback, sender => To, receiver => From,
+                                               in_reply_to => Id,
+                                               body => Body#{parameters => [{<<"Done">>, <<"yes">>}]}}),
+            responder(C, Answer);
+        mute ->
+            responder(C, false);
+        {stream, N} ->
+            [ok = agent_bridge_client:send(C, sensor(I, <<"21.5">>)) || I <- lists:seq(1, N)],
+            responder(C, Answer);
+        {describe, D} ->
+            ok = agent_bridge_client:describe(C, D),
+            responder(C, Answer);
+        {agent_bridge, C, {closed, _}} ->
+            ok;
+        _ ->
+            responder(C, Answer)
+    end.
+
+start_bystander(Addr) ->
+    Pairing = <<"bystander">>,
+    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
+                                               avatar_credential => ?AV_CRED}),
+    Config = [{addr, Addr}, {pairing, Pairing}],
+    Parent = self(),
+    %% The bystander's clients belong to a long-lived process, not to the
+    %% init_per_suite process.
+    Holder = spawn(fun() ->
+                           {Va, Av} = bound_pair(Config),
+                           Parent ! {bystander, Va, Av},
+                           receive stop -> ok end
+                   end),
+    receive {bystander, Va, Av} -> {Va, Av, Holder} after 10000 -> ct:fail(no_bystander) end.
+
+bystander_round_trip(Config) ->
+    {Va, _Av, _Holder} = ?config(bystander, Config),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
+    ok.
+
+light_request() ->
+    #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+                parameters => [{<<"Light">>, <<"yes">>}]}}.
+
+door_request() ->
+    #{sender => <<"DoorEmulator01">>, receiver => <<"Door01">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"OpenDoor">>, parameters => []}}.
+
+sensor(I, Value) ->
+    #{context => sensor_data, sender => <<"Thermo01">>, receiver => <<"ThermoEmulator01">>,
+      body => #{category => <<"SENSOR">>, type => <<"Temperature">>,
+                parameters => [{<<"Value">>, Value}, {<<"N">>, integer_to_binary(I)}]}}.
+
+entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+
+va_description(Id) ->
+    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent,
+      context => <<"EmulatorDescription">>,
+      components => [#{id => <<"LightEmulator01">>,
+                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
+                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>),
+                                    entry(<<"ACTUATOR">>, <<"Dim">>)]},
+                     #{id => <<"DoorEmulator01">>,
+                       services => [entry(<<"BEHAVIOUR">>, <<"Door">>)],
+                       consumes => [entry(<<"ACTUATOR">>, <<"OpenDoor">>)]},
+                     #{id => <<"ThermoEmulator01">>,
+                       services => [entry(<<"SENSOR">>, <<"Temperature">>)],
+                       consumes => []}]}.
+
+avatar_description(Id, WithDoor) ->
+    Door = [#{id => <<"Door01">>, services => [entry(<<"ACTUATOR">>, <<"OpenDoor">>)],
+              consumes => []} || WithDoor],
+    #{entity_id => Id, api_name => <<"TEST AVATAR">>, entity_type => avatar,
+      context => <<"ActuatorDescription">>,
+      components => [#{id => <<"Light01">>, services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
+                       consumes => []},
+                     #{id => <<"Thermo01">>, services => [entry(<<"SENSOR">>, <<"Reading">>)],
+                       consumes => [entry(<<"SENSOR">>, <<"Temperature">>)]}
+                     | Door]}.
