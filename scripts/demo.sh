@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 args=$(printf '"%s",' "$@"); args="[${args%,}]"
-exec erl -noshell -sname "evatar_demo_$$" \
+exec erl -noshell -sname "evatar_demo_$$" -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
   -eval "ok = evatar_demo:main($args), init:stop()."
