@@ -382,7 +382,10 @@ smart_home_pair_binds(_Config) ->
                 {"Notifier01", "NotifierEmulator01"},
                 {"TimeSensor01", "TimeEmulator01"},
                 {"HallSpeaker01", "SpeakerEmulator01"},
-                {"DoorKeypad01", "KeypadEmulator01"}]).
+                {"DoorKeypad01", "KeypadEmulator01"},
+                {"LivingMotionSensor01", "LivingMotionEmulator01"},
+                {"KitchenMotionSensor01", "KitchenMotionEmulator01"},
+                {"BedroomMotionSensor01", "BedroomMotionEmulator01"}]).
 
 %% @doc The unbound entries of docs/bil.md's worked example, one per reason.
 docs_unbound_examples(_Config) ->

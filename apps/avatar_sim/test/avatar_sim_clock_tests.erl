@@ -1,0 +1,71 @@
+%% The simulation clock: ticks in lockstep with acknowledgements, by hand or paced.
+-module(avatar_sim_clock_tests).
+-include_lib("eunit/include/eunit.hrl").
+
+%% A subscriber that records tick times and acks them.
+recorder(Clock, Parent) ->
+    spawn_link(fun() ->
+                       ok = avatar_sim_clock:subscribe(Clock, self()),
+                       Parent ! {subscribed, self()},
+                       loop(Clock, [])
+               end).
+
+loop(Clock, Seen) ->
+    receive
+        {avatar_sim_clock, Ref, Now} ->
+            avatar_sim_clock:ack(Clock, Ref),
+            loop(Clock, [Now | Seen]);
+        {seen, From} ->
+            From ! {seen, lists:reverse(Seen)},
+            loop(Clock, Seen)
+    end.
+
+seen(Pid) ->
+    Pid ! {seen, self()},
+    receive {seen, S} -> S end.
+
+%% In manual mode time moves only by advance/2, tick by tick, and every subscriber sees every tick.
+manual_test() ->
+    {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => manual, tick => 100, start_ms => 1000}),
+    A = recorder(Clock, self()),
+    B = recorder(Clock, self()),
+    [receive {subscribed, P} -> ok end || P <- [A, B]],
+    ?assertEqual(1000, avatar_sim_clock:now(Clock)),
+    ok = avatar_sim_clock:advance(Clock, 250),
+    ?assertEqual(1300, avatar_sim_clock:now(Clock)),
+    ?assertEqual([1100, 1200, 1300], seen(A)),
+    ?assertEqual(seen(A), seen(B)),
+    timer:sleep(50),
+    ?assertEqual(1300, avatar_sim_clock:now(Clock)),
+    unlink(A), unlink(B), exit(A, kill), exit(B, kill),
+    ok = avatar_sim_clock:advance(Clock, 100),
+    ?assertEqual(1400, avatar_sim_clock:now(Clock)),
+    unlink(Pid),
+    ok = avatar_sim_clock:stop(Clock).
+
+%% Paced mode runs faster than real time, and pause/resume stop and restart it.
+paced_test() ->
+    {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => 50, tick => 100, start_ms => 0, paused => true}),
+    A = recorder(Clock, self()),
+    receive {subscribed, A} -> ok end,
+    timer:sleep(100),
+    ?assertEqual(0, avatar_sim_clock:now(Clock)),
+    ok = avatar_sim_clock:resume(Clock),
+    timer:sleep(200),
+    ok = avatar_sim_clock:pause(Clock),
+    Now = avatar_sim_clock:now(Clock),
+    ?assert(Now >= 1000),
+    timer:sleep(100),
+    ?assertEqual(Now, avatar_sim_clock:now(Clock)),
+    Seen = seen(A),
+    ?assertEqual(lists:seq(100, Now, 100), Seen),
+    #{paused := true, speed := 50} = avatar_sim_clock:info(Clock),
+    unlink(A), exit(A, kill), unlink(Pid),
+    ok = avatar_sim_clock:stop(Clock).
+
+%% The default start is 2024-11-15 17:00 UTC.
+default_start_test() ->
+    {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => manual}),
+    ?assertEqual(1731690000000, avatar_sim_clock:now(Clock)),
+    unlink(Pid),
+    ok = avatar_sim_clock:stop(Clock).
