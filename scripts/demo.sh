@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # `make demo`: runs the demonstration on one embedded Erlang node, then exits.
-# Arguments are passed to evatar_demo:main/1.
+# Arguments are passed to reference_agents_demo:main/1 (see docs/scenarios.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 args=$(printf '"%s",' "$@"); args="[${args%,}]"
 exec erl -noshell -sname "evatar_demo_$$" -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
-  -eval "ok = evatar_demo:main($args), init:stop()."
+  -eval "ok = reference_agents_demo:main($args), init:stop()."

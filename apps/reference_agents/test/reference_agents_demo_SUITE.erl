@@ -1,8 +1,10 @@
-%% @doc Runs the `make demo' narrative (evatar_demo:main/1) with its output
-%% captured, and checks that it tells the story it promises (the binding,
-%% the round trips, the timeout, the NotBound refusal, the operator's tables)
-%% and cleans up after itself.
--module(evatar_demo_SUITE).
+%% @doc Runs the `make demo' narratives (reference_agents_demo:main/1) with
+%% their output captured, and checks that each tells the story it promises
+%% and cleans up after itself: the smart home on holiday (the default), the
+%% robots, and the BIL and EVATAR tour (the binding, the round trips, the
+%% timeout, the NotBound refusal, the operator's tables); `--keep' prints
+%% how to reach the node.
+-module(reference_agents_demo_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -10,15 +12,17 @@
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
          end_per_testcase/2]).
 
--define(APPS, [agent_bridge, evatar]).
+-define(APPS, [agent_bridge, evatar, avatar_sim]).
 
--export([demo_from_scratch/1, demo_on_running_node/1]).
+-export([demo_from_scratch/1, demo_on_running_node/1, home_demo/1, robots_demo/1,
+         keep_prints_the_remote_shell_command/1]).
 
 suite() ->
-    [{timetrap, {seconds, 60}}].
+    [{timetrap, {seconds, 90}}].
 
 all() ->
-    [demo_from_scratch, demo_on_running_node].
+    [demo_from_scratch, demo_on_running_node, home_demo, robots_demo,
+     keep_prints_the_remote_shell_command].
 
 %% The suites that run after this one load the applications themselves.
 init_per_suite(Config) ->
@@ -37,20 +41,21 @@ init_per_testcase(_Case, Config) ->
 end_per_testcase(_Case, _Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
+    _ = application:stop(avatar_sim),
     ok.
 
-%% @doc On a node where EVATAR is not running, the demo starts it, narrates
-%% every step, returns ok and stops what it started.
+%% @doc On a node where EVATAR is not running, the tour (`bil') starts it,
+%% narrates every step, returns ok and stops what it started.
 demo_from_scratch(Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
-    {ok, Output} = run_demo(),
+    {ok, Output} = run_demo(["bil"]),
     ok = check_story(Output),
     ?assertNot(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertNot(lists:keymember(evatar, 1, application:which_applications())),
     ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())).
 
-%% @doc On a node already running EVATAR with other pairings, the demo uses
+%% @doc On a node already running EVATAR with other pairings, the tour uses
 %% its own listener and pairing, and leaves the rest running as it was.
 demo_on_running_node(Config) ->
     {ok, _} = application:ensure_all_started(agent_bridge),
@@ -59,13 +64,77 @@ demo_on_running_node(Config) ->
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],
     true = lists:member(<<"bystander">>, Pairings),
-    {ok, Output} = run_demo(),
+    {ok, Output} = run_demo(["bil"]),
     ok = check_story(Output),
     ?assert(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertEqual(Pairings, [Id || #{id := Id} <- evatar:pairings()]),
     ?assertEqual(Listeners, agent_bridge:listeners()),
     ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())),
     ok = evatar:delete_pairing(<<"bystander">>).
+
+%% @doc The default demo: the holiday evening narrated with simulated
+%% times (each perceived activity, decision and actuation), ending with
+%% where the e-mail and its photos are; nothing left running.
+home_demo(Config) ->
+    _ = application:stop(agent_bridge),
+    _ = application:stop(evatar),
+    {ok, Output} = run_demo([]),
+    ct:log("~ts", [Output]),
+    Patterns = ["\\[18:0[0-9]:[0-9]{2}\\] house-va +DECIDE +policy holiday at 18:00 if dark do light living on",
+                "\\[21:4[0-9]:[0-9]{2}\\] house-va +PERCEIVE +activity failed_authorisation in hall",
+                "PERCEIVE +complex activity intruder in hall: motion at 21:4",
+                "DECIDE +policy holiday on intruder do photos 3, email \"INTRUSION\" with photos",
+                "ACT +take 3 photos \\(TakePhoto via CameraEmulator01\\)",
+                "ACT +sound the alarm",
+                "PERCEIVE +e-mail written to .*/spool/[0-9]{8}-[0-9]{6}-[0-9]+\\.eml \\(3 attachment",
+                "Where it all landed",
+                "e-mail \"INTRUSION\": /.*\\.eml\n    attached photo-[0-9]{4}\\.png: /.*/spool/photos/photo-[0-9]{4}\\.png"],
+    ?assertEqual([], [P || P <- Patterns, re:run(Output, P) =:= nomatch]),
+    ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())),
+    ?assertNot(lists:keymember(agent_bridge, 1, application:which_applications())).
+
+%% @doc `robots': the robots explore, the lexicon is agreed, every ball is
+%% placed, and the summary says so.
+robots_demo(_Config) ->
+    {ok, Output} = run_demo(["robots"]),
+    ct:log("~ts", [Output]),
+    Expected = ["coordinator", "every robot VA is embodied", "lexicon built: blue-ball (blue), "
+                "green-ball (green), red-ball (red)", "every ball is at its target",
+                "held by all three VAs: yes", "red ball at (1750, 250): zone se"],
+    ?assertEqual([], [E || E <- Expected, string:find(Output, E) =:= nomatch]).
+
+%% @doc `--keep' leaves the node running after the demo, prints the node's
+%% name and the command to reach it from a remote shell, and returns once
+%% reference_agents_demo:stop/0 is called.
+keep_prints_the_remote_shell_command(Config) ->
+    Old = group_leader(),
+    Capture = spawn_link(fun() -> capture([]) end),
+    true = group_leader(Capture, self()),
+    Self = self(),
+    Demo = spawn(fun() -> Self ! {result, self(), reference_agents_demo:main(["bil", "--keep"])} end),
+    true = group_leader(Old, self()),
+    {ok, Text} = reference_agents_scenario:await(
+                   fun() ->
+                           Capture ! {peek, self()},
+                           receive {output, Capture, T} ->
+                                   case string:find(T, "reference_agents_demo:stop()") of
+                                       nomatch -> false;
+                                       _ -> {true, T}
+                                   end
+                           end
+                   end, 60000, kept),
+    ct:log("~ts", [Text]),
+    ?assert(is_process_alive(Demo)),
+    ?assertNotEqual(nomatch, string:find(Text, "The node keeps running")),
+    case node() of
+        nonode@nohost -> ok;
+        Node -> ?assertNotEqual(nomatch, string:find(Text, "-remsh " ++ atom_to_list(Node)))
+    end,
+    ok = reference_agents_demo:stop(),
+    receive {result, Demo, Result} -> ?assertEqual(ok, Result)
+    after 10000 -> ct:fail(demo_did_not_return)
+    end,
+    ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())).
 
 %% ---------------------------------------------------------------------------
 %% Helpers
@@ -112,17 +181,17 @@ check_story(Output) ->
 
 agent_bridge_address() ->
     case lists:keymember(agent_bridge, 1, application:which_applications()) of
-        true -> agent_bridge:address(evatar_demo);
+        true -> agent_bridge:address(reference_agents_tour);
         false -> {error, not_found}
     end.
 
 %% Runs the demo with this process's group leader replaced by one that
 %% collects the text; the processes the demo starts inherit it.
-run_demo() ->
+run_demo(Args) ->
     Old = group_leader(),
     Capture = spawn_link(fun() -> capture([]) end),
     true = group_leader(Capture, self()),
-    Result = try evatar_demo:main([])
+    Result = try reference_agents_demo:main(Args)
              after true = group_leader(Old, self())
              end,
     ok = Result,
@@ -136,6 +205,9 @@ capture(Acc) ->
             {Reply, Acc1} = io_request(Request, Acc),
             From ! {io_reply, ReplyAs, Reply},
             capture(Acc1);
+        {peek, From} ->
+            From ! {output, self(), unicode:characters_to_list(lists:reverse(Acc))},
+            capture(Acc);
         {done, From} ->
             From ! {output, self(), unicode:characters_to_list(lists:reverse(Acc))}
     end.

@@ -1,4 +1,5 @@
-%% @doc The `make demo' narrative, run on one embedded node.
+%% @doc Internal. The tour of BIL and EVATAR over TCP (`make demo
+%% DEMO_ARGS=bil'; reference_agents_demo dispatches to it).
 %%
 %% Part one shows BIL at work on the shipped examples: every description and
 %% signal parsed, encoded and parsed back, the bodies of a LEGO robot and a
@@ -8,15 +9,13 @@
 %% TCP with agent_bridge_client, binding, requests with their round-trip
 %% times, a sensor stream, a feedback timeout, a NotBound refusal, a new
 %% description, and the operator's view of it all.
--module(evatar_demo).
+-module(reference_agents_tour).
 
--export([main/0, main/1]).
+-export([main/0]).
 
+%% @doc Runs the tour, printing as it goes.
 -spec main() -> ok.
-main() -> main([]).
-
--spec main([string()]) -> ok.
-main(_Args) ->
+main() ->
     quietly(fun run/0).
 
 run() ->
@@ -115,7 +114,7 @@ hostile({Name, Bin}) ->
 %% ---------------------------------------------------------------------------
 
 -define(PAIRING, <<"demo-lego">>).
--define(LISTENER, evatar_demo).
+-define(LISTENER, reference_agents_tour).
 -define(VA_CRED, <<"demo-va-secret">>).
 -define(AV_CRED, <<"demo-avatar-secret">>).
 %% Short, so that the timeout step does not keep the reader waiting.

@@ -1,0 +1,224 @@
+%% @doc The `make demo' entry point (scripts/demo.sh calls {@link main/1}
+%% with the words of `DEMO_ARGS'). Without arguments it runs the smart-home
+%% holiday scenario with an intrusion and narrates every perceived
+%% activity, decision and actuation with its simulated time; `robots' runs
+%% the collaborative LEGO robots instead, `bil' the tour of BIL and EVATAR
+%% over TCP. `--keep' leaves the node running for inspection from a remote
+%% shell. docs/scenarios.md says what a person sees.
+-module(reference_agents_demo).
+
+-export([main/1, inspect/0, stop/0]).
+
+-define(KEPT, {?MODULE, kept}).
+
+%% @doc Runs the demonstration chosen by `Args' and returns `ok' (with
+%% `--keep', only after {@link stop/0}, or never if the node is stopped
+%% first).
+-spec main([string()]) -> ok.
+main(Args) ->
+    case parse(Args, #{what => home, keep => false}) of
+        {ok, #{what := What, keep := Keep}} ->
+            quietly(fun() -> run(What, Keep) end);
+        {error, Message} ->
+            io:format(standard_error, "~s~n~s", [Message, usage()]),
+            erlang:halt(2)
+    end.
+
+parse([], Acc) -> {ok, Acc};
+parse(["--keep" | Rest], Acc) -> parse(Rest, Acc#{keep := true});
+parse([Word | Rest], Acc) when Word =:= "home"; Word =:= "holiday" ->
+    parse(Rest, Acc#{what := home});
+parse(["robots" | Rest], Acc) -> parse(Rest, Acc#{what := robots});
+parse(["bil" | Rest], Acc) -> parse(Rest, Acc#{what := bil});
+parse(["rooms" | Rest], Acc) -> parse(Rest, Acc#{what := rooms});
+parse([Other | _], _Acc) -> {error, ["unknown demo option: ", Other]}.
+
+usage() ->
+    "usage: make demo [DEMO_ARGS=\"[home|robots|rooms|bil] [--keep]\"]\n"
+    "  home     the smart home on holiday, with an intrusion (the default)\n"
+    "  robots   two LEGO robots and a coordinator: explore, agree on a lexicon, place the balls\n"
+    "  rooms    one VA per room: lights follow the resident, voice commands override\n"
+    "  bil      the tour of BIL and EVATAR over TCP\n"
+    "  --keep   keep the node running afterwards, for a remote shell\n".
+
+%% Pairings log a warning for every feedback timeout, and application
+%% starts their info reports: only errors get through while the demo runs.
+quietly(Fun) ->
+    #{level := Level} = logger:get_primary_config(),
+    ok = logger:set_primary_config(level, error),
+    try Fun()
+    after ok = logger:set_primary_config(level, Level)
+    end.
+
+run(bil, Keep) ->
+    ok = reference_agents_tour:main(),
+    keep(Keep, none);
+run(home, Keep) ->
+    header("The easy smart home on holiday (paper, section 3.2)",
+           ["Nobody is home. The house VA is embodied in the simulated smart home (camera, "
+            "light switches, socket lamp, microphone, notifier, time sensor, speaker, keypad) "
+            "through EVATAR over TCP. It runs the holiday policy of "
+            "apps/reference_agents/priv/home.rules: lights on and off in the evening, when it is "
+            "dark, so that the house looks inhabited; and at 21:40 somebody who does not know "
+            "the code tries the door.",
+            "Simulated time runs 1000 times faster than real time; each line starts with it."]),
+    {ok, S} = reference_agents_holiday:start(#{print => true, spool => "spool"}),
+    ok = reference_agents_holiday:run_until(S, "22:05"),
+    #{home := Home, va := Va} = reference_agents_holiday:outcome(S),
+    home_summary(Home, Va),
+    finish(Keep, S, fun reference_agents_holiday:stop/1);
+run(rooms, Keep) ->
+    header("Light control, one VA per room (paper, section 3.2)",
+           ["The living room, the kitchen and the bedroom each have their own VA, embodied in "
+            "that room's devices. The resident comes home before sunset and walks about; the "
+            "room VAs switch lights on when it is dark, hand the resident over to each other, "
+            "and obey voice commands in the living room."]),
+    {ok, S} = reference_agents_rooms:start(#{print => true, spool => "spool"}),
+    ok = reference_agents_rooms:run_until(S, "16:45"),
+    #{home := #{light_log := Log}} = reference_agents_rooms:outcome(S),
+    section("What the lights did"),
+    [io:format("  ~s  ~-8s ~s~n", [reference_agents_narrator:format_time(T), Room, State])
+     || #{time := T, room := Room, state := State} <- Log],
+    finish(Keep, S, fun reference_agents_rooms:stop/1);
+run(robots, Keep) ->
+    header("Collaborative LEGO robots (paper, section 3.1)",
+           ["Two simulated LEGO robots and three balls of unknown colours in a 2 x 1.5 m arena. "
+            "Two VAs are embodied in the robots through EVATAR; a coordinator VA has no body. "
+            "The robots explore and anchor what they see, the coordinator builds a lexicon from "
+            "their reports and shares it, then has them place every ball in its zone.",
+            "Simulated time runs 40 times faster than real time."]),
+    {ok, S} = reference_agents_robots:start(#{print => true}),
+    Result = reference_agents_robots:run_to_end(S, 300000),
+    Outcome = reference_agents_robots:outcome(S),
+    robots_summary(Result, Outcome),
+    finish(Keep, S, fun reference_agents_robots:stop/1).
+
+finish(false, S, Stop) ->
+    ok = Stop(S),
+    ok;
+finish(true, S, Stop) ->
+    ok = keep(true, S),
+    ok = Stop(S).
+
+keep(false, _S) ->
+    ok;
+keep(true, S) ->
+    persistent_term:put(?KEPT, {S, self()}),
+    Node = atom_to_list(node()),
+    section("The node keeps running"),
+    case node() of
+        nonode@nohost ->
+            io:format("  This node has no name (start it with -sname to connect a remote shell).~n");
+        _ ->
+            [_, Host] = string:split(Node, "@"),
+            io:format("  Node: ~s~n"
+                      "  From another terminal:  erl -sname probe@~s -remsh ~s~n"
+                      "  Then for example:       evatar:print_pairings().  "
+                      "reference_agents_demo:inspect().~n", [Node, Host, Node])
+    end,
+    io:format("  Stop it with Ctrl-C here (then a), or reference_agents_demo:stop(). from the "
+              "remote shell.~n"),
+    receive
+        {?MODULE, stop} ->
+            _ = persistent_term:erase(?KEPT),
+            ok
+    end.
+
+%% @doc Ends a demo kept with `--keep': it cleans up and `make demo' exits.
+-spec stop() -> ok.
+stop() ->
+    case persistent_term:get(?KEPT, none) of
+        none -> ok;
+        {_S, Pid} -> Pid ! {?MODULE, stop}, ok
+    end.
+
+%% @doc On a node kept with `--keep': what each VA of the demo says of
+%% itself (its state, embodiment and mind).
+-spec inspect() -> ok.
+inspect() ->
+    case persistent_term:get(?KEPT, none) of
+        none ->
+            io:format("no demo scenario is kept on this node~n");
+        {none, _Pid} ->
+            io:format("the bil tour keeps no VA; evatar:print_pairings() shows the node~n");
+        {S, _Pid} ->
+            Vas = lists:append([maps:values(X) || X <- [safe_get(room_vas, S), safe_get(robot_vas, S)]])
+                ++ [V || K <- [va, coordinator], V <- [safe_get(K, S)], is_pid(V)],
+            [io:format("~p~n", [reference_agents_va:inspect(Va)]) || Va <- Vas],
+            ok
+    end.
+
+safe_get(Key, S) ->
+    try reference_agents_scenario:get(Key, S)
+    catch error:{badkey, _} -> #{}
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Summaries
+%% ---------------------------------------------------------------------------
+
+home_summary(#{emails := Emails, photos := Photos, light_log := Log, played := Played,
+               spool := Spool}, #{mind := #{activities := Activities}}) ->
+    section("Where it all landed"),
+    io:format("  spool directory: ~s~n", [filename:absname(Spool)]),
+    lists:foreach(
+      fun(#{file := File, subject := Subject, attachments := Attached}) ->
+              io:format("  e-mail \"~s\": ~s~n", [Subject, File]),
+              [io:format("    attached ~s: ~s~n", [Id, photo_file(Id, Photos)]) || Id <- Attached]
+      end, Emails),
+    case Emails of
+        [] -> io:format("  no e-mail was sent~n");
+        _ -> ok
+    end,
+    io:format("  lights switched: ~b times (~s)~n",
+              [length(Log), lists:join(", ", [[reference_agents_narrator:format_time(T), " ", R, " ",
+                                                atom_to_list(St)]
+                                               || #{time := T, room := R, state := St} <- Log])]),
+    io:format("  the speaker played: ~s~n",
+              [lists:join("; ", [[W] || #{what := W, volume := V} <- Played, V > 0])]),
+    io:format("  activities perceived: ~b (~s)~n",
+              [length(Activities),
+               lists:join(", ", lists:usort([A || #{activity := A} <- Activities]))]),
+    io:format("~n  Open the .eml file with any mail reader to see the photos of the intruder.~n").
+
+photo_file(Id, Photos) ->
+    case [F || #{id := I, file := F} <- Photos, I =:= Id] of
+        [F | _] -> F;
+        [] -> "(not in the spool)"
+    end.
+
+robots_summary(Result, #{coordinator := #{mind := C}, robots := Robots,
+                         arena := #{balls := Balls}}) ->
+    section("Outcome"),
+    case Result of
+        {ok, _} -> ok;
+        {error, timeout} -> io:format("  the coordinator did not finish in time~n")
+    end,
+    Lexicons = [maps:get(lexicon, C) | [maps:get(lexicon, maps:get(mind, R)) || R <- maps:values(Robots)]],
+    io:format("  lexicon: ~s~n", [case maps:get(lexicon, C) of
+                                      undefined -> "none";
+                                      L -> reference_agents_lexicon:encode(L)
+                                  end]),
+    io:format("  held by all three VAs: ~s~n",
+              [case reference_agents_lexicon:agreed(Lexicons) of true -> "yes"; false -> "NO" end]),
+    [io:format("  ~s ball at (~b, ~b): ~s~n",
+               [Col, round(X), round(Y), case Z of none -> "not in a zone"; _ -> ["zone ", Z] end])
+     || #{colour := Col, x := X, y := Y, zone := Z} <- Balls],
+    ok.
+
+header(Title, Paragraphs) ->
+    io:format("~n~s~n~s~n", [Title, lists:duplicate(length(Title), $=)]),
+    [io:format("~s~n", [wrap(P, 100)]) || P <- Paragraphs],
+    io:format("~n").
+
+section(Title) ->
+    io:format("~n~s~n~s~n", [Title, lists:duplicate(length(Title), $-)]).
+
+wrap(Text, Width) ->
+    Words = string:lexemes(Text, " "),
+    {Lines, Last} = lists:foldl(fun(W, {Ls, ""}) -> {Ls, W};
+                                   (W, {Ls, Cur}) when length(Cur) + 1 + length(W) > Width ->
+                                        {[Cur | Ls], W};
+                                   (W, {Ls, Cur}) -> {Ls, Cur ++ " " ++ W}
+                                end, {[], ""}, Words),
+    lists:join("\n", lists:reverse([Last | Lines])).

@@ -1,0 +1,154 @@
+%% @doc Internal. The smart-home scenario with one house VA (paper, section
+%% 3.2): the simulated easy smart home joins EVATAR as one gateway Avatar,
+%% the house VA joins as its agent with the body of smart_home_va.xml, the
+%% rules file gives the activities and the policies, and the people's
+%% script brings the evening (and, by default, an intruder). The VA runs
+%% the chosen policy (holiday by default) on the simulated clock.
+-module(reference_agents_holiday).
+
+-export([start/1, run_until/2, outcome/1, stop/1, run/1, default_script/0,
+         start_datetime/0]).
+
+-export_type([opts/0]).
+
+%% `speed' and `tick' are the simulation clock's; `until' the local time
+%% (HH:MM) at which run/1 stops; `spool' where the house writes e-mails and
+%% photos; `rules' a rules file (the app's priv/home.rules by default);
+%% `feedback_timeout' EVATAR's, in real ms; `print' narrates as it happens.
+-type opts() :: #{speed => number(), tick => pos_integer(), seed => integer(),
+                  start => calendar:datetime(), until => string(),
+                  script => list(), spool => file:filename(), rules => file:filename(),
+                  policy => binary(), feedback_timeout => pos_integer(),
+                  print => boolean(), io => pid() | atom()}.
+
+-define(PAIRING, <<"home">>).
+-define(VA_CRED, <<"home-va-secret">>).
+-define(AV_CRED, <<"home-gateway-secret">>).
+
+-spec start_datetime() -> calendar:datetime().
+start_datetime() -> {{2024, 11, 15}, {17, 55, 0}}.
+
+%% @doc The holiday evening: nobody home; at 21:40 an intruder types a
+%% wrong code at the door, comes into the hall, looks around, goes into the
+%% living room and leaves.
+-spec default_script() -> list().
+default_script() ->
+    [{{at, "21:40"}, <<"intruder">>, {keypad, <<"0000">>}},
+     {{delay, 15000}, <<"intruder">>, {go, <<"hall">>}},
+     {{delay, 60000}, <<"intruder">>, {go, <<"living">>}},
+     {{delay, 90000}, <<"intruder">>, {go, <<"outside">>}}].
+
+%% @doc Sets everything up and returns once the house VA is embodied, with
+%% the simulated clock paused.
+-spec start(opts()) -> {ok, reference_agents_scenario:scenario()} | {error, term()}.
+start(Opts) ->
+    Start = maps:get(start, Opts, start_datetime()),
+    %% Slow while the VA tests its body (devices answer at clock ticks),
+    %% paused once it is embodied, at full speed in run_until/2.
+    {ok, S0} = reference_agents_scenario:start(
+                 (maps:with([print, io], Opts))#{name => holiday,
+                                                 clock => #{speed => 2, start => Start,
+                                                            tick => maps:get(tick, Opts, 500)}}),
+    Clock = reference_agents_scenario:get(clock, S0),
+    RulesFile = maps:get(rules, Opts, filename:join(reference_agents_scenario:priv_dir(),
+                                                     "home.rules")),
+    case reference_agents_rules:parse_file(RulesFile) of
+        {ok, Rules} ->
+            start(Opts, Clock, Rules, RulesFile, S0);
+        {error, Reason} ->
+            ok = reference_agents_scenario:stop(S0),
+            {error, {rules, reference_agents_rules:format_error(RulesFile, Reason)}}
+    end.
+
+start(Opts, Clock, Rules, RulesFile, S0) ->
+    Policy = maps:get(policy, Opts, <<"holiday">>),
+    S1 = reference_agents_scenario:pairing(
+           ?PAIRING, #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED,
+                       feedback_timeout => maps:get(feedback_timeout, Opts, 5000)}, S0),
+    Spool = maps:get(spool, Opts, "spool"),
+    {ok, Home} = avatar_sim:start_home(#{clock => Clock, seed => maps:get(seed, Opts, 1),
+                                         endpoints => [reference_agents_scenario:endpoint(S1)],
+                                         gateways => [#{pairing => ?PAIRING,
+                                                        credential => ?AV_CRED}],
+                                         spool => Spool,
+                                         script => maps:get(script, Opts, default_script())}),
+    S2 = reference_agents_scenario:add(home, Home,
+                                       reference_agents_scenario:add(avatars, [Home], S1)),
+    reference_agents_scenario:say(S2, info,
+                                  io_lib:format("the easy smart home joined pairing ~s; rules "
+                                                "from ~s; policy ~s; spool ~s",
+                                                [?PAIRING, RulesFile, Policy,
+                                                 filename:absname(Spool)])),
+    Body = (reference_agents_scenario:body("smart_home_va.xml"))#{entity_id := <<"house-va">>},
+    {Va, S3} = reference_agents_scenario:start_va(
+                 #{name => <<"house-va">>, mind => reference_agents_home,
+                   mind_args => #{body => Body, rules => Rules, policy => Policy},
+                   body => Body, pairing => ?PAIRING, credential => ?VA_CRED}, S2),
+    S4 = reference_agents_scenario:add(va, Va, S3),
+    case reference_agents_scenario:await_va_state(Va, [embodied], 20000, house_va_embodied) of
+        {ok, _} ->
+            ok = avatar_sim:pause(Clock),
+            ok = avatar_sim:set_speed(Clock, maps:get(speed, Opts, 1000)),
+            {ok, S4};
+        {error, _} = E -> ok = reference_agents_scenario:stop(S4), E
+    end.
+
+%% @doc Lets simulated time run until the house's clock shows `HHMM' (on
+%% the start day, or the next day if that time has passed), then pauses.
+-spec run_until(reference_agents_scenario:scenario(), string()) -> ok | {error, term()}.
+run_until(S, HHMM) ->
+    Clock = reference_agents_scenario:get(clock, S),
+    Target = target_ms(avatar_sim:now(Clock), HHMM),
+    ok = avatar_sim:resume(Clock),
+    R = reference_agents_scenario:await(end_ok(Clock, Target), 600000, {clock, HHMM}),
+    ok = avatar_sim:pause(Clock),
+    case R of
+        {ok, _} -> ok;
+        Error -> Error
+    end.
+
+end_ok(Clock, Target) ->
+    fun() ->
+            case avatar_sim:now(Clock) >= Target of
+                true -> {true, ok};
+                false -> false
+            end
+    end.
+
+target_ms(NowMs, HHMM) ->
+    Minute = reference_agents_policy:minute(list_to_binary(HHMM)),
+    {Date, _} = calendar:system_time_to_universal_time(NowMs, millisecond),
+    Day = (calendar:datetime_to_gregorian_seconds({Date, {0, 0, 0}})
+           - calendar:datetime_to_gregorian_seconds({{1970, 1, 1}, {0, 0, 0}})) * 1000,
+    T = Day + Minute * 60000,
+    case T > NowMs of
+        true -> T;
+        false -> T + 86400000
+    end.
+
+%% @doc What happened: the VA's view (activities, decisions, outcomes,
+%% e-mails), the house's (lights, e-mails, photos, sounds) and the story.
+-spec outcome(reference_agents_scenario:scenario()) -> map().
+outcome(S) ->
+    Va = reference_agents_scenario:get(va, S),
+    Home = reference_agents_scenario:get(home, S),
+    #{va => reference_agents_va:inspect(Va),
+      home => avatar_sim:state(Home),
+      story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))}.
+
+-spec stop(reference_agents_scenario:scenario()) -> ok.
+stop(S) -> reference_agents_scenario:stop(S).
+
+%% @doc Start, run until `until' (22:05 by default), outcome, stop.
+-spec run(opts()) -> {ok, map()} | {error, term()}.
+run(Opts) ->
+    case start(Opts) of
+        {ok, S} ->
+            try
+                ok = run_until(S, maps:get(until, Opts, "22:05")),
+                {ok, outcome(S)}
+            after
+                stop(S)
+            end;
+        {error, _} = E -> E
+    end.

@@ -1,0 +1,163 @@
+%% @doc Internal. What every scenario needs around its VAs: the EVATAR and
+%% bridge applications (started if they are not running, without the
+%% default listener), a listener of its own on a free loopback port, the
+%% pairings, a narrator, the VAs, and the way to wait for things to happen
+%% and to clean everything up again.
+-module(reference_agents_scenario).
+
+-export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, embodied/1,
+         narrator/1, endpoint/1, stop/1, examples_dir/0, priv_dir/0, body/1,
+         body_subset/3, add/3, get/2, say/3]).
+
+-export_type([scenario/0]).
+
+-opaque scenario() :: #{listener := term(), endpoint := {inet:ip_address(), inet:port_number()},
+                        started := [atom()], restore := fun(() -> ok),
+                        narrator := pid(), pairings := [binary()], vas := [pid()],
+                        extra := map()}.
+
+%% @doc Starts the applications, a simulation clock (`clock' holds its
+%% options; kept as `clock'), a listener and a narrator that stamps events
+%% with simulated time. `print' makes the narrator write each event as it
+%% happens.
+-spec start(#{name := term(), clock := map(), print => boolean(),
+              io => pid() | atom()}) -> {ok, scenario()}.
+start(#{name := Name, clock := ClockOpts} = Opts) ->
+    {Started, Restore} = start_apps(),
+    {ok, SimClock} = avatar_sim:start_clock(ClockOpts),
+    Clock = fun() -> avatar_sim:now(SimClock) end,
+    Listener = {reference_agents, Name, erlang:unique_integer([positive])},
+    {ok, _} = agent_bridge:start_listener(Listener, #{ip => {127, 0, 0, 1}, port => 0}),
+    {ok, Endpoint} = agent_bridge:address(Listener),
+    {ok, Narrator} = reference_agents_narrator:start_link((maps:with([print, io], Opts))#{clock => Clock}),
+    {ok, #{listener => Listener, endpoint => Endpoint, started => Started, restore => Restore,
+           narrator => Narrator, pairings => [], vas => [], extra => #{clock => SimClock}}}.
+
+%% Starts what is not running, without the default listener on port 7400.
+start_apps() ->
+    case lists:keymember(agent_bridge, 1, application:which_applications()) of
+        true ->
+            {ok, S} = application:ensure_all_started(avatar_sim),
+            {S, fun() -> ok end};
+        false ->
+            _ = application:load(agent_bridge),
+            Saved = application:get_env(agent_bridge, listeners),
+            ok = application:set_env(agent_bridge, listeners, []),
+            {ok, S1} = application:ensure_all_started(agent_bridge),
+            {ok, S2} = application:ensure_all_started(avatar_sim),
+            {S1 ++ S2, fun() ->
+                               case Saved of
+                                   undefined -> application:unset_env(agent_bridge, listeners);
+                                   {ok, V} -> application:set_env(agent_bridge, listeners, V)
+                               end
+                       end}
+    end.
+
+%% @doc Creates a pairing with the given credentials; a feedback timeout
+%% (real ms) can be given.
+-spec pairing(binary(), map(), scenario()) -> scenario().
+pairing(Id, Opts, #{pairings := Ps} = S) ->
+    {ok, _} = evatar:create_pairing(Id, Opts),
+    S#{pairings := [Id | Ps]}.
+
+%% @doc Starts a VA (reference_agents_va options; endpoints and narrator
+%% are filled in).
+-spec start_va(reference_agents_va:opts(), scenario()) -> {pid(), scenario()}.
+start_va(Opts, #{endpoint := E, narrator := N, vas := Vas} = S) ->
+    {ok, Pid} = reference_agents_va:start_link(
+                  maps:merge(#{endpoints => [E], narrator => N}, Opts)),
+    {Pid, S#{vas := [Pid | Vas]}}.
+
+%% @doc Waits (real time, polling every 20 ms) until `Pred()' gives
+%% `{true, Value}'; `{error, timeout}' after `Ms'.
+-spec await(fun(() -> {true, term()} | false), non_neg_integer(), term()) ->
+          {ok, term()} | {error, {timeout, term()}}.
+await(Pred, Ms, What) ->
+    Deadline = erlang:monotonic_time(millisecond) + Ms,
+    await_loop(Pred, Deadline, What).
+
+await_loop(Pred, Deadline, What) ->
+    case Pred() of
+        {true, V} -> {ok, V};
+        false ->
+            case erlang:monotonic_time(millisecond) >= Deadline of
+                true -> {error, {timeout, What}};
+                false -> receive after 20 -> await_loop(Pred, Deadline, What) end
+            end
+    end.
+
+%% @doc Waits until the VA is in one of `States'.
+-spec await_va_state(pid(), [atom()], non_neg_integer(), term()) ->
+          {ok, map()} | {error, {timeout, term()}}.
+await_va_state(Va, States, Ms, What) ->
+    await(fun() ->
+                  #{state := St} = I = reference_agents_va:inspect(Va),
+                  case lists:member(St, States) of
+                      true -> {true, I};
+                      false -> false
+                  end
+          end, Ms, What).
+
+%% @doc True when the VA's last embodiment test passed completely.
+-spec embodied(pid()) -> boolean().
+embodied(Va) ->
+    case reference_agents_va:inspect(Va) of
+        #{state := embodied, embodiment := #{verdict := embodied}} -> true;
+        _ -> false
+    end.
+
+-spec narrator(scenario()) -> pid().
+narrator(#{narrator := N}) -> N.
+
+-spec endpoint(scenario()) -> {inet:ip_address(), inet:port_number()}.
+endpoint(#{endpoint := E}) -> E.
+
+%% @doc Keeps a value with the scenario (avatars, clock, ...).
+-spec add(atom(), term(), scenario()) -> scenario().
+add(Key, Value, #{extra := X} = S) -> S#{extra := X#{Key => Value}}.
+
+-spec get(atom(), scenario()) -> term().
+get(Key, #{extra := X}) -> maps:get(Key, X).
+
+%% @doc A line of the story told by the scenario itself (not by a VA).
+-spec say(scenario(), reference_agents_narrator:kind(), iodata()) -> ok.
+say(#{narrator := N}, Kind, Text) ->
+    reference_agents_narrator:event(N, <<"scenario">>, Kind, Text).
+
+%% @doc Stops the VAs, the Avatars kept under `avatars', the pairings, the
+%% listener, the narrator and the applications the scenario started.
+-spec stop(scenario()) -> ok.
+stop(#{vas := Vas, pairings := Ps, listener := L, narrator := N, started := Started,
+       restore := Restore, extra := X}) ->
+    lists:foreach(fun(Va) -> catch reference_agents_va:stop(Va) end, Vas),
+    lists:foreach(fun(A) -> catch avatar_sim:stop(A) end, maps:get(avatars, X, [])),
+    case X of
+        #{clock := Clock} -> catch avatar_sim:stop_clock(Clock);
+        _ -> ok
+    end,
+    lists:foreach(fun(P) -> _ = evatar:delete_pairing(P) end, Ps),
+    ok = agent_bridge:stop_listener(L),
+    ok = reference_agents_narrator:stop(N),
+    lists:foreach(fun application:stop/1, lists:reverse(Started)),
+    Restore().
+
+%% @doc apps/bil/priv/examples.
+-spec examples_dir() -> file:filename().
+examples_dir() -> filename:join(code:priv_dir(bil), "examples").
+
+-spec priv_dir() -> file:filename().
+priv_dir() -> code:priv_dir(reference_agents).
+
+%% @doc A description from the BIL examples.
+-spec body(string()) -> bil:description().
+body(File) ->
+    {ok, Xml} = file:read_file(filename:join(examples_dir(), File)),
+    {ok, D} = bil:parse_description(Xml),
+    D.
+
+%% @doc A description with another EntityID and only the given components.
+-spec body_subset(bil:description(), binary(), [binary()] | all) -> bil:description().
+body_subset(D, EntityId, all) ->
+    D#{entity_id := EntityId};
+body_subset(#{components := Cs} = D, EntityId, Ids) ->
+    D#{entity_id := EntityId, components := [C || #{id := Id} = C <- Cs, lists:member(Id, Ids)]}.

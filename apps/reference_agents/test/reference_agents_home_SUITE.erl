@@ -1,0 +1,401 @@
+%% @doc The smart-home scenarios end to end, on the simulated clock: the
+%% simulated house joins EVATAR over TCP, the reference VAs join as agents
+%% through agent_bridge_client. Holiday: the evening light schedule (only
+%% when dark), the intrusion reported by an e-mail with photos in the spool.
+%% Light control with one VA per room: the hand-off and the voice override.
+%% Failure cases: a device that never answers, a device that leaves and
+%% comes back, the whole gateway going away and back, a malformed rules
+%% file.
+-module(reference_agents_home_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1,
+         init_per_group/2, end_per_group/2, init_per_testcase/2, end_per_testcase/2]).
+-export([intrusion_email_with_photos/1, intrusion_narrated/1, evening_light_schedule/1,
+         no_lights_in_daylight/1, device_never_answers/1, device_leaves_and_comes_back/1,
+         gateway_leaves_and_comes_back/1, malformed_rules_file/1,
+         room_hand_off/1, voice_override/1, no_room_light_before_dusk/1,
+         sleep_policy/1, away_policy/1]).
+
+-define(SPEED, 2000).
+-define(MIN, 60000).
+
+suite() -> [{timetrap, {seconds, 120}}].
+
+all() ->
+    [{group, holiday}, {group, rooms}, no_lights_in_daylight, sleep_policy, away_policy,
+     device_never_answers,
+     device_leaves_and_comes_back, gateway_leaves_and_comes_back, malformed_rules_file].
+
+groups() ->
+    [{holiday, [], [intrusion_email_with_photos, intrusion_narrated, evening_light_schedule]},
+     {rooms, [], [room_hand_off, voice_override, no_room_light_before_dusk]}].
+
+init_per_suite(Config) ->
+    %% The applications the scenarios start (agent_bridge without its
+    %% default listener, as config/test.config says) are stopped by them.
+    Config.
+
+end_per_suite(_Config) ->
+    ok.
+
+%% One evening, shared by the cases of the group.
+init_per_group(holiday, Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "holiday-spool"),
+    {ok, Outcome} = reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool}),
+    [{outcome, Outcome}, {spool, Spool} | Config];
+init_per_group(rooms, Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "rooms-spool"),
+    %% Slower than the house alone: the hand-off is three VAs talking.
+    {ok, S} = reference_agents_rooms:start(#{speed => 1000, spool => Spool}),
+    try
+        ok = reference_agents_rooms:run_until(S, "16:45"),
+        [{outcome, reference_agents_rooms:outcome(S)} | Config]
+    after
+        reference_agents_rooms:stop(S)
+    end.
+
+end_per_group(_Group, _Config) ->
+    ok.
+
+init_per_testcase(_Case, Config) ->
+    Config.
+
+end_per_testcase(_Case, _Config) ->
+    %% Nothing of a scenario may be left behind.
+    ?assertEqual([], [Id || #{id := Id} <- pairings()]),
+    ok.
+
+pairings() ->
+    case lists:keymember(evatar, 1, application:which_applications()) of
+        true -> evatar:pairings();
+        false -> []
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Holiday
+%% ---------------------------------------------------------------------------
+
+%% @doc The intruder's wrong code and motion in the hall make the house VA
+%% take photos and write an e-mail "INTRUSION" with them attached: a real
+%% MIME message in the spool, its PNG photos next to it.
+intrusion_email_with_photos(Config) ->
+    #{home := #{emails := Emails, photos := Photos}, va := #{mind := Mind}} = ?config(outcome, Config),
+    [#{file := File, subject := <<"INTRUSION">>, attachments := Attached}] = Emails,
+    ?assertEqual(3, length(Attached)),
+    ?assertEqual(filename:absname(?config(spool, Config)), filename:dirname(binary_to_list(File))),
+    {ok, Eml} = file:read_file(File),
+    ?assertMatch({match, _}, re:run(Eml, "^Subject: INTRUSION\r?$", [multiline])),
+    ?assertEqual(3, length(binary:matches(Eml, <<"Content-Type: image/png">>))),
+    [begin
+         [PhotoFile] = [F || #{id := I, file := F} <- Photos, I =:= Id],
+         {ok, <<137, "PNG", _/binary>>} = file:read_file(PhotoFile)
+     end || Id <- Attached],
+    %% Photos of the hall taken after the intrusion was recognised.
+    ?assertEqual([<<"hall">>], lists:usort([R || #{id := I, room := R} <- Photos,
+                                                 lists:member(I, Attached)])),
+    #{emails := [File]} = Mind,
+    ok.
+
+%% @doc The story tells, in order, the perceived activities, the complex
+%% activity, the decision of the policy and the actuations with their
+%% outcomes (the alarm sounded, the message played).
+intrusion_narrated(Config) ->
+    #{story := Story, home := #{played := Played}} = ?config(outcome, Config),
+    Texts = [T || #{who := <<"house-va">>, text := T} <- Story],
+    Expected = [<<"activity failed_authorisation in hall">>,
+                <<"complex activity intruder in hall">>,
+                <<"policy holiday on intruder do photos 3">>,
+                <<"take 3 photos">>,
+                <<"camera: 3 photos taken">>,
+                <<"e-mail \"INTRUSION\" with 3 photo(s) attached">>,
+                <<"e-mail written to ">>],
+    ?assertEqual(ok, in_order(Expected, Texts)),
+    ?assertMatch([#{kind := sound, what := <<"alarm">>, volume := 100},
+                  #{kind := voice, what := <<"You are being recorded.", _/binary>>}],
+                 [P || #{volume := V} = P <- Played, V > 0]).
+
+%% @doc The holiday policy switches the lights as scheduled in the rules
+%% file, once each, and only those: each change at or after its time and
+%% before the next scheduled time (the VA hears the time once a simulated
+%% minute, and the clock runs far faster than the VA thinks).
+evening_light_schedule(Config) ->
+    #{home := #{light_log := Log}} = ?config(outcome, Config),
+    Got = [{minute(T), Room, State} || #{time := T, room := Room, state := State} <- Log],
+    Want = [{"18:00", <<"living">>, on}, {"19:10", <<"kitchen">>, on},
+            {"19:40", <<"kitchen">>, off}, {"20:30", <<"bedroom">>, on},
+            {"20:30", <<"living">>, off}, {"22:00", <<"bedroom">>, off}],
+    ct:log("~p", [Got]),
+    ?assertEqual(lists:sort([{R, S} || {_, R, S} <- Want]), lists:sort([{R, S} || {_, R, S} <- Got])),
+    Next = fun(At) -> case [A || {A, _, _} <- Want, A > At] of [N | _] -> N; [] -> "23:59" end end,
+    [begin
+         [M] = [Mi || {Mi, R, S} <- Got, R =:= Room, S =:= State],
+         ?assert(M >= At andalso M < Next(At))
+     end || {At, Room, State} <- Want],
+    ok.
+
+%% @doc In June the sun sets after 21:00 in London: the 18:00 rule, which
+%% asks for darkness, does nothing.
+no_lights_in_daylight(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "june"),
+    {ok, #{home := #{light_log := Log}, va := #{mind := #{decisions := Decisions}}}} =
+        reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool,
+                                       start => {{2024, 6, 15}, {17, 55, 0}}, until => "18:10"}),
+    ?assertEqual([], Log),
+    ?assertEqual([], Decisions).
+
+%% @doc The sleep policy at night: an intruder wakes the house (alarm,
+%% every light on, a spoken warning, a text message), and motion in the hall
+%% in the small hours is photographed.
+sleep_policy(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "sleep"),
+    Script = [{{at, "02:00"}, <<"intruder">>, {go, <<"hall">>}},
+              {{delay, 20000}, <<"intruder">>, {keypad, <<"1111">>}},
+              {{delay, 60000}, <<"intruder">>, {go, <<"outside">>}}],
+    {ok, #{home := Home, va := #{mind := #{decisions := Decisions}}}} =
+        reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool, policy => <<"sleep">>,
+                                       start => {{2024, 11, 16}, {1, 55, 0}}, until => "02:10",
+                                       script => Script}),
+    #{lights := Lights, sms := [#{text := <<"Intruder at home">>, file := SmsFile}],
+      played := Played, photos := Photos, emails := []} = Home,
+    ?assertEqual(#{<<"living">> => on, <<"kitchen">> => on, <<"bedroom">> => on}, Lights),
+    ?assert(filelib:is_regular(SmsFile)),
+    ?assertMatch([#{what := <<"alarm">>}, #{kind := voice}], [P || #{volume := V} = P <- Played, V > 0]),
+    %% A photo for each report of motion in the hall (the first photo was
+    %% the embodiment test's, of the empty hall).
+    [#{people := []} | ByRule] = Photos,
+    ?assertMatch([_ | _], ByRule),
+    %% (The last may come just after the intruder left: the clock runs
+    %% 2000 times faster than the VA thinks.)
+    ?assertEqual([<<"hall">>], lists:usort([R || #{room := R} <- ByRule])),
+    ?assertMatch([_ | _], [P || #{people := [<<"intruder">>]} = P <- ByRule]),
+    Acted = [A || #{activity := A} <- Decisions],
+    ?assertEqual(length(ByRule), length([A || A <- Acted, A =:= <<"motion">>])),
+    ?assertEqual(1, length([A || A <- Acted, A =:= <<"intruder">>])).
+
+%% @doc The away policy: the light for the return home at 17:45 when dark,
+%% and on an intruder the photos, the e-mail with them and a text message.
+away_policy(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "away"),
+    Script = [{{at, "17:50"}, <<"intruder">>, {keypad, <<"0000">>}},
+              {{delay, 10000}, <<"intruder">>, {go, <<"hall">>}},
+              {{delay, 60000}, <<"intruder">>, {go, <<"outside">>}}],
+    {ok, #{home := Home}} =
+        reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool, policy => <<"away">>,
+                                       start => {{2024, 11, 15}, {17, 40, 0}}, until => "17:55",
+                                       script => Script}),
+    #{light_log := [#{room := <<"living">>, state := on}],
+      emails := [#{subject := <<"INTRUSION">>, attachments := [_, _, _]}],
+      sms := [#{text := <<"Intrusion at home: see your e-mail">>}]} = Home,
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Failures
+%% ---------------------------------------------------------------------------
+
+%% @doc The speaker swallows every request: the VA learns it from EVATAR's
+%% Timeout feedback, says so, and the rest of the policy goes on (photos,
+%% e-mail).
+device_never_answers(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "mute"),
+    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool,
+                                               start => {{2024, 11, 15}, {21, 35, 0}},
+                                               feedback_timeout => 500}),
+    try
+        Home = reference_agents_scenario:get(home, S),
+        ok = avatar_sim:mute(Home, <<"HallSpeaker01">>),
+        ok = reference_agents_holiday:run_until(S, "21:45"),
+        Va = reference_agents_scenario:get(va, S),
+        {ok, _} = reference_agents_scenario:await(
+                    fun() ->
+                            #{mind := #{outcomes := Os}} = reference_agents_va:inspect(Va),
+                            Failed = [W || #{what := W, result := {failed, _}} <- Os],
+                            case lists:sort(Failed) =:= [alarm, say] of
+                                true -> {true, Os};
+                                false -> false
+                            end
+                    end, 10000, speaker_timeouts),
+        #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+        [<<"EVATAR Timeout", _/binary>>] =
+            lists:usort([binary:part(W, 0, 14) || #{result := {failed, W}} <- Outcomes]),
+        ?assertMatch([ok], [R || #{what := email, result := R} <- Outcomes]),
+        #{emails := [#{attachments := [_, _, _]}], played := Played} = avatar_sim:state(Home),
+        ?assertEqual([], [P || #{volume := V} = P <- Played, V > 0]),
+        Story = reference_agents_narrator:events(reference_agents_scenario:narrator(S)),
+        ?assertMatch([_ | _], [T || #{text := T} <- Story,
+                                    binary:match(T, <<"alarm FAILED: EVATAR Timeout">>) =/= nomatch])
+    after
+        reference_agents_holiday:stop(S)
+    end.
+
+%% @doc The living room's light switch leaves the gateway: EVATAR rebinds,
+%% the VA tests its body again and carries on without it (partial); the
+%% 18:00 rule fails for that light only. When the switch comes back the VA
+%% is embodied again and switches the light to what the policy wants.
+device_leaves_and_comes_back(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "detach"),
+    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
+    try
+        Home = reference_agents_scenario:get(home, S),
+        Va = reference_agents_scenario:get(va, S),
+        Clock = reference_agents_scenario:get(clock, S),
+        ok = avatar_sim:set_speed(Clock, 2),
+        ok = avatar_sim:resume(Clock),
+        ok = avatar_sim:detach_device(Home, <<"LivingLightSwitch01">>),
+        {ok, #{embodiment := #{failed := Failed}}} =
+            await_verdict(Va, partial),
+        ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
+        ok = avatar_sim:pause(Clock),
+        ok = avatar_sim:set_speed(Clock, ?SPEED),
+        ok = reference_agents_holiday:run_until(S, "18:05"),
+        #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+        ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
+                     [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
+        #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
+        ok = avatar_sim:set_speed(Clock, 2),
+        ok = avatar_sim:resume(Clock),
+        ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
+        {ok, _} = await_verdict(Va, embodied),
+        {ok, _} = reference_agents_scenario:await(
+                    fun() ->
+                            case avatar_sim:state(Home) of
+                                #{lights := #{<<"living">> := on}} -> {true, on};
+                                _ -> false
+                            end
+                    end, 10000, living_light_restored),
+        #{states := States} = reference_agents_va:inspect(Va),
+        ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
+                             dedupe([St || {St, _} <- States])))
+    after
+        reference_agents_holiday:stop(S)
+    end.
+
+%% @doc The whole gateway loses its connection: the VA sees its body go
+%% (observing) and, when the gateway is back, tests it and is embodied
+%% again.
+gateway_leaves_and_comes_back(Config) ->
+    Spool = filename:join(?config(priv_dir, Config), "gateway"),
+    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
+    try
+        Home = reference_agents_scenario:get(home, S),
+        Va = reference_agents_scenario:get(va, S),
+        Clock = reference_agents_scenario:get(clock, S),
+        ok = avatar_sim:set_speed(Clock, 2),
+        ok = avatar_sim:resume(Clock),
+        ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
+        {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
+        ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
+        {ok, _} = await_verdict(Va, embodied),
+        #{states := States} = reference_agents_va:inspect(Va),
+        ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
+                             dedupe([St || {St, _} <- States])))
+    after
+        reference_agents_holiday:stop(S)
+    end.
+
+%% @doc A rules file with a mistake is refused before anything runs, with
+%% a message naming the file and the line.
+malformed_rules_file(Config) ->
+    File = filename:join(?config(priv_dir, Config), "bad.rules"),
+    ok = file:write_file(File, <<"# a house\n"
+                                 "simple motion when MotionDetected Motion=yes\n"
+                                 "simple failed when PasswordInput WrongPassword=yes\n"
+                                 "\n"
+                                 "complex intruder when motion and failed within 2 min\n"
+                                 "policy holiday on intruder do alarm\n"
+                                 "policy holiday on intruder do explode\n">>),
+    {error, {rules, Message}} = reference_agents_holiday:start(
+                                  #{rules => File, spool => ?config(priv_dir, Config)}),
+    ct:log("~s", [Message]),
+    Prefix = iolist_to_binary([File, ":7: unknown action explode"]),
+    ?assertMatch(<<Prefix:(byte_size(Prefix))/binary, _/binary>>, Message),
+    ?assertEqual([], pairings()).
+
+%% ---------------------------------------------------------------------------
+%% One VA per room
+%% ---------------------------------------------------------------------------
+
+%% @doc When the resident goes from one room to another after dusk, the new
+%% room's VA switches its light on and tells the others; the old room's VA
+%% checks for motion and switches its light off.
+room_hand_off(Config) ->
+    #{home := #{light_log := Log}, vas := Vas} = ?config(outcome, Config),
+    Changes = [{minute(T), R, S} || #{time := T, room := R, state := S} <- Log],
+    ct:log("~p", [Changes]),
+    %% 16:30 to the kitchen: the living room's next change is off; 16:33
+    %% back to the living room: the kitchen's next change is off.
+    ?assertEqual(off, next_change(<<"living">>, after_change(<<"kitchen">>, on, "16:30", Changes), Changes)),
+    ?assertEqual(off, next_change(<<"kitchen">>, after_change(<<"living">>, on, "16:33", Changes), Changes)),
+    #{mind := #{log := LivingLog}} = maps:get(<<"living-va">>, Vas),
+    ?assert(lists:member({handoff, <<"kitchen-va">>}, [W || #{what := W} <- LivingLog])),
+    #{mind := #{log := KitchenLog}} = maps:get(<<"kitchen-va">>, Vas),
+    ?assert(lists:member({handoff, <<"living-va">>}, [W || #{what := W} <- KitchenLog])).
+
+%% @doc "Keep the light off" keeps the living room dark when the resident
+%% comes back; "lights automatic" gives the room back to the policy; "keep
+%% the light on" keeps it on after the resident has left.
+voice_override(Config) ->
+    #{home := #{light_log := Log}, vas := Vas} = ?config(outcome, Config),
+    Living = [{T, S} || #{time := T, room := <<"living">>, state := S} <- Log],
+    #{mind := #{override := keep_on, light := on, log := VaLog}} = maps:get(<<"living-va">>, Vas),
+    ct:log("~p~n~p", [Living, VaLog]),
+    [KeepOff] = [T || #{what := {voice, keep_off}, time := T} <- VaLog],
+    [Auto] = [T || #{what := {voice, none}, time := T} <- VaLog],
+    [KeepOn] = [T || #{what := {voice, keep_on}, time := T} <- VaLog],
+    ?assert(KeepOff < Auto andalso Auto < KeepOn),
+    %% Switched off by the command, and not on again until "automatic",
+    %% although the resident came back into the room meanwhile.
+    ?assertMatch([{_, off} | _], [C || {T, _} = C <- Living, T >= KeepOff]),
+    ?assertEqual([], [C || {T, on} = C <- Living, T >= KeepOff, T < Auto]),
+    ?assertMatch([_ | _], [C || {T, on} = C <- Living, T >= Auto]),
+    %% Kept on: never off after "keep the light on", although the resident
+    %% left for the kitchen and the bedroom.
+    ?assertEqual([], [C || {T, off} = C <- Living, T >= KeepOn]),
+    ?assert(lists:member({handoff_ignored, <<"kitchen-va">>}, [W || #{what := W} <- VaLog])).
+
+%% @doc Before dusk (the resident comes home at 15:56) no room VA switches
+%% a light on.
+no_room_light_before_dusk(Config) ->
+    #{home := #{light_log := Log}} = ?config(outcome, Config),
+    ?assertEqual([], [L || #{time := T} = L <- Log, minute(T) < "16:05"]).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+await_verdict(Va, Verdict) ->
+    reference_agents_scenario:await(
+      fun() ->
+              case reference_agents_va:inspect(Va) of
+                  #{state := embodied, embodiment := #{verdict := Verdict}} = I -> {true, I};
+                  _ -> false
+              end
+      end, 15000, {verdict, Verdict}).
+
+minute(Ms) ->
+    lists:flatten(string:slice(reference_agents_narrator:format_time(Ms), 0, 5)).
+
+%% The minute of Room's first change to State at or after At.
+after_change(Room, State, At, Changes) ->
+    [M | _] = [Mi || {Mi, R, S} <- Changes, R =:= Room, S =:= State, Mi >= At],
+    M.
+
+%% Room's first change at or after minute M.
+next_change(Room, M, Changes) ->
+    case [S || {Mi, R, S} <- Changes, R =:= Room, Mi >= M] of
+        [S | _] -> S;
+        [] -> none
+    end.
+
+in_order([], _Texts) -> ok;
+in_order([E | Es], Texts) ->
+    case lists:dropwhile(fun(T) -> binary:match(T, E) =:= nomatch end, Texts) of
+        [] -> {missing, E};
+        [_ | Rest] -> in_order(Es, Rest)
+    end.
+
+dedupe([A, A | Rest]) -> dedupe([A | Rest]);
+dedupe([A | Rest]) -> [A | dedupe(Rest)];
+dedupe([]) -> [].
