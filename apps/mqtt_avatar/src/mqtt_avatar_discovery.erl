@@ -1,0 +1,118 @@
+%% @doc Internal. Collects discovery messages (Home Assistant configs and
+%% zigbee2mqtt's device list) into one list of devices, each a set of
+%% entities, for mqtt_avatar_generate. Pure: the state is a value; bad
+%% messages give problems and leave the state as it was.
+-module(mqtt_avatar_discovery).
+
+-export([new/1, subscriptions/1, handle/3, devices/1, is_empty/1]).
+
+-export_type([state/0, opts/0, device/0, device_info/0, entity/0, problem/0]).
+
+-type opts() :: #{homeassistant => binary() | false, zigbee2mqtt => binary() | false}.
+-type entity() :: #{uid := binary(),
+                    kind := light | switch | binary_sensor | sensor | button | text | event
+                          | siren | notify,
+                    name := binary() | undefined,
+                    device_class := binary() | undefined,
+                    state_topic := binary() | undefined,
+                    command_topic := binary() | undefined,
+                    value := mqtt_avatar_spec:source(),
+                    json_command := boolean(),
+                    on := binary(), off := binary(),
+                    state_on := binary(), state_off := binary(),
+                    press := binary(),
+                    attributes := boolean(),
+                    on_change := boolean(),
+                    volume := boolean(), duration := boolean(),
+                    unit := binary() | undefined}.
+-type device_info() :: #{key := binary(),
+                         name := binary() | undefined,
+                         room := binary() | undefined,
+                         model := binary() | undefined,
+                         availability := mqtt_avatar_spec:availability() | undefined}.
+-type device() :: #{key := binary(),
+                    name := binary() | undefined,
+                    room := binary() | undefined,
+                    model := binary() | undefined,
+                    availability := mqtt_avatar_spec:availability() | undefined,
+                    entities := [entity()]}.
+-type problem() :: #{what := bad_discovery, topic := binary(), message := binary()}.
+-opaque state() :: #{ha_prefix := binary() | false,
+                     z2m_base := binary() | false,
+                     ha := #{binary() => {device_info(), entity()}},
+                     z2m := [device()]}.
+
+%% @doc Discovery on the given prefixes (defaults: `homeassistant' and
+%% `zigbee2mqtt'; `false' turns one off).
+-spec new(opts()) -> state().
+new(Opts) ->
+    #{ha_prefix => maps:get(homeassistant, Opts, <<"homeassistant">>),
+      z2m_base => maps:get(zigbee2mqtt, Opts, <<"zigbee2mqtt">>),
+      ha => #{}, z2m => []}.
+
+%% @doc The topic filters to subscribe to.
+-spec subscriptions(state()) -> [binary()].
+subscriptions(#{ha_prefix := Ha, z2m_base := Z}) ->
+    [<<P/binary, F/binary>> || P <- [Ha], P =/= false, F <- [<<"/+/+/config">>, <<"/+/+/+/config">>]]
+        ++ [<<B/binary, "/bridge/devices">> || B <- [Z], B =/= false].
+
+%% @doc True when nothing has been discovered.
+-spec is_empty(state()) -> boolean().
+is_empty(#{ha := Ha, z2m := Z}) -> map_size(Ha) =:= 0 andalso Z =:= [].
+
+%% @doc One message. `ignore' when the topic is not a discovery topic.
+-spec handle(binary(), binary(), state()) ->
+          ignore | {changed | unchanged, state(), [problem()]}.
+handle(Topic, Payload, #{z2m_base := Z} = S) when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">> ->
+    case mqtt_avatar_z2m:parse(Z, Payload) of
+        {ok, Devices, Messages} ->
+            Problems = [problem(Topic, M) || M <- Messages],
+            case Devices =:= maps:get(z2m, S) of
+                true -> {unchanged, S, Problems};
+                false -> {changed, S#{z2m := Devices}, Problems}
+            end;
+        {error, M} ->
+            {unchanged, S, [problem(Topic, M)]}
+    end;
+handle(Topic, Payload, #{ha_prefix := Prefix, ha := Ha} = S) when Prefix =/= false ->
+    case mqtt_avatar_ha:parse(Prefix, Topic, Payload) of
+        ignore ->
+            ignore;
+        {ok, remove} ->
+            case maps:is_key(Topic, Ha) of
+                true -> {changed, S#{ha := maps:remove(Topic, Ha)}, []};
+                false -> {unchanged, S, []}
+            end;
+        {ok, {entity, Info, Entity}} ->
+            case maps:get(Topic, Ha, undefined) of
+                {Info, Entity} -> {unchanged, S, []};
+                _ -> {changed, S#{ha := Ha#{Topic => {Info, Entity}}}, []}
+            end;
+        {error, M} ->
+            {unchanged, S, [problem(Topic, M)]}
+    end;
+handle(_Topic, _Payload, _S) ->
+    ignore.
+
+%% @doc Every device discovered, Home Assistant devices first, each sorted
+%% by key; a device's entities in topic order.
+-spec devices(state()) -> [device()].
+devices(#{ha := Ha, z2m := Z}) ->
+    Grouped = lists:foldl(fun({_Topic, {#{key := K} = Info, Entity}}, Acc) ->
+                                  case maps:find(K, Acc) of
+                                      {ok, #{entities := Es, availability := A} = D} ->
+                                          A1 = case A of
+                                                   undefined -> maps:get(availability, Info);
+                                                   _ -> A
+                                               end,
+                                          Acc#{K := D#{entities := Es ++ [Entity],
+                                                       availability := A1}};
+                                      error ->
+                                          Acc#{K => Info#{entities => [Entity]}}
+                                  end
+                          end, #{}, lists:sort(maps:to_list(Ha))),
+    [D || {_, D} <- lists:sort(maps:to_list(Grouped))]
+        ++ [D || {_, D} <- lists:sort([{K, D} || #{key := K} = D <- Z])].
+
+problem(Topic, Message) ->
+    #{what => bad_discovery, topic => Topic, message => Message}.

@@ -1,0 +1,382 @@
+%% @doc Internal. Turns discovered devices into BIL components with the
+%% reserved `Mqtt*' parameters (docs/mqtt.md section 4 lists the rules), so
+%% devices join EVATAR without anyone writing BIL; per-device and
+%% per-entity overrides adapt the result to a VA's body. Pure.
+-module(mqtt_avatar_generate).
+
+-export([components/2, description/3]).
+
+-export_type([overrides/0, override/0]).
+
+-type override() :: #{component => binary(),
+                      room => binary(),
+                      skip => boolean(),
+                      parameters => [bil:parameter()],
+                      services => [bil:entry()],
+                      consumes => [bil:entry()],
+                      feedback => none | binary()}.
+%% Keyed by a device key (`ha:<identifier>', `z2m:<ieee address>', with or
+%% without the prefix), a device name, or an entity's unique id (HA `unique_id', zigbee2mqtt
+%% `<friendly_name>/<property>').
+-type overrides() :: #{binary() => override()}.
+
+-define(ROOM, <<"Room">>).
+
+%% @doc A complete description: `Static' components (hand-written, with
+%% their own `Mqtt*' parameters) first, then the generated ones. A generated
+%% component whose ComponentID a static one already has is left out.
+-spec description(#{entity_id := binary(), static => [bil:component()],
+                    overrides => overrides(), api_name => binary()},
+                  [mqtt_avatar_discovery:device()], [map()]) ->
+          {bil:description(), [map()]}.
+description(Opts, Devices, Problems0) ->
+    Static = maps:get(static, Opts, []),
+    {Generated0, Problems1} = components(Devices, maps:get(overrides, Opts, #{})),
+    %% What cannot be checked or written as BIL (a control character in a
+    %% topic, an override with a bad parameter) stays out, with a reason.
+    Checked = [{C, check(C)} || C <- Generated0],
+    Generated = [C || {C, ok} <- Checked],
+    Problems = Problems1 ++ lists:append([Ps || {_, {error, Ps}} <- Checked]),
+    Taken = [Id || #{id := Id} <- Static],
+    Kept = [C || #{id := Id} = C <- Generated, not lists:member(Id, Taken)],
+    Clashes = [#{what => component_clash, component => Id,
+                 message => <<"a discovered device has the ComponentID of a hand-written "
+                              "component; the hand-written one is kept">>}
+               || #{id := Id} <- Generated, lists:member(Id, Taken)],
+    {#{entity_id => maps:get(entity_id, Opts),
+       api_name => maps:get(api_name, Opts, <<"MQTT AVATAR">>),
+       entity_type => avatar,
+       context => <<"MqttDescription">>,
+       components => Static ++ Kept},
+     Problems0 ++ Problems ++ Clashes}.
+
+%% @doc One component per device, plus problems (overrides that match
+%% nothing).
+-spec components([mqtt_avatar_discovery:device()], overrides()) -> {[bil:component()], [map()]}.
+components(Devices, Overrides) ->
+    {Components, _Used, Keys} =
+        lists:foldl(fun(D, {Acc, Used, KeysAcc}) ->
+                            {C, Ks} = device(D, Overrides, Used),
+                            {Acc ++ [C], [maps:get(id, C) | Used], KeysAcc ++ Ks}
+                    end, {[], [], []}, Devices),
+    Unused = [#{what => unused_override, key => K,
+                message => <<"this override matches no discovered device or entity (yet)">>}
+              || K <- lists:sort(maps:keys(Overrides)), not lists:member(K, Keys)],
+    {Components, Unused}.
+
+check(#{id := Id} = C) ->
+    case mqtt_avatar_spec:from_description(#{components => [C]}) of
+        {error, Problems} ->
+            {error, [P#{what => bad_mqtt_parameters, message => mqtt_avatar_spec:format_problem(P)}
+                     || P <- Problems]};
+        {ok, _} ->
+            One = #{entity_id => <<"check">>, api_name => <<>>, entity_type => avatar,
+                    context => <<>>, components => [C]},
+            case mqtt_avatar_spec:round_trip(One) of
+                ok -> ok;
+                {error, Message} ->
+                    {error, [#{what => bad_component, component => Id, message => Message}]}
+            end
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Devices
+%% ---------------------------------------------------------------------------
+
+device(#{key := Key, entities := Entities} = D, Overrides, Used) ->
+    Name = maps:get(name, D),
+    Bare = case binary:split(Key, <<":">>) of
+               [_, B] -> B;
+               _ -> Key
+           end,
+    {DevOverride, DevKeys} = lookup([Key, Bare, Name], Overrides),
+    Id = unique(case DevOverride of
+                    #{component := C} -> C;
+                    _ -> first_name([Name, maps:get(model, D), first_entity_name(Entities), Key])
+                end, Used),
+    Room = case DevOverride of
+               #{room := R} -> R;
+               _ -> lower(maps:get(room, D))
+           end,
+    RoomParams = [{?ROOM, Room} || Room =/= undefined],
+    Ctx = #{room => RoomParams, device => D},
+    {Parts, EntityKeys} =
+        lists:foldl(fun(#{uid := Uid} = E, {Acc, Ks}) ->
+                            case lookup([Uid], Overrides) of
+                                {#{skip := true}, K} ->
+                                    {Acc, Ks ++ K};
+                                {Override, K} ->
+                                    {Acc ++ [apply_override(entity(E, Ctx), Override)], Ks ++ K}
+                            end
+                    end, {[], []}, Entities),
+    Services0 = lists:append([S || #{services := S} <- Parts]),
+    Streams = lists:append([S || #{consumes := S} <- Parts]),
+    SensorParams = lists:append([P || #{sensor := P} <- Parts]),
+    Feedback = case [F || #{feedback := F} <- Parts, F =/= none] of
+                   [F1 | _] ->
+                       [entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>,
+                              [{<<"Feedback">>, <<"yes">>}, {<<"Device">>, F1}] ++ RoomParams)];
+                   [] -> []
+               end,
+    Combined = combined_read(D, Name, SensorParams, Services0, RoomParams),
+    Services1 = Services0 ++ Combined,
+    Services = case Services1 of
+                   [] -> [entry(<<"SENSOR">>, <<"Read", (camel(Id))/binary>>, RoomParams)];
+                   _ -> Services1
+               end,
+    Avail = availability_params(maps:get(availability, D)),
+    [First | Rest] = Services,
+    Component = #{id => Id,
+                  services => [add_params(First, Avail) | Rest],
+                  consumes => Streams ++ Feedback},
+    {Component, DevKeys ++ EntityKeys}.
+
+lookup(Keys, Overrides) ->
+    case [{K, O} || K <- Keys, is_binary(K), {ok, O} <- [maps:find(K, Overrides)]] of
+        [{K, O} | _] -> {O, [K]};
+        [] -> {#{}, []}
+    end.
+
+apply_override(Part, Override) ->
+    Part1 = case Override of
+                #{services := S} -> Part#{services := S};
+                #{parameters := Ps} ->
+                    Part#{services := [set_params(E, Ps) || E <- maps:get(services, Part)]};
+                _ -> Part
+            end,
+    Part2 = case Override of
+                #{consumes := C} -> Part1#{consumes := C};
+                _ -> Part1
+            end,
+    %% `feedback': the Device of the component's ACTION FEEDBACK entry, or
+    %% `none' for an entity that needs none (a sensor's switch).
+    case Override of
+        #{feedback := F} -> Part2#{feedback := F};
+        _ -> Part2
+    end.
+
+combined_read(_D, _Name, [], _Services, _Room) ->
+    [];
+combined_read(D, Name, SensorParams, Services, Room) ->
+    Base = camel(first_name([maps:get(model, D), Name, <<"Device">>])),
+    Type = <<"Read", Base/binary>>,
+    case lists:any(fun(#{type := T}) -> T =:= Type end, Services) of
+        true -> [];
+        false -> [entry(<<"SENSOR">>, Type, [{P, <<"yes">>} || P <- SensorParams] ++ Room)]
+    end.
+
+availability_params(undefined) ->
+    [];
+availability_params(#{topic := T, online := On, offline := Off, value := V}) ->
+    [{<<"MqttAvailabilityTopic">>, T}, {<<"MqttPayloadAvailable">>, On},
+     {<<"MqttPayloadNotAvailable">>, Off}, {<<"MqttAvailabilityValue">>, source(V)}].
+
+%% ---------------------------------------------------------------------------
+%% Entities
+%% ---------------------------------------------------------------------------
+
+entity(#{kind := light} = E, Ctx) ->
+    on_off(E, Ctx, {<<"TurnLightOn">>, <<"TurnLightOff">>}, [{<<"Light">>, <<"yes">>}],
+           <<"Light">>, <<"LightSwitch">>);
+entity(#{kind := switch, device_class := <<"outlet">>} = E, Ctx) ->
+    on_off(E, Ctx, {<<"SwitchSocketOn">>, <<"SwitchSocketOff">>}, [{<<"Appliance">>, <<"any">>}],
+           <<"Socket">>, <<"SocketSwitch">>);
+entity(#{kind := switch} = E, Ctx) ->
+    Name = camel(first_name([maps:get(name, E), <<"Switch">>])),
+    on_off(E, Ctx, {<<"SwitchOn">>, <<"SwitchOff">>}, [{<<"Switch">>, <<"yes">>}, {<<"Name">>, Name}],
+           <<"Switch">>, <<"Switch">>);
+entity(#{kind := binary_sensor} = E, #{room := Room}) ->
+    {Param, Stream, Read} =
+        case lists:member(maps:get(device_class, E), [<<"motion">>, <<"occupancy">>, <<"presence">>,
+                                                       <<"moving">>]) of
+            true -> {<<"Motion">>, <<"MotionDetected">>, <<"ReadMotion">>};
+            false ->
+                P = camel(first_name([maps:get(name, E), maps:get(device_class, E), <<"State">>])),
+                {P, <<P/binary, "Changed">>, <<"Read", P/binary>>}
+        end,
+    Map = on_off_map(E, <<"yes">>, <<"no">>),
+    stream_part(E, Room, Param, Stream, Read, event, Map);
+entity(#{kind := sensor} = E, #{room := Room}) ->
+    P = camel(first_name([maps:get(name, E), maps:get(device_class, E), <<"Value">>])),
+    stream_part(E, Room, P, P, <<"Read", P/binary>>, sensor_data, []);
+entity(#{kind := event} = E, #{room := Room}) ->
+    P = camel(first_name([maps:get(name, E), <<"Event">>])),
+    Value = case maps:get(value, E) of
+                raw -> {json, [<<"event_type">>]};
+                V -> V
+            end,
+    stream_part(E#{value := Value, attributes := true}, Room, <<"Event">>, P,
+                <<"Read", P/binary>>, event, [], P);
+entity(#{kind := button} = E, Ctx) ->
+    Type = camel(first_name([maps:get(name, E), <<"Press">>])),
+    Params = maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"raw:", (maps:get(press, E))/binary>>},
+            {<<"MqttExpect">>, <<"none">>}],
+    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
+entity(#{kind := notify} = E, Ctx) ->
+    Type = camel(first_name([maps:get(name, E), <<"Notify">>])),
+    Params = [{<<"Message">>, <<"yes">>}] ++ maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Message">>},
+            {<<"MqttExpect">>, <<"none">>}],
+    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
+entity(#{kind := text} = E, Ctx) ->
+    Type = camel(first_name([maps:get(name, E), <<"SetText">>])),
+    Params = [{<<"Text">>, <<"yes">>}] ++ maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Text">>}]
+        ++ echo_params(E, <<"any">>),
+    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
+entity(#{kind := siren} = E, Ctx) ->
+    Type = camel(first_name([maps:get(name, E), <<"PlaySound">>])),
+    Args = [<<"Sound=tone">>]
+        ++ [<<"Volume=volume_level">> || maps:get(volume, E)]
+        ++ [<<"Duration=duration">> || maps:get(duration, E)],
+    Capabilities = [{<<"Sound">>, <<"yes">>}]
+        ++ [{<<"Volume">>, <<"yes">>} || maps:get(volume, E)]
+        ++ [{<<"Duration">>, <<"yes">>} || maps:get(duration, E)],
+    Command = iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => maps:get(on, E)})),
+    Params = Capabilities ++ maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"json:", Command/binary>>},
+            {<<"MqttCommandArgs">>, iolist_to_binary(lists:join(" ", Args))}]
+        ++ echo_params(E, <<"any">>),
+    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx).
+
+on_off(E, Ctx, {OnType, OffType}, Capabilities, StateParam, Device) ->
+    #{on := On, off := Off, state_on := SOn, state_off := SOff, value := Value} = E,
+    Room = maps:get(room, Ctx),
+    Command = fun(Payload) ->
+                      case {maps:get(json_command, E), Value} of
+                          {true, {json, [_ | _] = Path}} ->
+                              <<"json:", (json_at(Path, Payload))/binary>>;
+                          {true, _} ->
+                              <<"json:", (json_at([<<"state">>], Payload))/binary>>;
+                          {false, _} ->
+                              <<"raw:", Payload/binary>>
+                      end
+              end,
+    Entry = fun(Type, Payload, Expected) ->
+                    entry(<<"ACTUATOR">>, Type,
+                          Capabilities ++ Room
+                          ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+                              {<<"MqttCommand">>, Command(Payload)}]
+                          ++ echo_params(E, match(Value, Expected))
+                          ++ value_params(E, StateParam, on_off_map(E, <<"on">>, <<"off">>)))
+            end,
+    actuator([Entry(OnType, On, SOn), Entry(OffType, Off, SOff)], Ctx, Device).
+
+%% What confirms a command: a state topic and the value expected on it.
+echo_params(#{state_topic := undefined}, _Expect) ->
+    [{<<"MqttExpect">>, <<"none">>}];
+echo_params(#{state_topic := T} = E, Expect) ->
+    [{<<"MqttStateTopic">>, T}, {<<"MqttExpect">>, Expect}]
+        ++ [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E)].
+
+value_params(#{state_topic := undefined}, _Param, _Map) ->
+    [];
+value_params(#{value := V}, Param, Map) ->
+    [{<<"MqttValue">>, <<Param/binary, "=", (source(V))/binary>>}]
+        ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
+
+match(raw, Expected) -> <<"raw:", Expected/binary>>;
+match({json, Path}, Expected) -> <<"json:", (join_path(Path))/binary, "=", Expected/binary>>.
+
+on_off_map(#{state_on := On, state_off := Off}, ToOn, ToOff) ->
+    case lists:all(fun plain_token/1, [On, Off]) andalso
+        {bool_key(On), bool_key(Off)} =/= {ToOn, ToOff} of
+        true -> <<(bool_key(On))/binary, "=", ToOn/binary, " ", (bool_key(Off))/binary, "=",
+                  ToOff/binary>>;
+        false -> <<>>
+    end.
+
+%% JSON booleans arrive as yes/no (docs/mqtt.md), so map those.
+bool_key(<<"true">>) -> <<"yes">>;
+bool_key(<<"false">>) -> <<"no">>;
+bool_key(V) -> V.
+
+plain_token(<<>>) -> false;
+plain_token(V) -> binary:match(V, [<<" ">>, <<"=">>, <<"\t">>, <<"\n">>]) =:= nomatch.
+
+stream_part(E, Room, Param, Stream, Read, Context, Map) ->
+    stream_part(E, Room, Param, Stream, Read, Context, Map, Param).
+
+stream_part(E, Room, Param, Stream, Read, Context, Map, SensorParam) ->
+    Consumes = entry(<<"SENSOR">>, Stream,
+                     Room ++ [{<<"MqttStateTopic">>, maps:get(state_topic, E)},
+                              {<<"MqttValue">>, <<Param/binary, "=", (source(maps:get(value, E)))/binary>>}]
+                     ++ [{<<"MqttMap">>, Map} || is_binary(Map), Map =/= <<>>]
+                     ++ [{<<"MqttContext">>, <<"Event">>} || Context =:= event]
+                     ++ [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E)]
+                     ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, E)]),
+    Service = entry(<<"SENSOR">>, Read, [{SensorParam, <<"yes">>}] ++ Room),
+    #{services => [Service], consumes => [Consumes], sensor => [SensorParam], feedback => none}.
+
+actuator(Services, Ctx) ->
+    #{device := D} = Ctx,
+    Device = camel(first_name([maps:get(model, D), maps:get(name, D), <<"Device">>])),
+    actuator(Services, Ctx, Device).
+
+actuator(Services, _Ctx, Device) ->
+    #{services => Services, consumes => [], sensor => [], feedback => Device}.
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+entry(Category, Type, Params) ->
+    #{category => Category, type => Type, parameters => Params}.
+
+add_params(#{parameters := Ps} = E, Extra) ->
+    E#{parameters := Ps ++ [P || {N, _} = P <- Extra, not lists:keymember(N, 1, Ps)]}.
+
+set_params(#{parameters := Ps} = E, Set) ->
+    Replaced = [case lists:keyfind(N, 1, Set) of
+                    {N, V1} -> {N, V1};
+                    false -> {N, V}
+                end || {N, V} <- Ps],
+    E#{parameters := Replaced ++ [P || {N, _} = P <- Set, not lists:keymember(N, 1, Ps)]}.
+
+source(raw) -> <<"raw">>;
+source({json, Path}) -> <<"json:", (join_path(Path))/binary>>.
+
+join_path(Path) -> iolist_to_binary(lists:join(<<".">>, Path)).
+
+json_at(Path, Value) ->
+    Json = lists:foldr(fun(K, Inner) -> #{K => Inner} end, Value, Path),
+    iolist_to_binary(mqtt_avatar_json:encode(Json)).
+
+first_name(Candidates) ->
+    case [C || C <- Candidates, is_binary(C), camel(C) =/= <<>>] of
+        [C | _] -> C;
+        [] -> <<"Device">>
+    end.
+
+first_entity_name(Entities) ->
+    case [N || #{name := N} <- Entities, is_binary(N)] of
+        [N | _] -> N;
+        [] -> undefined
+    end.
+
+camel(Name) -> mqtt_avatar_logic:camel(Name).
+
+lower(undefined) -> undefined;
+lower(B) -> string:lowercase(B).
+
+unique(Base0, Used) ->
+    Base = case camel(Base0) of
+               <<>> -> <<"Device">>;
+               B -> B
+           end,
+    unique(Base, Used, 1).
+
+unique(Base, Used, N) ->
+    Id = case N of
+             1 -> Base;
+             _ -> <<Base/binary, (integer_to_binary(N))/binary>>
+         end,
+    case lists:member(Id, Used) of
+        true -> unique(Base, Used, N + 1);
+        false -> Id
+    end.

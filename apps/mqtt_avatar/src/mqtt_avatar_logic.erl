@@ -1,0 +1,620 @@
+%% @doc Internal. The MQTT Avatar's decisions, as a pure state machine:
+%% `handle(Event, NowMs, State) -> {State1, Effects}'. MQTT messages become
+%% BIL sensor data, events and feedback; BIL requests become publishes. The
+%% process (mqtt_avatar_fsm) executes the effects; this module holds no pid,
+%% socket or timer.
+%%
+%% Events: `{mqtt, #{topic, payload, retain}}', `{signal, bil:signal()}',
+%% `{binding, Report}', `{puback, Key}', `{publish_failed, Key, Reason}',
+%% `{echo_timeout, Key}', `{mqtt_status, up | down}'.
+%% Effects: `{send, PartialSignal}', `{publish, Topic, Payload, Key}',
+%% `{start_timer, Key, Ms}', `{cancel_timer, Key}', `{problem, Report}'.
+-module(mqtt_avatar_logic).
+
+-export([new/3, new/4, set_spec/2, handle/3, extract/2, extract/3, camel/1, last_values/1,
+         availability/1, pending_count/1]).
+
+-export_type([state/0, event/0, effect/0]).
+
+-type key() :: {binary(), binary()}.
+-type event() :: {mqtt, #{topic := binary(), payload := binary(), retain := boolean()}}
+               | {signal, bil:signal()}
+               | {binding, #{bound := [bil:binding()], _ => _}}
+               | {puback, key()}
+               | {publish_failed, key(), term()}
+               | {echo_timeout, key()}
+               | {mqtt_status, up | down}.
+-type effect() :: {send, agent_bridge_client:partial_signal()}
+                | {publish, binary(), iodata(), key() | undefined}
+                | {start_timer, key(), non_neg_integer()}
+                | {cancel_timer, key()}
+                | {problem, map()}.
+-opaque state() :: #{entity := binary(),
+                     echo_timeout := non_neg_integer(),
+                     ts_field := binary() | undefined,
+                     comps := #{binary() => mqtt_avatar_spec:component()},
+                     routes := #{binary() => [route()]},
+                     bound := [bil:binding()],
+                     mqtt := up | down,
+                     last := #{{binary(), pos_integer()} => [bil:parameter()]},
+                     avail := #{binary() => {online | offline, integer()}},
+                     pending := #{key() => pending()}}.
+-type route() :: {stream, binary(), pos_integer()} | {avail, binary()}.
+-type pending() :: #{component := binary(),
+                     requester := binary(),
+                     service := mqtt_avatar_spec:service(),
+                     awaiting := boolean()}.
+
+%% Longest payload turned into one parameter value: keeps signals far
+%% below BIL's 64 KiB limit.
+-define(MAX_VALUE, 4096).
+
+%% ---------------------------------------------------------------------------
+%% API
+%% ---------------------------------------------------------------------------
+
+%% @doc A state for entity `Entity' with spec `Spec'; `EchoTimeout' ms is how
+%% long a command waits for its state echo before it is forgotten (EVATAR's
+%% own feedback timeout answers the VA).
+-spec new(binary(), mqtt_avatar_spec:spec(), non_neg_integer()) -> state().
+new(Entity, Spec, EchoTimeout) ->
+    new(Entity, Spec, EchoTimeout, #{}).
+
+%% @doc As `new/3'; `timestamp_field' names a top-level JSON field holding
+%% the time of a reading (ms since 1970), which then becomes the signal's
+%% Timestamp instead of the time of sending.
+-spec new(binary(), mqtt_avatar_spec:spec(), non_neg_integer(),
+          #{timestamp_field => binary()}) -> state().
+new(Entity, Spec, EchoTimeout, Opts) ->
+    set_spec(Spec, #{entity => Entity, echo_timeout => EchoTimeout,
+                     ts_field => maps:get(timestamp_field, Opts, undefined),
+                     comps => #{}, routes => #{},
+                     bound => [], mqtt => down, last => #{}, avail => #{}, pending => #{}}).
+
+%% @doc Replaces the spec (after a new discovery); keeps what is known about
+%% the components that remain.
+-spec set_spec(mqtt_avatar_spec:spec(), state()) -> state().
+set_spec(#{components := Comps}, S) ->
+    Index = maps:from_list([{Id, C} || #{id := Id} = C <- Comps]),
+    Routes = lists:foldl(fun add_routes/2, #{}, Comps),
+    KeepLast = fun({Id, N}, _) ->
+                       case maps:find(Id, Index) of
+                           {ok, #{streams := Streams}} -> N =< length(Streams);
+                           error -> false
+                       end
+               end,
+    KeepAvail = fun(Id, _) -> maps:is_key(Id, Index) end,
+    S#{comps := Index, routes := Routes,
+       last := maps:filter(KeepLast, maps:get(last, S)),
+       avail := maps:filter(KeepAvail, maps:get(avail, S))}.
+
+%% @doc Last values of every stream: `#{ComponentID => [Param]}'.
+-spec last_values(state()) -> #{binary() => [bil:parameter()]}.
+last_values(#{last := Last}) ->
+    maps:fold(fun({Id, _}, Ps, Acc) -> Acc#{Id => dedupe(maps:get(Id, Acc, []) ++ Ps)} end,
+              #{}, Last).
+
+%% @doc What is known of each component's availability.
+-spec availability(state()) -> #{binary() => online | offline}.
+availability(#{avail := A}) ->
+    maps:map(fun(_, {State, _}) -> State end, A).
+
+%% @doc Commands waiting for their state echo.
+-spec pending_count(state()) -> non_neg_integer().
+pending_count(#{pending := P}) -> map_size(P).
+
+%% @doc Applies one event.
+-spec handle(event(), integer(), state()) -> {state(), [effect()]}.
+handle({mqtt_status, Status}, _Now, S) ->
+    {S#{mqtt := Status}, []};
+handle({binding, #{bound := Bound}}, Now, S) ->
+    S1 = S#{bound := Bound},
+    %% New partners learn the current state: the last reading of each
+    %% stream (often a retained message that came before the binding), and
+    %% the devices that are away.
+    Readings = [{send, #{context => Ctx, sender => Id, receiver => R,
+                         body => #{category => Cat, type => Type, parameters => Params}}}
+                || {{Id, N}, Params} <- lists:sort(maps:to_list(maps:get(last, S1))),
+                   #{category := Cat, type := Type, context := Ctx} <- [stream(Id, N, S1)],
+                   R <- stream_receivers(Id, Cat, Type, S1)
+                        -- stream_receivers(Id, Cat, Type, S)],
+    Away = lists:append([availability_events(Id, offline, undefined, Now, S1)
+                         || {Id, {offline, _}} <- lists:sort(maps:to_list(maps:get(avail, S1)))]),
+    {S1, Readings ++ Away};
+handle({mqtt, #{topic := Topic} = Msg}, Now, #{routes := Routes} = S) ->
+    Echo = echo(Msg, S),
+    {S1, E1} = Echo,
+    lists:foldl(fun(Route, {SAcc, EAcc}) ->
+                        {SAcc1, E} = route(Route, Msg, Now, SAcc),
+                        {SAcc1, EAcc ++ E}
+                end, {S1, E1}, maps:get(Topic, Routes, []));
+handle({signal, #{context := Ctx} = Signal}, Now, S)
+  when Ctx =:= request; Ctx =:= request_no_feedback ->
+    request(Signal, Now, S);
+handle({signal, #{context := error, body := #{type := Code, parameters := Ps}} = Signal}, _Now, S) ->
+    {S, [{problem, #{what => evatar_error, code => Code,
+                     message => proplists:get_value(<<"Message">>, Ps, <<>>),
+                     signal => maps:get(in_reply_to, Signal)}}]};
+handle({signal, #{context := Ctx, sender := From}}, _Now, S) ->
+    {S, [{problem, #{what => unexpected_signal, context => Ctx, sender => From,
+                     message => <<"an MQTT Avatar only answers requests">>}}]};
+handle({puback, Key}, _Now, #{pending := P} = S) ->
+    case maps:find(Key, P) of
+        {ok, #{service := #{expect := none}} = Pending} ->
+            {S#{pending := maps:remove(Key, P)},
+             [{cancel_timer, Key} | answer_done(Key, Pending, [], S)]};
+        _ ->
+            {S, []}
+    end;
+handle({publish_failed, Key, Reason}, _Now, #{pending := P} = S) ->
+    case maps:take(Key, P) of
+        {Pending, P1} ->
+            Msg = iolist_to_binary(io_lib:format("the broker did not take the command: ~0p",
+                                                 [Reason])),
+            {S#{pending := P1}, [{cancel_timer, Key} | answer_error(Key, Pending, <<"PublishFailed">>, Msg)]};
+        error ->
+            {S, []}
+    end;
+handle({echo_timeout, Key}, _Now, #{pending := P} = S) ->
+    case maps:take(Key, P) of
+        {#{component := C, service := #{type := T}}, P1} ->
+            {S#{pending := P1},
+             [{problem, #{what => no_state_echo, component => C, service => T,
+                          request => element(2, Key),
+                          message => <<"the device did not echo its state in time; EVATAR's "
+                                       "feedback timeout answers the VA">>}}]};
+        error ->
+            {S, []}
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Incoming MQTT messages
+%% ---------------------------------------------------------------------------
+
+add_routes(#{id := Id, streams := Streams, availability := Avail}, Routes) ->
+    {R1, _} = lists:foldl(fun(#{topic := T}, {Acc, N}) ->
+                                  {append(T, {stream, Id, N}, Acc), N + 1}
+                          end, {Routes, 1}, Streams),
+    case Avail of
+        #{topic := AT} -> append(AT, {avail, Id}, R1);
+        undefined -> R1
+    end.
+
+append(K, V, M) -> M#{K => maps:get(K, M, []) ++ [V]}.
+
+stream(Id, N, #{comps := Comps}) ->
+    lists:nth(N, maps:get(streams, maps:get(Id, Comps))).
+
+route({stream, Id, N}, #{payload := Payload, retain := Retain, topic := Topic}, _Now, S) ->
+    #{last := Last} = S,
+    Stream = stream(Id, N, S),
+    #{mapping := Mapping, static := Static, context := Ctx, category := Cat, type := Type,
+      on_change := OnChange} = Stream,
+    case extract(Mapping, Payload, exclude(S)) of
+        {ok, []} ->
+            {S, []};
+        {ok, Values} ->
+            Params = dedupe(Values ++ Static),
+            Stamp = timestamp(Payload, S),
+            Previous = maps:get({Id, N}, Last, undefined),
+            S1 = S#{last := Last#{{Id, N} => Params}},
+            case (Retain orelse OnChange) andalso Previous =:= Params of
+                true ->
+                    %% A retained state already passed on (after a reconnect),
+                    %% or an unchanged reading of an on-change stream.
+                    {S1, []};
+                false ->
+                    Body = #{category => Cat, type => Type, parameters => Params},
+                    {S1, [{send, Stamp#{context => Ctx, sender => Id, receiver => R, body => Body}}
+                          || R <- stream_receivers(Id, Cat, Type, S)]}
+            end;
+        {error, Message} ->
+            {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
+                             message => Message}}]}
+    end;
+route({avail, Id}, #{payload := Payload, topic := Topic}, Now, #{comps := Comps, avail := Av} = S) ->
+    #{availability := #{value := Source, online := On, offline := Off}} = maps:get(Id, Comps),
+    Text = case {text(Payload), Source} of
+               {error, _} -> {error, <<"the payload is not UTF-8 text">>};
+               {{ok, Plain}, raw} -> {ok, Plain};
+               {{ok, Legacy}, {json, Path}} ->
+                   %% zigbee2mqtt wrote plain online/offline before it wrote JSON.
+                   case json_text(Payload, Path) of
+                       {ok, _} = Ok -> Ok;
+                       {error, _} = E -> case lists:member(string:trim(Legacy), [On, Off]) of
+                                             true -> {ok, Legacy};
+                                             false -> E
+                                         end
+                   end
+           end,
+    New = case Text of
+              {ok, T} ->
+                  X = string:casefold(string:trim(T)),
+                  case {X =:= string:casefold(On), X =:= string:casefold(Off)} of
+                      {true, _} -> online;
+                      {_, true} -> offline;
+                      _ -> {error, <<"neither the available nor the not-available payload">>}
+                  end;
+              {error, M} -> {error, M}
+          end,
+    case {New, maps:get(Id, Av, undefined)} of
+        {{error, M1}, _} ->
+            {S, [{problem, #{what => bad_availability, component => Id, topic => Topic,
+                             message => M1}}]};
+        {State, {State, _}} ->
+            {S, []};
+        {online, undefined} ->
+            {S#{avail := Av#{Id => {online, Now}}}, []};
+        {State, Old} ->
+            Since = case Old of
+                        {offline, T0} -> T0;
+                        _ -> undefined
+                    end,
+            {S#{avail := Av#{Id => {State, Now}}}, availability_events(Id, State, Since, Now, S)}
+    end.
+
+availability_events(Id, State, OfflineSince, Now, #{comps := Comps} = S) ->
+    #{room := Room} = maps:get(Id, Comps),
+    {Type, Extra} = case State of
+                        offline ->
+                            {<<"DeviceDisconnected">>, [{<<"Availability">>, <<"offline">>}]};
+                        online when is_integer(OfflineSince) ->
+                            {<<"DeviceReconnected">>,
+                             [{<<"Availability">>, <<"online">>},
+                              {<<"OfflineSeconds">>,
+                               integer_to_binary(max(0, Now - OfflineSince) div 1000)}]};
+                        online ->
+                            {<<"DeviceReconnected">>, [{<<"Availability">>, <<"online">>}]}
+                    end,
+    Params = [{<<"Component">>, Id}] ++ [{<<"Room">>, Room} || Room =/= undefined] ++ Extra,
+    Body = #{category => <<"EVENT">>, type => Type, parameters => Params},
+    [{send, #{context => event, sender => Id, receiver => P, body => Body}}
+     || P <- partners(Id, S)].
+
+%% A state message may answer commands waiting for their echo.
+echo(#{topic := Topic, payload := Payload}, #{pending := P} = S) ->
+    Waiting = [{K, V} || {K, #{service := #{state_topic := T}} = V} <- maps:to_list(P),
+                         T =:= Topic],
+    lists:foldl(fun({Key, #{service := Service} = Pending}, {SAcc, EAcc}) ->
+                        #{expect := Expect, progress := Progress, mapping := Mapping} = Service,
+                        case {matches(Expect, Payload), matches(Progress, Payload)} of
+                            {true, _} ->
+                                Values = values_or_empty(Mapping, Payload, SAcc),
+                                #{pending := PAcc} = SAcc,
+                                {SAcc#{pending := maps:remove(Key, PAcc)},
+                                 EAcc ++ [{cancel_timer, Key}
+                                          | stamp(answer_done(Key, Pending, Values, SAcc),
+                                                  timestamp(Payload, SAcc))]};
+                            {false, true} ->
+                                Values = values_or_empty(Mapping, Payload, SAcc),
+                                {SAcc, EAcc ++ [{start_timer, Key, maps:get(echo_timeout, SAcc)}
+                                                | stamp(answer_progress(Key, Pending, Values, SAcc),
+                                                        timestamp(Payload, SAcc))]};
+                            {false, false} ->
+                                {SAcc, EAcc}
+                        end
+                end, {S, []}, lists:sort(Waiting)).
+
+values_or_empty(Mapping, Payload, S) ->
+    case extract(Mapping, Payload, exclude(S)) of
+        {ok, Vs} -> Vs;
+        {error, _} -> []
+    end.
+
+exclude(#{ts_field := undefined}) -> #{};
+exclude(#{ts_field := F}) -> #{exclude => [F]}.
+
+%% The reading's own time, when the payload carries it.
+timestamp(_Payload, #{ts_field := undefined}) ->
+    #{};
+timestamp(Payload, #{ts_field := Field}) ->
+    case mqtt_avatar_json:decode(Payload) of
+        {ok, #{Field := T}} when is_integer(T), T >= 0, T < 1 bsl 62 -> #{timestamp => T};
+        _ -> #{}
+    end.
+
+%% Answers are only signals.
+stamp(Sends, Stamp) ->
+    [{send, maps:merge(Signal, Stamp)} || {send, Signal} <- Sends].
+
+matches(none, _) -> false;
+matches(undefined, _) -> false;
+matches(any, _) -> true;
+matches({raw, Text}, Payload) ->
+    case text(Payload) of
+        {ok, T} -> same(string:trim(T), Text);
+        error -> false
+    end;
+matches({json, Path, Text}, Payload) ->
+    case mqtt_avatar_json:decode(Payload) of
+        {ok, J} ->
+            case mqtt_avatar_json:get_path(Path, J) of
+                {ok, V} -> same(mqtt_avatar_json:to_text(V), Text) orelse same(yes_no(V), Text);
+                error -> false
+            end;
+        {error, _} -> false
+    end.
+
+same(A, B) ->
+    string:casefold(A) =:= string:casefold(B).
+
+%% ---------------------------------------------------------------------------
+%% Requests from the VA
+%% ---------------------------------------------------------------------------
+
+request(#{id := Id, sender := From, receiver := To, context := Ctx,
+          body := #{category := Cat, type := Type, parameters := Args}}, _Now, S) ->
+    #{comps := Comps, pending := P, mqtt := Mqtt, avail := Av, echo_timeout := Timeout} = S,
+    Key = {From, Id},
+    Awaiting = Ctx =:= request,
+    Base = #{component => To, requester => From, awaiting => Awaiting},
+    case maps:find(To, Comps) of
+        error ->
+            {S, answer_error(Key, Base, <<"UnknownComponent">>,
+                             <<"no such component in this MQTT Avatar">>)};
+        {ok, Comp} ->
+            case find_service(Cat, Type, Comp) of
+                none ->
+                    {S, answer_error(Key, Base, <<"UnknownService">>,
+                                     iolist_to_binary(["component ", To, " has no service ",
+                                                       Cat, "/", Type]))};
+                #{kind := unsupported, type := T} ->
+                    {S, answer_error(Key, Base, <<"NotSupported">>,
+                                     iolist_to_binary(["service ", T, " of ", To, " has no MQTT "
+                                                       "mapping (no MqttCommand, no stream to read)"]))};
+                #{kind := read} = Service ->
+                    {S, answer_read(Key, Base#{service => Service}, Comp, S)};
+                #{kind := command} = Service ->
+                    Pending = Base#{service => Service},
+                    case {Mqtt, maps:get(To, Av, undefined)} of
+                        {down, _} ->
+                            {S, answer_error(Key, Pending, <<"BrokerUnavailable">>,
+                                             <<"the MQTT broker is not reachable at the moment">>)};
+                        {up, {offline, _}} ->
+                            {S, answer_error(Key, Pending, <<"DeviceUnavailable">>,
+                                             iolist_to_binary(["device ", To, " is offline (its "
+                                                               "availability topic says so)"]))};
+                        {up, _} ->
+                            case command_payload(Service, Args) of
+                                {ok, Payload} ->
+                                    publish(Key, Pending, Payload, Timeout, P, S);
+                                {error, Message} ->
+                                    {S, answer_error(Key, Pending, <<"BadParameter">>, Message)}
+                            end
+                    end
+            end
+    end.
+
+publish(Key, #{service := #{command_topic := Topic, expect := Expect}} = Pending, Payload,
+        Timeout, P, S) ->
+    case {maps:get(awaiting, Pending), Expect} of
+        {false, _} ->
+            {S, [{publish, Topic, Payload, undefined}]};
+        {true, _} when is_map_key(Key, P) ->
+            {S, answer_error(Key, Pending, <<"DuplicateRequest">>,
+                             <<"a request with this SignalID is still waiting for its echo">>)};
+        {true, _} ->
+            {S#{pending := P#{Key => Pending}},
+             [{publish, Topic, Payload, Key}, {start_timer, Key, Timeout}]}
+    end.
+
+find_service(Cat, Type, #{services := Services}) ->
+    K = {mqtt_avatar_spec:keyword(Cat), mqtt_avatar_spec:keyword(Type)},
+    case [Sv || #{category := C, type := T} = Sv <- Services,
+                {mqtt_avatar_spec:keyword(C), mqtt_avatar_spec:keyword(T)} =:= K] of
+        [Service | _] -> Service;
+        [] -> none
+    end.
+
+command_payload(#{command := {raw, Text}, args := Args}, Params) ->
+    case [V || {Name, _} <- Args, {N, V} <- Params, N =:= Name] of
+        [V | _] -> {ok, V};
+        [] -> {ok, Text}
+    end;
+command_payload(#{command := {json, Base}, args := []}, _Params) ->
+    {ok, mqtt_avatar_json:encode(Base)};
+command_payload(#{command := {json, Base}, args := Args}, Params) when is_map(Base) ->
+    Json = lists:foldl(fun({Name, Path}, Acc) ->
+                               case lists:keyfind(Name, 1, Params) of
+                                   {_, V} -> put_path(Path, json_value(V), Acc);
+                                   false -> Acc
+                               end
+                       end, Base, Args),
+    {ok, mqtt_avatar_json:encode(Json)};
+command_payload(#{command := {json, _}}, _Params) ->
+    {error, <<"MqttCommandArgs needs MqttCommand to be a JSON object">>}.
+
+put_path([K], V, M) -> M#{K => V};
+put_path([K | Rest], V, M) ->
+    Inner = case maps:get(K, M, #{}) of
+                I when is_map(I) -> I;
+                _ -> #{}
+            end,
+    M#{K => put_path(Rest, V, Inner)}.
+
+%% Request parameters are text; numbers go out as JSON numbers.
+json_value(V) ->
+    case mqtt_avatar_json:decode(V) of
+        {ok, N} when is_number(N) -> N;
+        _ -> V
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Answers
+%% ---------------------------------------------------------------------------
+
+answer_read({_, Id}, #{service := #{type := T, static := Static}} = Pending, Comp, S) ->
+    #{id := CompId, read_body := {Cat, Type}} = Comp,
+    Values = maps:get(CompId, last_values(S), []),
+    Result = case Values of
+                 [] -> <<"unknown">>;
+                 _ -> <<"done">>
+             end,
+    case maps:get(awaiting, Pending) of
+        true ->
+            Params = dedupe([{<<"Service">>, T}, {<<"Result">>, Result}] ++ Values ++ Static),
+            [{send, #{context => feedback, sender => CompId, receiver => maps:get(requester, Pending),
+                      in_reply_to => Id,
+                      body => #{category => Cat, type => Type, parameters => Params}}}];
+        false ->
+            []
+    end.
+
+answer_done({_, Id}, #{awaiting := true} = Pending, Values, #{comps := Comps}) ->
+    #{component := C, requester := R, service := #{type := T, static := Static}} = Pending,
+    {Cat, Type} = maps:get(feedback, maps:get(C, Comps)),
+    Params = dedupe([{<<"Service">>, T}, {<<"Result">>, <<"done">>}] ++ Values ++ Static),
+    [{send, #{context => feedback, sender => C, receiver => R, in_reply_to => Id,
+              body => #{category => Cat, type => Type, parameters => Params}}}];
+answer_done(_, _, _, _) ->
+    [].
+
+answer_progress({_, Id}, #{awaiting := true} = Pending, Values, #{comps := Comps}) ->
+    #{component := C, requester := R, service := #{type := T}} = Pending,
+    {Cat, Type} = maps:get(feedback, maps:get(C, Comps)),
+    Params = dedupe([{<<"Service">>, T}] ++ Values),
+    [{send, #{context => progress, sender => C, receiver => R, in_reply_to => Id,
+              body => #{category => Cat, type => Type, parameters => Params}}}];
+answer_progress(_, _, _, _) ->
+    [].
+
+answer_error({_, Id}, #{awaiting := true, component := C, requester := R}, Code, Message) ->
+    [{send, #{context => error, sender => C, receiver => R, in_reply_to => Id,
+              body => #{category => <<"ERROR">>, type => Code,
+                        parameters => [{<<"Message">>, Message}]}}}];
+answer_error({_, Id}, #{component := C}, Code, Message) ->
+    [{problem, #{what => request_failed, component => C, code => Code, request => Id,
+                 message => Message}}].
+
+%% ---------------------------------------------------------------------------
+%% Payload mapping
+%% ---------------------------------------------------------------------------
+
+%% @doc Applies a mapping to a payload: the BIL parameters it gives (none
+%% when no mapped field is present), or `{error, Message}' for a payload
+%% that cannot be read (not UTF-8, not JSON where JSON is expected).
+-spec extract(#{values := list(), attributes := boolean(), map := list()}, binary()) ->
+          {ok, [bil:parameter()]} | {error, binary()}.
+extract(Mapping, Payload) ->
+    extract(Mapping, Payload, #{}).
+
+%% @doc As `extract/2'; top-level fields named in `exclude' never become
+%% attributes.
+-spec extract(#{values := list(), attributes := boolean(), map := list()}, binary(),
+              #{exclude => [binary()]}) ->
+          {ok, [bil:parameter()]} | {error, binary()}.
+extract(#{values := Values, attributes := Attributes, map := Map}, Payload, Opts) ->
+    Exclude = maps:get(exclude, Opts, []),
+    NeedsJson = Attributes orelse lists:any(fun({_, S}) -> S =/= raw end, Values),
+    Decoded = case NeedsJson of
+                  true -> mqtt_avatar_json:decode(Payload);
+                  false -> {ok, undefined}
+              end,
+    case {text(Payload), Decoded} of
+        {error, _} ->
+            {error, <<"the payload is not UTF-8 text">>};
+        {_, {error, Reason}} ->
+            {error, mqtt_avatar_json:format_error(Reason)};
+        {{ok, Text}, {ok, Json}} ->
+            Mapped = lists:append([one_value(Name, Source, Text, Json) || {Name, Source} <- Values]),
+            Attrs = case {Attributes, Json} of
+                        {true, J} when is_map(J) ->
+                            [{camel(K), scalar(V)} || {K, V} <- lists:sort(maps:to_list(J)),
+                                                      is_scalar(V), camel(K) =/= <<>>,
+                                                      not lists:member(K, Exclude)];
+                        _ -> []
+                    end,
+            Params = [{N, translate(V, Map)} || {N, V} <- Mapped ++ Attrs],
+            case [N || {N, V} <- Params, byte_size(V) > ?MAX_VALUE] of
+                [] -> {ok, dedupe(Params)};
+                [N | _] -> {error, <<"value of ", N/binary, " longer than 4096 bytes">>}
+            end
+    end.
+
+one_value(Name, raw, Text, _Json) ->
+    [{Name, Text}];
+one_value(Name, {json, Path}, _Text, Json) ->
+    case mqtt_avatar_json:get_path(Path, Json) of
+        {ok, null} -> [];
+        {ok, V} -> [{Name, scalar(V)}];
+        error -> []
+    end.
+
+json_text(Payload, Path) ->
+    case mqtt_avatar_json:decode(Payload) of
+        {ok, J} ->
+            case mqtt_avatar_json:get_path(Path, J) of
+                {ok, V} -> {ok, mqtt_avatar_json:to_text(V)};
+                error -> {error, <<"the availability field is missing">>}
+            end;
+        {error, R} ->
+            {error, mqtt_avatar_json:format_error(R)}
+    end.
+
+%% BIL's yes/no for JSON booleans; the text of everything else.
+scalar(V) -> yes_no(V).
+
+yes_no(true) -> <<"yes">>;
+yes_no(false) -> <<"no">>;
+yes_no(V) -> clean(mqtt_avatar_json:to_text(V)).
+
+is_scalar(V) -> not is_map(V) andalso not is_list(V) andalso V =/= null.
+
+translate(V, Map) ->
+    case lists:keyfind(string:casefold(V), 1, Map) of
+        {_, To} -> To;
+        false -> V
+    end.
+
+%% Valid UTF-8, with the control characters XML cannot carry replaced.
+text(Payload) ->
+    case unicode:characters_to_binary(Payload) of
+        Payload -> {ok, clean(Payload)};
+        _ -> error
+    end.
+
+clean(Bin) ->
+    << <<(case C of
+              _ when C =:= $\t; C =:= $\n; C =:= $\r -> C;
+              _ when C < 16#20; C =:= 16#FFFE; C =:= 16#FFFF -> $\s;
+              _ -> C
+          end)/utf8>> || <<C/utf8>> <= Bin >>.
+
+%% @doc A JSON key as a BIL parameter name: `last_motion' gives
+%% `LastMotion'. Only ASCII letters and digits are kept; a leading digit
+%% gets a `P' in front; `<<>>' when nothing is left.
+-spec camel(binary()) -> binary().
+camel(Key) ->
+    Parts = [P || P <- re:split(Key, <<"[^A-Za-z0-9]+">>, [{return, binary}]), P =/= <<>>],
+    Name = << <<(upper_first(P))/binary>> || P <- Parts >>,
+    case Name of
+        <<C, _/binary>> when C >= $0, C =< $9 -> <<"P", Name/binary>>;
+        _ -> Name
+    end.
+
+upper_first(<<C, Rest/binary>>) when C >= $a, C =< $z -> <<(C - 32), Rest/binary>>;
+upper_first(B) -> B.
+
+dedupe(Params) ->
+    {Out, _} = lists:foldl(fun({N, _} = P, {Acc, Seen}) ->
+                                   case maps:is_key(N, Seen) of
+                                       true -> {Acc, Seen};
+                                       false -> {[P | Acc], Seen#{N => true}}
+                                   end
+                           end, {[], #{}}, Params),
+    lists:reverse(Out).
+
+%% ---------------------------------------------------------------------------
+%% Binding
+%% ---------------------------------------------------------------------------
+
+stream_receivers(Id, Cat, Type, #{entity := E, bound := Bound}) ->
+    [C || #{consumer := #{entity := CE, component := CC}, provider := #{component := C},
+            category := BC, type := BT} <- Bound,
+          CE =:= E, CC =:= Id, BC =:= Cat, BT =:= Type].
+
+partners(Id, #{entity := E, bound := Bound}) ->
+    lists:usort([P || #{consumer := #{entity := CE, component := CC},
+                        provider := #{component := P}} <- Bound, CE =:= E, CC =:= Id]
+                ++ [C || #{provider := #{entity := PE, component := PC},
+                           consumer := #{component := C}} <- Bound, PE =:= E, PC =:= Id]).

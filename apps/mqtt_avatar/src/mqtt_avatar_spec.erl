@@ -1,0 +1,501 @@
+%% @doc Internal. Reads the MQTT side of an MQTT Avatar's BIL description:
+%% the reserved `Mqtt*' service parameters (docs/mqtt.md section 3) become a
+%% runtime spec (which topics to subscribe to, what to publish for each
+%% service, how payloads map to BIL parameters), and are stripped from the
+%% public description that EVATAR binds. Pure functions only.
+-module(mqtt_avatar_spec).
+
+-export([from_description/1, public/1, is_reserved/1, reserved_names/0,
+         parse_source/1, keyword/1, format_problem/1, round_trip/1, is_name/1]).
+
+-export_type([spec/0, component/0, service/0, stream/0, availability/0, source/0,
+              expect/0, problem/0]).
+
+%% `raw': the whole payload as text; `{json, Path}': a field of the JSON
+%% payload ([] is the whole value).
+-type source() :: raw | {json, [binary()]}.
+-type match() :: {raw, binary()} | {json, [binary()], binary()}.
+-type expect() :: none | any | match().
+%% How a state message becomes BIL parameters.
+-type mapping() :: #{values := [{binary(), source()}],
+                     attributes := boolean(),
+                     map := [{binary(), binary()}]}.
+-type service() :: #{category := binary(),
+                     type := binary(),
+                     static := [bil:parameter()],
+                     kind := command | read | unsupported,
+                     command_topic => binary(),
+                     command => {raw, binary()} | {json, mqtt_avatar_json:json()},
+                     args => [{binary(), [binary()]}],
+                     state_topic => binary() | undefined,
+                     expect => expect(),
+                     progress => match() | undefined,
+                     mapping => mapping()}.
+-type stream() :: #{category := binary(),
+                    type := binary(),
+                    static := [bil:parameter()],
+                    topic := binary(),
+                    context := sensor_data | event,
+                    on_change := boolean(),
+                    mapping := mapping()}.
+-type availability() :: #{topic := binary(),
+                          online := binary(),
+                          offline := binary(),
+                          value := source()}.
+-type component() :: #{id := binary(),
+                       services := [service()],
+                       streams := [stream()],
+                       feedback := {binary(), binary()},
+                       read_body := {binary(), binary()},
+                       room := binary() | undefined,
+                       availability := availability() | undefined}.
+-type spec() :: #{components := [component()],
+                  topics := [binary()]}.
+-type problem() :: #{component := binary(),
+                     entry := binary(),
+                     parameter => binary(),
+                     message := binary()}.
+
+%% Inherited within a component: an entry without one of these takes the
+%% first value written on another entry of the same component.
+-define(INHERITED, [<<"MqttStateTopic">>, <<"MqttCommandTopic">>, <<"MqttAvailabilityTopic">>,
+                    <<"MqttPayloadAvailable">>, <<"MqttPayloadNotAvailable">>,
+                    <<"MqttAvailabilityValue">>]).
+-define(ENTRY_ONLY, [<<"MqttCommand">>, <<"MqttCommandArgs">>, <<"MqttExpect">>,
+                     <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
+                     <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>]).
+
+%% ---------------------------------------------------------------------------
+%% API
+%% ---------------------------------------------------------------------------
+
+%% @doc Every reserved parameter name.
+-spec reserved_names() -> [binary()].
+reserved_names() -> ?INHERITED ++ ?ENTRY_ONLY.
+
+%% @doc True for parameter names reserved for the MQTT mapping (every name
+%% starting with `Mqtt'); they never reach EVATAR.
+-spec is_reserved(binary()) -> boolean().
+is_reserved(<<"Mqtt", _/binary>>) -> true;
+is_reserved(_) -> false.
+
+%% @doc The description EVATAR sees: the same, without reserved parameters.
+-spec public(bil:description()) -> bil:description().
+public(#{components := Components} = D) ->
+    Strip = fun(#{parameters := Ps} = E) ->
+                    E#{parameters := [P || {N, _} = P <- Ps, not is_reserved(N)]}
+            end,
+    D#{components := [C#{services := [Strip(E) || E <- S], consumes := [Strip(E) || E <- Co]}
+                      || #{services := S, consumes := Co} = C <- Components]}.
+
+%% @doc Builds the runtime spec, or lists every problem found.
+-spec from_description(#{components := [bil:component()], atom() => term()}) ->
+          {ok, spec()} | {error, [problem()]}.
+from_description(#{components := Components}) ->
+    Results = [component(C) || C <- Components],
+    case lists:append([P || {error, P} <- Results]) of
+        [] ->
+            Specs = [S || {ok, S} <- Results],
+            {ok, #{components => Specs, topics => topics(Specs)}};
+        Problems ->
+            {error, Problems}
+    end.
+
+%% @doc Parses a payload source: `raw' or `json:a.b.c' (`json:' alone is the
+%% whole JSON value).
+-spec parse_source(binary()) -> {ok, source()} | error.
+parse_source(<<"raw">>) -> {ok, raw};
+parse_source(<<"json:", Path/binary>>) -> path(Path);
+parse_source(_) -> error.
+
+%% @doc The keyword BIL binding compares names with (docs/bil.md section 4,
+%% rule 1), for ASCII names: lower case, letters and digits only.
+-spec keyword(binary()) -> binary().
+keyword(Bin) ->
+    Lower = string:casefold(unicode:characters_to_nfc_binary(Bin)),
+    << <<C/utf8>> || <<C/utf8>> <= Lower, is_alnum(C) >>.
+
+%% @doc Checks that a description can be written as BIL and read back
+%% unchanged by EVATAR's parser.
+-spec round_trip(bil:description()) -> ok | {error, binary()}.
+round_trip(#{components := Components} = D) ->
+    Names = [N || #{services := S, consumes := C} <- Components, #{parameters := Ps} <- S ++ C,
+                  {N, _} <- Ps],
+    case [N || N <- Names, not is_name(N)] of
+        [] ->
+            case bil:parse_description(iolist_to_binary(bil:encode_description(D))) of
+                {ok, _} -> ok;
+                {error, R} -> {error, bil:format_error(R)}
+            end;
+        [Bad | _] ->
+            {error, <<"parameter name ", Bad/binary, " cannot be an XML element name">>}
+    end.
+
+%% @doc One line for a person.
+-spec format_problem(problem()) -> binary().
+format_problem(#{component := C, entry := E, message := M} = P) ->
+    Param = case P of
+                #{parameter := N} -> [" ", N];
+                _ -> []
+            end,
+    iolist_to_binary(["component ", C, ", ", E, Param, ": ", M]).
+
+%% ---------------------------------------------------------------------------
+%% Components
+%% ---------------------------------------------------------------------------
+
+component(#{id := Id, services := Services, consumes := Consumes}) ->
+    Inherited = inherited(Services ++ Consumes),
+    Check = [unknown_names(Id, E, What) || {What, E} <- [{"Service", S} || S <- Services]
+                                                            ++ [{"Consumes", C} || C <- Consumes]],
+    StreamResults = [stream(Id, E, Inherited) || E <- Consumes, has(<<"MqttValue">>, E)
+                                                     orelse has(<<"MqttAttributes">>, E)],
+    Streams = [S || {ok, S} <- StreamResults],
+    ServiceResults = [service(Id, E, Inherited, Streams =/= []) || E <- Services],
+    AvailResult = availability(Id, Inherited),
+    Problems = lists:append(Check) ++ [P || {error, Ps} <- StreamResults ++ ServiceResults ++ [AvailResult],
+                                            P <- Ps],
+    case Problems of
+        [] ->
+            {ok, Avail} = AvailResult,
+            {ok, #{id => Id,
+                   services => [S || {ok, S} <- ServiceResults],
+                   streams => Streams,
+                   feedback => feedback_body(Consumes),
+                   read_body => read_body(Consumes),
+                   room => room(Services ++ Consumes),
+                   availability => Avail}};
+        _ ->
+            {error, Problems}
+    end.
+
+inherited(Entries) ->
+    lists:foldl(fun(#{parameters := Ps}, Acc) ->
+                        lists:foldl(fun({N, V}, A) ->
+                                            case lists:member(N, ?INHERITED) andalso
+                                                not maps:is_key(N, A) of
+                                                true -> A#{N => V};
+                                                false -> A
+                                            end
+                                    end, Acc, Ps)
+                end, #{}, Entries).
+
+unknown_names(Id, #{parameters := Ps} = E, What) ->
+    [problem(Id, E, What, N, <<"unknown reserved parameter (see docs/mqtt.md section 3)">>)
+     || {N, _} <- Ps, is_reserved(N), not lists:member(N, reserved_names())].
+
+%% An entry's own value, else the component's.
+get(Name, #{parameters := Ps}, Inherited) ->
+    case lists:keyfind(Name, 1, Ps) of
+        {_, V} -> V;
+        false -> maps:get(Name, Inherited, undefined)
+    end.
+
+get(Name, #{parameters := Ps}) ->
+    case lists:keyfind(Name, 1, Ps) of
+        {_, V} -> V;
+        false -> undefined
+    end.
+
+has(Name, E) -> get(Name, E) =/= undefined.
+
+static(#{parameters := Ps}) ->
+    [{N, V} || {N, V} <- Ps, not is_reserved(N),
+               not lists:member(keyword(V), [<<"yes">>, <<"no">>, <<"any">>])].
+
+room(Entries) ->
+    case [V || #{parameters := Ps} <- Entries, {<<"Room">>, V} <- Ps] of
+        [R | _] -> R;
+        [] -> undefined
+    end.
+
+feedback_body(Consumes) ->
+    case [{C, T} || #{category := C, type := T} <- Consumes,
+                    keyword(T) =:= <<"actionfeedback">>] of
+        [Body | _] -> Body;
+        [] -> {<<"ACTUATOR">>, <<"ACTION FEEDBACK">>}
+    end.
+
+read_body([#{category := C, type := T} | _]) -> {C, T};
+read_body([]) -> {<<"SENSOR">>, <<"Reading">>}.
+
+%% ---------------------------------------------------------------------------
+%% Entries
+%% ---------------------------------------------------------------------------
+
+stream(Id, E, Inherited) ->
+    What = "Consumes",
+    Topic = topic(Id, E, What, <<"MqttStateTopic">>, get(<<"MqttStateTopic">>, E, Inherited),
+                  <<"a stream needs a state topic (MqttStateTopic on this or another entry)">>),
+    Mapping = mapping(Id, E, What),
+    Context = case get(<<"MqttContext">>, E) of
+                  undefined -> {ok, sensor_data};
+                  V -> case keyword(V) of
+                           <<"sensordata">> -> {ok, sensor_data};
+                           <<"event">> -> {ok, event};
+                           _ -> {error, [problem(Id, E, What, <<"MqttContext">>,
+                                                 <<"must be SensorData or Event">>)]}
+                       end
+              end,
+    OnChange = case get(<<"MqttOnChange">>, E) of
+                   undefined -> {ok, false};
+                   <<"yes">> -> {ok, true};
+                   <<"no">> -> {ok, false};
+                   _ -> {error, [problem(Id, E, What, <<"MqttOnChange">>, <<"must be yes or no">>)]}
+               end,
+    case collect([Topic, Mapping, Context, OnChange]) of
+        {ok, [T, M, Ctx, Change]} ->
+            #{category := Cat, type := Type} = E,
+            {ok, #{category => Cat, type => Type, static => static(E), topic => T,
+                   context => Ctx, on_change => Change, mapping => M}};
+        Error ->
+            Error
+    end.
+
+service(Id, #{category := Cat, type := Type} = E, Inherited, HasStreams) ->
+    Base = #{category => Cat, type => Type, static => static(E)},
+    case get(<<"MqttCommand">>, E) of
+        undefined when HasStreams -> {ok, Base#{kind => read}};
+        undefined -> {ok, Base#{kind => unsupported}};
+        Command -> command_service(Id, E, Inherited, Base, Command)
+    end.
+
+command_service(Id, E, Inherited, Base, Command) ->
+    What = "Service",
+    StateTopic = case get(<<"MqttStateTopic">>, E, Inherited) of
+                     undefined -> {ok, undefined};
+                     ST -> topic(Id, E, What, <<"MqttStateTopic">>, ST, <<>>)
+                 end,
+    Results = [topic(Id, E, What, <<"MqttCommandTopic">>, get(<<"MqttCommandTopic">>, E, Inherited),
+                     <<"a command needs MqttCommandTopic (on this or another entry)">>),
+               command(Id, E, Command),
+               args(Id, E),
+               StateTopic,
+               optional_match(Id, E, <<"MqttProgress">>),
+               mapping(Id, E, What)],
+    case collect(Results) of
+        {ok, [CT, Cmd, Args, ST1, Progress, Mapping]} ->
+            Default = case ST1 of undefined -> none; _ -> any end,
+            case expect(Id, E, Default, ST1) of
+                {ok, Expect} ->
+                    {ok, Base#{kind => command, command_topic => CT, command => Cmd, args => Args,
+                               state_topic => ST1, expect => Expect, progress => Progress,
+                               mapping => Mapping}};
+                Error ->
+                    Error
+            end;
+        Error ->
+            Error
+    end.
+
+command(_Id, _E, <<"raw:", Text/binary>>) ->
+    {ok, {raw, Text}};
+command(Id, E, <<"json:", Text/binary>> = _V) ->
+    case mqtt_avatar_json:decode(Text) of
+        {ok, J} -> {ok, {json, J}};
+        {error, R} -> {error, [problem(Id, E, "Service", <<"MqttCommand">>,
+                                       mqtt_avatar_json:format_error(R))]}
+    end;
+command(Id, E, _) ->
+    {error, [problem(Id, E, "Service", <<"MqttCommand">>,
+                     <<"must start with raw: or json:">>)]}.
+
+args(Id, E) ->
+    case get(<<"MqttCommandArgs">>, E) of
+        undefined ->
+            {ok, []};
+        V ->
+            Parsed = [arg(T) || T <- tokens(V)],
+            case lists:member(error, Parsed) of
+                false -> {ok, Parsed};
+                true -> {error, [problem(Id, E, "Service", <<"MqttCommandArgs">>,
+                                         <<"expected Param or Param=field.path tokens">>)]}
+            end
+    end.
+
+arg(Token) ->
+    case binary:split(Token, <<"=">>) of
+        [Param] -> arg(Param, Param);
+        [Param, Field] -> arg(Param, Field)
+    end.
+
+arg(Param, Field) ->
+    case {is_name(Param), path(Field)} of
+        {true, {ok, {json, [_ | _] = P}}} -> {Param, P};
+        _ -> error
+    end.
+
+expect(Id, E, Default, StateTopic) ->
+    case get(<<"MqttExpect">>, E) of
+        undefined -> {ok, Default};
+        <<"none">> -> {ok, none};
+        <<"any">> when StateTopic =/= undefined -> {ok, any};
+        V when StateTopic =/= undefined ->
+            case match(V) of
+                {ok, M} -> {ok, M};
+                error -> {error, [problem(Id, E, "Service", <<"MqttExpect">>,
+                                          <<"must be none, any, raw:TEXT or json:PATH=TEXT">>)]}
+            end;
+        _ ->
+            {error, [problem(Id, E, "Service", <<"MqttExpect">>,
+                             <<"waiting for a state echo needs MqttStateTopic">>)]}
+    end.
+
+optional_match(Id, E, Name) ->
+    case get(Name, E) of
+        undefined -> {ok, undefined};
+        V -> case match(V) of
+                 {ok, M} -> {ok, M};
+                 error -> {error, [problem(Id, E, "Service", Name,
+                                           <<"must be raw:TEXT or json:PATH=TEXT">>)]}
+             end
+    end.
+
+match(<<"raw:", Text/binary>>) ->
+    {ok, {raw, Text}};
+match(<<"json:", Rest/binary>>) ->
+    case binary:split(Rest, <<"=">>) of
+        [Path, Value] ->
+            case path(Path) of
+                {ok, {json, P}} -> {ok, {json, P, Value}};
+                error -> error
+            end;
+        _ -> error
+    end;
+match(_) ->
+    error.
+
+mapping(Id, E, What) ->
+    Values = case get(<<"MqttValue">>, E) of
+                 undefined -> {ok, []};
+                 V -> values(Id, E, What, V)
+             end,
+    Attributes = case get(<<"MqttAttributes">>, E) of
+                     undefined -> {ok, false};
+                     <<"all">> -> {ok, true};
+                     <<"none">> -> {ok, false};
+                     _ -> {error, [problem(Id, E, What, <<"MqttAttributes">>,
+                                           <<"must be all or none">>)]}
+                 end,
+    Map = case get(<<"MqttMap">>, E) of
+              undefined -> {ok, []};
+              M -> value_map(Id, E, What, M)
+          end,
+    case collect([Values, Attributes, Map]) of
+        {ok, [Vs, A, Mp]} -> {ok, #{values => Vs, attributes => A, map => Mp}};
+        Error -> Error
+    end.
+
+values(Id, E, What, Text) ->
+    Parsed = [value_token(T) || T <- tokens(Text)],
+    case lists:member(error, Parsed) of
+        false when Parsed =/= [] -> {ok, Parsed};
+        _ -> {error, [problem(Id, E, What, <<"MqttValue">>,
+                              <<"expected Param=raw or Param=json:field.path tokens">>)]}
+    end.
+
+value_token(Token) ->
+    case binary:split(Token, <<"=">>) of
+        [Param, Source] ->
+            case {is_name(Param), parse_source(Source)} of
+                {true, {ok, S}} -> {Param, S};
+                _ -> error
+            end;
+        _ -> error
+    end.
+
+value_map(Id, E, What, Text) ->
+    Pairs = [binary:split(T, <<"=">>) || T <- tokens(Text)],
+    case lists:all(fun(P) -> length(P) =:= 2 end, Pairs) of
+        true -> {ok, [{string:casefold(F), To} || [F, To] <- Pairs]};
+        false -> {error, [problem(Id, E, What, <<"MqttMap">>, <<"expected from=to tokens">>)]}
+    end.
+
+availability(Id, Inherited) ->
+    case maps:get(<<"MqttAvailabilityTopic">>, Inherited, undefined) of
+        undefined ->
+            {ok, undefined};
+        Topic ->
+            E = #{category => <<"(component)">>, type => <<>>, parameters => []},
+            Source = maps:get(<<"MqttAvailabilityValue">>, Inherited, <<"raw">>),
+            case {valid_topic(Topic), parse_source(Source)} of
+                {true, {ok, S}} ->
+                    {ok, #{topic => Topic,
+                           online => maps:get(<<"MqttPayloadAvailable">>, Inherited, <<"online">>),
+                           offline => maps:get(<<"MqttPayloadNotAvailable">>, Inherited,
+                                               <<"offline">>),
+                           value => S}};
+                {false, _} ->
+                    {error, [problem(Id, E, "Component", <<"MqttAvailabilityTopic">>,
+                                     <<"a topic must be non-empty, without + or #">>)]};
+                {true, error} ->
+                    {error, [problem(Id, E, "Component", <<"MqttAvailabilityValue">>,
+                                     <<"must be raw or json:field.path">>)]}
+            end
+    end.
+
+topic(Id, E, What, Name, undefined, Missing) ->
+    {error, [problem(Id, E, What, Name, Missing)]};
+topic(Id, E, What, Name, Topic, _Missing) ->
+    case valid_topic(Topic) of
+        true -> {ok, Topic};
+        false -> {error, [problem(Id, E, What, Name,
+                                  <<"a topic must be non-empty, without + or #">>)]}
+    end.
+
+valid_topic(<<>>) -> false;
+valid_topic(T) -> binary:match(T, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch.
+
+topics(Components) ->
+    Ts = lists:append([[T || #{topic := T} <- Streams]
+                       ++ [T || #{state_topic := T} <- Services, T =/= undefined]
+                       ++ [T || #{topic := T} <- [A || A <- [Avail], A =/= undefined]]
+                       || #{streams := Streams, services := Services, availability := Avail}
+                              <- Components]),
+    lists:usort(Ts).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+path(<<>>) ->
+    {ok, {json, []}};
+path(Text) ->
+    Segments = binary:split(Text, <<".">>, [global]),
+    case lists:member(<<>>, Segments) of
+        true -> error;
+        false -> {ok, {json, Segments}}
+    end.
+
+tokens(Text) ->
+    string:lexemes(Text, " \t\n\r").
+
+%% @doc A name BIL can write as an element: an ASCII letter or `_' first,
+%% then letters, digits, `_', `-' or `.'.
+-spec is_name(binary()) -> boolean().
+is_name(<<C, Rest/binary>>) when (C >= $a andalso C =< $z); (C >= $A andalso C =< $Z); C =:= $_ ->
+    lists:all(fun(X) -> is_alnum(X) orelse X =:= $_ orelse X =:= $- orelse X =:= $. end,
+              binary_to_list(Rest)) andalso binary:match(Rest, <<":">>) =:= nomatch;
+is_name(_) ->
+    false.
+
+is_alnum(C) when C >= $a, C =< $z -> true;
+is_alnum(C) when C >= $A, C =< $Z -> true;
+is_alnum(C) when C >= $0, C =< $9 -> true;
+is_alnum(C) when C > 127 -> unicode_alnum(C);
+is_alnum(_) -> false.
+
+%% Outside ASCII: letters are what has a case or is not punctuation or space.
+unicode_alnum(C) ->
+    not lists:member(C, [16#A0, 16#2000, 16#2001, 16#2002, 16#2003, 16#3000, 16#A7, 16#B7,
+                         16#2013, 16#2014, 16#2018, 16#2019, 16#201C, 16#201D, 16#2026]).
+
+collect(Results) ->
+    case [P || {error, Ps} <- Results, P <- Ps] of
+        [] -> {ok, [V || {ok, V} <- Results]};
+        Problems -> {error, Problems}
+    end.
+
+problem(Id, #{category := C, type := T}, What, Name, Message) ->
+    #{component => Id, entry => iolist_to_binary([What, " ", C, "/", T]),
+      parameter => Name, message => Message}.

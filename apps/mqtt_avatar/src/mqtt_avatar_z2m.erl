@@ -1,0 +1,143 @@
+%% @doc Internal. Reads zigbee2mqtt's retained device list
+%% (`<base>/bridge/devices': a JSON array of devices with `friendly_name',
+%% `ieee_address' and `definition.exposes') into the neutral device terms
+%% of mqtt_avatar_discovery. Devices publish their state as one JSON object
+%% on `<base>/<friendly_name>', take commands on `.../set' and report
+%% availability on `.../availability'. Pure; never raises on input.
+-module(mqtt_avatar_z2m).
+
+-export([parse/2]).
+
+%% `access' bits of an expose (zigbee2mqtt's documentation of exposes).
+-define(ACCESS_STATE, 1).
+-define(ACCESS_SET, 2).
+
+%% @doc Parses the device list. Devices that cannot be read are left out
+%% and reported, each with the reason.
+-spec parse(binary(), binary()) ->
+          {ok, [mqtt_avatar_discovery:device()], [binary()]} | {error, binary()}.
+parse(Base, Payload) ->
+    case mqtt_avatar_json:decode(Payload) of
+        {ok, List} when is_list(List) ->
+            Results = [device(Base, D) || D <- List],
+            {ok, [Dev || {ok, Dev} <- Results, Dev =/= skip], [M || {error, M} <- Results]};
+        {ok, _} ->
+            {error, <<"bridge/devices is not a JSON array">>};
+        {error, R} ->
+            {error, mqtt_avatar_json:format_error(R)}
+    end.
+
+device(Base, #{<<"type">> := <<"Coordinator">>}) ->
+    _ = Base,
+    {ok, skip};
+device(Base, #{<<"friendly_name">> := Name} = D) when is_binary(Name), Name =/= <<>> ->
+    case maps:get(<<"definition">>, D, null) of
+        #{<<"exposes">> := Exposes} = Def when is_list(Exposes) ->
+            case valid_topic(Name) of
+                false ->
+                    {error, <<"device ", Name/binary, ": a friendly_name with + or # cannot be a topic">>};
+                true ->
+                    Topic = <<Base/binary, "/", Name/binary>>,
+                    Description = text(maps:get(<<"description">>, Def, undefined)),
+                    Entities = [outlet(E, Description)
+                                || E <- lists:append([expose(Topic, Name, X)
+                                                      || X <- Exposes, is_map(X)])],
+                    Ieee = case maps:get(<<"ieee_address">>, D, undefined) of
+                               I when is_binary(I) -> I;
+                               _ -> Name
+                           end,
+                    {ok, #{key => <<"z2m:", Ieee/binary>>,
+                           name => Name,
+                           room => undefined,
+                           model => text(maps:get(<<"model">>, Def, undefined)),
+                           availability => #{topic => <<Topic/binary, "/availability">>,
+                                             online => <<"online">>, offline => <<"offline">>,
+                                             value => {json, [<<"state">>]}},
+                           entities => Entities}}
+            end;
+        _ ->
+            {error, <<"device ", Name/binary, " has no definition (not interviewed or "
+                      "unsupported); skipped">>}
+    end;
+device(_Base, _) ->
+    {error, <<"an entry without friendly_name; skipped">>}.
+
+%% Composite exposes (light, switch) carry their state in a feature.
+expose(Topic, Dev, #{<<"type">> := Type, <<"features">> := Features} = E)
+  when (Type =:= <<"light">> orelse Type =:= <<"switch">>), is_list(Features) ->
+    case [F || #{<<"property">> := P} = F <- Features, is_map(F), is_binary(P),
+               maps:get(<<"name">>, F, P) =:= <<"state">>] of
+        [State | _] ->
+            Kind = binary_to_kind(Type),
+            Uid = iolist_to_binary([Dev, "/", maps:get(<<"property">>, State)]),
+            [base_entity(Topic, Uid, Kind, State, E)];
+        [] ->
+            []
+    end;
+expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop} = E) when is_binary(Prop) ->
+    Access = case maps:get(<<"access">>, E, ?ACCESS_STATE) of
+                 A when is_integer(A) -> A;
+                 _ -> 0
+             end,
+    Uid = iolist_to_binary([Dev, "/", Prop]),
+    case {Type, Access band ?ACCESS_STATE =/= 0} of
+        {_, false} -> [];
+        {<<"binary">>, true} -> [(base_entity(Topic, Uid, binary_sensor, E, E))
+                                 #{device_class => binary_class(Prop)}];
+        {<<"enum">>, true} when Prop =:= <<"action">> -> [(base_entity(Topic, Uid, event, E, E))];
+        {T, true} when T =:= <<"numeric">>; T =:= <<"enum">>; T =:= <<"text">> ->
+            [base_entity(Topic, Uid, sensor, E, E)];
+        _ -> []
+    end;
+expose(_Topic, _Dev, _E) ->
+    [].
+
+base_entity(Topic, Uid, Kind, Feature, Expose) ->
+    Prop = maps:get(<<"property">>, Feature),
+    On = text(maps:get(<<"value_on">>, Feature, <<"ON">>)),
+    Off = text(maps:get(<<"value_off">>, Feature, <<"OFF">>)),
+    Settable = maps:get(<<"access">>, Feature, 0) band ?ACCESS_SET =/= 0,
+    #{uid => Uid,
+      kind => Kind,
+      name => text(maps:get(<<"label">>, Expose, maps:get(<<"name">>, Expose, Prop))),
+      device_class => undefined,
+      state_topic => Topic,
+      command_topic => case Settable of
+                           true -> <<Topic/binary, "/set">>;
+                           false -> undefined
+                       end,
+      value => {json, [Prop]},
+      json_command => true,
+      on => On, off => Off, state_on => On, state_off => Off,
+      press => <<"PRESS">>,
+      attributes => false,
+      on_change => Kind =/= event,
+      volume => false, duration => false,
+      unit => text(maps:get(<<"unit">>, Feature, undefined))}.
+
+%% zigbee2mqtt has no device class for plugs; its description says so.
+outlet(#{kind := switch} = E, Description) when is_binary(Description) ->
+    case re:run(Description, <<"plug|socket|outlet">>, [caseless]) of
+        {match, _} -> E#{device_class => <<"outlet">>};
+        nomatch -> E
+    end;
+outlet(E, _) ->
+    E.
+
+binary_to_kind(<<"light">>) -> light;
+binary_to_kind(<<"switch">>) -> switch.
+
+binary_class(P) when P =:= <<"occupancy">>; P =:= <<"presence">>; P =:= <<"motion">> ->
+    <<"motion">>;
+binary_class(P) ->
+    P.
+
+text(undefined) -> undefined;
+text(null) -> undefined;
+text(true) -> <<"true">>;
+text(false) -> <<"false">>;
+text(V) when is_binary(V) -> V;
+text(V) when is_number(V) -> mqtt_avatar_json:to_text(V);
+text(_) -> undefined.
+
+valid_topic(T) -> binary:match(T, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch.

@@ -1,0 +1,196 @@
+%% EUnit tests of mqtt_avatar_logic: each rule asserted by its effects,
+%% without processes, sockets or a broker.
+-module(mqtt_avatar_logic_tests).
+
+-include_lib("eunit/include/eunit.hrl").
+
+-define(E, <<"mqtt-home">>).
+
+%% A light with a JSON state echo, availability, and a motion sensor.
+description() ->
+    Entry = fun(Cat, Type, Ps) -> #{category => Cat, type => Type, parameters => Ps} end,
+    #{entity_id => ?E, api_name => <<>>, entity_type => avatar, context => <<>>,
+      components =>
+          [#{id => <<"Light">>,
+             services => [Entry(<<"ACTUATOR">>, <<"TurnLightOn">>,
+                                [{<<"Room">>, <<"kitchen">>},
+                                 {<<"MqttCommandTopic">>, <<"l/set">>},
+                                 {<<"MqttStateTopic">>, <<"l/state">>},
+                                 {<<"MqttCommand">>, <<"json:{\"state\":\"ON\"}">>},
+                                 {<<"MqttExpect">>, <<"json:state=ON">>},
+                                 {<<"MqttProgress">>, <<"json:state=WARMING">>},
+                                 {<<"MqttValue">>, <<"Light=json:state">>},
+                                 {<<"MqttMap">>, <<"ON=on OFF=off">>},
+                                 {<<"MqttAvailabilityTopic">>, <<"l/availability">>}]),
+                          Entry(<<"ACTUATOR">>, <<"Dim">>,
+                                [{<<"MqttCommand">>, <<"json:{}">>},
+                                 {<<"MqttCommandArgs">>, <<"Level=brightness.level">>},
+                                 {<<"MqttExpect">>, <<"none">>}]),
+                          Entry(<<"ACTUATOR">>, <<"Blink">>, [])],
+             consumes => [Entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>, [{<<"Feedback">>, <<"yes">>}])]},
+           #{id => <<"Pir">>,
+             services => [Entry(<<"SENSOR">>, <<"ReadMotion">>, [{<<"Motion">>, <<"yes">>}])],
+             consumes => [Entry(<<"SENSOR">>, <<"MotionDetected">>,
+                                [{<<"Room">>, <<"hall">>},
+                                 {<<"MqttStateTopic">>, <<"p/state">>},
+                                 {<<"MqttValue">>, <<"Motion=json:occupancy">>},
+                                 {<<"MqttAttributes">>, <<"all">>},
+                                 {<<"MqttContext">>, <<"Event">>}])]}]}.
+
+bound() ->
+    Row = fun(CE, CC, PE, PC, Cat, Type) ->
+                  #{consumer => #{entity => CE, component => CC},
+                    provider => #{entity => PE, component => PC},
+                    category => Cat, type => Type, score => 1, candidates => 1}
+          end,
+    #{bound => [Row(<<"va">>, <<"LightEmu">>, ?E, <<"Light">>, <<"ACTUATOR">>, <<"TurnLightOn">>),
+                Row(?E, <<"Light">>, <<"va">>, <<"LightEmu">>, <<"ACTUATOR">>, <<"ACTION FEEDBACK">>),
+                Row(?E, <<"Pir">>, <<"va">>, <<"PirEmu">>, <<"SENSOR">>, <<"MotionDetected">>)],
+      unbound => [], entities => [<<"va">>, ?E]}.
+
+state() ->
+    {ok, Spec} = mqtt_avatar_spec:from_description(description()),
+    S0 = mqtt_avatar_logic:new(?E, Spec, 3000, #{timestamp_field => <<"ts">>}),
+    {S1, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, S0),
+    {S2, _} = mqtt_avatar_logic:handle({binding, bound()}, 0, S1),
+    S2.
+
+request(Id, Type, Params) ->
+    request(Id, Type, Params, request).
+
+request(Id, Type, Params, Ctx) ->
+    {signal, #{id => Id, context => Ctx, sender => <<"LightEmu">>, receiver => <<"Light">>,
+               in_reply_to => undefined, timestamp => 1, seq => 1, epoch => 1,
+               body => #{category => <<"actuator">>, type => Type, parameters => Params}}}.
+
+mqtt(Topic, Payload) -> mqtt(Topic, Payload, false).
+mqtt(Topic, Payload, Retain) -> {mqtt, #{topic => Topic, payload => Payload, retain => Retain}}.
+
+sends(Effects) -> [S || {send, S} <- Effects].
+
+%% A request becomes a publish and a timer; the matching echo becomes the
+%% feedback (with the echo's time), the timer is cancelled.
+request_then_echo_test() ->
+    {S1, [{publish, <<"l/set">>, Payload, Key}, {start_timer, Key, 3000}]} =
+        mqtt_avatar_logic:handle(request(<<"r1">>, <<"turn light on">>, []), 10, state()),
+    ?assertEqual(<<"{\"state\":\"ON\"}">>, iolist_to_binary(Payload)),
+    ?assertEqual(1, mqtt_avatar_logic:pending_count(S1)),
+    %% Another state does not answer it.
+    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"OFF\"}">>), 20, S1),
+    {S2, [{cancel_timer, Key}, {send, F}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\",\"ts\":777}">>), 30, S1),
+    ?assertMatch(#{context := feedback, sender := <<"Light">>, receiver := <<"LightEmu">>,
+                   in_reply_to := <<"r1">>, timestamp := 777,
+                   body := #{category := <<"ACTUATOR">>, type := <<"ACTION FEEDBACK">>}}, F),
+    #{body := #{parameters := Ps}} = F,
+    ?assertEqual([{<<"Service">>, <<"TurnLightOn">>}, {<<"Result">>, <<"done">>},
+                  {<<"Light">>, <<"on">>}, {<<"Room">>, <<"kitchen">>}], Ps),
+    ?assertEqual(0, mqtt_avatar_logic:pending_count(S2)).
+
+%% A progress-shaped state restarts the wait and reaches the VA as Progress.
+progress_test() ->
+    {S1, _} = mqtt_avatar_logic:handle(request(<<"r1">>, <<"TurnLightOn">>, []), 0, state()),
+    {S1, [{start_timer, _, 3000}, {send, #{context := progress, in_reply_to := <<"r1">>}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"WARMING\"}">>), 5, S1).
+
+%% No echo: the entry is forgotten and reported; nothing is sent (EVATAR's
+%% own timeout answers the VA).
+echo_timeout_test() ->
+    {S1, [_, {start_timer, Key, _}]} =
+        mqtt_avatar_logic:handle(request(<<"r1">>, <<"TurnLightOn">>, []), 0, state()),
+    {S2, [{problem, #{what := no_state_echo}}]} =
+        mqtt_avatar_logic:handle({echo_timeout, Key}, 3000, S1),
+    {S2, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>), 3100, S2).
+
+%% Arguments go into the JSON command at their path; with no echo
+%% expected, the broker's PUBACK is the feedback.
+arguments_and_puback_test() ->
+    {S1, [{publish, <<"l/set">>, Payload, Key}, _]} =
+        mqtt_avatar_logic:handle(request(<<"r2">>, <<"Dim">>, [{<<"Level">>, <<"40">>},
+                                                                {<<"Other">>, <<"x">>}]), 0, state()),
+    ?assertEqual({ok, #{<<"brightness">> => #{<<"level">> => 40}}},
+                 mqtt_avatar_json:decode(iolist_to_binary(Payload))),
+    {_, [{cancel_timer, Key}, {send, #{context := feedback, in_reply_to := <<"r2">>}}]} =
+        mqtt_avatar_logic:handle({puback, Key}, 5, S1).
+
+%% A request without feedback is published and forgotten.
+request_no_feedback_test() ->
+    {S1, [{publish, <<"l/set">>, _, undefined}]} =
+        mqtt_avatar_logic:handle(request(<<"r3">>, <<"TurnLightOn">>, [], request_no_feedback), 0,
+                                 state()),
+    ?assertEqual(0, mqtt_avatar_logic:pending_count(S1)).
+
+%% Refusals, each an Error signal to the requester naming the reason.
+refusals_test() ->
+    Code = fun(Effects) -> [T || {send, #{context := error, body := #{type := T}}} <- Effects] end,
+    S = state(),
+    {_, E1} = mqtt_avatar_logic:handle(request(<<"a">>, <<"Fly">>, []), 0, S),
+    ?assertEqual([<<"UnknownService">>], Code(E1)),
+    {_, E2} = mqtt_avatar_logic:handle(request(<<"b">>, <<"Blink">>, []), 0, S),
+    ?assertEqual([<<"NotSupported">>], Code(E2)),
+    {Down, _} = mqtt_avatar_logic:handle({mqtt_status, down}, 0, S),
+    {_, E3} = mqtt_avatar_logic:handle(request(<<"c">>, <<"TurnLightOn">>, []), 0, Down),
+    ?assertEqual([<<"BrokerUnavailable">>], Code(E3)),
+    {Off, _} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"offline">>), 0, S),
+    {_, E4} = mqtt_avatar_logic:handle(request(<<"d">>, <<"TurnLightOn">>, []), 0, Off),
+    ?assertEqual([<<"DeviceUnavailable">>], Code(E4)),
+    {S5, _} = mqtt_avatar_logic:handle(request(<<"e">>, <<"TurnLightOn">>, []), 0, S),
+    {_, E5} = mqtt_avatar_logic:handle(request(<<"e">>, <<"TurnLightOn">>, []), 0, S5),
+    ?assertEqual([<<"DuplicateRequest">>], Code(E5)).
+
+%% Availability changes are events to the component's partners; the
+%% first `online' is the normal state and says nothing.
+availability_test() ->
+    S = state(),
+    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"online">>), 0, S),
+    {S2, [{send, Off}]} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"offline">>), 1000, S1),
+    ?assertMatch(#{context := event, sender := <<"Light">>, receiver := <<"LightEmu">>,
+                   body := #{category := <<"EVENT">>, type := <<"DeviceDisconnected">>}}, Off),
+    {S2, []} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"offline">>), 2000, S2),
+    {_, [{send, On}]} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"ONLINE">>), 61000, S2),
+    #{body := #{type := <<"DeviceReconnected">>, parameters := Ps}} = On,
+    ?assertEqual(<<"60">>, proplists:get_value(<<"OfflineSeconds">>, Ps)),
+    {_, [{problem, #{what := bad_availability}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"sleeping">>), 0, S).
+
+%% Readings become events (this stream's context) to the bound emulator,
+%% with the static Room and the JSON attributes; a retained reading equal
+%% to the last one passed on is not sent again.
+stream_test() ->
+    S = state(),
+    {S1, [{send, M}]} = mqtt_avatar_logic:handle(
+                          mqtt(<<"p/state">>, <<"{\"occupancy\":true,\"battery\":90,\"ts\":5}">>), 0, S),
+    ?assertMatch(#{context := event, sender := <<"Pir">>, receiver := <<"PirEmu">>, timestamp := 5,
+                   body := #{type := <<"MotionDetected">>}}, M),
+    #{body := #{parameters := Ps}} = M,
+    ?assertEqual([{<<"Motion">>, <<"yes">>}, {<<"Battery">>, <<"90">>},
+                  {<<"Occupancy">>, <<"yes">>}, {<<"Room">>, <<"hall">>}], Ps),
+    {S1, []} = mqtt_avatar_logic:handle(
+                 mqtt(<<"p/state">>, <<"{\"occupancy\":true,\"battery\":90,\"ts\":5}">>, true), 0, S1),
+    {_, [{send, _}]} = mqtt_avatar_logic:handle(
+                         mqtt(<<"p/state">>, <<"{\"occupancy\":true,\"battery\":90,\"ts\":5}">>), 0, S1),
+    {_, [{problem, #{what := bad_payload, topic := <<"p/state">>}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"p/state">>, <<"{oops">>), 0, S).
+
+%% A reading that came before the binding reaches the VA when it binds;
+%% the read service answers with the last readings.
+binding_delivers_last_reading_test() ->
+    {ok, Spec} = mqtt_avatar_spec:from_description(description()),
+    S0 = mqtt_avatar_logic:new(?E, Spec, 3000),
+    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"p/state">>, <<"{\"occupancy\":false}">>, true), 0, S0),
+    {S2, [{send, #{receiver := <<"PirEmu">>, body := #{parameters := [{<<"Motion">>, <<"no">>} | _]}}}]} =
+        mqtt_avatar_logic:handle({binding, bound()}, 0, S1),
+    Read = {signal, #{id => <<"q">>, context => request, sender => <<"PirEmu">>, receiver => <<"Pir">>,
+                      in_reply_to => undefined, timestamp => 1, seq => 1, epoch => 1,
+                      body => #{category => <<"SENSOR">>, type => <<"ReadMotion">>, parameters => []}}},
+    {_, [{send, #{context := feedback, body := #{type := <<"MotionDetected">>, parameters := Ps}}}]} =
+        mqtt_avatar_logic:handle(Read, 0, S2),
+    ?assertEqual(<<"done">>, proplists:get_value(<<"Result">>, Ps)),
+    ?assertEqual(<<"no">>, proplists:get_value(<<"Motion">>, Ps)).
+
+%% JSON keys become BIL parameter names.
+camel_test() ->
+    ?assertEqual(<<"LastMotion">>, mqtt_avatar_logic:camel(<<"last_motion">>)),
+    ?assertEqual(<<"P2ndFloor">>, mqtt_avatar_logic:camel(<<"2nd floor">>)),
+    ?assertEqual(<<"TimeOfDay">>, mqtt_avatar_logic:camel(<<"Time of day">>)),
+    ?assertEqual(<<>>, mqtt_avatar_logic:camel(<<"---">>)).
