@@ -140,21 +140,21 @@ encode(#{id := Id, context := Context, sender := Sender, receiver := Receiver,
   when is_integer(Timestamp), Timestamp >= 0 ->
     [<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?>"
        "<bil:Envelope xmlns:bil=\"urn:evatar:bil:1\"><bil:Header><SignalID>">>,
-     bil_xml:escape_text(Id),
+     bil_description:esc(Id),
      <<"</SignalID><Context>">>, wire(Context),
-     <<"</Context><Sender>">>, bil_xml:escape_text(Sender),
-     <<"</Sender><Receiver>">>, bil_xml:escape_text(Receiver),
+     <<"</Context><Sender>">>, bil_description:esc(Sender),
+     <<"</Sender><Receiver>">>, bil_description:esc(Receiver),
      case InReplyTo of
          undefined -> <<"</Receiver><Timestamp>">>;
-         _ -> [<<"</Receiver><InReplyTo>">>, bil_xml:escape_text(InReplyTo),
+         _ -> [<<"</Receiver><InReplyTo>">>, bil_description:esc(InReplyTo),
                <<"</InReplyTo><Timestamp>">>]
      end,
      integer_to_binary(Timestamp),
      <<"</Timestamp>">>,
      encode_number(<<"<Sequence>">>, Seq, <<"</Sequence>">>),
      encode_number(<<"<Epoch>">>, Epoch, <<"</Epoch>">>),
-     <<"</bil:Header><bil:Body><ServiceCategory>">>, bil_xml:escape_text(Category),
-     <<"</ServiceCategory><ServiceType>">>, bil_xml:escape_text(Type),
+     <<"</bil:Header><bil:Body><ServiceCategory>">>, bil_description:esc(Category),
+     <<"</ServiceCategory><ServiceType>">>, bil_description:esc(Type),
      <<"</ServiceType>">>,
      bil_description:encode_parameters(Parameters),
      <<"</bil:Body></bil:Envelope>">>].
