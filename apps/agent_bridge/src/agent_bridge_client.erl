@@ -5,21 +5,36 @@
 %% `{agent_bridge, Client, {binding, Report}}' and, last,
 %% `{agent_bridge, Client, {closed, Reason}}'.
 %%
+%% With `ha => true' it speaks protocol version 2 (docs/protocol.md section
+%% 9): it keeps every signal until EVATAR acknowledges it, acknowledges what
+%% it receives, and when the connection goes (closed, a Refused that means
+%% "try elsewhere", or a silent server) it reconnects through its endpoints,
+%% starting with the next one, resumes the session, sends again what was
+%% not acknowledged and passes nothing twice to the owner. The owner then
+%% also gets `{agent_bridge, Client, {reconnected, Info}}' and, with
+%% `notify_acks => true', `{agent_bridge, Client, {accepted, [SignalID]}}'.
+%%
 %% ```
-%%  connecting --TCP up, Hello sent--> handshaking --Welcome--> connected
-%%      ^   | all endpoints failed           | Refused          | closed, Refused, Bye
-%%      |   v                                v                  v
-%%      +-- next endpoint on failure      (stop)      disconnected hook (stop)
+%%  connecting --TCP up, Hello/Resume sent--> handshaking --Welcome--> connected
+%%      ^   | all endpoints failed               | Refused        | closed, Refused, Bye
+%%      |   v                                    v                v
+%%      +-- next endpoint (ha: with back-off, until reconnect_limit) <--+ (ha)
+%%          (stop)                             (stop)           (stop, not ha)
 %% '''
 -module(agent_bridge_client).
 -behaviour(gen_statem).
 
--export([connect/2, describe/2, send/2, request/3, close/1, session/1]).
+-export([connect/2, describe/2, send/2, request/3, close/1, session/1,
+         status/1, await_acks/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
 -export_type([opts/0, endpoint/0, close_reason/0, partial_signal/0]).
 
 -type endpoint() :: {inet:socket_address() | inet:hostname(), inet:port_number()}.
+%% `ha' (default false) turns on protocol version 2; `reconnect_backoff'
+%% (ms, doubling, default {20, 500}) and `reconnect_limit' (ms without a
+%% session before giving up, default 30000) apply to it, and so does
+%% `notify_acks' (default false).
 -type opts() :: #{pairing := binary(),
                   role := agent | avatar,
                   entity_id := binary(),
@@ -28,7 +43,11 @@
                   connect_timeout => timeout(),
                   handshake_timeout => timeout(),
                   max_frame => pos_integer(),
-                  active_n => pos_integer()}.
+                  active_n => pos_integer(),
+                  ha => boolean(),
+                  reconnect_backoff => {pos_integer(), pos_integer()},
+                  reconnect_limit => pos_integer(),
+                  notify_acks => boolean()}.
 %% A signal with `id', `timestamp', `in_reply_to', `seq' and `epoch' left
 %% out; the client fills them in.
 -type partial_signal() :: #{context => bil:signal_context(),
@@ -44,7 +63,15 @@
                       | {refused, Code :: binary(), Message :: binary()}
                       | {bye, binary()}
                       | {malformed, bil:error_reason()}
-                      | {socket_error, term()}.
+                      | {socket_error, term()}
+                      | {gave_up, term()}.
+
+%% Refusals after which a version 2 client tries the next endpoint.
+-define(RETRY_CODES, [<<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>, <<"PairingDown">>,
+                      <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
+                      <<"SessionResumed">>]).
+-define(ACK_DELAY, 5).
+-define(ACK_EVERY, 32).
 
 -record(d, {opts :: opts(),
             owner :: pid(),
@@ -56,7 +83,29 @@
             welcome :: bil_control:welcome() | undefined,
             nonce :: binary(),
             counter = 0 :: non_neg_integer(),
-            pending = #{} :: #{binary() => gen_statem:from()}}).
+            pending = #{} :: #{binary() => gen_statem:from()},
+            %% Protocol version 2 only.
+            ha = false :: boolean(),
+            all :: [endpoint()],
+            next = 0 :: non_neg_integer(),
+            tried = 0 :: non_neg_integer(),
+            backoff = 0 :: non_neg_integer(),
+            lost_at :: integer() | undefined,
+            last_reason :: term(),
+            session_id :: binary() | undefined,
+            epoch = 0 :: non_neg_integer(),
+            last_seq = 0 :: non_neg_integer(),
+            acked_seq = 0 :: non_neg_integer(),
+            ack_timer = false :: boolean(),
+            unacked = queue:new() :: queue:queue({binary(), iodata()}),
+            unacked_n = 0 :: non_neg_integer(),
+            blocked = queue:new() :: queue:queue({gen_statem:from(), bil:signal()}),
+            ack_waiters = [] :: [gen_statem:from()],
+            description :: iodata() | undefined,
+            heartbeat = 0 :: non_neg_integer(),
+            last_rx = 0 :: integer(),
+            window = 1024 :: pos_integer(),
+            ever_connected = false :: boolean()}).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -64,7 +113,9 @@
 
 %% @doc Connects to the first endpoint that answers and completes the
 %% handshake. A Refused ends the attempt at once: the same credential would
-%% be refused elsewhere too.
+%% be refused elsewhere too (with `ha', a refusal meaning "not here", such as
+%% NotActive, moves on to the next endpoint instead, with back-off, for up to
+%% `reconnect_limit' ms).
 -spec connect([endpoint()], opts()) ->
           {ok, pid()} | {error, {refused, binary(), binary()}
                                 | {unreachable, [{endpoint(), term()}]}}.
@@ -73,13 +124,17 @@ connect(Endpoints, Opts) ->
     {ok, Pid} = gen_statem:start(?MODULE, {Endpoints, Opts, Owner}, []),
     gen_statem:call(Pid, await_welcome).
 
-%% @doc Sends a description; returns once written. The Binding report comes
-%% later as a message.
+%% @doc Sends a description; returns once written (with `ha': once queued;
+%% it is sent again after a reconnect that did not resume the session). The
+%% Binding report comes later as a message.
 -spec describe(pid(), bil:description()) -> ok | {error, closed}.
 describe(Client, Description) ->
-    call(Client, {frame, bil:encode_description(Description)}).
+    call(Client, {describe, bil:encode_description(Description)}).
 
-%% @doc Sends a signal, filling in what the caller left out.
+%% @doc Sends a signal, filling in what the caller left out. With `ha' it
+%% returns once the signal is queued: it is kept, and sent again after a
+%% reconnect, until EVATAR acknowledges it; at most the session's
+%% DedupWindow signals wait for an Ack, beyond that the call waits.
 -spec send(pid(), partial_signal()) -> ok | {error, closed}.
 send(Client, Signal) ->
     call(Client, {signal, Signal}).
@@ -88,7 +143,8 @@ send(Client, Signal) ->
 %% `{ok, Feedback}' (possibly EVATAR's own Timeout feedback: body category
 %% EVATAR, type Timeout), `{error, Signal}' for an error signal answering
 %% it, `{error, timeout}' when nothing came within Timeout ms. Progress
-%% signals reach the owner as usual.
+%% signals reach the owner as usual. With `ha' the wait goes on across
+%% reconnects.
 -spec request(pid(), partial_signal(), timeout()) ->
           {ok, bil:signal()} | {error, timeout | closed | bil:signal()}.
 request(Client, Signal, Timeout) ->
@@ -106,6 +162,22 @@ close(Client) ->
 -spec session(pid()) -> {ok, bil_control:welcome()} | {error, closed}.
 session(Client) -> call(Client, session).
 
+%% @doc Where the client stands: connected or not, the endpoint, the
+%% session, the highest epoch seen, the signals not yet acknowledged and the
+%% highest Sequence passed to the owner.
+-spec status(pid()) -> {ok, map()} | {error, closed}.
+status(Client) -> call(Client, status).
+
+%% @doc Waits until every signal sent so far is acknowledged (`ha' only;
+%% without it, returns ok at once).
+-spec await_acks(pid(), timeout()) -> ok | {error, timeout | closed}.
+await_acks(Client, Timeout) ->
+    try gen_statem:call(Client, await_acks, Timeout)
+    catch exit:{timeout, _} -> {error, timeout};
+          exit:{noproc, _} -> {error, closed};
+          exit:{normal, _} -> {error, closed}
+    end.
+
 call(Client, Request) ->
     try gen_statem:call(Client, Request)
     catch exit:{noproc, _} -> {error, closed};
@@ -122,7 +194,8 @@ callback_mode() -> handle_event_function.
 -spec init({[endpoint()], opts(), pid()}) -> gen_statem:init_result(connecting).
 init({Endpoints, Opts, Owner}) ->
     monitor(process, Owner),
-    D = #d{opts = Opts, owner = Owner, endpoints = Endpoints,
+    D = #d{opts = Opts, owner = Owner, endpoints = Endpoints, all = Endpoints,
+           ha = maps:get(ha, Opts, false) =:= true,
            nonce = binary:encode_hex(crypto:strong_rand_bytes(4))},
     {ok, connecting, D}.
 
@@ -132,30 +205,15 @@ handle_event({call, From}, await_welcome, connected, _D) ->
     {keep_state_and_data, [{reply, From, {ok, self()}}]};
 handle_event({call, From}, await_welcome, connecting, #d{waiter = undefined} = D) ->
     %% Connecting starts only now, so the outcome always has a caller to go to.
-    {keep_state, D#d{waiter = From}, [{next_event, internal, connect}]};
+    {keep_state, D#d{waiter = From, lost_at = now_ms()}, [{next_event, internal, connect}]};
+handle_event(internal, connect, connecting, #d{ha = true} = D) ->
+    attempt(D);
+handle_event({timeout, retry}, retry, connecting, D) ->
+    attempt(D);
 handle_event(internal, connect, connecting, #d{endpoints = []} = D) ->
     fail({unreachable, lists:reverse(D#d.failures)}, D);
-handle_event(internal, connect, connecting, #d{endpoints = [{Host, Port} = E | Rest]} = D) ->
-    Opts = D#d.opts,
-    SockOpts = [binary, {packet, 4}, {packet_size, maps:get(max_frame, Opts, 1048576)},
-                {active, once}, {nodelay, true}],
-    case gen_tcp:connect(Host, Port, SockOpts, maps:get(connect_timeout, Opts, 5000)) of
-        {ok, Sock} ->
-            Hello = {hello, #{pairing => maps:get(pairing, Opts), role => maps:get(role, Opts),
-                              entity_id => maps:get(entity_id, Opts),
-                              credential => maps:get(credential, Opts),
-                              protocol_version => 1}},
-            case gen_tcp:send(Sock, bil_control:encode(Hello)) of
-                ok ->
-                    {next_state, handshaking, D#d{sock = Sock, endpoints = Rest, current = E},
-                     [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
-                {error, Why} ->
-                    gen_tcp:close(Sock),
-                    next_endpoint(E, Why, D#d{endpoints = Rest})
-            end;
-        {error, Why} ->
-            next_endpoint(E, Why, D#d{endpoints = Rest})
-    end;
+handle_event(internal, connect, connecting, #d{endpoints = [E | Rest]} = D) ->
+    try_endpoint(E, D#d{endpoints = Rest});
 handle_event(state_timeout, E, handshaking, D) ->
     gen_tcp:close(D#d.sock),
     next_endpoint(E, handshake_timeout, D#d{sock = undefined});
@@ -164,9 +222,9 @@ handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock} = D) ->
         {ok, {control, {welcome, Welcome}}} ->
             ok = inet:setopts(Sock, [{active, maps:get(active_n, D#d.opts, 32)}]),
             reply_waiter({ok, self()}, D),
-            {next_state, connected, D#d{welcome = Welcome, waiter = undefined}};
+            welcomed(Welcome, D#d{welcome = Welcome, waiter = undefined});
         {ok, {control, {refused, #{code := Code, message := Message}}}} ->
-            fail({refused, Code, Message}, D);
+            refused_in_handshake(Code, Message, D);
         {ok, Other} ->
             fail({refused, <<"BadHandshake">>,
                   iolist_to_binary(io_lib:format("expected Welcome, got ~p", [Other]))}, D);
@@ -179,8 +237,10 @@ handle_event(info, {tcp_error, Sock, Why}, handshaking, #d{sock = Sock} = D) ->
     next_endpoint(D#d.current, Why, D#d{sock = undefined});
 
 %% Connected.
-handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock} = D) ->
+handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock, ha = false} = D) ->
     incoming(bil_control:parse_frame(Frame, #{}), D);
+handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock} = D) ->
+    incoming(bil_control:parse_frame(Frame, #{}), D#d{last_rx = now_ms()});
 handle_event(info, {tcp_passive, Sock}, connected, #d{sock = Sock} = D) ->
     ok = inet:setopts(Sock, [{active, maps:get(active_n, D#d.opts, 32)}]),
     keep_state_and_data;
@@ -188,11 +248,31 @@ handle_event(info, {tcp_closed, Sock}, connected, #d{sock = Sock} = D) ->
     disconnected(closed, D);
 handle_event(info, {tcp_error, Sock, Why}, connected, #d{sock = Sock} = D) ->
     disconnected({socket_error, Why}, D);
-handle_event({call, From}, {frame, Doc}, connected, D) ->
+handle_event({timeout, ack}, ack, connected, D) ->
+    {keep_state, send_ack(D#d{ack_timer = false})};
+handle_event({timeout, ack}, ack, _State, D) ->
+    {keep_state, D#d{ack_timer = false}};
+handle_event({timeout, silence}, check, connected, #d{heartbeat = Hb, last_rx = Rx} = D) ->
+    case now_ms() - Rx > 3 * Hb of
+        true -> disconnected(server_silent, D);
+        false -> {keep_state_and_data, [{{timeout, silence}, Hb, check}]}
+    end;
+handle_event({timeout, silence}, check, _State, _D) ->
+    keep_state_and_data;
+
+%% Requests from the owner.
+handle_event({call, From}, {describe, Doc}, State, #d{ha = true} = D) ->
+    _ = [write(Doc, D) || State =:= connected],
+    {keep_state, D#d{description = Doc}, [{reply, From, ok}]};
+handle_event({call, From}, {describe, Doc}, connected, D) ->
     {keep_state_and_data, [{reply, From, write(Doc, D)}]};
+handle_event({call, From}, {signal, Partial}, State, #d{ha = true} = D) ->
+    ha_send(From, {signal, Partial}, State, D);
 handle_event({call, From}, {signal, Partial}, connected, D) ->
     {Signal, D1} = complete(Partial, D),
     {keep_state, D1, [{reply, From, write(bil:encode_signal(Signal), D1)}]};
+handle_event({call, From}, {request, _, _} = Request, State, #d{ha = true} = D) ->
+    ha_send(From, Request, State, D);
 handle_event({call, From}, {request, Partial, Timeout}, connected, D) ->
     {#{id := Id} = Signal, D1} = complete(Partial#{context => request}, D),
     case write(bil:encode_signal(Signal), D1) of
@@ -206,12 +286,23 @@ handle_event({timeout, {request, Id}}, Id, _State, D) ->
     answer(Id, {error, timeout}, D);
 handle_event({call, From}, session, connected, #d{welcome = W}) ->
     {keep_state_and_data, [{reply, From, {ok, W}}]};
+handle_event({call, From}, status, State, D) ->
+    {keep_state_and_data, [{reply, From, {ok, status(State, D)}}]};
+handle_event({call, From}, await_acks, _State, #d{unacked_n = 0, blocked = B} = D) ->
+    case queue:is_empty(B) of
+        true -> {keep_state_and_data, [{reply, From, ok}]};
+        false -> {keep_state, D#d{ack_waiters = [From | D#d.ack_waiters]}}
+    end;
+handle_event({call, From}, await_acks, _State, D) ->
+    {keep_state, D#d{ack_waiters = [From | D#d.ack_waiters]}};
 handle_event({call, From}, close, connected, #d{sock = Sock} = D) ->
     %% The server answers Bye and closes at once, so either call may find
     %% the socket already closed.
     _ = gen_tcp:send(Sock, bil_control:encode({bye, <<>>})),
     _ = gen_tcp:shutdown(Sock, write),
-    {stop_and_reply, normal, [{reply, From, ok}], notify({closed, normal}, D)};
+    {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
+handle_event({call, From}, close, _State, #d{ha = true} = D) ->
+    {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
 handle_event({call, From}, _Request, _State, _D) ->
     {keep_state_and_data, [{reply, From, {error, closed}}]};
 handle_event(info, {'DOWN', _, process, Owner, _}, _State, #d{owner = Owner} = D) ->
@@ -224,20 +315,124 @@ terminate(_Why, _State, #d{sock = undefined}) -> ok;
 terminate(_Why, _State, #d{sock = Sock}) -> gen_tcp:close(Sock).
 
 %% ---------------------------------------------------------------------------
-%% Internals
+%% Connecting
 %% ---------------------------------------------------------------------------
 
-next_endpoint(E, Why, D) ->
-    {next_state, connecting, D#d{failures = [{E, Why} | D#d.failures]},
-     [{next_event, internal, connect}]}.
+try_endpoint({Host, Port} = E, D) ->
+    Opts = D#d.opts,
+    SockOpts = [binary, {packet, 4}, {packet_size, maps:get(max_frame, Opts, 1048576)},
+                {active, once}, {nodelay, true}],
+    case gen_tcp:connect(Host, Port, SockOpts, maps:get(connect_timeout, Opts, 5000)) of
+        {ok, Sock} ->
+            case gen_tcp:send(Sock, bil_control:encode(hello(D))) of
+                ok ->
+                    {next_state, handshaking, D#d{sock = Sock, current = E},
+                     [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
+                {error, Why} ->
+                    gen_tcp:close(Sock),
+                    next_endpoint(E, Why, D)
+            end;
+        {error, Why} ->
+            next_endpoint(E, Why, D)
+    end.
 
+hello(#d{opts = Opts, ha = Ha, session_id = Session} = D) ->
+    Hello = #{pairing => maps:get(pairing, Opts), role => maps:get(role, Opts),
+              entity_id => maps:get(entity_id, Opts),
+              credential => maps:get(credential, Opts),
+              protocol_version => case Ha of true -> 2; false -> 1 end},
+    case Session of
+        undefined -> {hello, Hello};
+        _ -> {resume, Hello#{session_id => Session, received => D#d.last_seq,
+                             epoch => D#d.epoch}}
+    end.
+
+%% Version 2: one endpoint per attempt, round the ring, starting after the
+%% one that was lost; a pause (doubling) after every full round.
+attempt(#d{all = All, next = Next, tried = Tried} = D) ->
+    Limit = maps:get(reconnect_limit, D#d.opts, 30000),
+    case now_ms() - D#d.lost_at > Limit andalso Tried > 0 of
+        true ->
+            give_up(D);
+        false ->
+            E = lists:nth(Next rem length(All) + 1, All),
+            try_endpoint(E, D#d{next = Next + 1, tried = Tried + 1})
+    end.
+
+next_endpoint(E, Why, #d{ha = false} = D) ->
+    {next_state, connecting, D#d{failures = [{E, Why} | D#d.failures]},
+     [{next_event, internal, connect}]};
+next_endpoint(E, Why, #d{all = All, tried = Tried, opts = Opts} = D) ->
+    D1 = D#d{failures = [{E, Why} | D#d.failures], last_reason = Why, sock = undefined},
+    {Min, Max} = maps:get(reconnect_backoff, Opts, {20, 500}),
+    case Tried rem length(All) of
+        0 ->
+            Pause = min(Max, max(Min, D#d.backoff * 2)),
+            {next_state, connecting, D1#d{backoff = Pause}, [{{timeout, retry}, Pause, retry}]};
+        _ ->
+            {next_state, connecting, D1, [{next_event, internal, connect}]}
+    end.
+
+refused_in_handshake(Code, Message, #d{ha = true} = D) ->
+    case lists:member(Code, ?RETRY_CODES) of
+        true ->
+            gen_tcp:close(D#d.sock),
+            next_endpoint(D#d.current, {refused, Code, Message}, D#d{sock = undefined});
+        false ->
+            fail({refused, Code, Message}, D)
+    end;
+refused_in_handshake(Code, Message, D) ->
+    fail({refused, Code, Message}, D).
+
+fail(Reason, #d{ever_connected = true} = D) ->
+    {stop, normal, finish({closed, Reason}, D)};
 fail(Reason, D) ->
     reply_waiter({error, Reason}, D),
-    {stop, normal, D#d{waiter = undefined}}.
+    {stop, normal, finish_quietly(D#d{waiter = undefined})}.
+
+give_up(#d{ever_connected = false} = D) ->
+    fail({unreachable, lists:reverse(D#d.failures)}, D);
+give_up(#d{last_reason = Why} = D) ->
+    fail({gave_up, Why}, D).
 
 reply_waiter(_Reply, #d{waiter = undefined}) -> ok;
 reply_waiter(Reply, #d{waiter = From}) -> gen_statem:reply(From, Reply).
 
+welcomed(_Welcome, #d{ha = false} = D) ->
+    {next_state, connected, D#d{ever_connected = true}};
+welcomed(Welcome, D) when not is_map_key(ha, Welcome) ->
+    fail({refused, <<"BadHandshake">>, <<"the server does not speak ProtocolVersion 2">>}, D);
+welcomed(#{session_id := Sid, ha := Ha}, #d{ever_connected = Again} = D) ->
+    #{epoch := Epoch, resumed := Resumed, last_accepted := Last, dedup_window := Window,
+      heartbeat := Hb} = Ha,
+    D1 = case Resumed of
+             true ->
+                 drop_accepted(Last, D#d{epoch = max(Epoch, D#d.epoch)});
+             false ->
+                 %% A new session: the server knows nothing of this client.
+                 D#d{session_id = Sid, epoch = Epoch, last_seq = 0, acked_seq = 0}
+         end,
+    D2 = D1#d{ever_connected = true, tried = 0, backoff = 0, failures = [],
+              heartbeat = Hb, window = max(1, Window), last_rx = now_ms()},
+    %% Described again only when the session is new; then everything not
+    %% acknowledged goes again (the server drops what it already accepted).
+    _ = [write(Desc, D2) || not Resumed, Desc <- [D2#d.description], Desc =/= undefined],
+    _ = [write(Frame, D2) || {_, Frame} <- queue:to_list(D2#d.unacked)],
+    D3 = case Again of
+             true -> notify({reconnected, #{endpoint => D2#d.current, resumed => Resumed,
+                                            epoch => D2#d.epoch, session_id => Sid,
+                                            reason => D#d.last_reason}}, D2);
+             false -> D2
+         end,
+    Silence = [{{timeout, silence}, Hb, check} || Hb > 0],
+    {next_state, connected, D3, Silence}.
+
+%% ---------------------------------------------------------------------------
+%% Traffic
+%% ---------------------------------------------------------------------------
+
+incoming({ok, {signal, S}}, #d{ha = true} = D) ->
+    ha_signal(S, D);
 incoming({ok, {signal, #{in_reply_to := Id, context := Ctx} = S}}, #d{pending = P} = D)
   when is_map_key(Id, P), (Ctx =:= feedback orelse Ctx =:= error) ->
     answer(Id, case Ctx of feedback -> {ok, S}; error -> {error, S} end, D);
@@ -245,6 +440,11 @@ incoming({ok, {signal, S}}, D) ->
     {keep_state, notify({signal, S}, D)};
 incoming({ok, {control, {binding, Report}}}, D) ->
     {keep_state, notify({binding, Report}, D)};
+incoming({ok, {control, {ack, Ack}}}, #d{ha = true} = D) ->
+    case Ack of
+        #{accepted := Id} -> {keep_state, acknowledged(Id, D)};
+        #{} -> {keep_state, D}
+    end;
 incoming({ok, {control, {refused, #{code := Code, message := Message}}}}, D) ->
     disconnected({refused, Code, Message}, D);
 incoming({ok, {control, {bye, Reason}}}, D) ->
@@ -255,35 +455,192 @@ incoming({ok, Other}, D) ->
 incoming({error, Reason}, D) ->
     disconnected({malformed, Reason}, D).
 
+%% Nothing twice: a signal redelivered after a resume (Sequence already
+%% passed to the owner) or from an older epoch than one seen is dropped.
+ha_signal(#{seq := Seq}, #d{last_seq = Last} = D) when is_integer(Seq), Seq =< Last ->
+    {keep_state, D};
+ha_signal(#{epoch := Epoch}, #d{epoch = Mine} = D) when is_integer(Epoch), Epoch < Mine ->
+    {keep_state, D};
+ha_signal(#{seq := Seq} = S, D) ->
+    D1 = case Seq of
+             N when is_integer(N) -> D#d{last_seq = N};
+             _ -> D
+         end,
+    D2 = case maps:get(epoch, S, undefined) of
+             E when is_integer(E), E > D1#d.epoch -> D1#d{epoch = E};
+             _ -> D1
+         end,
+    {D3, Actions} = schedule_ack(D2),
+    case S of
+        #{in_reply_to := Id, context := Ctx} when is_map_key(Id, D3#d.pending),
+                                                  (Ctx =:= feedback orelse Ctx =:= error) ->
+            {keep_state, D4, More} = answer(Id, case Ctx of feedback -> {ok, S};
+                                                             error -> {error, S}
+                                                 end, D3),
+            {keep_state, D4, Actions ++ More};
+        _ ->
+            {keep_state, notify({signal, S}, D3), Actions}
+    end.
+
+schedule_ack(#d{last_seq = Last, acked_seq = Acked} = D) when Last - Acked >= ?ACK_EVERY ->
+    {send_ack(D), []};
+schedule_ack(#d{ack_timer = true} = D) ->
+    {D, []};
+schedule_ack(D) ->
+    {D#d{ack_timer = true}, [{{timeout, ack}, ?ACK_DELAY, ack}]}.
+
+send_ack(#d{last_seq = Last, acked_seq = Last} = D) ->
+    D;
+send_ack(#d{last_seq = Last} = D) ->
+    _ = write(bil_control:encode({ack, #{received => Last}}), D),
+    D#d{acked_seq = Last}.
+
+%% The server accepted everything up to `Id' in send order.
+acknowledged(Id, #d{unacked = Q} = D) ->
+    case lists:keymember(Id, 1, queue:to_list(Q)) of
+        true -> drop_through(Id, Q, D, []);
+        false -> D
+    end.
+
+drop_through(Id, Q, D, Acc) ->
+    {{value, {I, _}}, Q1} = queue:out(Q),
+    case I of
+        Id -> after_acks(lists:reverse([I | Acc]), D#d{unacked = Q1,
+                                                        unacked_n = queue:len(Q1)});
+        _ -> drop_through(Id, Q1, D, [I | Acc])
+    end.
+
+drop_accepted(<<>>, D) -> D;
+drop_accepted(Last, D) -> acknowledged(Last, D).
+
+after_acks(Ids, #d{opts = Opts} = D) ->
+    D1 = case maps:get(notify_acks, Opts, false) of
+             true -> notify({accepted, Ids}, D);
+             false -> D
+         end,
+    unblock(D1).
+
+%% Callers that waited for room in the window go on.
+unblock(#d{unacked_n = N, window = W, blocked = B} = D) when N < W ->
+    case queue:out(B) of
+        {{value, {From, Signal}}, B1} ->
+            D1 = keep(From, Signal, D#d{blocked = B1}),
+            _ = [gen_statem:reply(From, ok) || not is_map_key(maps:get(id, Signal),
+                                                             D1#d.pending)],
+            unblock(D1);
+        {empty, _} when N =:= 0 ->
+            _ = [gen_statem:reply(F, ok) || F <- D#d.ack_waiters],
+            D#d{ack_waiters = []};
+        {empty, _} ->
+            D
+    end;
+unblock(D) ->
+    D.
+
+%% The signal is completed (id, time) at once; it waits in `blocked' while
+%% the window of unacknowledged signals is full. A request's timer runs from
+%% the call.
+ha_send(From, Request, State, #d{unacked_n = N, window = W, blocked = B} = D) ->
+    {Signal, Timers, D1} = case Request of
+                               {signal, Partial} ->
+                                   {S, D0} = complete(Partial, D),
+                                   {S, [], D0};
+                               {request, Partial, Timeout} ->
+                                   {#{id := Id} = S, D0} = complete(Partial#{context => request},
+                                                                     D),
+                                   {S, [{{timeout, {request, Id}}, Timeout, Id}], D0}
+                           end,
+    case N >= W orelse not queue:is_empty(B) of
+        true ->
+            {keep_state, D1#d{blocked = queue:in({From, Signal}, B)}, Timers};
+        false ->
+            D2 = keep(From, Signal, D1),
+            Replies = [{reply, From, ok} || element(1, Request) =:= signal],
+            _ = State,
+            {keep_state, D2, Replies ++ Timers}
+    end.
+
+%% Keeps the signal until it is acknowledged and writes it when connected.
+keep(From, #{id := Id} = Signal, #d{unacked = Q, unacked_n = N} = D) ->
+    Frame = bil:encode_signal(Signal),
+    _ = [write(Frame, D) || D#d.welcome =/= undefined],
+    D1 = D#d{unacked = queue:in({Id, Frame}, Q), unacked_n = N + 1},
+    case Signal of
+        #{context := request} -> D1#d{pending = (D1#d.pending)#{Id => From}};
+        _ -> D1
+    end.
+
 answer(Id, Reply, #d{pending = P} = D) ->
     case maps:take(Id, P) of
         {From, P1} ->
             {keep_state, D#d{pending = P1},
              [{reply, From, Reply}, {{timeout, {request, Id}}, cancel}]};
         error ->
-            keep_state_and_data
+            {keep_state, D, []}
     end.
 
-%% Issue 5 hooks in here: instead of stopping, reconnect through the
-%% endpoint list and resume with the Welcome's SessionID.
-disconnected(Reason, #d{pending = P} = D) ->
-    _ = [gen_statem:reply(From, {error, closed}) || From <- maps:values(P)],
-    {stop, normal, notify({closed, Reason}, D#d{pending = #{}})}.
+%% Without `ha' the session ends here. With it, reconnect through the
+%% endpoints (starting after this one) unless the refusal is final.
+disconnected(Reason, #d{ha = true, sock = Sock} = D) ->
+    Retry = case Reason of
+                {refused, Code, _} -> lists:member(Code, ?RETRY_CODES);
+                {malformed, _} -> false;
+                _ -> true
+            end,
+    case Retry of
+        true ->
+            _ = [gen_tcp:close(Sock) || Sock =/= undefined],
+            Next = index_of(D#d.current, D#d.all) + 1,
+            {next_state, connecting,
+             D#d{sock = undefined, welcome = undefined, next = Next, tried = 0,
+                 backoff = 0, lost_at = now_ms(), last_reason = Reason, ack_timer = false},
+             [{next_event, internal, connect}, {{timeout, silence}, cancel},
+              {{timeout, ack}, cancel}]};
+        false ->
+            {stop, normal, finish({closed, Reason}, D)}
+    end;
+disconnected(Reason, D) ->
+    {stop, normal, finish({closed, Reason}, D)}.
+
+index_of(E, List) -> index_of(E, List, 0).
+index_of(_E, [], _N) -> 0;
+index_of(E, [E | _], N) -> N;
+index_of(E, [_ | Rest], N) -> index_of(E, Rest, N + 1).
+
+%% Every waiting caller gets `{error, closed}', the owner `{closed, Reason}'.
+finish(Event, D) ->
+    notify(Event, finish_quietly(D)).
+
+finish_quietly(#d{pending = P, blocked = B, ack_waiters = W} = D) ->
+    _ = [gen_statem:reply(From, {error, closed}) || From <- maps:values(P), From =/= undefined],
+    _ = [gen_statem:reply(From, {error, closed}) || {From, _} <- queue:to_list(B)],
+    _ = [gen_statem:reply(From, {error, closed}) || From <- W],
+    D#d{pending = #{}, blocked = queue:new(), ack_waiters = []}.
 
 notify(Event, #d{owner = Owner} = D) ->
     Owner ! {agent_bridge, self(), Event},
     D.
 
+write(_Doc, #d{sock = undefined}) ->
+    {error, closed};
 write(Doc, #d{sock = Sock}) ->
     case gen_tcp:send(Sock, Doc) of
         ok -> ok;
         {error, _} -> {error, closed}
     end.
 
-complete(Partial, #d{opts = Opts, nonce = Nonce, counter = N} = D) ->
+complete(Partial, #d{counter = N} = D) ->
     Defaults = #{context => request_no_feedback,
-                 id => iolist_to_binary([maps:get(entity_id, Opts), "-", Nonce, "-",
-                                         integer_to_binary(N + 1)]),
+                 id => signal_id(N + 1, D),
                  timestamp => os:system_time(millisecond),
                  in_reply_to => undefined, seq => undefined, epoch => undefined},
     {maps:merge(Defaults, Partial), D#d{counter = N + 1}}.
+
+signal_id(N, #d{opts = Opts, nonce = Nonce}) ->
+    iolist_to_binary([maps:get(entity_id, Opts), "-", Nonce, "-", integer_to_binary(N)]).
+
+status(State, D) ->
+    #{connected => State =:= connected, endpoint => D#d.current, epoch => D#d.epoch,
+      session_id => D#d.session_id, unacked => D#d.unacked_n, last_seq => D#d.last_seq}.
+
+now_ms() -> erlang:monotonic_time(millisecond).

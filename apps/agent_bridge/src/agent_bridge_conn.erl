@@ -13,6 +13,12 @@
 %% directions; `closing' sends the last frame, half-closes, drains what the
 %% peer still sends for a short linger, then stops. Writes never block:
 %% see agent_bridge_outq and docs/protocol.md, "Backpressure".
+%%
+%% A version 2 session (high availability, docs/protocol.md section 9) may
+%% start with a Resume instead of a Hello; it gets `Ack' documents for the
+%% signals the pairing accepted, passes the client's Acks to the pairing, and
+%% sends an empty Ack as a heartbeat when it has sent nothing for
+%% `heartbeat' ms.
 -module(agent_bridge_conn).
 -behaviour(gen_statem).
 
@@ -31,7 +37,8 @@
                   pairing_watermark => pos_integer(),
                   active_n => pos_integer(),
                   linger => non_neg_integer(),
-                  retry_interval => pos_integer()}.
+                  retry_interval => pos_integer(),
+                  heartbeat => pos_integer()}.
 
 -type start_arg() :: {tcp, opts()}
                    | {port, {file:filename_all(), [string()], [{string(), string()}]}, opts()}.
@@ -45,9 +52,9 @@
             pairing_pid :: pid() | undefined,
             monitor :: reference() | undefined,
             entity = <<>> :: binary(),
-            peer_closed = false :: boolean()}).
-
--define(PROTOCOL_VERSION, 1).
+            peer_closed = false :: boolean(),
+            version = 1 :: 1 | 2,
+            sent = false :: boolean()}).
 
 %% @doc Defaults of every connection option (docs/protocol.md, "Limits").
 -spec default_opts() -> opts().
@@ -60,7 +67,8 @@ default_opts() ->
       pairing_watermark => 5000,
       active_n => 32,
       linger => 1000,
-      retry_interval => 10}.
+      retry_interval => 10,
+      heartbeat => 500}.
 
 -spec start_link(start_arg()) -> {ok, pid()}.
 start_link(Arg) ->
@@ -124,6 +132,22 @@ handle_event(info, {evatar, P, {signal, Signal}}, State, #d{pairing = P} = D)
 handle_event(info, {evatar, P, {bound, Report}}, State, #d{pairing = P} = D)
   when State =/= closing ->
     send(bil_control:encode({binding, Report}), D);
+handle_event(info, {evatar, P, {ack, SignalId}}, State, #d{pairing = P} = D)
+  when State =/= closing ->
+    send(bil_control:encode({ack, #{accepted => SignalId}}), D);
+handle_event({timeout, heartbeat}, beat, State, #d{sent = Sent} = D) when State =/= closing ->
+    Beat = {{timeout, heartbeat}, opt(heartbeat, D), beat},
+    case Sent of
+        true ->
+            {keep_state, D#d{sent = false}, [Beat]};
+        false ->
+            case enqueue(bil_control:encode({ack, #{}}), D) of
+                {ok, D1, Actions} -> {keep_state, D1#d{sent = false}, [Beat | Actions]};
+                overflow -> slow_consumer(D)
+            end
+    end;
+handle_event({timeout, heartbeat}, beat, closing, _D) ->
+    keep_state_and_data;
 handle_event(info, {evatar, P, {dropped, Code, Reason}}, State, #d{pairing = P} = D)
   when State =/= closing ->
     ?LOG_NOTICE(#{what => dropped_by_pairing, code => Code, reason => Reason}),
@@ -200,6 +224,8 @@ frame(Frame, State, D) ->
 
 document({ok, {control, {hello, Hello}}}, handshaking, D) ->
     hello(Hello, D);
+document({ok, {control, {resume, Resume}}}, handshaking, D) ->
+    hello(Resume, D);
 document({ok, _}, handshaking, D) ->
     close(refused(<<"BadHandshake">>, <<"the first frame must be a Hello">>), D);
 document({error, Reason}, handshaking, D) ->
@@ -217,6 +243,9 @@ document({ok, {description, Description}}, _State, #d{session = Session} = D) ->
     end;
 document({ok, {control, {bye, _}}}, _State, D) ->
     close({bye, <<>>}, D);
+document({ok, {control, {ack, Ack}}}, _State, #d{version = 2, session = Session}) ->
+    _ = [evatar:ack(Session, N) || #{received := N} <- [Ack], Session =/= undefined],
+    keep_state_and_data;
 document({ok, {control, {Other, _}}}, _State, D) ->
     Message = <<"a client does not send ", (atom_to_binary(Other))/binary, " documents">>,
     send(bil:encode_signal(error_signal(<<"UnexpectedDocument">>, Message, D)), D);
@@ -225,25 +254,52 @@ document({error, Reason}, _State, D) ->
     Signal = error_signal(<<"Malformed">>, bil:format_error(Reason), D),
     send(bil:encode_signal(Signal), D).
 
-hello(#{protocol_version := V}, D) when V =/= ?PROTOCOL_VERSION ->
-    close(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1">>), D);
-hello(#{pairing := P, role := Role, entity_id := E, credential := C}, D) ->
-    case evatar:join(P, Role, E, C) of
+hello(#{protocol_version := V}, D) when V =/= 1, V =/= 2 ->
+    close(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1 and 2">>), D);
+hello(#{protocol_version := 1, session_id := _}, D) ->
+    close(refused(<<"BadHandshake">>, <<"Resume needs ProtocolVersion 2">>), D);
+hello(#{pairing := P, role := Role, entity_id := E, credential := C,
+        protocol_version := V} = Hello, D) ->
+    {SessionId, Result} =
+        case Hello of
+            #{session_id := S, received := R, epoch := Ep} ->
+                {S, evatar:resume(P, Role, E, C, #{session => S, received => R, epoch => Ep})};
+            #{} when V =:= 2 ->
+                S = session_id(),
+                {S, evatar:join(P, Role, E, C, #{session => S})};
+            #{} ->
+                {session_id(), evatar:join(P, Role, E, C)}
+        end,
+    case Result of
         {ok, Session} ->
             Pid = evatar:session_pid(Session),
+            Info = evatar:session_info(Session),
             logger:update_process_metadata(#{pairing => P, entity => E}),
-            ?LOG_INFO(#{what => joined, role => Role}),
+            ?LOG_INFO(#{what => joined, role => Role, protocol_version => V,
+                        resumed => maps:get(resumed, Info)}),
             D1 = D#d{session = Session, pairing = P, pairing_pid = Pid,
-                     monitor = monitor(process, Pid), entity = E},
-            Welcome = {welcome, #{pairing => P, entity_id => E,
-                                  session_id => session_id(),
-                                  join_timeout => maps:get(join_timeout,
-                                                           evatar:session_info(Session)),
-                                  max_frame => opt(max_frame, D)}},
+                     monitor = monitor(process, Pid), entity = E, version = V},
+            Welcome0 = #{pairing => P, entity_id => E, session_id => SessionId,
+                         join_timeout => maps:get(join_timeout, Info),
+                         max_frame => opt(max_frame, D)},
+            Welcome = case V of
+                          1 -> Welcome0;
+                          2 -> Welcome0#{ha => #{epoch => maps:get(epoch, Info),
+                                                 resumed => maps:get(resumed, Info),
+                                                 last_accepted => maps:get(last_accepted, Info),
+                                                 dedup_window => maps:get(dedup_window, Info),
+                                                 heartbeat => opt(heartbeat, D)}}
+                      end,
             ok = agent_bridge_transport:set_max_frame(D1#d.transport, opt(max_frame, D)),
             ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
-            case enqueue(bil_control:encode(Welcome), D1) of
-                {ok, D2, Actions} -> {next_state, joined, D2, Actions};
+            Beat = [{{timeout, heartbeat}, opt(heartbeat, D), beat} || V =:= 2],
+            %% A resumed session has described itself already.
+            Next = case maps:get(resumed, Info) of
+                       true -> active;
+                       false -> joined
+                   end,
+            case enqueue(bil_control:encode({welcome, Welcome}), D1) of
+                {ok, D2, Actions} -> {next_state, Next, D2, Beat ++ Actions};
                 overflow -> slow_consumer(D1)
             end;
         {error, Why} ->
@@ -258,12 +314,27 @@ join_refusal(occupied) ->
 join_refusal(entity_exists) ->
     refused(<<"EntityExists">>, <<"an entity with this id is already joined">>);
 join_refusal(too_many_entities) ->
-    refused(<<"TooManyEntities">>, <<"this pairing is full">>).
+    refused(<<"TooManyEntities">>, <<"this pairing is full">>);
+join_refusal(stale_epoch) ->
+    refused(<<"StaleEpoch">>, <<"this node's instance of the pairing is older than one "
+                                "you have seen; try another endpoint">>);
+join_refusal(fenced) ->
+    refused(<<"Fenced">>, <<"this node lost the majority of the cluster; try another "
+                            "endpoint">>);
+join_refusal({not_active, Node}) ->
+    refused(<<"NotActive">>, <<"this node holds the pairing's standby; the active is on ",
+                               (atom_to_binary(Node))/binary>>).
 
 %% The Refused code of each of the pairing's drop codes (docs/protocol.md).
 -spec dropped_code(evatar:drop_code()) -> binary().
 dropped_code(join_timeout) -> <<"JoinTimeout">>;
-dropped_code(pairing_deleted) -> <<"PairingDeleted">>.
+dropped_code(pairing_deleted) -> <<"PairingDeleted">>;
+dropped_code(slow_consumer) -> <<"SlowConsumer">>;
+dropped_code(not_active) -> <<"NotActive">>;
+dropped_code(fenced) -> <<"Fenced">>;
+dropped_code(stale_epoch) -> <<"StaleEpoch">>;
+dropped_code(silent_link) -> <<"SilentLink">>;
+dropped_code(session_resumed) -> <<"SessionResumed">>.
 
 refused(Code, Message) -> {refused, #{code => Code, message => Message}}.
 
@@ -305,7 +376,7 @@ send(Doc, D) ->
 enqueue(Doc, #d{outq = Q} = D) ->
     case agent_bridge_outq:push(Doc, Q) of
         {ok, Q1} ->
-            try_flush(D#d{outq = Q1});
+            try_flush(D#d{outq = Q1, sent = true});
         {error, overflow} ->
             overflow
     end.

@@ -181,7 +181,7 @@ bad_first_document(Config) ->
     ok = gen_tcp:send(S3, bil_control:encode({hello, #{pairing => ?config(pairing, Config),
                                                       role => agent, entity_id => <<"va">>,
                                                       credential => ?VA_CRED,
-                                                      protocol_version => 2}})),
+                                                      protocol_version => 3}})),
     expect_refused(S3, <<"BadHandshake">>).
 
 %% A client that connects and sends nothing gets HandshakeTimeout.

@@ -1,13 +1,13 @@
 %% @doc Internal. The control documents of the EVATAR wire protocol
-%% (Hello, Welcome, Refused, Binding, Bye: docs/protocol.md) parsed from and
+%% (Hello, Resume, Welcome, Refused, Binding, Ack, Bye: docs/protocol.md) parsed from and
 %% encoded to BIL XML, and `parse_frame/2', which routes one frame to the
 %% control, signal or description parser by its root element.
 -module(bil_control).
 
 -export([parse/2, encode/1, parse_frame/2, root_name/1]).
 
--export_type([control/0, hello/0, welcome/0, refused/0, binding_report/0,
-              role/0, frame/0, frame_limits/0]).
+-export_type([control/0, hello/0, resume/0, welcome/0, welcome_ha/0, refused/0,
+              binding_report/0, ack/0, role/0, frame/0, frame_limits/0]).
 
 -type role() :: agent | avatar.
 -type hello() :: #{pairing := binary(),
@@ -15,18 +15,43 @@
                    entity_id := binary(),
                    credential := binary(),
                    protocol_version := non_neg_integer()}.
+%% Resuming a session (protocol version 2): the Hello's fields, then the
+%% session to resume, the highest Sequence the client has processed in it
+%% and the highest Epoch it has seen.
+-type resume() :: #{pairing := binary(),
+                    role := role(),
+                    entity_id := binary(),
+                    credential := binary(),
+                    protocol_version := non_neg_integer(),
+                    session_id := binary(),
+                    received := non_neg_integer(),
+                    epoch := non_neg_integer()}.
+%% The fields a version 2 Welcome appends: all of them or none.
+-type welcome_ha() :: #{epoch := non_neg_integer(),
+                        resumed := boolean(),
+                        last_accepted := binary(),
+                        dedup_window := non_neg_integer(),
+                        heartbeat := non_neg_integer()}.
 -type welcome() :: #{pairing := binary(),
                      entity_id := binary(),
                      session_id := binary(),
                      join_timeout := non_neg_integer(),
-                     max_frame := non_neg_integer()}.
+                     max_frame := non_neg_integer(),
+                     ha => welcome_ha()}.
+%% Both fields optional: `accepted' (EVATAR to client: every signal the
+%% client sent up to this SignalID is accepted), `received' (client to
+%% EVATAR: every signal up to this Sequence is processed). An empty Ack is a
+%% heartbeat.
+-type ack() :: #{accepted => binary(), received => non_neg_integer()}.
 %% `code' stays a binary: a client must cope with codes newer than itself.
 -type refused() :: #{code := binary(), message := binary()}.
 -type binding_report() :: #{bound := [bil:binding()],
                             unbound := [bil:unbound()],
                             entities := [binary()]}.
 -type control() :: {hello, hello()}
+                 | {resume, resume()}
                  | {welcome, welcome()}
+                 | {ack, ack()}
                  | {refused, refused()}
                  | {binding, binding_report()}
                  | {bye, Reason :: binary()}.
@@ -141,15 +166,47 @@ root(<<"Hello">>, Children) ->
                          {hello, #{pairing => Pairing, role => Role, entity_id => Entity,
                                    credential => Credential, protocol_version => Version}}
                  end);
-root(<<"Welcome">>, Children) ->
-    maybe_fields(Children, <<"/Welcome">>,
-                 [{<<"Pairing">>, text}, {<<"EntityID">>, text}, {<<"SessionID">>, text},
-                  {<<"JoinTimeout">>, integer}, {<<"MaxFrame">>, integer}],
-                 fun([Pairing, Entity, Session, JoinTimeout, MaxFrame]) ->
-                         {welcome, #{pairing => Pairing, entity_id => Entity,
-                                     session_id => Session, join_timeout => JoinTimeout,
-                                     max_frame => MaxFrame}}
+root(<<"Resume">>, Children) ->
+    maybe_fields(Children, <<"/Resume">>,
+                 [{<<"Pairing">>, text}, {<<"Role">>, role}, {<<"EntityID">>, text},
+                  {<<"Credential">>, any_text}, {<<"ProtocolVersion">>, integer},
+                  {<<"SessionID">>, text}, {<<"Received">>, integer}, {<<"Epoch">>, integer}],
+                 fun([Pairing, Role, Entity, Credential, Version, Session, Received, Epoch]) ->
+                         {resume, #{pairing => Pairing, role => Role, entity_id => Entity,
+                                    credential => Credential, protocol_version => Version,
+                                    session_id => Session, received => Received,
+                                    epoch => Epoch}}
                  end);
+root(<<"Welcome">>, Children) ->
+    Path = <<"/Welcome">>,
+    case fields(Children, [{<<"Pairing">>, text}, {<<"EntityID">>, text},
+                           {<<"SessionID">>, text}, {<<"JoinTimeout">>, integer},
+                           {<<"MaxFrame">>, integer}], Path, []) of
+        {ok, [Pairing, Entity, Session, JoinTimeout, MaxFrame], Rest} ->
+            Welcome = #{pairing => Pairing, entity_id => Entity, session_id => Session,
+                        join_timeout => JoinTimeout, max_frame => MaxFrame},
+            case Rest of
+                [{{_, <<"Epoch">>}, _, _} | _] ->
+                    case fields(Rest, [{<<"Epoch">>, integer}, {<<"Resumed">>, boolean},
+                                       {<<"LastAccepted">>, any_text},
+                                       {<<"DedupWindow">>, integer},
+                                       {<<"Heartbeat">>, integer}], Path, []) of
+                        {ok, [Epoch, Resumed, Last, Window, Heartbeat], _} ->
+                            {ok, {welcome, Welcome#{ha => #{epoch => Epoch, resumed => Resumed,
+                                                            last_accepted => Last,
+                                                            dedup_window => Window,
+                                                            heartbeat => Heartbeat}}}};
+                        {error, _} = Error ->
+                            Error
+                    end;
+                _ ->
+                    {ok, {welcome, Welcome}}
+            end;
+        {error, _} = Error ->
+            Error
+    end;
+root(<<"Ack">>, Children) ->
+    ack(Children, <<"/Ack">>);
 root(<<"Refused">>, Children) ->
     maybe_fields(Children, <<"/Refused">>,
                  [{<<"Code">>, text}, {<<"Message">>, any_text}],
@@ -162,7 +219,8 @@ root(<<"Bye">>, Children) ->
 root(<<"Binding">>, Children) ->
     binding(Children);
 root(Local, _) ->
-    err(wrong_root, <<"expected Hello, Welcome, Refused, Binding, Bye, Envelope or description">>,
+    err(wrong_root, <<"expected Hello, Resume, Welcome, Refused, Binding, Ack, Bye, Envelope "
+                      "or description">>,
         <<"/", Local/binary>>).
 
 maybe_fields(Children, Path, Spec, Build) ->
@@ -211,6 +269,9 @@ typed(text, Text, _Path) -> {ok, Text};
 typed(role, <<"agent">>, _Path) -> {ok, agent};
 typed(role, <<"avatar">>, _Path) -> {ok, avatar};
 typed(role, _, Path) -> err(bad_value, <<"Role is agent or avatar">>, Path);
+typed(boolean, <<"true">>, _Path) -> {ok, true};
+typed(boolean, <<"false">>, _Path) -> {ok, false};
+typed(boolean, _, Path) -> err(bad_value, <<"expected true or false">>, Path);
 typed(reason, <<"NoProvider">>, _Path) -> {ok, no_provider};
 typed(reason, <<"ParametersMismatch">>, _Path) -> {ok, parameters_mismatch};
 typed(reason, _, Path) -> err(bad_value, <<"Reason is NoProvider or ParametersMismatch">>, Path);
@@ -227,6 +288,31 @@ typed(positive, Text, Path) ->
 
 digits(<<>>) -> false;
 digits(Text) -> lists:all(fun(C) -> C >= $0 andalso C =< $9 end, binary_to_list(Text)).
+
+%% Both fields are optional, in this order; what follows them is ignored.
+ack(Children, Path) ->
+    case optional(Children, <<"Accepted">>, text, Path) of
+        {ok, Accepted, Rest} ->
+            case optional(Rest, <<"Received">>, integer, Path) of
+                {ok, Received, _Ignored} ->
+                    {ok, {ack, maps:from_list([{accepted, Accepted} || Accepted =/= none] ++
+                                              [{received, Received} || Received =/= none])}};
+                {error, _} = Error ->
+                    Error
+            end;
+        {error, _} = Error ->
+            Error
+    end.
+
+optional([{{_, Name}, _, _} | _] = Children, Name, Kind, Path) ->
+    case fields(Children, [{Name, Kind}], Path, []) of
+        {ok, [Value], Rest} -> {ok, Value, Rest};
+        {error, _} = Error -> Error
+    end;
+optional([Text | _], _Name, _Kind, Path) when is_binary(Text) ->
+    err(unexpected_element, <<"text is not allowed here">>, Path);
+optional(Children, _Name, _Kind, _Path) ->
+    {ok, none, Children}.
 
 binding(Children) ->
     Path = <<"/Binding">>,
@@ -306,12 +392,33 @@ encode({hello, #{pairing := P, role := Role, entity_id := E, credential := C,
     document(<<"Hello">>, [field(<<"Pairing">>, P), field(<<"Role">>, atom_to_binary(Role)),
                        field(<<"EntityID">>, E), field(<<"Credential">>, C),
                        field(<<"ProtocolVersion">>, integer_to_binary(V))]);
+encode({resume, #{pairing := P, role := Role, entity_id := E, credential := C,
+                  protocol_version := V, session_id := S, received := R, epoch := Ep}}) ->
+    document(<<"Resume">>, [field(<<"Pairing">>, P), field(<<"Role">>, atom_to_binary(Role)),
+                        field(<<"EntityID">>, E), field(<<"Credential">>, C),
+                        field(<<"ProtocolVersion">>, integer_to_binary(V)),
+                        field(<<"SessionID">>, S), field(<<"Received">>, integer_to_binary(R)),
+                        field(<<"Epoch">>, integer_to_binary(Ep))]);
 encode({welcome, #{pairing := P, entity_id := E, session_id := S, join_timeout := J,
-                   max_frame := M}}) ->
+                   max_frame := M} = W}) ->
+    Ha = case W of
+             #{ha := #{epoch := Ep, resumed := Res, last_accepted := L, dedup_window := Win,
+                       heartbeat := Hb}} ->
+                 [field(<<"Epoch">>, integer_to_binary(Ep)),
+                  field(<<"Resumed">>, atom_to_binary(Res)),
+                  field(<<"LastAccepted">>, L),
+                  field(<<"DedupWindow">>, integer_to_binary(Win)),
+                  field(<<"Heartbeat">>, integer_to_binary(Hb))];
+             #{} ->
+                 []
+         end,
     document(<<"Welcome">>, [field(<<"Pairing">>, P), field(<<"EntityID">>, E),
                          field(<<"SessionID">>, S),
                          field(<<"JoinTimeout">>, integer_to_binary(J)),
-                         field(<<"MaxFrame">>, integer_to_binary(M))]);
+                         field(<<"MaxFrame">>, integer_to_binary(M)) | Ha]);
+encode({ack, Ack}) ->
+    document(<<"Ack">>, [[field(<<"Accepted">>, A) || #{accepted := A} <- [Ack]],
+                     [field(<<"Received">>, integer_to_binary(R)) || #{received := R} <- [Ack]]]);
 encode({refused, #{code := Code, message := Message}}) ->
     document(<<"Refused">>, [field(<<"Code">>, Code), field(<<"Message">>, Message)]);
 encode({bye, <<>>}) ->

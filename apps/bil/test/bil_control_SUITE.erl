@@ -1,5 +1,6 @@
 %% @doc PropEr properties of the wire protocol's codecs: every control
-%% document (Hello, Welcome, Refused, Binding, Bye; docs/protocol.md section
+%% document (Hello, Resume, Welcome with and without its version 2 fields,
+%% Refused, Binding, Ack, Bye; docs/protocol.md section
 %% 2) survives encode then parse, frames of any kind reach the right parser,
 %% and mutated, truncated or random bytes never make bil_control:parse_frame/2
 %% or the frame layer (agent_bridge_frame) raise: they answer with a result of
@@ -30,6 +31,8 @@
                     <<"<!DOCTYPE x [<!ENTITY a \"b\">]>">>, <<"<?pi x?>">>, <<"</">>,
                     <<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\">">>, <<"</bil:Hello>">>,
                     <<"<Pairing>">>, <<"</Pairing>">>, <<"<Bound>">>, <<"<Unbound>">>,
+                    <<"<Accepted>">>, <<"<Received>7</Received>">>, <<"<Epoch>">>,
+                    <<"<Resumed>true</Resumed>">>,
                     <<"xmlns=\"urn:evatar:bil:1\"">>, <<"xmlns:bil=\"urn:other\"">>,
                     <<"\"">>, <<"'">>, <<" a=\"1\"">>, <<16#C3>>, <<16#FF, 16#FE>>,
                     <<0>>, <<"\r\n">>, <<"99999999999999999999999">>, <<"-1">>]).
@@ -268,7 +271,7 @@ encode(description, D) -> iolist_to_binary(bil:encode_description(D)).
 %% ---------------------------------------------------------------------------
 
 control() ->
-    oneof([hello(), welcome(), refused(), binding(), bye()]).
+    oneof([hello(), welcome(), refused(), binding(), bye(), resume(), ack()]).
 
 hello() ->
     ?LET({Pairing, Role, Entity, Credential, Version},
@@ -278,16 +281,37 @@ hello() ->
                    credential => Credential, protocol_version => Version}}).
 
 welcome() ->
-    ?LET({Pairing, Entity, Session, JoinTimeout, MaxFrame},
+    ?LET({Pairing, Entity, Session, JoinTimeout, MaxFrame, Ha},
          {bil_gen:nonempty_text(), bil_gen:nonempty_text(), bil_gen:nonempty_text(),
-          bil_gen:decimal(), bil_gen:decimal()},
-         {welcome, #{pairing => Pairing, entity_id => Entity, session_id => Session,
-                     join_timeout => JoinTimeout, max_frame => MaxFrame}}).
+          bil_gen:decimal(), bil_gen:decimal(), oneof([none, welcome_ha()])},
+         begin
+             W = #{pairing => Pairing, entity_id => Entity, session_id => Session,
+                   join_timeout => JoinTimeout, max_frame => MaxFrame},
+             {welcome, case Ha of none -> W; _ -> W#{ha => Ha} end}
+         end).
+
+welcome_ha() ->
+    ?LET({Epoch, Resumed, Last, Window, Heartbeat},
+         {bil_gen:decimal(), boolean(), bil_gen:text(), bil_gen:decimal(), bil_gen:decimal()},
+         #{epoch => Epoch, resumed => Resumed, last_accepted => Last, dedup_window => Window,
+           heartbeat => Heartbeat}).
+
+resume() ->
+    ?LET({{hello, Hello}, Session, Received, Epoch},
+         {hello(), bil_gen:nonempty_text(), bil_gen:decimal(), bil_gen:decimal()},
+         {resume, Hello#{session_id => Session, received => Received, epoch => Epoch}}).
+
+ack() ->
+    ?LET({Accepted, Received},
+         {oneof([none, bil_gen:nonempty_text()]), oneof([none, bil_gen:decimal()])},
+         {ack, maps:from_list([{accepted, Accepted} || Accepted =/= none] ++
+                              [{received, Received} || Received =/= none])}).
 
 refused() ->
     ?LET({Code, Message},
          {oneof([elements([<<"BadCredential">>, <<"UnknownPairing">>, <<"Occupied">>,
-                           <<"JoinTimeout">>, <<"PairingDeleted">>, <<"SlowConsumer">>]),
+                           <<"JoinTimeout">>, <<"PairingDeleted">>, <<"SlowConsumer">>,
+                           <<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>]),
                  bil_gen:nonempty_text()]),
           bil_gen:text()},
          {refused, #{code => Code, message => Message}}).
@@ -350,12 +374,14 @@ mutation() ->
 leaf_edit() ->
     oneof([delete, duplicate, empty,
            {text, oneof([elements([<<"0">>, <<"-1">>, <<"agent">>, <<"Agent">>, <<"x">>,
+                                   <<"true">>, <<"false">>,
                                    <<"NoProvider">>, <<"123456789012345678901">>,
                                    <<"<x/>">>, <<" 5">>]),
                          bil_gen:text()])},
            {rename, elements([<<"Pairing">>, <<"Role">>, <<"Code">>, <<"Reason">>,
                               <<"Score">>, <<"EntityID">>, <<"SignalID">>, <<"Context">>,
-                              <<"ServiceType">>, <<"x">>, <<"bil:Bye">>])}]).
+                              <<"ServiceType">>, <<"x">>, <<"bil:Bye">>, <<"Accepted">>,
+                              <<"Received">>, <<"Epoch">>, <<"Resumed">>])}]).
 
 pos() -> range(0, 1 bsl 20).
 
@@ -368,6 +394,8 @@ random_document() ->
                     <<"<bil:description xmlns:bil=\"urn:evatar:bil:1\">">>,
                     <<"<bil:Binding xmlns:bil=\"urn:evatar:bil:1\"><Entities>">>,
                     <<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\"><Pairing>">>,
+                    <<"<bil:Ack xmlns:bil=\"urn:evatar:bil:1\">">>,
+                    <<"<bil:Resume xmlns:bil=\"urn:evatar:bil:1\"><Pairing>">>,
                     <<"<!-- x --><x:Bye xmlns:x=\"urn:evatar:bil:1\"">>]),
           oneof([binary(), ?LET(Parts, list(elements(?FRAGMENTS)), iolist_to_binary(Parts))])},
          <<Prefix/binary, Bytes/binary>>).

@@ -33,7 +33,22 @@ controls() ->
      {binding, report()},
      {binding, #{entities => [], bound => [], unbound => []}},
      {bye, <<>>},
-     {bye, <<"the pairing was stopped">>}].
+     {bye, <<"the pairing was stopped">>},
+     {welcome, #{pairing => <<"kitchen">>, entity_id => <<"va-1">>, session_id => <<"ABCD">>,
+                 join_timeout => 5000, max_frame => 1048576,
+                 ha => #{epoch => 3, resumed => true, last_accepted => <<"va-1-7">>,
+                         dedup_window => 1024, heartbeat => 500}}},
+     {welcome, #{pairing => <<"k">>, entity_id => <<"v">>, session_id => <<"S">>,
+                 join_timeout => 0, max_frame => 1,
+                 ha => #{epoch => 1, resumed => false, last_accepted => <<>>,
+                         dedup_window => 0, heartbeat => 0}}},
+     {resume, #{pairing => <<"kitchen">>, role => avatar, entity_id => <<"7008">>,
+                credential => <<"c">>, protocol_version => 2, session_id => <<"ABCD">>,
+                received => 42, epoch => 2}},
+     {ack, #{}},
+     {ack, #{accepted => <<"va-1-9">>}},
+     {ack, #{received => 17}},
+     {ack, #{accepted => <<"a&b">>, received => 0}}].
 
 parse(Bin) -> bil_control:parse(Bin, #{}).
 
@@ -161,3 +176,51 @@ root_name_test_() ->
      ?_assertEqual(error, bil_control:root_name(<<"<!-- never closed">>)),
      ?_assertEqual(error, bil_control:root_name(<<"<:Hello/>">>)),
      ?_assertEqual(error, bil_control:root_name(<<0, 0, 0, 1>>))].
+
+ack_bytes_test_() ->
+    [?_assertEqual(<<"<bil:Ack " ?NS "><Accepted>x-1</Accepted></bil:Ack>">>,
+                   iolist_to_binary(bil_control:encode({ack, #{accepted => <<"x-1">>}}))),
+     ?_assertEqual(<<"<bil:Ack " ?NS "><Received>5</Received></bil:Ack>">>,
+                   iolist_to_binary(bil_control:encode({ack, #{received => 5}}))),
+     ?_assertEqual(<<"<bil:Ack " ?NS "></bil:Ack>">>,
+                   iolist_to_binary(bil_control:encode({ack, #{}})))].
+
+%% A later version may append fields: a reader ignores them.
+ack_ignores_unknown_fields_test() ->
+    ?assertEqual({ok, {ack, #{received => 3}}},
+                 parse(<<"<bil:Ack " ?NS "><Received>3</Received><Later>x</Later></bil:Ack>">>)),
+    ?assertEqual({ok, {ack, #{}}}, parse(<<"<bil:Ack " ?NS "/>">>)).
+
+ack_bad_values_test_() ->
+    [?_assertMatch({error, #{code := bad_value}},
+                   parse(<<"<bil:Ack " ?NS "><Received>-1</Received></bil:Ack>">>)),
+     ?_assertMatch({error, #{code := bad_value}},
+                   parse(<<"<bil:Ack " ?NS "><Accepted></Accepted></bil:Ack>">>)),
+     ?_assertMatch({error, #{code := unexpected_element}},
+                   parse(<<"<bil:Ack " ?NS ">text</bil:Ack>">>))].
+
+%% A version 1 reader's view of a version 2 Welcome: the appended fields are
+%% optional, all or none.
+welcome_ha_fields_test_() ->
+    V1 = <<"<Pairing>p</Pairing><EntityID>e</EntityID><SessionID>s</SessionID>"
+           "<JoinTimeout>1</JoinTimeout><MaxFrame>2</MaxFrame>">>,
+    [?_assertMatch({ok, {welcome, #{ha := #{epoch := 4, resumed := false}}}},
+                   parse(<<"<bil:Welcome " ?NS ">", V1/binary, "<Epoch>4</Epoch>"
+                           "<Resumed>false</Resumed><LastAccepted></LastAccepted>"
+                           "<DedupWindow>8</DedupWindow><Heartbeat>9</Heartbeat>"
+                           "</bil:Welcome>">>)),
+     ?_assertMatch({error, #{code := missing_element}},
+                   parse(<<"<bil:Welcome " ?NS ">", V1/binary, "<Epoch>4</Epoch></bil:Welcome>">>)),
+     ?_assertMatch({error, #{code := bad_value}},
+                   parse(<<"<bil:Welcome " ?NS ">", V1/binary, "<Epoch>4</Epoch>"
+                           "<Resumed>yes</Resumed><LastAccepted/><DedupWindow>8</DedupWindow>"
+                           "<Heartbeat>9</Heartbeat></bil:Welcome>">>)),
+     ?_assertEqual({ok, {welcome, #{pairing => <<"p">>, entity_id => <<"e">>,
+                                    session_id => <<"s">>, join_timeout => 1, max_frame => 2}}},
+                   parse(<<"<bil:Welcome " ?NS ">", V1/binary, "<Other>4</Other></bil:Welcome>">>))].
+
+resume_missing_field_test() ->
+    ?assertMatch({error, #{code := missing_element, path := <<"/Resume/Epoch">>}},
+                 parse(<<"<bil:Resume " ?NS "><Pairing>p</Pairing><Role>agent</Role>"
+                         "<EntityID>e</EntityID><Credential/><ProtocolVersion>2</ProtocolVersion>"
+                         "<SessionID>s</SessionID><Received>0</Received></bil:Resume>">>)).

@@ -3,34 +3,64 @@
 %% with a credential, describe themselves in BIL and exchange BIL signals
 %% routed through the pairing's Body Mapping Registry. Also the operator's
 %% inspection functions for a remote shell (`pairings/0', `bindings/1',
-%% `registry/1', `stats/1' and their `print_*' forms). docs/architecture.md
-%% describes the processes; every other evatar_* module is internal.
+%% `registry/1', `stats/1' and their `print_*' forms), and the
+%% high-availability view (`ha_status/1', `ha_locate/1', `cluster_status/0').
+%% docs/architecture.md describes the processes; every other evatar_* module
+%% is internal.
 -module(evatar).
 
--export([create_pairing/2, delete_pairing/1, join/4, describe/2, send/2, leave/1,
-         session_pid/1, session_info/1]).
+-export([create_pairing/2, delete_pairing/1, join/4, join/5, resume/5, describe/2,
+         send/2, ack/2, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
+-export([ha_status/1, ha_locate/1, cluster_status/0]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
-              pairing_summary/0, drop_code/0, session_info/0]).
+              pairing_summary/0, drop_code/0, session_info/0, join_error/0,
+              resume_opts/0, ha_status/0]).
 
 -record(session, {pairing :: pairing_id(),
                   pid :: pid(),
                   entity :: binary(),
                   role :: role(),
-                  join_timeout :: non_neg_integer()}).
+                  join_timeout :: non_neg_integer(),
+                  epoch = 1 :: non_neg_integer(),
+                  resumed = false :: boolean(),
+                  last_accepted = <<>> :: binary(),
+                  dedup_window = 0 :: non_neg_integer()}).
 
 -type pairing_id() :: binary().
 -type role() :: agent | avatar.
 -opaque session() :: #session{}.
 %% Timeouts in milliseconds; `join_timeout' and `feedback_timeout' default
 %% to 5000, `max_avatars' to 64.
+%% High availability (docs/architecture.md, section 8): `resume_timeout',
+%% `dedup_window' and `max_unacked_out' default to the application
+%% environment's; `standby_node' asks for the standby on that node.
 -type pairing_opts() :: #{agent_credential := binary(),
                           avatar_credential := binary(),
                           join_timeout => non_neg_integer(),
                           feedback_timeout => non_neg_integer(),
-                          max_avatars => pos_integer()}.
+                          max_avatars => pos_integer(),
+                          resume_timeout => non_neg_integer(),
+                          dedup_window => pos_integer(),
+                          max_unacked_out => pos_integer(),
+                          standby_node => node()}.
+%% A session to resume: its id (as given to join/5), the highest Sequence
+%% the entity has processed, the highest epoch it has seen.
+-type resume_opts() :: #{session := binary(),
+                         received := non_neg_integer(),
+                         epoch := non_neg_integer()}.
+-type join_error() :: unknown_pairing | bad_credential | occupied | entity_exists
+                    | too_many_entities | stale_epoch | fenced | {not_active, node()}.
+-type ha_status() :: #{role := starting | active | standby | fenced,
+                       epoch := non_neg_integer(),
+                       node := node(),
+                       active := pid() | undefined,
+                       standby := pid() | undefined,
+                       standby_node := node() | undefined,
+                       synced := boolean(),
+                       version := non_neg_integer()}.
 %% Sent to every registered entity after every (re)binding; `entities' are
 %% the registered entity ids in registration order.
 -type binding_report() :: #{bound := [bil:binding()],
@@ -39,16 +69,28 @@
 %% Why a pairing dropped an entity, in `{evatar, PairingId, {dropped, Code,
 %% Reason}}' (Reason is a sentence for a person). A fixed set, so a
 %% receiver can map every code: `join_timeout' (no description within the
-%% join timeout), `pairing_deleted' (`delete_pairing/1').
--type drop_code() :: join_timeout | pairing_deleted.
+%% join timeout), `pairing_deleted' (`delete_pairing/1'), `slow_consumer'
+%% (too many delivered signals not acknowledged). The others close the
+%% connection but keep the entity in the pairing, for a resume elsewhere:
+%% `not_active' (the pairing moved to its standby's node), `fenced' (this
+%% node lost the cluster's majority), `stale_epoch' (a newer instance is
+%% active), `silent_link' (delivered signals not acknowledged in time),
+%% `session_resumed' (the session was resumed on another connection).
+-type drop_code() :: join_timeout | pairing_deleted | slow_consumer | not_active | fenced
+                   | stale_epoch | silent_link | session_resumed.
 -type session_info() :: #{pairing := pairing_id(),
                           entity := binary(),
                           role := role(),
                           pid := pid(),
-                          join_timeout := non_neg_integer()}.
+                          join_timeout := non_neg_integer(),
+                          epoch := non_neg_integer(),
+                          resumed := boolean(),
+                          last_accepted := binary(),
+                          dedup_window := non_neg_integer()}.
 -type pairing_summary() :: #{id := pairing_id(),
                              pid := pid(),
-                             state := evatar_pairing_logic:phase() | unavailable,
+                             state := evatar_pairing_logic:phase() | standby | fenced
+                                    | starting | handing_over | unavailable,
                              atom() => term()}.
 
 -define(CALL_TIMEOUT, 15000).
@@ -62,18 +104,32 @@
 %% pid of the pairing process.
 -spec create_pairing(pairing_id(), pairing_opts()) ->
           {ok, pid()} | {error, already_exists | {bad_option, term()}}.
-create_pairing(PairingId, Opts) when is_binary(PairingId) ->
-    case evatar_pairing_logic:config(Opts) of
+create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
+    Defaults = maps:from_list([{K, evatar_cluster:opt(K)}
+                               || K <- [resume_timeout, dedup_window, max_unacked_out]]),
+    case evatar_pairing_logic:config(maps:merge(Defaults, Opts)) of
         {ok, Config} ->
-            case evatar_registry:whereis_name(PairingId) of
-                undefined -> start_pairing(PairingId, Config);
-                _Pid -> {error, already_exists}
+            case evatar_registry:whereis_name(PairingId) =:= undefined andalso
+                not exists_elsewhere(PairingId) of
+                true -> start_pairing(PairingId, Config);
+                false -> {error, already_exists}
             end;
         {error, _} = Error ->
             Error
     end;
 create_pairing(PairingId, _Opts) ->
     {error, {bad_option, {id, PairingId}}}.
+
+%% With a cluster, a pairing id is unique across the nodes alive.
+exists_elsewhere(PairingId) ->
+    case [N || N <- evatar_cluster:alive_nodes(), N =/= node()] of
+        [] ->
+            false;
+        Peers ->
+            lists:any(fun({ok, #{}}) -> true;
+                         (_) -> false
+                      end, erpc:multicall(Peers, evatar_registry, role, [PairingId], 2000))
+    end.
 
 start_pairing(PairingId, Config) ->
     case evatar_pairings_sup:start_pairing(PairingId, Config) of
@@ -90,7 +146,12 @@ start_pairing(PairingId, Config) ->
 %% the pairing process is gone.
 -spec delete_pairing(pairing_id()) -> ok | {error, not_found}.
 delete_pairing(PairingId) ->
-    case evatar_registry:whereis_name(PairingId) of
+    Target = case evatar_registry:role(PairingId) of
+                 %% Deleting through the standby's node deletes at the active.
+                 #{role := standby, peer := Active} when is_pid(Active) -> Active;
+                 _ -> evatar_registry:whereis_name(PairingId)
+             end,
+    case Target of
         undefined ->
             {error, not_found};
         Pid ->
@@ -111,29 +172,63 @@ delete_pairing(PairingId) ->
 %% monitored: its exit is the entity leaving. The caller should monitor
 %% {@link session_pid/1}. The entity must describe itself within the
 %% pairing's join timeout ({@link session_info/1}) or be dropped.
--spec join(pairing_id(), role(), binary(), binary()) ->
-          {ok, session()} |
-          {error, unknown_pairing | bad_credential | occupied | entity_exists |
-                  too_many_entities}.
+%% On a node holding only the standby the answer is `{not_active, Node}'
+%% (Node runs the active); on a fenced one, `fenced'.
+-spec join(pairing_id(), role(), binary(), binary()) -> {ok, session()} | {error, join_error()}.
 join(PairingId, Role, EntityId, Credential)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
        is_binary(EntityId), is_binary(Credential) ->
+    join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self()});
+join(_PairingId, _Role, _EntityId, _Credential) ->
+    {error, bad_credential}.
+
+%% @doc Joins with a high-availability session (protocol version 2): the
+%% pairing keeps the entity for `resume_timeout' ms when the caller goes,
+%% de-duplicates its signals by SignalID, acknowledges each accepted signal
+%% with `{evatar, PairingId, {ack, SignalId}}' (after its standby has it)
+%% and keeps what it delivers until {@link ack/2}.
+-spec join(pairing_id(), role(), binary(), binary(), #{session := binary()}) ->
+          {ok, session()} | {error, join_error()}.
+join(PairingId, Role, EntityId, Credential, #{session := S} = Opts)
+  when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
+       is_binary(EntityId), is_binary(Credential), is_binary(S) ->
+    join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self(), Opts});
+join(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
+    {error, bad_credential}.
+
+%% @doc Resumes a high-availability session after a reconnect or a takeover:
+%% the calling process becomes the entity's, and what was delivered after
+%% `received' is delivered again. An unknown session is a fresh join
+%% (`resumed' false in {@link session_info/1}). `stale_epoch' when the
+%% caller has seen a newer epoch than this instance's.
+-spec resume(pairing_id(), role(), binary(), binary(), resume_opts()) ->
+          {ok, session()} | {error, join_error()}.
+resume(PairingId, Role, EntityId, Credential,
+       #{session := S, received := R, epoch := E} = Opts)
+  when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
+       is_binary(EntityId), is_binary(Credential), is_binary(S), is_integer(R), R >= 0,
+       is_integer(E), E >= 0 ->
+    join_call(PairingId, EntityId, Role, {resume, Role, EntityId, Credential, self(), Opts});
+resume(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
+    {error, bad_credential}.
+
+join_call(PairingId, EntityId, Role, Request) ->
     case evatar_registry:whereis_name(PairingId) of
         undefined ->
             {error, unknown_pairing};
         Pid ->
-            case call(Pid, {join, Role, EntityId, Credential, self()}) of
-                {ok, JoinTimeout} ->
+            case call(Pid, Request) of
+                {ok, #{join_timeout := J, epoch := E, resumed := R, last_accepted := L,
+                       dedup_window := W}} ->
                     {ok, #session{pairing = PairingId, pid = Pid, entity = EntityId,
-                                  role = Role, join_timeout = JoinTimeout}};
+                                  role = Role, join_timeout = J, epoch = E, resumed = R,
+                                  last_accepted = L, dedup_window = W}};
                 {error, gone} ->
                     {error, unknown_pairing};
                 {error, _} = Error ->
                     Error
             end
-    end;
-join(_PairingId, _Role, _EntityId, _Credential) ->
-    {error, bad_credential}.
+    end.
 
 %% @doc Registers (or replaces) the entity's BIL description; the pairing
 %% binds again and reports to every registered entity. Refused with a
@@ -152,6 +247,12 @@ describe(#session{pid = Pid, entity = EntityId}, Description) ->
 send(#session{pid = Pid, entity = EntityId}, Signal) ->
     gen_statem:cast(Pid, {signal, EntityId, Signal}).
 
+%% @doc Acknowledges every signal delivered to a high-availability session
+%% up to Sequence `Seq' (asynchronous, cumulative): the pairing forgets them.
+-spec ack(session(), non_neg_integer()) -> ok.
+ack(#session{pid = Pid, entity = EntityId}, Seq) when is_integer(Seq), Seq >= 0 ->
+    gen_statem:cast(Pid, {client_ack, EntityId, Seq}).
+
 %% @doc Leaves the pairing: the entity is unregistered and the pairing binds
 %% again. An agent leaving keeps the pairing waiting for a new agent.
 -spec leave(session()) -> ok.
@@ -169,8 +270,10 @@ session_pid(#session{pid = Pid}) -> Pid.
 %% is the pairing's, in ms, counted from the join (the bridge reports it in
 %% its Welcome).
 -spec session_info(session()) -> session_info().
-session_info(#session{pairing = P, entity = E, role = R, pid = Pid, join_timeout = J}) ->
-    #{pairing => P, entity => E, role => R, pid => Pid, join_timeout => J}.
+session_info(#session{pairing = P, entity = E, role = R, pid = Pid, join_timeout = J,
+                      epoch = Ep, resumed = Res, last_accepted = L, dedup_window = W}) ->
+    #{pairing => P, entity => E, role => R, pid => Pid, join_timeout => J, epoch => Ep,
+      resumed => Res, last_accepted => L, dedup_window => W}.
 
 %% ---------------------------------------------------------------------------
 %% Inspection
@@ -215,6 +318,31 @@ inspect(PairingId, What) ->
                 Reply -> {ok, Reply}
             end
     end.
+
+%% ---------------------------------------------------------------------------
+%% High availability
+%% ---------------------------------------------------------------------------
+
+%% @doc The role of this node's instance of a pairing: `active' (with its
+%% standby, and `synced' once the standby confirmed the state), `standby'
+%% (with its active), `fenced', or `starting'; its epoch and the number of
+%% replicated events applied (`version').
+-spec ha_status(pairing_id()) -> {ok, ha_status()} | {error, not_found}.
+ha_status(PairingId) -> inspect(PairingId, ha).
+
+%% @doc Every instance of a pairing on the cluster's alive nodes.
+-spec ha_locate(pairing_id()) -> [{node(), ha_status()}].
+ha_locate(PairingId) ->
+    Nodes = lists:sort(evatar_cluster:alive_nodes()),
+    Results = erpc:multicall(Nodes, ?MODULE, ha_status, [PairingId], 2000),
+    [{N, Status} || {N, {ok, {ok, Status}}} <- lists:zip(Nodes, Results)].
+
+%% @doc The cluster as this node sees it: the configured nodes, those alive
+%% (connected and heard recently), those suspected, and whether a majority
+%% is heard within the lease.
+-spec cluster_status() -> #{configured := [node()], up := [node()], suspected := [node()],
+                            quorum := boolean()}.
+cluster_status() -> evatar_cluster:status().
 
 %% @doc Prints {@link pairings/0} as a table.
 -spec print_pairings() -> ok.

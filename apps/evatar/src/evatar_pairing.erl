@@ -1,119 +1,272 @@
-%% @doc Internal. The process of one pairing: runs `evatar_pairing_logic'
-%% and executes its effects (messages to entity processes, timers, logs). It
-%% owns what cannot be replicated: the pids of the entities' processes, their
-%% monitors and the timer references.
+%% @doc Internal. The process of one instance of a pairing: runs
+%% `evatar_pairing_logic' and executes its effects (messages to entity
+%% processes, timers, logs). It owns what cannot be replicated: the pids of
+%% the entities' processes, their monitors and the timer references. With a
+%% cluster (docs/architecture.md, section 8) an instance is the `active' one
+%% or the `standby' of an active on another node.
 %%
 %% ```
-%%            start_link
-%%                |
-%%                v
-%%           +----------+  internal `load' (now: build the empty state;
-%%           | starting |  issue 5: fetch the replicated state)
-%%           +----------+
-%%                |
-%%                v
-%%           +---------+  an agent and an avatar registered   +-------+
-%%           | waiting | -----------------------------------> | bound |
-%%           |         | <----------------------------------- |       |
-%%           +---------+  one side left, crashed or dropped   +-------+
-%%                |                                               |
-%%                +------ delete (stop normal, tree shuts down) --+
+%%                 start_link
+%%                     |
+%%                     v
+%%              +----------+  create: active at once; restart after a crash,
+%%              | starting |  or asked to be a standby: ask the peers, offer
+%%              +----------+  ourselves to the active found
+%%               |        |
+%%   none found  |        | snapshot received
+%%               v        v
+%%  +-----------------+  takeover (active dead, or silent and     +---------+
+%%  | active          | <---- the rules allow), or handover ---- | standby |
+%%  | waiting | bound |                                          |         |
+%%  |                 | ---- handover (silent client link) ----> |         |
+%%  +-----------------+                                          +---------+
+%%     |    ^     | lower epoch met, stale,                  dismissed, or an
+%%     |    |     | or delete                                active of higher
+%%     |    |     +--------------> (stop) <----------------- epoch elsewhere
+%%     |    | standby confirms (quorum back)
+%%     v    |
+%%  +---------+  no majority and no word from the standby's node
+%%  | fenced  |  within the lease: clients closed with Fenced, nothing
+%%  +---------+  externalised, timers postponed
 %% '''
-%% The state name is the logic's {@link evatar_pairing_logic:phase/1}; every
-%% event is handled the same way in both, the name is for inspection. Events
-%% arriving while `starting' are postponed.
+%% The active's name is the logic's {@link evatar_pairing_logic:phase/1}
+%% (`waiting' or `bound'); `handing_over' is the short planned-handover
+%% step. While there is a standby, every event is shipped to it with its
+%% time and version, and every effect seen outside (a delivery, a report, a
+%% reply, an Ack) is held until the standby confirms that version: what a
+%% client sees is always in the standby's history. Without one (degraded)
+%% effects go out at once; Acks are batched until the mailbox is empty.
 -module(evatar_pairing).
 -behaviour(gen_statem).
 
 -include_lib("kernel/include/logger.hrl").
 
--export([start_link/2]).
+-export([start_link/2, start_link/3]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
+
+-export_type([mode/0]).
+
+-type mode() :: create | {standby_for, pid()}.
+-type role() :: starting | active | standby | fenced.
+
+-define(FLUSH_EVERY, 64).
+-define(PLACE_RETRY_MS, 1000).
 
 -record(data, {id :: evatar:pairing_id(),
                config :: evatar_pairing_logic:config(),
                logic :: evatar_pairing_logic:state() | undefined,
                pids = #{} :: #{binary() => {pid(), reference()}},
                refs = #{} :: #{reference() => binary()},
-               timers = #{} :: #{evatar_pairing_logic:timer_key() => reference()}}).
+               timers = #{} :: #{evatar_pairing_logic:timer_key() => reference()},
+               mode :: mode(),
+               role = starting :: role(),
+               version = 0 :: non_neg_integer(),
+               %% Active: the standby and what it has not confirmed yet.
+               standby :: pid() | undefined,
+               standby_mon :: reference() | undefined,
+               synced = false :: boolean(),
+               confirmed = 0 :: non_neg_integer(),
+               repl = [] :: [{pos_integer(), integer(), evatar_pairing_logic:event()}],
+               outbox = queue:new() :: queue:queue({non_neg_integer(), [term()]}),
+               acks = #{} :: #{binary() => binary()},
+               unflushed = 0 :: non_neg_integer(),
+               placing = false :: boolean(),
+               silent_armed = false :: boolean(),
+               %% Standby (and starting): the active.
+               active :: pid() | undefined,
+               active_mon :: reference() | undefined,
+               active_lost = false :: boolean(),
+               asks = 0 :: non_neg_integer(),
+               answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}]}).
 
-%% @doc Starts the pairing, registered as `{via, evatar_registry, PairingId}'.
+%% @doc Starts a new pairing (the active), registered as
+%% `{via, evatar_registry, PairingId}'.
 -spec start_link(evatar:pairing_id(), evatar_pairing_logic:config()) ->
           {ok, pid()} | {error, term()}.
 start_link(PairingId, Config) ->
+    start_link(PairingId, Config, create).
+
+%% @doc Starts an instance: `create' (a new pairing, active) or
+%% `{standby_for, Active}'.
+-spec start_link(evatar:pairing_id(), evatar_pairing_logic:config(), mode()) ->
+          {ok, pid()} | {error, term()}.
+start_link(PairingId, Config, Mode) ->
     gen_statem:start_link({via, evatar_registry, PairingId}, ?MODULE,
-                          {PairingId, Config}, []).
+                          {PairingId, Config, Mode}, []).
 
 %% @private
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
 %% @private
--spec init({evatar:pairing_id(), evatar_pairing_logic:config()}) ->
+-spec init({evatar:pairing_id(), evatar_pairing_logic:config(), mode()}) ->
           gen_statem:init_result(starting).
-init({PairingId, Config}) ->
+init({PairingId, Config, Mode}) ->
     logger:set_process_metadata(#{pairing => PairingId, domain => [evatar, pairing]}),
-    {ok, starting, #data{id = PairingId, config = Config},
+    {ok, starting, #data{id = PairingId, config = Config, mode = Mode},
      [{next_event, internal, load}]}.
+
+%% ---------------------------------------------------------------------------
+%% Starting
+%% ---------------------------------------------------------------------------
 
 %% @private
 -spec handle_event(gen_statem:event_type(), term(), atom(), #data{}) ->
           gen_statem:event_handler_result(atom()).
-handle_event(internal, load, starting, #data{id = Id, config = Config} = Data) ->
-    Logic = evatar_pairing_logic:new(Id, Config),
-    ?LOG_INFO(#{what => pairing_started, pairing => Id}),
-    {next_state, evatar_pairing_logic:phase(Logic), Data#data{logic = Logic}};
+handle_event(internal, load, starting, #data{id = Id, mode = Mode} = Data) ->
+    case {Mode, evatar_registry:previous(Id), peers()} of
+        {create, none, _} ->
+            become_active(new, Data);
+        {{standby_for, Active}, none, _} ->
+            offer_to(Active, Data);
+        {_, _Previous, []} ->
+            %% A restart with nobody to ask: start afresh, as a lone node does.
+            become_active(new, Data);
+        {_, Previous, Peers} ->
+            ?LOG_NOTICE(#{what => pairing_restarted, pairing => Id, previous => Previous}),
+            ask_peers(Peers, Data)
+    end;
+handle_event(info, {evatar_ha, 1, {instance, Id, Node, Info}}, starting,
+             #data{id = Id, answers = Answers, asks = N} = Data) ->
+    Data1 = Data#data{answers = [{Node, Info} | Answers]},
+    case length(Data1#data.answers) >= N of
+        true -> decide_start(Data1);
+        false -> {keep_state, Data1}
+    end;
+handle_event(state_timeout, asked, starting, Data) ->
+    decide_start(Data);
+handle_event(internal, retry_ask, starting, Data) ->
+    ask_peers(peers(), Data);
+handle_event(state_timeout, retry_ask, starting, Data) ->
+    ask_peers(peers(), Data);
+handle_event(info, {evatar_ha, 1, {snapshot, Active, Epoch, Version, State}}, starting,
+             #data{active = Active} = Data) ->
+    become_standby(Epoch, Version, State, Data);
+handle_event(info, {evatar_ha, 1, {dismiss, Active}}, starting, #data{active = Active} = Data) ->
+    stop_instance(dismissed, Data);
+handle_event(state_timeout, offered, starting, Data) ->
+    stop_instance(no_snapshot, Data);
+handle_event(info, {'DOWN', Ref, process, _, _}, starting, #data{active_mon = Ref} = Data) ->
+    stop_instance(active_gone, Data);
+handle_event({call, From}, {inspect, ha}, starting, Data) ->
+    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
 handle_event(_Type, _Event, starting, _Data) ->
     {keep_state_and_data, [postpone]};
 
-%% The hot path: no reply, no timer for anything but requests.
-handle_event(cast, {signal, EntityId, Signal}, _State, Data) ->
-    run({signal, EntityId, Signal}, Data, []);
-handle_event({call, From}, {join, Role, EntityId, Credential, Pid}, _State,
-             #data{config = Config} = Data) ->
-    case step({join, Role, EntityId, Credential}, Data) of
-        {ok, Data1} ->
-            Ref = erlang:monitor(process, Pid),
-            Data2 = Data1#data{pids = (Data1#data.pids)#{EntityId => {Pid, Ref}},
-                               refs = (Data1#data.refs)#{Ref => EntityId}},
-            next(Data2, [{reply, From, {ok, maps:get(join_timeout, Config)}}]);
-        {Error, Data1} ->
-            next(Data1, [{reply, From, Error}])
-    end;
-handle_event({call, From}, {describe, EntityId, Description}, _State, Data) ->
-    {Reply, Data1} = step({describe, EntityId, Description}, Data),
-    next(Data1, [{reply, From, Reply}]);
-handle_event({call, From}, {leave, EntityId}, _State, Data) ->
-    {ok, Data1} = step({leave, EntityId, left}, Data),
-    next(forget(EntityId, Data1), [{reply, From, ok}]);
-handle_event(info, {'DOWN', Ref, process, _Pid, _Reason}, _State, #data{refs = Refs} = Data) ->
-    case Refs of
-        #{Ref := EntityId} ->
-            Data1 = forget(EntityId, Data),
-            {ok, Data2} = step({leave, EntityId, down}, Data1),
-            next(Data2, []);
-        #{} ->
-            keep_state_and_data
-    end;
-handle_event(info, {timeout, TRef, Key}, _State, #data{timers = Timers} = Data) ->
-    case Timers of
-        #{Key := TRef} ->
-            run({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)}, []);
-        #{} ->
-            %% Cancelled or replaced while the message was on its way.
-            keep_state_and_data
-    end;
-handle_event({call, From}, {inspect, What}, _State, #data{logic = Logic} = Data) ->
+%% ---------------------------------------------------------------------------
+%% Messages between instances and from evatar_cluster (every role)
+%% ---------------------------------------------------------------------------
+
+handle_event(info, {evatar_ha, 1, Body}, State, Data) ->
+    ha(Body, State, Data);
+handle_event(info, {evatar_cluster, Event}, State, Data) ->
+    cluster_event(Event, State, Data);
+handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{standby_mon = Ref} = Data) ->
+    standby_down(Why, State, Data);
+handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{active_mon = Ref} = Data) ->
+    active_down(Why, State, Data#data{active_mon = undefined});
+handle_event({call, From}, {inspect, ha}, _State, Data) ->
+    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
+handle_event({call, From}, {inspect, What}, State, #data{logic = Logic} = Data) ->
     Reply = case What of
-                summary -> (evatar_pairing_logic:summary(Logic))#{pid => self()};
+                summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
+                                                                   role => Data#data.role,
+                                                                   state => phase(State, Logic)};
                 bindings -> evatar_pairing_logic:bindings(Logic);
                 registry -> evatar_pairing_logic:registration_list(Logic);
                 stats -> evatar_pairing_logic:stats(Logic);
                 state -> Logic
             end,
     {keep_state, Data, [{reply, From, Reply}]};
-handle_event({call, From}, delete, _State, #data{id = Id}) ->
+handle_event({timeout, place}, place, State, Data) ->
+    {keep_state, place(State, Data#data{placing = false})};
+
+%% ---------------------------------------------------------------------------
+%% Standby, fenced, handing over: no client traffic
+%% ---------------------------------------------------------------------------
+
+handle_event({call, From}, delete, State, #data{id = Id} = Data)
+  when State =:= standby; State =:= fenced ->
     ?LOG_INFO(#{what => pairing_deleted, pairing => Id}),
+    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
+    {stop_and_reply, normal, [{reply, From, ok}]};
+handle_event({call, From}, Request, standby, #data{active = Active}) ->
+    Reply = case Request of
+                {leave, _} -> ok;
+                _ -> {error, {not_active, node_of(Active)}}
+            end,
+    {keep_state_and_data, [{reply, From, Reply}]};
+handle_event({call, From}, Request, fenced, _Data) ->
+    Reply = case Request of
+                {leave, _} -> ok;
+                _ -> {error, fenced}
+            end,
+    {keep_state_and_data, [{reply, From, Reply}]};
+handle_event(cast, _Client, State, _Data) when State =:= standby; State =:= fenced ->
+    %% Not accepted, so never acknowledged: the client sends it again to
+    %% the active.
+    keep_state_and_data;
+handle_event(info, {timeout, _TRef, _Key}, fenced, _Data) ->
+    {keep_state_and_data, [postpone]};
+handle_event(info, {timeout, _TRef, _Key}, standby, _Data) ->
+    keep_state_and_data;
+handle_event(internal, handover, handing_over, Data) ->
+    {keep_state, send_handover(Data)};
+handle_event(state_timeout, handover, handing_over, Data) ->
+    ?LOG_WARNING(#{what => handover_aborted, pairing => Data#data.id}),
+    next(Data#data{role = active}, []);
+handle_event(info, evatar_silent_check, State, Data) when State =/= waiting, State =/= bound ->
+    {keep_state, Data#data{silent_armed = false}};
+handle_event(_Type, _Event, handing_over, _Data) ->
+    {keep_state_and_data, [postpone]};
+
+%% ---------------------------------------------------------------------------
+%% Active: the client traffic
+%% ---------------------------------------------------------------------------
+
+%% The hot path: no reply, no timer for anything but requests.
+handle_event(cast, {signal, EntityId, Signal}, _State, Data) ->
+    {keep_state, flush_maybe(run({signal, EntityId, Signal}, Data))};
+handle_event(cast, {client_ack, EntityId, Seq}, _State, Data) when is_integer(Seq) ->
+    {keep_state, flush_maybe(run({client_ack, EntityId, Seq}, Data))};
+handle_event({call, From}, {join, Role, EntityId, Credential, Pid}, _State, Data) ->
+    join({join, Role, EntityId, Credential}, EntityId, Pid, From, Data);
+handle_event({call, From}, {join, Role, EntityId, Credential, Pid, #{session := S}}, _State,
+             Data) when is_binary(S) ->
+    join({join, Role, EntityId, Credential, S}, EntityId, Pid, From, Data);
+handle_event({call, From}, {resume, Role, EntityId, Credential, Pid,
+                            #{session := S, received := R, epoch := E}}, _State, Data)
+  when is_binary(S), is_integer(R), R >= 0, is_integer(E), E >= 0 ->
+    join({resume, Role, EntityId, Credential, S, R, E}, EntityId, Pid, From, Data);
+handle_event({call, From}, {describe, EntityId, Description}, _State, Data) ->
+    {Reply, Data1} = step({describe, EntityId, Description}, Data),
+    next(flush_maybe(reply(From, Reply, Data1)), []);
+handle_event({call, From}, {leave, EntityId}, _State, Data) ->
+    {ok, Data1} = step({leave, EntityId, left}, Data),
+    next(flush_maybe(reply(From, ok, forget(EntityId, Data1))), []);
+handle_event(info, {'DOWN', Ref, process, _Pid, _Reason}, _State, #data{refs = Refs} = Data) ->
+    case Refs of
+        #{Ref := EntityId} ->
+            Data1 = forget(EntityId, Data),
+            {_, Data2} = step({detach, EntityId}, Data1),
+            next(flush_maybe(Data2), []);
+        #{} ->
+            keep_state_and_data
+    end;
+handle_event(info, {timeout, TRef, Key}, _State, #data{timers = Timers} = Data) ->
+    case Timers of
+        #{Key := TRef} ->
+            Data1 = run({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)}),
+            next(flush_maybe(Data1), []);
+        #{} ->
+            %% Cancelled or replaced while the message was on its way.
+            keep_state_and_data
+    end;
+handle_event(info, evatar_silent_check, _State, Data) ->
+    silent_check(Data#data{silent_armed = false});
+handle_event({call, From}, delete, _State, #data{id = Id} = Data) ->
+    ?LOG_INFO(#{what => pairing_deleted, pairing => Id}),
+    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
     {stop_and_reply, normal, [{reply, From, ok}]};
 handle_event(EventType, Event, _State, #data{id = Id}) ->
     ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => EventType,
@@ -127,29 +280,123 @@ handle_event(EventType, Event, _State, #data{id = Id}) ->
 terminate(normal, _State, #data{id = Id, pids = Pids}) ->
     _ = [Pid ! {evatar, Id, {dropped, pairing_deleted, <<"the pairing was deleted">>}}
          || {Pid, _} <- maps:values(Pids)],
-    ok;
+    evatar_registry:delete_role(Id, self());
+terminate({shutdown, _}, _State, #data{id = Id}) ->
+    evatar_registry:delete_role(Id, self());
 terminate(_Reason, _State, _Data) ->
     ok.
+
+%% ---------------------------------------------------------------------------
+%% Joining and resuming
+%% ---------------------------------------------------------------------------
+
+%% The connection is registered before the event runs: a resume delivers
+%% again at once what the entity has not acknowledged. A refusal puts back
+%% whatever was registered before.
+join(Event, EntityId, Pid, From, #data{pids = Pids, refs = Refs} = Data) ->
+    Old = maps:get(EntityId, Pids, undefined),
+    Ref = erlang:monitor(process, Pid),
+    Data1 = Data#data{pids = Pids#{EntityId => {Pid, Ref}}, refs = Refs#{Ref => EntityId}},
+    case step(Event, Data1) of
+        {ok, Data2} -> joined(Event, Pid, From, Old, ok, Data2);
+        {{ok, _, _} = Ok, Data2} -> joined(Event, Pid, From, Old, Ok, Data2);
+        {Error, Data2} ->
+            true = erlang:demonitor(Ref, [flush]),
+            Pids2 = case Old of
+                        undefined -> maps:remove(EntityId, Data2#data.pids);
+                        _ -> (Data2#data.pids)#{EntityId => Old}
+                    end,
+            Data3 = Data2#data{pids = Pids2, refs = maps:remove(Ref, Data2#data.refs)},
+            next(flush_maybe(reply(From, Error, Data3)), [])
+    end.
+
+joined(Event, Pid, From, Old, Ok, #data{config = Config} = Data1) ->
+    Data2 = case Old of
+                {OldPid, OldRef} ->
+                    _ = [OldPid ! {evatar, Data1#data.id,
+                                   {dropped, session_resumed,
+                                    <<"the session was resumed on another connection">>}}
+                         || OldPid =/= Pid],
+                    true = erlang:demonitor(OldRef, [flush]),
+                    Data1#data{refs = maps:remove(OldRef, Data1#data.refs)};
+                undefined ->
+                    Data1
+            end,
+    {Resumed, Last} = case Ok of
+                          {ok, R, L} -> {R, L};
+                          ok -> {false, <<>>}
+                      end,
+    Info = #{join_timeout => maps:get(join_timeout, Config),
+             epoch => evatar_pairing_logic:epoch(Data2#data.logic),
+             resumed => Resumed, last_accepted => Last,
+             dedup_window => maps:get(dedup_window, Config)},
+    Data3 = case Event of
+                {join, _, _, _} -> Data2;
+                _ -> arm_silent(Data2)
+            end,
+    next(flush_maybe(reply(From, {ok, Info}, Data3)), []).
 
 %% ---------------------------------------------------------------------------
 %% Running the logic
 %% ---------------------------------------------------------------------------
 
-%% Signals and timeouts never change who is registered, so the state name
-%% stays: the hot path skips recomputing the phase.
-run(Event, Data, Actions) ->
+next(#data{role = active, logic = Logic} = Data, Actions) ->
+    {next_state, evatar_pairing_logic:phase(Logic), Data, Actions};
+next(#data{role = Role} = Data, Actions) ->
+    {next_state, Role, Data, Actions}.
+
+phase(State, Logic) when State =:= waiting; State =:= bound ->
+    evatar_pairing_logic:phase(Logic);
+phase(State, _Logic) ->
+    State.
+
+run(Event, Data) ->
     {_Reply, Data1} = step(Event, Data),
-    {keep_state, Data1, Actions}.
+    Data1.
 
-next(#data{logic = Logic} = Data, Actions) ->
-    {next_state, evatar_pairing_logic:phase(Logic), Data, Actions}.
-
-%% Applies one event to the logic and executes the effects in order; returns
-%% the logic's reply (`ok' for events that have none).
-step(Event, #data{logic = Logic} = Data) ->
+%% Applies one event to the logic and executes its effects in order;
+%% returns the logic's reply (`ok' for events that have none). With a
+%% standby the event is queued for shipping and the effects seen outside
+%% wait in the outbox for its confirmation.
+step(Event, #data{logic = Logic, version = V} = Data) ->
     Now = erlang:system_time(millisecond),
     {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
-    execute(Effects, ok, Data#data{logic = Logic1}).
+    Data1 = Data#data{logic = Logic1, version = V + 1},
+    case Data1#data.standby of
+        undefined ->
+            execute(Effects, ok, Data1);
+        _ ->
+            {Reply, Held, Data2} = internal(Effects, ok, [], Data1),
+            Data3 = Data2#data{repl = [{V + 1, Now, Event} | Data2#data.repl]},
+            {Reply, hold(V + 1, Held, Data3)}
+    end.
+
+%% With a standby: timers and logs now, the rest held.
+internal([{start_timer, _, _} = E | Rest], Reply, Held, Data) ->
+    {_, Data1} = execute([E], ok, Data),
+    internal(Rest, Reply, Held, Data1);
+internal([{cancel_timer, _} = E | Rest], Reply, Held, Data) ->
+    {_, Data1} = execute([E], ok, Data),
+    internal(Rest, Reply, Held, Data1);
+internal([{log, _, _} = E | Rest], Reply, Held, Data) ->
+    {_, Data1} = execute([E], ok, Data),
+    internal(Rest, Reply, Held, Data1);
+internal([{reply, Reply} | Rest], _Reply, Held, Data) ->
+    internal(Rest, Reply, Held, Data);
+internal([E | Rest], Reply, Held, Data) ->
+    internal(Rest, Reply, [E | Held], Data);
+internal([], Reply, Held, Data) ->
+    {Reply, lists:reverse(Held), Data}.
+
+hold(_V, [], Data) -> Data;
+hold(V, Effects, #data{outbox = Q} = Data) -> Data#data{outbox = queue:in({V, Effects}, Q)}.
+
+%% A call's reply, held like any other effect while there is a standby.
+reply(From, Reply, #data{standby = undefined} = Data) ->
+    gen_statem:reply(From, Reply),
+    Data;
+reply(From, Reply, #data{version = V} = Data) ->
+    hold(V, [{reply_to, From, Reply}], Data).
 
 execute([{deliver, EntityId, Signal} | Rest], Reply, Data) ->
     ok = tell(EntityId, {signal, Signal}, Data),
@@ -160,6 +407,11 @@ execute([{report, EntityId, Report} | Rest], Reply, Data) ->
 execute([{drop, EntityId, Code, Reason} | Rest], Reply, Data) ->
     ok = tell(EntityId, {dropped, Code, Reason}, Data),
     execute(Rest, Reply, forget(EntityId, Data));
+execute([{accepted, EntityId, SignalId} | Rest], Reply, #data{acks = Acks} = Data) ->
+    execute(Rest, Reply, Data#data{acks = Acks#{EntityId => SignalId}});
+execute([{reply_to, From, R} | Rest], Reply, Data) ->
+    gen_statem:reply(From, R),
+    execute(Rest, Reply, Data);
 execute([{start_timer, Key, Ms} | Rest], Reply, #data{timers = Timers} = Data) ->
     ok = cancel(maps:get(Key, Timers, undefined)),
     TRef = erlang:start_timer(Ms, self(), Key),
@@ -174,6 +426,52 @@ execute([{reply, Reply} | Rest], _Reply, Data) ->
     execute(Rest, Reply, Data);
 execute([], Reply, Data) ->
     {Reply, Data}.
+
+%% Ships the queued events to the standby, or sends the batched Acks when
+%% there is none, once the mailbox is empty or every FLUSH_EVERY events:
+%% one message per batch instead of one per signal.
+flush_maybe(#data{repl = [], acks = Acks} = Data) when map_size(Acks) =:= 0 ->
+    Data;
+flush_maybe(#data{unflushed = N} = Data) ->
+    case erlang:process_info(self(), message_queue_len) of
+        {message_queue_len, 0} -> flush(Data);
+        _ when N >= ?FLUSH_EVERY -> flush(Data);
+        _ -> Data#data{unflushed = N + 1}
+    end.
+
+flush(#data{standby = undefined} = Data) ->
+    send_acks(Data#data{unflushed = 0});
+flush(#data{repl = []} = Data) ->
+    Data#data{unflushed = 0};
+flush(#data{standby = Standby, repl = Repl, logic = Logic} = Data) ->
+    ok = evatar_ha_proto_v1:events(Standby, evatar_pairing_logic:epoch(Logic),
+                                   lists:reverse(Repl)),
+    Data#data{repl = [], unflushed = 0}.
+
+send_acks(#data{acks = Acks, id = Id, pids = Pids} = Data) ->
+    maps:foreach(fun(EntityId, SignalId) ->
+                         case Pids of
+                             #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
+                             #{} -> ok
+                         end
+                 end, Acks),
+    Data#data{acks = #{}}.
+
+%% The standby confirmed `Version': what was held for it goes out.
+release(Version, #data{outbox = Q} = Data) ->
+    case queue:peek(Q) of
+        {value, {V, Effects}} when V =< Version ->
+            {_, Data1} = execute(Effects, ok, Data#data{outbox = queue:drop(Q)}),
+            release(Version, Data1);
+        _ ->
+            send_acks(Data)
+    end.
+
+%% No standby any more (it died, or this node may go on alone): everything
+%% held goes out now (degraded).
+release_all(#data{version = V} = Data) ->
+    Data1 = release(V, Data),
+    Data1#data{repl = [], unflushed = 0}.
 
 tell(EntityId, Message, #data{id = Id, pids = Pids}) ->
     case Pids of
@@ -193,7 +491,486 @@ forget(EntityId, #data{pids = Pids, refs = Refs} = Data) ->
             Data
     end.
 
+%% Tells every connected entity's process to close with `Code' (the entity
+%% stays in the state, for a resume elsewhere) and forgets them all.
+disconnect_all(Code, Reason, #data{id = Id, pids = Pids} = Data) ->
+    _ = [Pid ! {evatar, Id, {dropped, Code, Reason}} || {Pid, _} <- maps:values(Pids)],
+    _ = [erlang:demonitor(Ref, [flush]) || {_, Ref} <- maps:values(Pids)],
+    Data#data{pids = #{}, refs = #{}}.
+
 cancel(undefined) ->
     ok;
 cancel(TRef) ->
     ok = erlang:cancel_timer(TRef, [{async, true}, {info, false}]).
+
+cancel_all(#data{timers = Timers} = Data) ->
+    _ = [cancel(T) || T <- maps:values(Timers)],
+    Data#data{timers = #{}}.
+
+arm_timers(#data{logic = Logic} = Data) ->
+    Now = erlang:system_time(millisecond),
+    lists:foldl(fun({Key, Ms}, D) ->
+                        {_, D1} = execute([{start_timer, Key, Ms}], ok, D),
+                        D1
+                end, cancel_all(Data), evatar_pairing_logic:timers(Logic, Now)).
+
+%% ---------------------------------------------------------------------------
+%% Roles
+%% ---------------------------------------------------------------------------
+
+become_active(new, #data{id = Id, config = Config} = Data) ->
+    Logic = evatar_pairing_logic:new(Id, Config),
+    ?LOG_INFO(#{what => pairing_started, pairing => Id}),
+    Data1 = publish(Data#data{logic = Logic, role = active}),
+    {next_state, evatar_pairing_logic:phase(Logic), Data1,
+     [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
+
+%% A standby (fully applied up to its version) takes over at epoch + 1.
+take_over(Why, #data{id = Id, logic = Logic, active_mon = Mon} = Data) ->
+    _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
+    Epoch = evatar_pairing_logic:epoch(Logic) + 1,
+    ?LOG_WARNING(#{what => takeover, pairing => Id, epoch => Epoch, reason => Why,
+                   version => Data#data.version}),
+    Data1 = Data#data{role = active, active = undefined, active_mon = undefined,
+                      active_lost = false, standby = undefined, standby_mon = undefined,
+                      synced = false, outbox = queue:new(), repl = []},
+    Data2 = arm_timers(Data1),
+    {_, Data3} = step({takeover, Epoch}, Data2),
+    Data4 = arm_silent(publish(Data3)),
+    next(Data4, [{{timeout, place}, 0, place} || wants_standby(Data4)]).
+
+become_standby(_Epoch, Version, State, #data{id = Id, active = Active} = Data) ->
+    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(State), Version),
+    ?LOG_INFO(#{what => standby_synced, pairing => Id, active => node_of(Active),
+                version => Version}),
+    Data1 = publish(Data#data{logic = State, version = Version, role = standby,
+                              active_lost = false}),
+    {next_state, standby, Data1}.
+
+offer_to(Active, #data{version = V} = Data) ->
+    Mon = erlang:monitor(process, Active),
+    ok = evatar_ha_proto_v1:offer(Active, self(), V),
+    {keep_state, Data#data{active = Active, active_mon = Mon},
+     [{state_timeout, 5 * evatar_cluster:opt(suspect_ms) + 2000, offered}]}.
+
+ask_peers(Peers, #data{id = Id, asks = _} = Data) ->
+    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
+    {keep_state, Data#data{asks = length(Peers), answers = []},
+     [{state_timeout, 2 * evatar_cluster:opt(suspect_ms), asked}]}.
+
+%% A restarted instance: an active elsewhere takes it as its standby; a
+%% standby elsewhere is about to take over (ask again); nobody: start afresh.
+decide_start(#data{answers = Answers} = Data) ->
+    Infos = [I || {_, I} <- Answers, is_map(I)],
+    case [I || #{role := R} = I <- Infos, R =:= active orelse R =:= fenced] of
+        [#{pid := Active} | _] ->
+            offer_to(Active, Data);
+        [] ->
+            case [I || #{role := standby} = I <- Infos] of
+                [_ | _] when Data#data.asks > 0 ->
+                    {keep_state, Data#data{answers = []},
+                     [{state_timeout, evatar_cluster:opt(suspect_ms), retry_ask}]};
+                _ ->
+                    become_active(new, Data)
+            end
+    end.
+
+publish(#data{id = Id, role = Role, logic = Logic} = Data) ->
+    Epoch = case Logic of
+                undefined -> 0;
+                _ -> evatar_pairing_logic:epoch(Logic)
+            end,
+    Peer = case Role of
+               standby -> Data#data.active;
+               _ -> Data#data.standby
+           end,
+    ok = evatar_registry:set_role(Id, self(), Role, Epoch, Peer),
+    Data.
+
+stop_instance(Why, #data{id = Id} = Data) ->
+    ?LOG_INFO(#{what => instance_stopped, pairing => Id, reason => Why}),
+    {stop, {shutdown, Why}, Data}.
+
+%% A newer active exists: close the clients (they resume there) and go.
+step_down(Why, #data{id = Id} = Data) ->
+    ?LOG_WARNING(#{what => stepping_down, pairing => Id, reason => Why}),
+    Data1 = disconnect_all(stale_epoch, <<"a newer instance of this pairing is active">>, Data),
+    {stop, {shutdown, Why}, Data1}.
+
+wants_standby(#data{role = active, standby = undefined, placing = false}) ->
+    evatar_cluster:opt(standby) =:= true andalso evatar_cluster:size() > 1;
+wants_standby(_) ->
+    false.
+
+%% Asks the next alive node to start a standby; tried again later when
+%% nothing came of it.
+place(State, #data{id = Id, config = Config, logic = Logic} = Data)
+  when State =:= waiting; State =:= bound ->
+    case wants_standby(Data) of
+        true ->
+            case evatar_cluster:place_standby(maps:get(standby_node, Config, undefined)) of
+                none ->
+                    Data;
+                Node ->
+                    ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(),
+                                                          evatar_pairing_logic:epoch(Logic)),
+                    erlang:send_after(?PLACE_RETRY_MS, self(), {evatar_cluster, place_retry}),
+                    Data#data{placing = true}
+            end;
+        false ->
+            Data
+    end;
+place(_State, Data) ->
+    Data.
+
+%% ---------------------------------------------------------------------------
+%% Replication and role messages
+%% ---------------------------------------------------------------------------
+
+%% Active: a new instance offers to be the standby.
+ha({offer, Standby, _V}, State, #data{standby = undefined} = Data)
+  when State =:= waiting; State =:= bound ->
+    Mon = erlang:monitor(process, Standby),
+    Data1 = Data#data{standby = Standby, standby_mon = Mon, synced = false, placing = false},
+    {keep_state, publish(snapshot_to(Data1))};
+ha({offer, Standby, _V}, _State, #data{standby = Standby} = Data) ->
+    {keep_state, snapshot_to(Data)};
+ha({offer, Standby, _V}, _State, _Data) ->
+    ok = evatar_ha_proto_v1:dismiss(Standby, self()),
+    keep_state_and_data;
+ha({resync, Standby, _V}, _State, #data{standby = Standby} = Data) ->
+    {keep_state, snapshot_to(Data)};
+ha({resync, Other, _V}, _State, _Data) ->
+    ok = evatar_ha_proto_v1:dismiss(Other, self()),
+    keep_state_and_data;
+ha({confirm, Standby, _E, V}, State, #data{standby = Standby, confirmed = C} = Data) ->
+    Data1 = release(V, Data#data{confirmed = max(C, V), synced = true}),
+    case State of
+        handing_over -> {keep_state, send_handover(Data1)};
+        _ -> {keep_state, Data1}
+    end;
+ha({confirm, _Other, _E, _V}, _State, _Data) ->
+    keep_state_and_data;
+
+%% Standby: the state, then the events in order.
+ha({snapshot, Active, Epoch, Version, State}, standby, #data{active = Active} = Data) ->
+    become_standby(Epoch, Version, State, Data);
+ha({events, Active, _Epoch, Events}, standby, #data{active = Active, logic = Logic} = Data) ->
+    Before = evatar_pairing_logic:epoch(Logic),
+    {keep_state, Data1} = apply_events(Events, remonitor_active(Data#data{active_lost = false})),
+    case evatar_pairing_logic:epoch(Data1#data.logic) of
+        Before -> {keep_state, Data1};
+        _ -> {keep_state, publish(Data1)}
+    end;
+ha({events, From, Epoch, _Events}, State, Data) ->
+    other_instance(From, active, Epoch, State, Data);
+ha({dismiss, Active}, standby, #data{active = Active} = Data) ->
+    stop_instance(dismissed, Data);
+ha({dismiss, _}, _State, _Data) ->
+    keep_state_and_data;
+ha({handover, Active, Epoch, Version}, standby,
+   #data{active = Active, version = Version, logic = Logic} = Data) ->
+    case evatar_pairing_logic:epoch(Logic) =:= Epoch of
+        true ->
+            %% The old active becomes this one's standby, already in sync.
+            {next_state, S, D, A} = take_over(handover, Data),
+            Mon = erlang:monitor(process, Active),
+            D1 = D#data{standby = Active, standby_mon = Mon, synced = true,
+                        confirmed = Version, placing = false},
+            D2 = flush(D1),
+            ok = evatar_ha_proto_v1:handover_done(Active, self(),
+                                                  evatar_pairing_logic:epoch(D2#data.logic)),
+            {next_state, S, publish(D2), A};
+        false ->
+            keep_state_and_data
+    end;
+ha({handover, _Active, _Epoch, _Version}, _State, _Data) ->
+    keep_state_and_data;
+ha({handover_done, New, _Epoch}, handing_over, #data{standby = New, id = Id} = Data) ->
+    ?LOG_WARNING(#{what => handed_over, pairing => Id, to => node_of(New)}),
+    Data1 = disconnect_all(not_active, <<"the pairing moved to ", (node_name(New))/binary>>,
+                           Data),
+    _ = erlang:demonitor(Data1#data.standby_mon, [flush]),
+    Mon = erlang:monitor(process, New),
+    Data2 = cancel_all(Data1#data{role = standby, active = New, active_mon = Mon,
+                                  standby = undefined, standby_mon = undefined,
+                                  outbox = queue:new(), repl = [], acks = #{}}),
+    {next_state, standby, publish(Data2)};
+ha({check, Active, Epoch}, standby, #data{active = Active, logic = Logic} = Data) ->
+    case evatar_pairing_logic:epoch(Logic) of
+        Epoch ->
+            ok = evatar_ha_proto_v1:check_ok(Active, Epoch, Data#data.version),
+            {keep_state, remonitor_active(Data#data{active_lost = false})};
+        Mine when Mine > Epoch ->
+            ok = evatar_ha_proto_v1:stale(Active, self(), Mine),
+            keep_state_and_data;
+        _ ->
+            keep_state_and_data
+    end;
+ha({check, From, Epoch}, State, Data) ->
+    other_instance(From, active, Epoch, State, Data);
+ha({check_ok, Standby, Epoch, V}, fenced, #data{standby = Standby, logic = Logic} = Data) ->
+    case evatar_pairing_logic:epoch(Logic) =:= Epoch of
+        true -> unfence(V, Data);
+        false -> keep_state_and_data
+    end;
+ha({check_ok, _, _, _}, _State, _Data) ->
+    keep_state_and_data;
+ha({stale, From, Epoch}, State, Data) ->
+    other_instance(From, active, Epoch, State, Data);
+ha({peer_instance, Pid, Role, Epoch}, State, Data) when is_pid(Pid), is_atom(Role),
+                                                       is_integer(Epoch) ->
+    other_instance(Pid, Role, Epoch, State, Data);
+ha(_Body, _State, _Data) ->
+    keep_state_and_data.
+
+snapshot_to(#data{standby = Standby, logic = Logic, version = V} = Data) ->
+    ok = evatar_ha_proto_v1:snapshot(Standby, evatar_pairing_logic:epoch(Logic), V, Logic),
+    %% The snapshot holds every event queued so far.
+    Data#data{repl = [], unflushed = 0}.
+
+apply_events([{V, Now, Event} | Rest], #data{version = Mine} = Data) when V =:= Mine + 1 ->
+    {Logic1, _Effects} = evatar_pairing_logic:handle(Event, Now, Data#data.logic),
+    apply_events(Rest, Data#data{logic = Logic1, version = V});
+apply_events([{V, _, _} | Rest], #data{version = Mine} = Data) when V =< Mine ->
+    apply_events(Rest, Data);
+apply_events([_Gap | _], #data{active = Active, version = Mine} = Data) ->
+    ok = evatar_ha_proto_v1:resync(Active, self(), Mine),
+    {keep_state, Data};
+apply_events([], #data{active = Active, logic = Logic, version = V} = Data) ->
+    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(Logic), V),
+    {keep_state, Data}.
+
+%% What this instance does about another instance of its pairing.
+other_instance(Pid, Role, Epoch, State, #data{logic = Logic} = Data) ->
+    MyRole = case State of
+                 S when S =:= waiting; S =:= bound; S =:= handing_over -> active;
+                 S -> S
+             end,
+    MyEpoch = case Logic of
+                  undefined -> 0;
+                  _ -> evatar_pairing_logic:epoch(Logic)
+              end,
+    Peer = case MyRole of
+               standby -> Data#data.active;
+               _ -> Data#data.standby
+           end,
+    Me = #{role => MyRole, epoch => MyEpoch, node => node(), pid => self(), peer => Peer},
+    Other = #{role => Role, epoch => Epoch, node => node(Pid), pid => Pid},
+    case MyRole =:= starting orelse Pid =:= self() of
+        true ->
+            keep_state_and_data;
+        false ->
+            case evatar_ha_rules:reconcile(Me, Other) of
+                step_down ->
+                    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby],
+                                                                  is_pid(P), P =/= Pid],
+                    step_down({newer_instance, node(Pid), Epoch}, Data);
+                stop ->
+                    stop_instance({newer_instance, node(Pid), Epoch}, Data);
+                keep when MyRole =:= active, Role =/= standby, MyEpoch > Epoch ->
+                    %% Let the stale one know at once.
+                    ok = evatar_ha_proto_v1:stale(Pid, self(), MyEpoch),
+                    keep_state_and_data;
+                keep ->
+                    keep_state_and_data
+            end
+    end.
+
+remonitor_active(#data{active = Active, active_mon = undefined} = Data) when is_pid(Active) ->
+    Data#data{active_mon = erlang:monitor(process, Active)};
+remonitor_active(Data) ->
+    Data.
+
+%% ---------------------------------------------------------------------------
+%% Failure detection
+%% ---------------------------------------------------------------------------
+
+cluster_event(place_retry, State, Data) ->
+    {keep_state, place(State, Data#data{placing = false})};
+cluster_event({node_alive, _Node}, State, Data) when State =:= waiting; State =:= bound ->
+    {keep_state, place(State, Data)};
+cluster_event({Lost, Node}, State, #data{standby = Standby} = Data)
+  when (Lost =:= node_suspected orelse Lost =:= node_down), is_pid(Standby),
+       node(Standby) =:= Node, State =/= standby ->
+    standby_down(noconnection, State, Data);
+cluster_event({Lost, Node}, standby, #data{active = Active} = Data)
+  when (Lost =:= node_suspected orelse Lost =:= node_down), is_pid(Active),
+       node(Active) =:= Node ->
+    try_take_over(Data#data{active_lost = true});
+cluster_event({node_alive, Node}, standby, #data{active = Active, active_lost = true} = Data)
+  when is_pid(Active), node(Active) =:= Node ->
+    %% The active's node is back: pick up the replication again.
+    ok = evatar_ha_proto_v1:resync(Active, self(), Data#data.version),
+    {keep_state, remonitor_active(Data#data{active_lost = false})};
+cluster_event({quorum, true}, standby, #data{active_lost = true} = Data) ->
+    try_take_over(Data);
+cluster_event({quorum, false}, State, Data) when State =:= waiting; State =:= bound ->
+    maybe_fence(Data);
+cluster_event({quorum, true}, fenced, Data) ->
+    try_unfence(Data);
+cluster_event({node_alive, _}, fenced, Data) ->
+    try_unfence(Data);
+cluster_event(quorum_confirmed, State, #data{standby = undefined})
+  when State =:= waiting; State =:= bound ->
+    keep_state_and_data;
+cluster_event(quorum_confirmed, State, #data{standby = Standby} = Data)
+  when State =:= waiting; State =:= bound ->
+    %% The standby's node is lost and a majority heard since: it cannot be
+    %% taking over, so go on alone.
+    case evatar_cluster:alive_now(node(Standby)) of
+        true -> keep_state_and_data;
+        false -> {keep_state, place(State, drop_standby(Data))}
+    end;
+cluster_event(_Event, _State, _Data) ->
+    keep_state_and_data.
+
+standby_down(Why, State, #data{id = Id, standby = Standby} = Data) ->
+    ?LOG_WARNING(#{what => standby_lost, pairing => Id, standby => node_of(Standby),
+                   reason => Why}),
+    case Why =:= noconnection andalso evatar_cluster:size() > 2 of
+        true ->
+            %% A partition looks the same: wait until a majority is heard
+            %% without the standby's node (or fence when it is not).
+            evatar_cluster:await_quorum(self(), erlang:monotonic_time(millisecond)),
+            keep_state_and_data;
+        false ->
+            Data1 = drop_standby(Data),
+            {keep_state, place(State, Data1)}
+    end.
+
+drop_standby(#data{standby = Standby, standby_mon = Mon} = Data) ->
+    _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
+    _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
+    Data1 = release_all(Data#data{standby = undefined, standby_mon = undefined,
+                                  synced = false}),
+    publish(Data1).
+
+active_down(noconnection, standby, Data) ->
+    try_take_over(Data#data{active_lost = true});
+active_down(Why, standby, Data) ->
+    %% The process died and its node is up: nobody else can be active.
+    take_over({active_died, Why}, Data);
+active_down(_Why, _State, _Data) ->
+    keep_state_and_data.
+
+try_take_over(#data{active = Active} = Data) ->
+    Alive = is_pid(Active) andalso evatar_cluster:alive_now(node(Active)),
+    case evatar_ha_rules:may_take_over(evatar_cluster:size(), evatar_cluster:majority_now(),
+                                       Alive) of
+        true ->
+            take_over(active_silent, Data);
+        false when Alive ->
+            %% The active's node is back (or never really went): follow it
+            %% again from where this standby stands.
+            ok = evatar_ha_proto_v1:resync(Active, self(), Data#data.version),
+            {keep_state, remonitor_active(Data#data{active_lost = false})};
+        false ->
+            {keep_state, Data}
+    end.
+
+maybe_fence(#data{standby = Standby, id = Id} = Data) ->
+    StandbyHeard = is_pid(Standby) andalso
+        evatar_cluster:heard_within(node(Standby), evatar_cluster:opt(lease_ms)),
+    case evatar_ha_rules:must_fence(evatar_cluster:size(), evatar_cluster:majority_now(),
+                                    StandbyHeard) of
+        true ->
+            ?LOG_WARNING(#{what => fenced, pairing => Id}),
+            Data1 = disconnect_all(fenced, <<"this node lost the majority of the cluster">>,
+                                   Data#data{role = fenced}),
+            {next_state, fenced, publish(Data1)};
+        false ->
+            keep_state_and_data
+    end.
+
+try_unfence(#data{standby = Standby, logic = Logic}) when is_pid(Standby) ->
+    case evatar_cluster:majority_now() of
+        true ->
+            ok = evatar_ha_proto_v1:check(Standby, self(), evatar_pairing_logic:epoch(Logic)),
+            keep_state_and_data;
+        false ->
+            keep_state_and_data
+    end;
+try_unfence(#data{standby = undefined} = Data) ->
+    %% Without a standby nobody can have taken over (a takeover needs one).
+    case evatar_cluster:majority_now() of
+        true -> unfence(Data#data.version, Data);
+        false -> keep_state_and_data
+    end.
+
+unfence(StandbyVersion, #data{id = Id, version = V} = Data) ->
+    ?LOG_NOTICE(#{what => unfenced, pairing => Id}),
+    Data1 = Data#data{role = active},
+    Data2 = case is_pid(Data1#data.standby) andalso StandbyVersion < V of
+                true -> snapshot_to(Data1);
+                false -> Data1
+            end,
+    next(publish(Data2), []).
+
+%% ---------------------------------------------------------------------------
+%% Silent client links
+%% ---------------------------------------------------------------------------
+
+arm_silent(#data{silent_armed = true} = Data) ->
+    Data;
+arm_silent(Data) ->
+    Interval = max(50, evatar_cluster:opt(client_ack_timeout) div 2),
+    _ = erlang:send_after(Interval, self(), evatar_silent_check),
+    Data#data{silent_armed = true}.
+
+silent_check(#data{logic = Logic, id = Id} = Data) ->
+    Timeout = evatar_cluster:opt(client_ack_timeout),
+    Now = erlang:system_time(millisecond),
+    Silent = [E || {E, T} <- evatar_pairing_logic:unacked_since(Logic), Now - T > Timeout],
+    Data1 = lists:foldl(
+              fun(E, D) ->
+                      ?LOG_WARNING(#{what => silent_link, pairing => Id, entity => E}),
+                      ok = tell(E, {dropped, silent_link,
+                                    <<"delivered signals were not acknowledged in time">>}, D),
+                      run({detach, E}, forget(E, D))
+              end, Data, Silent),
+    Handover = Silent =/= [] andalso evatar_cluster:opt(handover_on_silent_link) =:= true
+        andalso is_pid(Data1#data.standby) andalso Data1#data.synced,
+    Data2 = arm_silent(Data1),
+    case Handover of
+        true ->
+            {next_state, handing_over, flush(Data2),
+             [{state_timeout, 4 * evatar_cluster:opt(suspect_ms), handover},
+              {next_event, internal, handover}]};
+        false ->
+            next(flush_maybe(Data2), [])
+    end.
+
+%% The planned handover goes once the standby has confirmed everything.
+send_handover(#data{standby = Standby, confirmed = V, version = V, logic = Logic} = Data)
+  when is_pid(Standby) ->
+    ok = evatar_ha_proto_v1:handover(Standby, evatar_pairing_logic:epoch(Logic), V),
+    Data;
+send_handover(Data) ->
+    flush(Data).
+
+peers() ->
+    [N || N <- evatar_cluster:alive_nodes(), N =/= node()].
+
+node_of(Pid) when is_pid(Pid) -> node(Pid);
+node_of(_) -> undefined.
+
+node_name(Pid) -> atom_to_binary(node(Pid)).
+
+ha_status(#data{role = Role, logic = Logic, version = V} = Data) ->
+    Epoch = case Logic of
+                undefined -> 0;
+                _ -> evatar_pairing_logic:epoch(Logic)
+            end,
+    {Active, Standby} = case Role of
+                            standby -> {Data#data.active, undefined};
+                            starting -> {Data#data.active, undefined};
+                            _ -> {self(), Data#data.standby}
+                        end,
+    #{role => Role, epoch => Epoch, node => node(), active => Active, standby => Standby,
+      standby_node => node_of(Standby),
+      synced => case Role of
+                    standby -> true;
+                    _ -> Data#data.synced
+                end,
+      version => V}.

@@ -6,14 +6,25 @@
 %% `evatar_pairing' executes (send a message, start a timer, log).
 %%
 %% Nothing here holds a pid, a monitor or a timer reference, and time comes
-%% in as an argument: this value is what issue 5 copies to a standby, which
-%% re-arms the timers from {@link timers/2} after a takeover. Entities are
-%% known by their entity ids; the process maps them to pids.
+%% in as an argument: this value is what a standby holds (the active ships
+%% every event with its time; the standby applies it here and keeps the
+%% state, discarding the effects), and a standby taking over re-arms the
+%% timers from {@link timers/2}. Entities are known by their entity ids; the
+%% process maps them to pids.
+%%
+%% High availability (docs/architecture.md, section 8) adds, for entities
+%% joined with a session id (protocol version 2): a bounded window of the
+%% SignalIDs already accepted from them (a resent signal is acknowledged,
+%% not routed again), the signals delivered to them and not yet acknowledged
+%% (re-delivered on resume, bounded: SlowConsumer beyond), and detachment: an
+%% entity whose connection went, or every entity after a takeover, is kept
+%% for `resume_timeout' ms for a Resume.
 -module(evatar_pairing_logic).
 
 -export([config/1, new/2, handle/3]).
 -export([phase/1, summary/1, bindings/1, registration_list/1, stats/1,
-         timers/2, pairing_id/1, epoch/1, entity_ids/1]).
+         timers/2, pairing_id/1, epoch/1, entity_ids/1, config_of/1,
+         unacked_since/1, attached_ids/1, last_accepted/2]).
 
 -export_type([state/0, config/0, event/0, effect/0, timer_key/0, phase/0]).
 
@@ -24,7 +35,18 @@
                  joined_at :: integer(),
                  join_deadline :: integer(),
                  description = undefined :: bil:description() | undefined,
-                 seq = 0 :: non_neg_integer()}).
+                 seq = 0 :: non_neg_integer(),
+                 %% HA sessions only (undefined session: protocol version 1).
+                 session = undefined :: binary() | undefined,
+                 attached = true :: boolean(),
+                 resume_deadline = undefined :: integer() | undefined,
+                 %% SignalIDs accepted, newest last, at most dedup_window.
+                 seen = #{} :: #{binary() => true},
+                 seen_q = queue:new() :: queue:queue(binary()),
+                 last_accepted = <<>> :: binary(),
+                 %% Delivered, not yet acknowledged: {Seq, Signal, DeliveredAt}.
+                 out = queue:new() :: queue:queue({pos_integer(), bil:signal(), integer()}),
+                 outn = 0 :: non_neg_integer()}).
 
 %% An open `request': who asked whom, and until when the answer may come.
 -record(pending, {requester :: binary(),          % entity id
@@ -49,31 +71,48 @@
              %% Keyed by {requester ComponentID, request SignalID}.
              pending = #{} :: #{{binary(), binary()} => #pending{}},
              counters = #{} :: #{term() => non_neg_integer()},
-             next_id = 1 :: pos_integer()}).
+             next_id = 1 :: pos_integer(),
+             %% HA entities over max_unacked_out during the current event.
+             overflow = [] :: [binary()]}).
 
 -opaque state() :: #st{}.
 -type config() :: #{agent_credential := binary(),
                     avatar_credential := binary(),
                     join_timeout := non_neg_integer(),
                     feedback_timeout := non_neg_integer(),
-                    max_avatars := pos_integer()}.
+                    max_avatars := pos_integer(),
+                    resume_timeout := non_neg_integer(),
+                    dedup_window := pos_integer(),
+                    max_unacked_out := pos_integer(),
+                    standby_node => node()}.
 -type timer_key() :: {join, EntityId :: binary()}
-                   | {feedback, RequesterComponent :: binary(), SignalId :: binary()}.
+                   | {feedback, RequesterComponent :: binary(), SignalId :: binary()}
+                   | {resume, EntityId :: binary()}.
 -type event() :: {join, evatar:role(), EntityId :: binary(), Credential :: binary()}
+               | {join, evatar:role(), EntityId :: binary(), Credential :: binary(),
+                  SessionId :: binary()}
+               | {resume, evatar:role(), EntityId :: binary(), Credential :: binary(),
+                  SessionId :: binary(), Received :: non_neg_integer(),
+                  ClientEpoch :: non_neg_integer()}
                | {describe, EntityId :: binary(), bil:description()}
                | {signal, EntityId :: binary(), bil:signal()}
                | {leave, EntityId :: binary(), left | down}
+               | {detach, EntityId :: binary()}
+               | {client_ack, EntityId :: binary(), Seq :: non_neg_integer()}
+               | {takeover, Epoch :: pos_integer()}
                | {timeout, timer_key()}.
 -type effect() :: {reply, term()}
                 | {deliver, EntityId :: binary(), bil:signal()}
                 | {report, EntityId :: binary(), evatar:binding_report()}
                 | {drop, EntityId :: binary(), evatar:drop_code(), Reason :: binary()}
+                | {accepted, EntityId :: binary(), SignalId :: binary()}
                 | {start_timer, timer_key(), Ms :: non_neg_integer()}
                 | {cancel_timer, timer_key()}
                 | {log, logger:level(), logger:report()}.
 -type phase() :: waiting | bound.
 
--define(DEFAULTS, #{join_timeout => 5000, feedback_timeout => 5000, max_avatars => 64}).
+-define(DEFAULTS, #{join_timeout => 5000, feedback_timeout => 5000, max_avatars => 64,
+                   resume_timeout => 10000, dedup_window => 1024, max_unacked_out => 8192}).
 
 %% ---------------------------------------------------------------------------
 %% Construction
@@ -96,8 +135,11 @@ config(Other) ->
     {error, {bad_option, Other}}.
 
 check_options([{K, V} | Rest], Opts)
-  when (K =:= join_timeout orelse K =:= feedback_timeout), is_integer(V), V >= 0;
-       K =:= max_avatars, is_integer(V), V > 0;
+  when (K =:= join_timeout orelse K =:= feedback_timeout orelse K =:= resume_timeout),
+       is_integer(V), V >= 0;
+       (K =:= max_avatars orelse K =:= dedup_window orelse K =:= max_unacked_out),
+       is_integer(V), V > 0;
+       K =:= standby_node, is_atom(V);
        K =:= agent_credential; K =:= avatar_credential ->
     check_options(Rest, Opts);
 check_options([Bad | _], _Opts) ->
@@ -118,23 +160,60 @@ new(PairingId, Config) ->
 %% Call-like events (join, describe, leave) produce exactly one
 %% `{reply, Reply}' effect.
 -spec handle(event(), integer(), state()) -> {state(), [effect()]}.
-handle({signal, EntityId, Signal}, Now, St) ->
+handle(Event, Now, St) ->
+    case handle1(Event, Now, St) of
+        {#st{overflow = []}, _} = Result ->
+            Result;
+        {#st{overflow = Ids} = St1, Effects} ->
+            drop_overflow(lists:usort(Ids), Now, St1#st{overflow = []}, Effects)
+    end.
+
+handle1({signal, EntityId, Signal}, Now, St) ->
     route(EntityId, Signal, Now, St);
-handle({join, Role, EntityId, Credential}, Now, St) ->
-    join(Role, EntityId, Credential, Now, St);
-handle({describe, EntityId, Description}, Now, St) ->
+handle1({join, Role, EntityId, Credential}, Now, St) ->
+    join(Role, EntityId, Credential, undefined, Now, St);
+handle1({join, Role, EntityId, Credential, SessionId}, Now, St) when is_binary(SessionId) ->
+    join(Role, EntityId, Credential, SessionId, Now, St);
+handle1({resume, Role, EntityId, Credential, SessionId, Received, ClientEpoch}, Now, St) ->
+    resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now, St);
+handle1({describe, EntityId, Description}, Now, St) ->
     describe(EntityId, Description, Now, St);
-handle({leave, EntityId, Why}, Now, St) ->
+handle1({leave, EntityId, Why}, Now, St) ->
     {St1, Effects} = leave(EntityId, Why, Now, St),
     {St1, [{reply, ok} | Effects]};
-handle({timeout, {join, EntityId}}, Now, St) ->
+handle1({detach, EntityId}, Now, St) ->
+    detach(EntityId, Now, St);
+handle1({client_ack, EntityId, Seq}, _Now, St) ->
+    {client_ack(EntityId, Seq, St), []};
+handle1({takeover, Epoch}, Now, St) ->
+    takeover(Epoch, Now, St);
+handle1({timeout, {join, EntityId}}, Now, St) ->
     join_timeout(EntityId, Now, St);
-handle({timeout, {feedback, Component, SignalId}}, Now, St) ->
+handle1({timeout, {resume, EntityId}}, Now, St) ->
+    resume_timeout(EntityId, Now, St);
+handle1({timeout, {feedback, Component, SignalId}}, Now, St) ->
     feedback_timeout({Component, SignalId}, Now, St).
 
 %% --- join ------------------------------------------------------------------
 
-join(Role, EntityId, Credential, Now,
+%% A detached entity (its connection gone, kept for a Resume) is replaced by
+%% a fresh join of the same id: the client came back without resuming.
+join(Role, EntityId, Credential, Session, Now, #st{entities = Entities} = St) ->
+    case Entities of
+        #{EntityId := #entity{attached = false}} ->
+            case credential_ok(Role, Credential, St#st.config) of
+                true ->
+                    {St1, LeaveEffects} = leave(EntityId, replaced, Now, St),
+                    {St2, JoinEffects} = join1(Role, EntityId, Credential, Session, Now, St1),
+                    {St2, LeaveEffects ++ JoinEffects};
+                false ->
+                    join1(Role, EntityId, Credential, Session, Now, St)
+            end;
+        #{} ->
+            join1(Role, EntityId, Credential, Session, Now, St)
+    end.
+
+join1(Role, EntityId, Credential, Session, Now,
      #st{config = Config, entities = Entities} = St) ->
     Check = case credential_ok(Role, Credential, Config) of
                 false -> {error, bad_credential};
@@ -155,7 +234,7 @@ join(Role, EntityId, Credential, Now,
         ok ->
             Timeout = maps:get(join_timeout, Config),
             Entity = #entity{id = EntityId, role = Role, joined_at = Now,
-                             join_deadline = Now + Timeout},
+                             join_deadline = Now + Timeout, session = Session},
             St1 = St#st{entities = Entities#{EntityId => Entity}},
             St2 = case Role of
                       agent -> St1#st{agent = EntityId};
@@ -186,7 +265,7 @@ join_timeout(EntityId, Now, #st{entities = Entities, config = Config} = St) ->
                         io_lib:format("no description within the join timeout (~b ms)", [Ms])),
             {Error, St1} = mediator_signal(error, EntityId, undefined, <<"ERROR">>,
                                            <<"JoinTimeout">>, Message, Now, St),
-            {St2, Deliver} = stamp(EntityId, Error, St1),
+            {St2, Deliver} = stamp(EntityId, Error, Now, St1),
             {St3, _} = remove_entity(EntityId, St2),
             {count(dropped, St3),
              [Deliver, {drop, EntityId, join_timeout, Message},
@@ -321,7 +400,7 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
                                           <<"the provider component '", Prov/binary,
                                             "' is no longer bound; the request is void">>,
                                           Now, StAcc1),
-                        {StAcc3, Deliver} = stamp(Entity, Sig, StAcc2),
+                        {StAcc3, Deliver} = stamp(Entity, Sig, Now, StAcc2),
                         {count(provider_gone, StAcc3),
                          Acc ++ [{cancel_timer, {feedback, Req, SigId}}, Deliver,
                                  {log, notice, #{what => provider_gone, entity => Entity,
@@ -330,7 +409,7 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
 
 %% --- leave -----------------------------------------------------------------
 
-leave(EntityId, Why, Now, #st{entities = Entities} = St) ->
+leave(EntityId, Why, Now, #st{entities = Entities} = St) when is_atom(Why) ->
     case Entities of
         #{EntityId := #entity{description = Description}} ->
             {St1, Effects} = remove_entity(EntityId, St),
@@ -367,7 +446,11 @@ remove_entity(EntityId, #st{entities = Entities} = St) ->
                     undefined -> [{cancel_timer, {join, EntityId}}];
                     _ -> []
                 end,
-    {St2, JoinTimer ++ [{cancel_timer, {feedback, C, S}} || {C, S} <- Mine]}.
+    ResumeTimer = case maps:get(EntityId, Entities) of
+                      #entity{resume_deadline = undefined} -> [];
+                      _ -> [{cancel_timer, {resume, EntityId}}]
+                  end,
+    {St2, JoinTimer ++ ResumeTimer ++ [{cancel_timer, {feedback, C, S}} || {C, S} <- Mine]}.
 
 %% --- routing ---------------------------------------------------------------
 
@@ -376,11 +459,25 @@ route(EntityId, #{id := Id, context := Context, sender := Sender, receiver := Re
   when is_binary(Id), is_atom(Context), is_binary(Sender), is_binary(Receiver),
        is_map(Body) ->
     case Entities of
-        #{EntityId := #entity{description = undefined}} ->
+        #{EntityId := #entity{session = undefined, description = undefined}} ->
             refuse(EntityId, Signal, <<"NotDescribed">>,
                    <<"send your description before any signal">>, Now, St);
-        #{EntityId := _} ->
+        #{EntityId := #entity{session = undefined}} ->
             route_known(EntityId, Signal, Now, St);
+        #{EntityId := #entity{seen = Seen}} when is_map_key(Id, Seen) ->
+            %% Resent after a reconnect: accepted before, so not again.
+            {count(duplicates, St), [{accepted, EntityId, Id}]};
+        #{EntityId := #entity{description = Description} = Entity} ->
+            St1 = St#st{entities = Entities#{EntityId := remember(Id, Entity, St)}},
+            {St2, Effects} = case Description of
+                                 undefined ->
+                                     refuse(EntityId, Signal, <<"NotDescribed">>,
+                                            <<"send your description before any signal">>,
+                                            Now, St1);
+                                 _ ->
+                                     route_known(EntityId, Signal, Now, St1)
+                             end,
+            {St2, Effects ++ [{accepted, EntityId, Id}]};
         #{} ->
             %% Left or dropped while the signal was in flight: nobody to tell.
             {count(unknown_entity, St), []}
@@ -434,16 +531,16 @@ route_bound(Target, #{context := request, id := Id, sender := Sender,
             P = #pending{requester = maps:get(Sender, St#st.components), provider = Receiver,
                          provider_entity = Target, deadline = Now + Timeout},
             St1 = St#st{pending = (St#st.pending)#{Key => P}},
-            {St2, Deliver} = stamp(Target, Signal, St1),
+            {St2, Deliver} = stamp(Target, Signal, Now, St1),
             {count({routed, request}, St2),
              [Deliver, {start_timer, {feedback, Sender, Id}, Timeout}]}
     end;
 route_bound(Target, #{context := Context} = Signal, Now, St)
   when Context =:= feedback; Context =:= progress; Context =:= error ->
     answer(Target, Signal, Now, St);
-route_bound(Target, #{context := Context} = Signal, _Now, St)
+route_bound(Target, #{context := Context} = Signal, Now, St)
   when Context =:= sensor_data; Context =:= request_no_feedback; Context =:= event ->
-    {St1, Deliver} = stamp(Target, Signal, St),
+    {St1, Deliver} = stamp(Target, Signal, Now, St),
     {count({routed, Context}, St1), [Deliver]};
 route_bound(_Target, #{sender := Sender} = Signal, Now, St) ->
     refuse(maps:get(Sender, St#st.components), Signal, <<"BadSignal">>,
@@ -462,16 +559,16 @@ answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = S
         #{Key := #pending{provider = Sender} = P} when Context =:= progress ->
             Timeout = maps:get(feedback_timeout, St#st.config),
             St1 = St#st{pending = Pending#{Key => P#pending{deadline = Now + Timeout}}},
-            {St2, Deliver} = stamp(Target, Signal, St1),
+            {St2, Deliver} = stamp(Target, Signal, Now, St1),
             {count({routed, progress}, St2),
              [Deliver, {start_timer, {feedback, Receiver, InReplyTo}, Timeout}]};
         #{Key := #pending{provider = Sender}} ->
             St1 = St#st{pending = maps:remove(Key, Pending)},
-            {St2, Deliver} = stamp(Target, Signal, St1),
+            {St2, Deliver} = stamp(Target, Signal, Now, St1),
             {count({routed, Context}, St2),
              [{cancel_timer, {feedback, Receiver, InReplyTo}}, Deliver]};
         #{} when Context =:= error ->
-            {St1, Deliver} = stamp(Target, Signal, St),
+            {St1, Deliver} = stamp(Target, Signal, Now, St),
             {count({routed, error}, St1), [Deliver]};
         #{} ->
             {count(late_feedback, St),
@@ -486,7 +583,7 @@ feedback_timeout({Requester, SignalId} = Key, Now, #st{pending = Pending} = St) 
             Message = <<"no feedback from '", Provider/binary, "' within the feedback timeout">>,
             {Sig, St2} = mediator_signal(feedback, Requester, SignalId, <<"EVATAR">>,
                                          <<"Timeout">>, Message, Now, St1),
-            {St3, Deliver} = stamp(Entity, Sig, St2),
+            {St3, Deliver} = stamp(Entity, Sig, Now, St2),
             {count(timeouts, St3),
              [Deliver, {log, warning, #{what => feedback_timeout, entity => Entity,
                                         signal => SignalId, provider => Provider}}]};
@@ -505,7 +602,7 @@ refuse(EntityId, Signal, Code, Message, Now, St) ->
                     I -> I
                 end,
     {Sig, St1} = mediator_signal(error, Receiver, InReplyTo, <<"ERROR">>, Code, Message, Now, St),
-    {St2, Deliver} = stamp(EntityId, Sig, St1),
+    {St2, Deliver} = stamp(EntityId, Sig, Now, St1),
     {count({error, Code}, St2),
      [Deliver, {log, notice, #{what => signal_refused, entity => EntityId, code => Code,
                                signal => InReplyTo}}]}.
@@ -524,12 +621,157 @@ mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now,
                       parameters => [{<<"Message">>, Message}]}},
     {Sig, St#st{next_id = N + 1}}.
 
-%% Stamps the receiving entity's next sequence number and the epoch.
-stamp(EntityId, Signal, #st{entities = Entities, epoch = Epoch} = St) ->
+%% Stamps the receiving entity's next sequence number and the epoch; an HA
+%% entity also keeps the signal until it acknowledges it.
+stamp(EntityId, Signal, Now, #st{entities = Entities, epoch = Epoch} = St) ->
     #entity{seq = Seq} = Entity = maps:get(EntityId, Entities),
     Next = Seq + 1,
-    {St#st{entities = Entities#{EntityId := Entity#entity{seq = Next}}},
-     {deliver, EntityId, Signal#{seq => Next, epoch => Epoch}}}.
+    Stamped = Signal#{seq => Next, epoch => Epoch},
+    case Entity of
+        #entity{session = undefined} ->
+            {St#st{entities = Entities#{EntityId := Entity#entity{seq = Next}}},
+             {deliver, EntityId, Stamped}};
+        #entity{out = Out, outn = N} ->
+            Max = maps:get(max_unacked_out, St#st.config),
+            Entity1 = Entity#entity{seq = Next, out = queue:in({Next, Stamped, Now}, Out),
+                                    outn = N + 1},
+            St1 = St#st{entities = Entities#{EntityId := Entity1}},
+            St2 = case N + 1 > Max of
+                      true -> St1#st{overflow = [EntityId | St1#st.overflow]};
+                      false -> St1
+                  end,
+            {St2, {deliver, EntityId, Stamped}}
+    end.
+
+%% Adds a SignalID to the entity's de-duplication window, forgetting the
+%% oldest beyond dedup_window.
+remember(Id, #entity{seen = Seen, seen_q = Q} = Entity, #st{config = Config}) ->
+    Q1 = queue:in(Id, Q),
+    Entity1 = Entity#entity{seen = Seen#{Id => true}, seen_q = Q1, last_accepted = Id},
+    case map_size(Seen) + 1 > maps:get(dedup_window, Config) of
+        true ->
+            {{value, Old}, Q2} = queue:out(Q1),
+            Entity1#entity{seen = maps:remove(Old, Entity1#entity.seen), seen_q = Q2};
+        false ->
+            Entity1
+    end.
+
+%% --- high availability: sessions ------------------------------------------
+
+%% Resumes the session `SessionId' of `EntityId': the entity is attached
+%% again and everything delivered after `Received' is delivered again (with
+%% the current epoch). An unknown session is a fresh join; the reply says
+%% which: `{ok, Resumed, LastAccepted}'. A known session presented with a
+%% newer epoch than this instance's is refused (`stale_epoch'): this
+%% instance is behind one the client has already talked to.
+resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
+       #st{entities = Entities, epoch = Epoch} = St) ->
+    case credential_ok(Role, Credential, St#st.config) of
+        false ->
+            {St, [{reply, {error, bad_credential}}]};
+        true ->
+            case Entities of
+                #{EntityId := #entity{session = SessionId, role = Role}}
+                  when is_binary(SessionId), ClientEpoch > Epoch ->
+                    %% This instance holds the session but is older than one
+                    %% the client has seen: it must not serve it.
+                    {St, [{reply, {error, stale_epoch}},
+                          {log, notice, #{what => resume_refused, entity => EntityId,
+                                          reason => stale_epoch,
+                                          client_epoch => ClientEpoch}}]};
+                #{EntityId := #entity{session = SessionId, role = Role} = Entity}
+                  when is_binary(SessionId) ->
+                    %% A client that saw more than this history holds
+                    %% (two-node partition, docs/architecture.md) must not
+                    %% see those Sequence numbers again for other signals.
+                    Entity1 = trim(Entity#entity{attached = true, resume_deadline = undefined,
+                                                 seq = max(Entity#entity.seq, Received)},
+                                   Received),
+                    Redeliver = [{deliver, EntityId, Sig#{epoch => Epoch}}
+                                 || {_, Sig, _} <- queue:to_list(Entity1#entity.out)],
+                    {count(resumed, St#st{entities = Entities#{EntityId := Entity1}}),
+                     [{reply, {ok, true, Entity1#entity.last_accepted}},
+                      {cancel_timer, {resume, EntityId}} | Redeliver] ++
+                         [{log, info, #{what => resumed, entity => EntityId,
+                                        redelivered => length(Redeliver)}}]};
+                #{} ->
+                    {St1, Effects} = join(Role, EntityId, Credential, SessionId, Now, St),
+                    case lists:keytake(reply, 1, Effects) of
+                        {value, {reply, ok}, Rest} -> {St1, [{reply, {ok, false, <<>>}} | Rest]};
+                        {value, _Refusal, _} -> {St1, Effects}
+                    end
+            end
+    end.
+
+%% The connection of an HA entity went: keep it for resume_timeout ms. A
+%% protocol version 1 entity leaves at once, as before.
+detach(EntityId, Now, #st{entities = Entities, config = Config} = St) ->
+    case Entities of
+        #{EntityId := #entity{session = undefined}} ->
+            leave(EntityId, down, Now, St);
+        #{EntityId := #entity{} = Entity} ->
+            Timeout = maps:get(resume_timeout, Config),
+            Entity1 = Entity#entity{attached = false, resume_deadline = Now + Timeout},
+            {St#st{entities = Entities#{EntityId := Entity1}},
+             [{start_timer, {resume, EntityId}, Timeout},
+              {log, info, #{what => detached, entity => EntityId}}]};
+        #{} ->
+            {St, []}
+    end.
+
+resume_timeout(EntityId, Now, #st{entities = Entities} = St) ->
+    case Entities of
+        #{EntityId := #entity{attached = false}} ->
+            leave(EntityId, resume_timeout, Now, St);
+        #{} ->
+            {St, []}
+    end.
+
+client_ack(EntityId, Seq, #st{entities = Entities} = St) when is_integer(Seq) ->
+    case Entities of
+        #{EntityId := #entity{session = S} = Entity} when is_binary(S) ->
+            St#st{entities = Entities#{EntityId := trim(Entity, Seq)}};
+        #{} ->
+            St
+    end;
+client_ack(_EntityId, _Seq, St) ->
+    St.
+
+trim(#entity{out = Out, outn = N} = Entity, Seq) ->
+    case queue:peek(Out) of
+        {value, {S, _, _}} when S =< Seq ->
+            trim(Entity#entity{out = queue:drop(Out), outn = N - 1}, Seq);
+        _ ->
+            Entity
+    end.
+
+%% This instance takes over at `Epoch': every entity's connection was to the
+%% old active, so all are detached until they resume (or leave after
+%% resume_timeout).
+takeover(Epoch, Now, #st{entities = Entities, config = Config} = St) ->
+    Timeout = maps:get(resume_timeout, Config),
+    Detached = maps:map(fun(_, E) -> E#entity{attached = false,
+                                              resume_deadline = Now + Timeout}
+                        end, Entities),
+    {St#st{epoch = Epoch, entities = Detached},
+     [{start_timer, {resume, Id}, Timeout} || Id <- lists:sort(maps:keys(Entities))] ++
+         [{log, notice, #{what => takeover, epoch => Epoch}}]}.
+
+%% Entities whose unacknowledged outbound signals went over max_unacked_out
+%% are dropped as slow consumers, as the bridge drops a client that does not
+%% read.
+drop_overflow([Id | Ids], Now, St, Effects) ->
+    case St#st.entities of
+        #{Id := _} ->
+            {St1, LeaveEffects} = leave(Id, slow_consumer, Now, St),
+            Message = <<"too many delivered signals not acknowledged">>,
+            drop_overflow(Ids, Now, count(dropped, St1),
+                          Effects ++ [{drop, Id, slow_consumer, Message} | LeaveEffects]);
+        #{} ->
+            drop_overflow(Ids, Now, St, Effects)
+    end;
+drop_overflow([], _Now, St, Effects) ->
+    {St, Effects}.
 
 count(Key, #st{counters = Counters} = St) ->
     St#st{counters = maps:update_with(Key, fun(N) -> N + 1 end, 1, Counters)}.
@@ -587,9 +829,10 @@ registration_list(#st{entities = Entities, order = Order}) ->
                                              joined_at = J} <- maps:values(Entities)]),
     [entry(maps:get(Id, Entities)) || Id <- Order ++ [Id || {_, Id} <- Waiting]].
 
-entry(#entity{id = Id, role = Role, joined_at = J, description = D, seq = Seq}) ->
+entry(#entity{id = Id, role = Role, joined_at = J, description = D, seq = Seq,
+              session = S, attached = A, outn = N}) ->
     #{entity => Id, role => Role, joined_at => J, registered => D =/= undefined,
-      description => D, delivered => Seq}.
+      description => D, delivered => Seq, session => S, attached => A, unacked => N}.
 
 %% @doc Counters since the pairing started.
 -spec stats(state()) -> map().
@@ -604,6 +847,8 @@ stats(#st{counters = C, pending = Pending}) ->
       dropped => maps:get(dropped, C, 0),
       rebinds => maps:get(rebinds, C, 0),
       unknown_entity => maps:get(unknown_entity, C, 0),
+      duplicates => maps:get(duplicates, C, 0),
+      resumed => maps:get(resumed, C, 0),
       pending => map_size(Pending)}.
 
 %% @doc The timers the state needs at time `Now', with their remaining time:
@@ -612,4 +857,31 @@ stats(#st{counters = C, pending = Pending}) ->
 timers(#st{entities = Entities, pending = Pending}, Now) ->
     [{{join, Id}, max(0, D - Now)} || #entity{id = Id, description = undefined,
                                               join_deadline = D} <- maps:values(Entities)] ++
+    [{{resume, Id}, max(0, D - Now)} || #entity{id = Id, resume_deadline = D}
+                                            <- maps:values(Entities), D =/= undefined] ++
     [{{feedback, C, S}, max(0, D - Now)} || {{C, S}, #pending{deadline = D}} <- maps:to_list(Pending)].
+
+%% @doc The pairing's configuration.
+-spec config_of(state()) -> config().
+config_of(#st{config = Config}) -> Config.
+
+%% @doc For every attached HA entity holding unacknowledged delivered
+%% signals, the delivery time of the oldest: the silent-link check.
+-spec unacked_since(state()) -> [{binary(), integer()}].
+unacked_since(#st{entities = Entities}) ->
+    [{Id, T} || #entity{id = Id, attached = true, out = Out} <- maps:values(Entities),
+                {value, {_, _, T}} <- [queue:peek(Out)]].
+
+%% @doc The entities currently attached (their connection is to this
+%% instance, as far as the state knows).
+-spec attached_ids(state()) -> [binary()].
+attached_ids(#st{entities = Entities}) ->
+    lists:sort([Id || #entity{id = Id, attached = true} <- maps:values(Entities)]).
+
+%% @doc The last SignalID accepted from an HA entity (`<<>>' when none).
+-spec last_accepted(state(), binary()) -> binary().
+last_accepted(#st{entities = Entities}, EntityId) ->
+    case Entities of
+        #{EntityId := #entity{last_accepted = L}} -> L;
+        #{} -> <<>>
+    end.

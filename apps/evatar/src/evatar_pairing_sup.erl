@@ -10,30 +10,38 @@
 %% `MaxT' seconds (application env `pairing_restart_limit', default
 %% `{2, 60}'); beyond that this supervisor gives up and the pairing is removed
 %% (its parent's children are temporary), logged by the supervisor's
-%% `reached_max_restart_intensity' report. Future processes of a pairing
-%% (issue 5: replication, heartbeat) join this tree under `one_for_all'.
+%% `reached_max_restart_intensity' report. With a cluster, a restarted
+%% instance first asks the other nodes: if its standby took over, it becomes
+%% that one's standby (docs/architecture.md, section 8).
 -module(evatar_pairing_sup).
 -behaviour(supervisor).
 
--export([start_link/2, init/1]).
+-export([start_link/2, start_link/3, init/1]).
 
-%% @doc Starts the tree of pairing `PairingId'.
+%% @doc Starts the tree of a new pairing `PairingId'.
 -spec start_link(evatar:pairing_id(), evatar_pairing_logic:config()) ->
           {ok, pid()} | ignore | {error, term()}.
 start_link(PairingId, Config) ->
-    supervisor:start_link(?MODULE, {PairingId, Config}).
+    start_link(PairingId, Config, create).
+
+%% @doc Starts the tree of an instance of pairing `PairingId' (see
+%% `evatar_pairing:mode()').
+-spec start_link(evatar:pairing_id(), evatar_pairing_logic:config(), evatar_pairing:mode()) ->
+          {ok, pid()} | ignore | {error, term()}.
+start_link(PairingId, Config, Mode) ->
+    supervisor:start_link(?MODULE, {PairingId, Config, Mode}).
 
 %% @private
--spec init({evatar:pairing_id(), evatar_pairing_logic:config()}) ->
+-spec init({evatar:pairing_id(), evatar_pairing_logic:config(), evatar_pairing:mode()}) ->
           {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
-init({PairingId, Config}) ->
+init({PairingId, Config, Mode}) ->
     {MaxR, MaxT} = restart_limit(),
     Flags = #{strategy => one_for_all,
               intensity => MaxR,
               period => MaxT,
               auto_shutdown => any_significant},
     Pairing = #{id => evatar_pairing,
-                start => {evatar_pairing, start_link, [PairingId, Config]},
+                start => {evatar_pairing, start_link, [PairingId, Config, Mode]},
                 restart => transient,
                 significant => true,
                 shutdown => 5000,

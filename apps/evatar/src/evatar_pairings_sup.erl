@@ -6,7 +6,7 @@
 -module(evatar_pairings_sup).
 -behaviour(supervisor).
 
--export([start_link/0, start_pairing/2, init/1]).
+-export([start_link/0, start_pairing/2, start_pairing/3, init/1]).
 
 %% @doc Starts the supervisor, registered as `evatar_pairings_sup'.
 -spec start_link() -> {ok, pid()} | ignore | {error, term()}.
@@ -17,7 +17,14 @@ start_link() ->
 -spec start_pairing(evatar:pairing_id(), evatar_pairing_logic:config()) ->
           {ok, pid()} | {error, term()}.
 start_pairing(PairingId, Config) ->
-    case supervisor:start_child(?MODULE, [PairingId, Config]) of
+    start_pairing(PairingId, Config, create).
+
+%% @doc Starts the tree of one instance (`create', or a standby); returns
+%% its supervisor's pid.
+-spec start_pairing(evatar:pairing_id(), evatar_pairing_logic:config(), evatar_pairing:mode()) ->
+          {ok, pid()} | {error, term()}.
+start_pairing(PairingId, Config, Mode) ->
+    case supervisor:start_child(?MODULE, [PairingId, Config, Mode]) of
         {ok, Pid} -> {ok, Pid};
         {ok, Pid, _Info} -> {ok, Pid};
         {error, _} = Error -> Error

@@ -11,9 +11,10 @@ pairings(Summaries) ->
     Rows = [[maps:get(id, S), maps:get(state, S), maps:get(agent, S, '-'),
              maps:get(avatars, S, '-'), maps:get(registered, S, '-'),
              maps:get(bound, S, '-'), maps:get(unbound, S, '-'),
-             maps:get(pending, S, '-'), maps:get(pid, S)] || S <- Summaries],
+             maps:get(pending, S, '-'), maps:get(pid, S), maps:get(role, S, '-'),
+             maps:get(epoch, S, '-')] || S <- Summaries],
     table(["PAIRING", "STATE", "AGENT", "AVATARS", "REGISTERED", "BOUND", "UNBOUND",
-           "PENDING", "PID"], Rows).
+           "PENDING", "PID", "ROLE", "EPOCH"], Rows).
 
 %% @doc Prints a Body Mapping Registry.
 -spec bindings(evatar:binding_report()) -> ok.

@@ -9,14 +9,22 @@
 %% decided by the high-availability layer with epochs, not by a cluster-wide
 %% name service (`global' resolves a name clash after a partition by killing
 %% one side at random, which cannot respect epoch fencing).
+%%
+%% It also owns a public table of each local instance's role, epoch and
+%% peer (its standby, or its active), written by the pairing processes on
+%% every role change and read by `evatar_cluster' for inventories. An entry
+%% outlives a crashed instance on purpose: the restarted instance finds it
+%% and knows it is a restart (its standby may have taken over meanwhile).
 -module(evatar_registry).
 -behaviour(gen_server).
 
 -export([start_link/0, register_name/2, unregister_name/1, whereis_name/1,
          send/2, all/0, count/0]).
+-export([set_role/5, role/1, roles/0, delete_role/2, previous/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, ?MODULE).
+-define(ROLES, evatar_ha_roles).
 
 %% @doc Starts the registry and creates its table.
 -spec start_link() -> {ok, pid()} | {error, term()}.
@@ -69,6 +77,57 @@ count() ->
     ets:info(?TABLE, size).
 
 %% ---------------------------------------------------------------------------
+%% Roles
+%% ---------------------------------------------------------------------------
+
+%% @doc Records the role, epoch and peer of this node's instance `Pid' of
+%% pairing `PairingId'.
+-spec set_role(evatar:pairing_id(), pid(), atom(), non_neg_integer(), pid() | undefined) -> ok.
+set_role(PairingId, Pid, Role, Epoch, Peer) ->
+    true = ets:insert(?ROLES, {PairingId, Pid, Role, Epoch, Peer}),
+    ok.
+
+%% @doc The role of this node's live instance of `PairingId', as the
+%% high-availability messages describe it.
+-spec role(evatar:pairing_id()) -> evatar_ha_proto_v1:instance_info().
+role(PairingId) ->
+    case ets:lookup(?ROLES, PairingId) of
+        [{_, Pid, Role, Epoch, Peer}] ->
+            case is_process_alive(Pid) of
+                true -> #{pid => Pid, role => Role, epoch => Epoch, peer => Peer};
+                false -> none
+            end;
+        [] ->
+            none
+    end.
+
+%% @doc Every live local instance with its role and epoch (an inventory).
+-spec roles() -> [{evatar:pairing_id(), pid(), atom(), non_neg_integer()}].
+roles() ->
+    [{Id, Pid, Role, Epoch} || {Id, Pid, Role, Epoch, _} <- ets:tab2list(?ROLES),
+                               Role =/= starting, is_process_alive(Pid)].
+
+%% @doc Forgets the role entry of `Pid' (an orderly stop).
+-spec delete_role(evatar:pairing_id(), pid()) -> ok.
+delete_role(PairingId, Pid) ->
+    true = ets:match_delete(?ROLES, {PairingId, Pid, '_', '_', '_'}),
+    ok.
+
+%% @doc The entry a previous, dead instance of `PairingId' left on this
+%% node: `{Role, Epoch}', or `none'.
+-spec previous(evatar:pairing_id()) -> {atom(), non_neg_integer()} | none.
+previous(PairingId) ->
+    case ets:lookup(?ROLES, PairingId) of
+        [{_, Pid, Role, Epoch, _}] when Pid =/= self() ->
+            case is_process_alive(Pid) of
+                true -> none;
+                false -> {Role, Epoch}
+            end;
+        _ ->
+            none
+    end.
+
+%% ---------------------------------------------------------------------------
 %% gen_server
 %% ---------------------------------------------------------------------------
 
@@ -76,6 +135,7 @@ count() ->
 -spec init([]) -> {ok, #{}}.
 init([]) ->
     _ = ets:new(?TABLE, [named_table, protected, set, {read_concurrency, true}]),
+    _ = ets:new(?ROLES, [named_table, public, set, {read_concurrency, true}]),
     {ok, #{}}.
 
 %% @private

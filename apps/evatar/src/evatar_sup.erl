@@ -1,7 +1,8 @@
-%% @doc Internal. The top supervisor of evatar: the pairing registry, then
-%% the supervisor of all pairings. `rest_for_one': should the registry ever
-%% die, its table dies with it, so every pairing is restarted to register
-%% again; a pairing's own faults stay inside its own tree.
+%% @doc Internal. The top supervisor of evatar: the pairing registry, the
+%% cluster membership process, then the supervisor of all pairings.
+%% `rest_for_one': should the registry or the membership process ever die,
+%% their tables die with them, so every pairing is restarted (with a cluster,
+%% their standbys take over); a pairing's own faults stay inside its own tree.
 -module(evatar_sup).
 -behaviour(supervisor).
 
@@ -18,6 +19,11 @@ init([]) ->
     Flags = #{strategy => rest_for_one, intensity => 3, period => 10},
     Children = [#{id => evatar_registry,
                   start => {evatar_registry, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_cluster,
+                  start => {evatar_cluster, start_link, []},
                   restart => permanent,
                   shutdown => 5000,
                   type => worker},

@@ -41,6 +41,8 @@ groups() ->
      {faults, [], [crashed_pairing_is_isolated, crash_loop_gives_up]}].
 
 init_per_suite(Config) ->
+    %% Another suite may have left evatar running without this env.
+    _ = application:stop(evatar),
     case application:load(evatar) of
         ok -> ok;
         {error, {already_loaded, evatar}} -> ok

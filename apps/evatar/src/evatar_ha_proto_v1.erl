@@ -1,0 +1,143 @@
+%% @doc Internal. Version 1 of the messages EVATAR nodes exchange for high
+%% availability: node heartbeats, inventories, standby placement, state
+%% transfer (snapshot, event batches, confirmations), takeover, handover and
+%% fencing checks. Every message between nodes is built and sent here and
+%% has the shape `{evatar_ha, 1, Body}', so a node running a later version
+%% can keep a `_proto_v1' module to talk to nodes not yet upgraded.
+%%
+%% Sends never set up a connection (`noconnect'): connections are made by
+%% `evatar_cluster' alone, and a message lost to a broken connection is
+%% covered by the failure detection (a gap in versions asks for a snapshot).
+-module(evatar_ha_proto_v1).
+
+-export([introduced_in/0, tag/0]).
+-export([heartbeat/2, inventory/2, ask/3, instance/4, start_standby/5]).
+-export([offer/3, snapshot/4, events/3, confirm/3, resync/3, dismiss/2, stale/3,
+         handover/3, handover_done/3, check/3, check_ok/3, peer_instance/2]).
+
+-export_type([message/0, instance_info/0]).
+
+-type instance_info() :: none | #{pid := pid(), role := atom(), epoch := pos_integer(),
+                                  peer := pid() | undefined}.
+-type repl_event() :: {Version :: pos_integer(), NowMs :: integer(),
+                       evatar_pairing_logic:event()}.
+-type body() :: {hb, node()}
+              | {inventory, node(), [{evatar:pairing_id(), pid(), atom(), pos_integer()}]}
+              | {ask, evatar:pairing_id(), pid()}
+              | {instance, evatar:pairing_id(), node(), instance_info()}
+              | {start_standby, evatar:pairing_id(), evatar_pairing_logic:config(), pid(),
+                 pos_integer()}
+              | {offer, pid(), non_neg_integer()}
+              | {snapshot, pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state()}
+              | {events, pid(), pos_integer(), [repl_event()]}
+              | {confirm, pid(), pos_integer(), non_neg_integer()}
+              | {resync, pid(), non_neg_integer()}
+              | {dismiss, pid()}
+              | {stale, pid(), pos_integer()}
+              | {handover, pid(), pos_integer(), non_neg_integer()}
+              | {handover_done, pid(), pos_integer()}
+              | {check, pid(), pos_integer()}
+              | {check_ok, pid(), pos_integer(), non_neg_integer()}
+              | {peer_instance, pid(), atom(), pos_integer()}.
+-type message() :: {evatar_ha, 1, body()}.
+
+-define(M(Body), {evatar_ha, 1, Body}).
+
+%% @doc The EVATAR version that introduced this protocol.
+-spec introduced_in() -> string().
+introduced_in() -> "0.2.0".
+
+%% @doc The tag of every message of this version.
+-spec tag() -> {evatar_ha, 1}.
+tag() -> {evatar_ha, 1}.
+
+%% --- between evatar_cluster processes --------------------------------------
+
+%% @doc Node liveness, sent every `heartbeat_ms' to every connected peer.
+-spec heartbeat(node(), node()) -> ok.
+heartbeat(To, From) -> cluster(To, {hb, From}).
+
+%% @doc This node's pairing instances, sent to a peer that (re)appears so
+%% that instances of the same pairing can compare epochs.
+-spec inventory(node(), [{evatar:pairing_id(), pid(), atom(), pos_integer()}]) -> ok.
+inventory(To, Instances) -> cluster(To, {inventory, node(), Instances}).
+
+%% @doc Asks node `To' which instance of `Id' it holds; the answer is an
+%% {@link instance/4} message to `ReplyTo'.
+-spec ask(node(), evatar:pairing_id(), pid()) -> ok.
+ask(To, Id, ReplyTo) -> cluster(To, {ask, Id, ReplyTo}).
+
+%% @doc The answer to {@link ask/3}.
+-spec instance(pid(), evatar:pairing_id(), node(), instance_info()) -> ok.
+instance(To, Id, Node, Info) -> pid(To, {instance, Id, Node, Info}).
+
+%% @doc Asks node `To' to start a standby instance of `Id' for the active
+%% `Active' (at `Epoch').
+-spec start_standby(node(), evatar:pairing_id(), evatar_pairing_logic:config(), pid(),
+                    pos_integer()) -> ok.
+start_standby(To, Id, Config, Active, Epoch) ->
+    cluster(To, {start_standby, Id, Config, Active, Epoch}).
+
+%% @doc Tells a local or remote instance about another instance of its
+%% pairing (from an inventory).
+-spec peer_instance(pid(), {pid(), atom(), pos_integer()}) -> ok.
+peer_instance(To, {Pid, Role, Epoch}) -> pid(To, {peer_instance, Pid, Role, Epoch}).
+
+%% --- between the instances of one pairing ----------------------------------
+
+%% @doc A new instance offers itself as the standby of the active `To'.
+-spec offer(pid(), pid(), non_neg_integer()) -> ok.
+offer(To, Standby, Version) -> pid(To, {offer, Standby, Version}).
+
+%% @doc The active's whole state at `Version' (the standby replaces its own).
+-spec snapshot(pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state()) -> ok.
+snapshot(To, Epoch, Version, State) -> pid(To, {snapshot, self(), Epoch, Version, State}).
+
+%% @doc Events in version order, each with the time it was applied at.
+-spec events(pid(), pos_integer(), [repl_event()]) -> ok.
+events(To, Epoch, Events) -> pid(To, {events, self(), Epoch, Events}).
+
+%% @doc The standby has applied everything up to `Version'.
+-spec confirm(pid(), pos_integer(), non_neg_integer()) -> ok.
+confirm(To, Epoch, Version) -> pid(To, {confirm, self(), Epoch, Version}).
+
+%% @doc The standby lost track (a gap, or its link came back): it holds
+%% `Version' and asks for a snapshot.
+-spec resync(pid(), pid(), non_neg_integer()) -> ok.
+resync(To, Standby, Version) -> pid(To, {resync, Standby, Version}).
+
+%% @doc The active no longer wants this standby: it stops.
+-spec dismiss(pid(), pid()) -> ok.
+dismiss(To, Active) -> pid(To, {dismiss, Active}).
+
+%% @doc The sender holds a newer epoch: the receiver is stale and steps down.
+-spec stale(pid(), pid(), pos_integer()) -> ok.
+stale(To, From, Epoch) -> pid(To, {stale, From, Epoch}).
+
+%% @doc Planned takeover: the active, fully confirmed at `Version', asks its
+%% standby to take over.
+-spec handover(pid(), pos_integer(), non_neg_integer()) -> ok.
+handover(To, Epoch, Version) -> pid(To, {handover, self(), Epoch, Version}).
+
+%% @doc The standby took over at `Epoch'; the old active becomes its standby.
+-spec handover_done(pid(), pid(), pos_integer()) -> ok.
+handover_done(To, From, Epoch) -> pid(To, {handover_done, From, Epoch}).
+
+%% @doc A fenced active asks its standby whether it still is its standby at
+%% `Epoch'.
+-spec check(pid(), pid(), pos_integer()) -> ok.
+check(To, Active, Epoch) -> pid(To, {check, Active, Epoch}).
+
+%% @doc The answer to {@link check/3}: yes, at `Version'.
+-spec check_ok(pid(), pos_integer(), non_neg_integer()) -> ok.
+check_ok(To, Epoch, Version) -> pid(To, {check_ok, self(), Epoch, Version}).
+
+%% ---------------------------------------------------------------------------
+
+cluster(Node, Body) ->
+    _ = erlang:send({evatar_cluster, Node}, ?M(Body), [noconnect]),
+    ok.
+
+pid(Pid, Body) ->
+    _ = erlang:send(Pid, ?M(Body), [noconnect]),
+    ok.

@@ -1,0 +1,483 @@
+%% @doc Common Test suite of high availability (docs/architecture.md section
+%% 8, docs/protocol.md section 9) with real nodes started by OTP `peer' on
+%% this machine, each running evatar and agent_bridge with a listener on
+%% 127.0.0.1, and real TCP clients (`agent_bridge_client' with `ha => true'
+%% and every node's endpoint) in the test node, which is not part of the
+%% cluster (peers are controlled over their standard input/output).
+%%
+%% Faults: a node is killed with `kill -9' on its OS process. A partition
+%% isolates one node at the distribution level: on the isolated node the
+%% cookie for each other node is set to a wrong value
+%% (`erlang:set_cookie/2') and the connections are dropped with
+%% `erlang:disconnect_node/1', so every reconnection attempt, automatic or by
+%% evatar_cluster, fails its handshake; healing restores the cookies and
+%% evatar_cluster reconnects. TCP between clients and nodes is not cut.
+%% The nodes run with `prevent_overlapping_partitions' false: with it, global
+%% answers one isolated node by disconnecting the others from each other too.
+-module(evatar_ha_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, suite/0, init_per_testcase/2, end_per_testcase/2]).
+-export([replication_keeps_state_equal/1, kill_active_takes_over/1,
+         partition_fences_isolated_active/1, two_node_cluster/1,
+         handover_on_silent_link/1, single_node_resume_dedup/1]).
+-export([kill_connections/0]).
+
+-define(CRED_VA, <<"va-secret">>).
+-define(CRED_AV, <<"av-secret">>).
+-define(WAIT, 10000).
+
+suite() -> [{timetrap, {seconds, 60}}].
+
+all() ->
+    [single_node_resume_dedup, replication_keeps_state_equal, kill_active_takes_over,
+     partition_fences_isolated_active, two_node_cluster, handover_on_silent_link].
+
+groups() -> [].
+
+init_per_testcase(TC, Config) ->
+    N = case TC of
+            single_node_resume_dedup -> 1;
+            two_node_cluster -> 2;
+            _ -> 3
+        end,
+    put(evatar_ha_log_dir, ?config(priv_dir, Config)),
+    Nodes = start_cluster(TC, N),
+    [{nodes, Nodes}, {pairing, atom_to_binary(TC)} | Config].
+
+end_per_testcase(_TC, Config) ->
+    _ = [catch peer:stop(P) || #{peer := P} <- ?config(nodes, Config)],
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% @doc On one node (no standby, degraded): a version 2 client's signals are
+%% acknowledged; after its connection drops it resumes, and a signal resent
+%% with the same SignalID is acknowledged but not delivered twice.
+single_node_resume_dedup(Config) ->
+    [N1] = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    {Va, Av, Sink} = bound_pair(Config, [N1]),
+    ok = agent_bridge_client:send(Va, light(<<"s-1">>)),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    %% Same SignalID again, as a client would after a lost Ack.
+    ok = agent_bridge_client:send(Va, light(<<"s-1">>)),
+    ok = agent_bridge_client:send(Va, light(<<"s-2">>)),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = wait_received(Sink, [<<"s-1">>, <<"s-2">>]),
+    %% The connections drop: the sessions are resumed, nothing is lost.
+    {ok, #{session_id := Sid}} = agent_bridge_client:status(Va),
+    ok = rpc(N1, ?MODULE, kill_connections, []),
+    ok = agent_bridge_client:send(Va, light(<<"s-3">>)),
+    #{resumed := true} = expect_reconnected(Va),
+    {ok, #{session_id := Sid, epoch := 1}} = agent_bridge_client:status(Va),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = wait_received(Sink, [<<"s-1">>, <<"s-2">>, <<"s-3">>]),
+    {ok, #{duplicates := 1}} = rpc(N1, evatar, stats, [Id]),
+    {ok, #{role := active, standby := undefined}} = rpc(N1, evatar, ha_status, [Id]),
+    close_all([Va, Av]).
+
+%% @doc Joins, descriptions, requests, feedback and sensor signals leave the
+%% standby's pairing state (evatar_pairing_logic) equal to the active's.
+replication_keeps_state_equal(Config) ->
+    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    {Va, Av, Sink} = bound_pair(Config, Nodes),
+    _ = [{ok, _} = agent_bridge_client:request(Va, request(), ?WAIT) || _ <- lists:seq(1, 5)],
+    Ids = [<<"e-", (integer_to_binary(I))/binary>> || I <- lists:seq(1, 50)],
+    _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- Ids],
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = wait_received(Sink, Ids),
+    ok = wait_until(fun() -> logic(N1, Id) =:= logic(N2, Id) end),
+    ?assertEqual(logic(N1, Id), logic(N2, Id)),
+    {ok, #{role := standby, epoch := 1}} = rpc(N2, evatar, ha_status, [Id]),
+    {error, not_found} = rpc(N3, evatar, ha_status, [Id]),
+    close_all([Va, Av]).
+
+%% @doc kill -9 of the active's node: the standby takes over with epoch 2,
+%% the clients reconnect through their endpoint lists and resume, every
+%% signal the sender was told was accepted arrives exactly once, a request
+%% round trip completes, and a new standby appears on the third node.
+kill_active_takes_over(Config) ->
+    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    {Va, Av, Sink} = bound_pair(Config, Nodes),
+    Ids = [<<"k-", (integer_to_binary(I))/binary>> || I <- lists:seq(1, 200)],
+    {First, Rest} = lists:split(100, Ids),
+    _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- First],
+    ok = kill9(N1),
+    _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- Rest],
+    #{epoch := 2} = expect_reconnected(Va),
+    #{epoch := 2, resumed := true} = expect_reconnected(Av),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = wait_received(Sink, Ids),
+    {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
+    {ok, #{role := active, epoch := 2}} = rpc(N2, evatar, ha_status, [Id]),
+    ok = wait_synced(N2, Id, N3),
+    close_all([Va, Av]).
+
+%% @doc The active's node is cut off from the other two: it fences itself
+%% (its clients are refused with Fenced and move), the majority side takes
+%% over with epoch 2, and after the partition heals exactly one active and
+%% one standby remain, with no signal lost or duplicated.
+partition_fences_isolated_active(Config) ->
+    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    {Va, Av, Sink} = bound_pair(Config, Nodes),
+    Ids = [<<"p-", (integer_to_binary(I))/binary>> || I <- lists:seq(1, 100)],
+    {First, Rest} = lists:split(50, Ids),
+    _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- First],
+    ok = partition(N1, [N2, N3]),
+    ok = dump_on_error(wait_until(fun() -> role(N1, Id) =:= fenced end), Nodes, Id),
+    _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- Rest],
+    #{epoch := 2} = expect_reconnected(Va),
+    {ok, #{role := active, epoch := 2}} = rpc(N2, evatar, ha_status, [Id]),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = dump_on_error(wait_received(Sink, Ids), Nodes, Id),
+    ok = heal(N1, [N2, N3]),
+    Final = [{node_name(N2), active, 2}, {node_name(N3), standby, 2}],
+    ok = dump_on_error(wait_until(fun() -> roles(N2, Id) =:= Final end), Nodes, Id),
+    ok = wait_until(fun() -> roles(N1, Id) =:= Final end),
+    {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
+    close_all([Va, Av]).
+
+%% @doc Two nodes (documented as availability-first): when the active's node
+%% dies the standby takes over without a majority; when the two are cut
+%% apart both sides serve, and after healing the lower epoch steps down so
+%% that exactly one active and one standby remain.
+two_node_cluster(Config) ->
+    [N1, N2] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    {Va, Av, Sink} = bound_pair(Config, Nodes),
+    ok = agent_bridge_client:send(Va, light(<<"t-1">>)),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    %% A partition: the standby cannot tell it from a crash and takes over;
+    %% the old active goes on alone (degraded), its clients still on it.
+    ok = partition(N1, [N2]),
+    ok = wait_until(fun() -> role(N2, Id) =:= active end),
+    {ok, #{role := active, epoch := 1, standby := undefined}} = rpc(N1, evatar, ha_status, [Id]),
+    ok = agent_bridge_client:send(Va, light(<<"t-2">>)),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = heal(N1, [N2]),
+    %% The lower epoch steps down; its clients move to the epoch 2 side.
+    ok = dump_on_error(
+           wait_until(fun() ->
+                              roles(N2, Id) =:= [{node_name(N1), standby, 2},
+                                                 {node_name(N2), active, 2}]
+                      end), Nodes, Id),
+    #{epoch := 2} = expect_reconnected(Va),
+    %% A crash of the active: the standby takes over alone.
+    ok = kill9(N2),
+    ok = wait_until(fun() -> role(N1, Id) =:= active end),
+    {ok, #{epoch := 3}} = rpc(N1, evatar, ha_status, [Id]),
+    #{epoch := 3} = expect_reconnected(Va),
+    ok = agent_bridge_client:send(Va, light(<<"t-3">>)),
+    ok = agent_bridge_client:await_acks(Va, ?WAIT),
+    ok = wait_until(fun() -> lists:member(<<"t-3">>, received(Sink)) end),
+    close_all([Va, Av]).
+
+%% @doc A client that does not acknowledge a delivered signal within
+%% client_ack_timeout is closed (SilentLink) and the active hands the pairing
+%% over to its standby (epoch 2); the other client reconnects there and
+%% resumes, and the old active is the new standby.
+handover_on_silent_link(Config) ->
+    [N1, N2, _N3] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    _ = [ok = rpc(N, application, set_env, [evatar, client_ack_timeout, 300]) || N <- Nodes],
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    Va = client(Config, Nodes, agent, <<"va1">>, self()),
+    ok = agent_bridge_client:describe(Va, va_description()),
+    %% The Avatar is a raw version 2 client that reads but never acknowledges.
+    Silent = silent_avatar(Config, N1),
+    ok = wait_binding(Va),
+    ok = agent_bridge_client:send(Va, light(<<"h-1">>)),
+    {ok, Frame} = gen_tcp:recv(Silent, 0, ?WAIT),
+    {ok, {signal, #{id := <<"h-1">>, seq := 1}}} = bil_control:parse_frame(Frame, #{}),
+    {refused, <<"SilentLink">>} = recv_refused(Silent),
+    #{epoch := 2, resumed := true} = expect_reconnected(Va),
+    {ok, #{role := active, epoch := 2}} = rpc(N2, evatar, ha_status, [Id]),
+    {ok, #{role := standby, epoch := 2}} = rpc(N1, evatar, ha_status, [Id]),
+    close_all([Va]).
+
+%% ---------------------------------------------------------------------------
+%% Nodes
+%% ---------------------------------------------------------------------------
+
+start_cluster(TC, N) ->
+    Unique = integer_to_list(erlang:unique_integer([positive])),
+    Names = [list_to_atom("ha" ++ integer_to_list(I) ++ "_" ++ atom_to_list(TC) ++ "_" ++ Unique)
+             || I <- lists:seq(1, N)],
+    Nodes = [list_to_atom(atom_to_list(Name) ++ "@127.0.0.1") || Name <- Names],
+    Paths = lists:append([["-pa", P] || P <- code:get_path(),
+                                        not lists:prefix(code:lib_dir(), P)]),
+    Started = [start_node(Name, Paths) || Name <- Names],
+    _ = [setup_node(P, Nodes) || {P, _} <- Started],
+    Info = [#{peer => P, node => Node, addr => listener(P)} || {P, Node} <- Started],
+    ok = wait_until(fun() ->
+                            lists:all(fun(#{peer := P}) ->
+                                              length(maps:get(up, peer:call(P, evatar,
+                                                                            cluster_status,
+                                                                            []))) =:= N
+                                      end, Info)
+                    end),
+    Info.
+
+start_node(Name, Paths) ->
+    {ok, P, Node} = peer:start(#{name => Name, host => "127.0.0.1", longnames => true,
+                                 connection => standard_io,
+                                 args => ["-setcookie", "evatar_ha_suite",
+                                          %% global would turn one isolated node
+                                          %% into a full split (EVATAR does not
+                                          %% use global).
+                                          "-kernel", "prevent_overlapping_partitions",
+                                          "false" | Paths]}),
+    {P, Node}.
+
+setup_node(P, Nodes) ->
+    ok = peer:call(P, application, load, [evatar]),
+    ok = peer:call(P, application, load, [agent_bridge]),
+    %% Each node logs to its own file next to the test logs.
+    ok = peer:call(P, logger, set_primary_config, [level, info]),
+    _ = peer:call(P, logger, remove_handler, [default]),
+    File = filename:join(log_dir(), atom_to_list(peer:call(P, erlang, node, [])) ++ ".log"),
+    ok = peer:call(P, logger, add_handler,
+                   [file, logger_std_h, #{config => #{file => File},
+                                          filter_default => log,
+                                          filters => [{progress, {fun logger_filters:progress/2,
+                                                                  stop}}]}]),
+    %% Looser than the defaults (50/250/150): several VMs share two cores
+    %% here, and a heartbeat late by 250 ms is a (safe but) needless takeover.
+    %% kill -9 is seen at once anyway (the connection drops).
+    Env = [{cluster, Nodes}, {heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
+           {resume_timeout, 10000}],
+    _ = [ok = peer:call(P, application, set_env, [evatar, K, V]) || {K, V} <- Env],
+    ok = peer:call(P, application, set_env, [agent_bridge, listeners, []]),
+    {ok, _} = peer:call(P, application, ensure_all_started, [agent_bridge]),
+    {ok, _} = peer:call(P, agent_bridge, start_listener,
+                        [ha, #{ip => {127, 0, 0, 1}, port => 0, conn => #{heartbeat => 100}}]),
+    ok.
+
+log_dir() ->
+    case get(evatar_ha_log_dir) of
+        undefined -> "/tmp";
+        Dir -> Dir
+    end.
+
+listener(P) ->
+    {ok, Addr} = peer:call(P, agent_bridge, address, [ha]),
+    Addr.
+
+rpc(#{peer := P}, M, F, A) -> peer:call(P, M, F, A).
+
+kill9(#{peer := P}) ->
+    OsPid = peer:call(P, os, getpid, []),
+    _ = os:cmd("kill -9 " ++ OsPid),
+    ok.
+
+%% Cuts `Node' off from `Others' at the distribution level: a wrong cookie
+%% for each of them, then the connections dropped.
+partition(#{peer := P}, Others) ->
+    _ = [begin
+             true = peer:call(P, erlang, set_cookie, [O, evatar_ha_suite_blocked]),
+             _ = peer:call(P, erlang, disconnect_node, [O])
+         end || #{node := O} <- Others],
+    ok.
+
+heal(#{peer := P}, Others) ->
+    _ = [true = peer:call(P, erlang, set_cookie, [O, evatar_ha_suite]) || #{node := O} <- Others],
+    ok.
+
+node_name(#{node := N}) -> N.
+
+role(N, Id) ->
+    case rpc(N, evatar, ha_status, [Id]) of
+        {ok, #{role := Role}} -> Role;
+        {error, not_found} -> none
+    end.
+
+roles(N, Id) ->
+    lists:sort([{Node, Role, Epoch}
+                || {Node, #{role := Role, epoch := Epoch}} <- rpc(N, evatar, ha_locate, [Id])]).
+
+logic(N, Id) ->
+    rpc(N, gen_statem, call, [{via, evatar_registry, Id}, {inspect, state}]).
+
+wait_synced(N, Id, #{node := StandbyNode}) ->
+    wait_until(fun() ->
+                       case rpc(N, evatar, ha_status, [Id]) of
+                           {ok, #{role := active, synced := true, standby_node := StandbyNode}} ->
+                               true;
+                           _ ->
+                               false
+                       end
+               end).
+
+%% ---------------------------------------------------------------------------
+%% Clients
+%% ---------------------------------------------------------------------------
+
+pairing_opts() ->
+    #{agent_credential => ?CRED_VA, avatar_credential => ?CRED_AV, join_timeout => 10000,
+      feedback_timeout => 10000}.
+
+client(Config, Nodes, Role, Entity, Owner) ->
+    Endpoints = [Addr || #{addr := Addr} <- Nodes],
+    {ok, C} = agent_bridge_client:connect(
+                Endpoints,
+                #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
+                  credential => case Role of agent -> ?CRED_VA; avatar -> ?CRED_AV end,
+                  owner => Owner, ha => true, handshake_timeout => 1000,
+                  reconnect_backoff => {20, 200}, reconnect_limit => 20000}),
+    C.
+
+%% A VA (owned by the test process) and an Avatar (owned by a sink that
+%% answers requests and records everything else), bound.
+bound_pair(Config, Nodes) ->
+    Test = self(),
+    Sink = spawn_link(fun() -> put(test, Test), sink(undefined, []) end),
+    Va = client(Config, Nodes, agent, <<"va1">>, self()),
+    Av = client(Config, Nodes, avatar, <<"av1">>, Sink),
+    Sink ! {client, Av},
+    ok = agent_bridge_client:describe(Va, va_description()),
+    ok = agent_bridge_client:describe(Av, av_description()),
+    ok = wait_binding(Va),
+    {Va, Av, Sink}.
+
+sink(Client, Got) ->
+    receive
+        {client, C} ->
+            sink(C, Got);
+        {agent_bridge, C, {signal, #{context := request, id := Id}}} ->
+            ok = agent_bridge_client:send(C, (light(<<"fb-", Id/binary>>))#{
+                                                context => feedback, in_reply_to => Id,
+                                                sender => <<"Light">>, receiver => <<"Emu">>}),
+            sink(Client, Got);
+        {agent_bridge, _, {signal, #{id := Id}}} ->
+            sink(Client, [Id | Got]);
+        {received, From} ->
+            From ! {received, lists:reverse(Got)},
+            sink(Client, Got);
+        {agent_bridge, _, {reconnected, _}} = Reconnected ->
+            get(test) ! Reconnected,
+            sink(Client, Got);
+        _ ->
+            sink(Client, Got)
+    end.
+
+received(Sink) ->
+    Sink ! {received, self()},
+    receive {received, Got} -> Got after ?WAIT -> ct:fail(sink_silent) end.
+
+%% Every id arrived, each exactly once, in the order sent.
+wait_received(Sink, Ids) ->
+    case wait_until(fun() -> length(received(Sink)) >= length(Ids) end) of
+        ok ->
+            ?assertEqual(Ids, received(Sink)),
+            ok;
+        Error ->
+            Got = received(Sink),
+            ct:pal("missing ~s~nduplicated ~s",
+                   [lists:join(" ", [I || I <- Ids, not lists:member(I, Got)]),
+                    lists:join(" ", [I || I <- lists:usort(Got), length([x || J <- Got, J =:= I]) > 1])]),
+            Error
+    end.
+
+va_description() ->
+    evatar_test_entity:description(<<"va1">>, [{<<"Emu">>, [{<<"ACTUATOR">>, <<"Feedback">>}],
+                                                [{<<"ACTUATOR">>, <<"TurnLightOn">>}]}]).
+
+av_description() ->
+    evatar_test_entity:description(<<"av1">>, [{<<"Light">>,
+                                                [{<<"ACTUATOR">>, <<"TurnLightOn">>}], []}]).
+
+light(Id) ->
+    #{id => Id, context => request_no_feedback, sender => <<"Emu">>, receiver => <<"Light">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>, parameters => []}}.
+
+request() ->
+    maps:remove(id, (light(<<>>))#{context => request}).
+
+wait_binding(Va) ->
+    receive
+        {agent_bridge, Va, {binding, #{bound := [_ | _]}}} -> ok;
+        {agent_bridge, Va, {binding, _}} -> wait_binding(Va)
+    after ?WAIT -> ct:fail(no_binding)
+    end.
+
+expect_reconnected(C) ->
+    receive
+        {agent_bridge, C, {reconnected, Info}} -> Info;
+        {agent_bridge, C, {closed, Why}} -> ct:fail({closed, Why})
+    after ?WAIT ->
+            ct:pal("client ~p: ~p~n~p", [C, agent_bridge_client:status(C),
+                                         catch sys:get_state(C)]),
+            ct:fail({not_reconnected, C})
+    end.
+
+%% @doc Run on a node: kills every bridge connection process there, as a
+%% broken network would end them.
+-spec kill_connections() -> ok.
+kill_connections() ->
+    _ = [exit(P, kill) || P <- processes(),
+                          proc_lib:translate_initial_call(P) =:= {agent_bridge_conn, init, 1}],
+    ok.
+
+close_all(Clients) ->
+    _ = [agent_bridge_client:close(C) || C <- Clients],
+    ok.
+
+silent_avatar(Config, #{addr := {Ip, Port}}) ->
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
+    ok = gen_tcp:send(S, bil_control:encode(
+                           {hello, #{pairing => ?config(pairing, Config), role => avatar,
+                                     entity_id => <<"av1">>, credential => ?CRED_AV,
+                                     protocol_version => 2}})),
+    {ok, {control, {welcome, _}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil:encode_description(av_description())),
+    {ok, {control, {binding, _}}} = recv_doc(S),
+    S.
+
+recv_doc(S) ->
+    {ok, Frame} = gen_tcp:recv(S, 0, ?WAIT),
+    bil_control:parse_frame(Frame, #{}).
+
+%% Skips Acks and signals until the Refused.
+recv_refused(S) ->
+    case recv_doc(S) of
+        {ok, {control, {refused, #{code := Code}}}} -> {refused, Code};
+        {ok, _} -> recv_refused(S)
+    end.
+
+dump_on_error(ok, _Nodes, _Id) ->
+    ok;
+dump_on_error(Error, Nodes, Id) ->
+    _ = [ct:pal("~p:~n~p~n~p~n~p~n~p", [N, catch rpc(Node, evatar, cluster_status, []),
+                                      catch rpc(Node, evatar, ha_status, [Id]),
+                                      catch rpc(Node, erlang, nodes, []),
+                                      catch rpc(Node, evatar, stats, [Id])])
+         || #{node := N} = Node <- Nodes],
+    ct:pal("mailbox: ~p", [element(2, process_info(self(), messages))]),
+    Error.
+
+wait_until(F) -> wait_until(F, 200).
+
+wait_until(_F, 0) -> {error, timeout};
+wait_until(F, N) ->
+    case F() of
+        true -> ok;
+        false -> timer:sleep(50), wait_until(F, N - 1)
+    end.

@@ -1,0 +1,257 @@
+%% @doc EUnit tests of what high availability adds to the pure pairing logic
+%% (de-duplication window, outbound buffer, resume, detach, takeover,
+%% SlowConsumer) and of the pure decisions in evatar_ha_rules.
+-module(evatar_ha_logic_tests).
+
+-include_lib("eunit/include/eunit.hrl").
+
+-define(P, <<"home">>).
+-define(VA, <<"va1">>).
+-define(AV, <<"av1">>).
+-define(EMU, <<"Emu">>).
+-define(LIGHT, <<"Light">>).
+-define(CA, <<"ca">>).
+-define(CV, <<"cv">>).
+
+%% ---------------------------------------------------------------------------
+%% Fixtures
+%% ---------------------------------------------------------------------------
+
+config(Extra) ->
+    {ok, C} = evatar_pairing_logic:config(
+                maps:merge(#{agent_credential => ?CA, avatar_credential => ?CV,
+                             join_timeout => 100, feedback_timeout => 200,
+                             resume_timeout => 500, dedup_window => 3,
+                             max_unacked_out => 4}, Extra)),
+    C.
+
+entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+
+va() ->
+    #{entity_id => ?VA, api_name => <<"VA">>, entity_type => agent, context => <<>>,
+      components => [#{id => ?EMU, services => [entry(<<"A">>, <<"Feedback">>)],
+                       consumes => [entry(<<"A">>, <<"On">>)]}]}.
+
+av() ->
+    #{entity_id => ?AV, api_name => <<"AV">>, entity_type => avatar, context => <<>>,
+      components => [#{id => ?LIGHT, services => [entry(<<"A">>, <<"On">>)], consumes => []}]}.
+
+light(Id) ->
+    #{id => Id, context => request_no_feedback, sender => ?EMU, receiver => ?LIGHT,
+      in_reply_to => undefined, timestamp => 1, seq => undefined, epoch => undefined,
+      body => entry(<<"A">>, <<"On">>)}.
+
+h(Event, St) -> evatar_pairing_logic:handle(Event, 1000, St).
+
+run(Events, St) -> lists:foldl(fun(E, S) -> element(1, h(E, S)) end, St, Events).
+
+%% Both entities joined with sessions (protocol version 2) and bound.
+bound() -> bound(#{}).
+
+bound(Extra) ->
+    St = evatar_pairing_logic:new(?P, config(Extra)),
+    run([{join, agent, ?VA, ?CA, <<"sa">>}, {join, avatar, ?AV, ?CV, <<"sv">>},
+         {describe, ?VA, va()}, {describe, ?AV, av()}], St).
+
+delivered(Effects) -> [{E, Id, Seq} || {deliver, E, #{id := Id, seq := Seq}} <- Effects].
+
+accepted(Effects) -> [{E, Id} || {accepted, E, Id} <- Effects].
+
+reply(Effects) -> [R || {reply, R} <- Effects].
+
+%% ---------------------------------------------------------------------------
+%% De-duplication
+%% ---------------------------------------------------------------------------
+
+%% An accepted signal resent (a lost Ack) is acknowledged again, not routed.
+resent_signal_is_acknowledged_not_routed_test() ->
+    {St1, E1} = h({signal, ?VA, light(<<"s1">>)}, bound()),
+    ?assertEqual([{?AV, <<"s1">>, 1}], delivered(E1)),
+    ?assertEqual([{?VA, <<"s1">>}], accepted(E1)),
+    {St2, E2} = h({signal, ?VA, light(<<"s1">>)}, St1),
+    ?assertEqual([], delivered(E2)),
+    ?assertEqual([{?VA, <<"s1">>}], accepted(E2)),
+    ?assertMatch(#{duplicates := 1}, evatar_pairing_logic:stats(St2)),
+    ?assertEqual(<<"s1">>, evatar_pairing_logic:last_accepted(St2, ?VA)).
+
+%% The window is bounded: beyond dedup_window newer ids the oldest is
+%% forgotten (hence the client's obligation to keep fewer unacknowledged).
+window_is_bounded_test() ->
+    St = run([{signal, ?VA, light(I)} || I <- [<<"1">>, <<"2">>, <<"3">>, <<"4">>]], bound()),
+    {_, E1} = h({signal, ?VA, light(<<"1">>)}, St),
+    ?assertMatch([{?AV, <<"1">>, _}], delivered(E1)),
+    {_, E4} = h({signal, ?VA, light(<<"4">>)}, St),
+    ?assertEqual([], delivered(E4)).
+
+%% A refused signal is accepted too (the refusal is the outcome), once.
+refusal_is_accepted_once_test() ->
+    Bad = (light(<<"x">>))#{receiver => <<"Nobody">>},
+    {St1, E1} = h({signal, ?VA, Bad}, bound()),
+    ?assertMatch([{deliver, ?VA, #{context := error}} | _], E1),
+    ?assertEqual([{?VA, <<"x">>}], accepted(E1)),
+    {_, E2} = h({signal, ?VA, Bad}, St1),
+    ?assertEqual([{?VA, <<"x">>}], accepted(E2)),
+    ?assertEqual([], [D || {deliver, _, _} = D <- E2]).
+
+%% Protocol version 1 entities get none of this.
+version_1_entities_have_no_acks_test() ->
+    St = run([{join, agent, ?VA, ?CA}, {join, avatar, ?AV, ?CV}, {describe, ?VA, va()},
+              {describe, ?AV, av()}], evatar_pairing_logic:new(?P, config(#{}))),
+    {St1, E1} = h({signal, ?VA, light(<<"s1">>)}, St),
+    ?assertEqual([], accepted(E1)),
+    {_, E2} = h({signal, ?VA, light(<<"s1">>)}, St1),
+    ?assertMatch([{?AV, <<"s1">>, 2}], delivered(E2)).
+
+%% ---------------------------------------------------------------------------
+%% Outbound buffer and resume
+%% ---------------------------------------------------------------------------
+
+%% What was delivered and not acknowledged is delivered again on resume,
+%% with the current epoch; acknowledged signals are not.
+resume_redelivers_unacknowledged_test() ->
+    St = run([{signal, ?VA, light(I)} || I <- [<<"a">>, <<"b">>, <<"c">>]], bound()),
+    St1 = run([{client_ack, ?AV, 1}, {detach, ?AV}, {takeover, 2}], St),
+    {_, E} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 1, 1}, St1),
+    ?assertEqual([{ok, true, <<>>}], reply(E)),
+    ?assertEqual([{?AV, <<"b">>, 2}, {?AV, <<"c">>, 3}], delivered(E)),
+    ?assertEqual([2, 2], [Ep || {deliver, _, #{epoch := Ep}} <- E]).
+
+%% The resume's Received also trims: nothing at or below it comes again.
+resume_trims_by_received_test() ->
+    St = run([{signal, ?VA, light(I)} || I <- [<<"a">>, <<"b">>]], bound()),
+    {_, E} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 2, 1}, St),
+    ?assertEqual([], delivered(E)).
+
+%% A client that saw Sequence numbers this history does not have (two-node
+%% partition) never sees them reused for other signals.
+resume_beyond_history_advances_sequence_test() ->
+    {St, _} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 7, 1}, bound()),
+    {_, E} = h({signal, ?VA, light(<<"n">>)}, St),
+    ?assertEqual([{?AV, <<"n">>, 8}], delivered(E)).
+
+%% A client that has seen a newer epoch than this instance is refused.
+resume_with_newer_epoch_is_refused_test() ->
+    {_, E} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 0, 5}, bound()),
+    ?assertEqual([{error, stale_epoch}], reply(E)).
+
+%% An unknown session is a fresh join, and says so.
+resume_of_unknown_session_is_a_fresh_join_test() ->
+    St = evatar_pairing_logic:new(?P, config(#{})),
+    {St1, E} = h({resume, avatar, ?AV, ?CV, <<"gone">>, 3, 9}, St),
+    ?assertEqual([{ok, false, <<>>}], reply(E)),
+    ?assertEqual([?AV], evatar_pairing_logic:entity_ids(St1)).
+
+%% A wrong credential is refused before anything else is looked at.
+resume_with_wrong_credential_test() ->
+    {_, E} = h({resume, avatar, ?AV, <<"nope">>, <<"sv">>, 0, 1}, bound()),
+    ?assertEqual([{error, bad_credential}], reply(E)).
+
+%% Too many unacknowledged deliveries: the entity is dropped (SlowConsumer).
+unacknowledged_overflow_drops_test() ->
+    St = run([{signal, ?VA, light(integer_to_binary(I))} || I <- lists:seq(1, 4)], bound()),
+    {St1, E} = h({signal, ?VA, light(<<"5">>)}, St),
+    ?assertMatch([{drop, ?AV, slow_consumer, _}], [D || {drop, _, _, _} = D <- E]),
+    ?assertEqual([?VA], evatar_pairing_logic:entity_ids(St1)),
+    ?assertEqual([{?VA, <<"5">>}], accepted(E)).
+
+%% The silent-link check sees the oldest unacknowledged delivery per entity.
+unacked_since_test() ->
+    {St, _} = evatar_pairing_logic:handle({signal, ?VA, light(<<"a">>)}, 4242, bound()),
+    ?assertEqual([{?AV, 4242}], evatar_pairing_logic:unacked_since(St)),
+    ?assertEqual([], evatar_pairing_logic:unacked_since(run([{client_ack, ?AV, 1}], St))).
+
+%% ---------------------------------------------------------------------------
+%% Detach, takeover, replacement
+%% ---------------------------------------------------------------------------
+
+%% A session entity whose connection went is kept for resume_timeout, then
+%% leaves; a version 1 entity leaves at once.
+detach_keeps_then_leaves_test() ->
+    {St1, E1} = h({detach, ?AV}, bound()),
+    ?assertEqual([{start_timer, {resume, ?AV}, 500}], [T || {start_timer, _, _} = T <- E1]),
+    ?assertEqual([?AV, ?VA], evatar_pairing_logic:entity_ids(St1)),
+    ?assertEqual([?VA], evatar_pairing_logic:attached_ids(St1)),
+    {St2, E2} = h({timeout, {resume, ?AV}}, St1),
+    ?assertEqual([?VA], evatar_pairing_logic:entity_ids(St2)),
+    ?assertMatch([_ | _], [R || {report, ?VA, _} = R <- E2]),
+    St3 = run([{join, agent, <<"va2">>, ?CA}], evatar_pairing_logic:new(?P, config(#{}))),
+    {St4, _} = h({detach, <<"va2">>}, St3),
+    ?assertEqual([], evatar_pairing_logic:entity_ids(St4)).
+
+%% A takeover raises the epoch, detaches everybody and arms their resume
+%% timers (timers/2 lists them for the process).
+takeover_test() ->
+    {St, E} = h({takeover, 2}, bound()),
+    ?assertEqual(2, evatar_pairing_logic:epoch(St)),
+    ?assertEqual([], evatar_pairing_logic:attached_ids(St)),
+    ?assertEqual(lists:sort([{start_timer, {resume, ?AV}, 500}, {start_timer, {resume, ?VA}, 500}]),
+                 lists:sort([T || {start_timer, _, _} = T <- E])),
+    ?assertEqual([{{resume, ?AV}, 400}, {{resume, ?VA}, 400}],
+                 lists:sort(evatar_pairing_logic:timers(St, 1100))).
+
+%% A fresh join of a detached entity's id replaces it (the client came back
+%% without resuming); an attached one is still refused.
+fresh_join_replaces_detached_test() ->
+    {_, E1} = h({join, avatar, ?AV, ?CV, <<"new">>}, bound()),
+    ?assertEqual([{error, entity_exists}], reply(E1)),
+    St = run([{detach, ?AV}], bound()),
+    {St1, E2} = h({join, avatar, ?AV, ?CV, <<"new">>}, St),
+    ?assertEqual([ok], reply(E2)),
+    ?assertEqual([?VA], evatar_pairing_logic:attached_ids(St1) -- [?AV]),
+    {_, E3} = h({resume, avatar, ?AV, ?CV, <<"new">>, 0, 1}, St1),
+    ?assertEqual([{ok, true, <<>>}], reply(E3)).
+
+%% The same events at the same times give the same state: what replication
+%% by event shipping rests on.
+deterministic_test() ->
+    Events = [{signal, ?VA, light(<<"a">>)}, {client_ack, ?AV, 1}, {detach, ?VA},
+              {resume, agent, ?VA, ?CA, <<"sa">>, 0, 1}, {signal, ?VA, light(<<"a">>)},
+              {takeover, 2}],
+    ?assertEqual(run(Events, bound()), run(Events, bound())).
+
+%% ---------------------------------------------------------------------------
+%% evatar_ha_rules
+%% ---------------------------------------------------------------------------
+
+standby_node_test_() ->
+    Ring = [a@h, b@h, c@h],
+    [?_assertEqual(b@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, undefined)),
+     ?_assertEqual(a@h, evatar_ha_rules:standby_node(Ring, c@h, Ring, undefined)),
+     ?_assertEqual(c@h, evatar_ha_rules:standby_node(Ring, a@h, [a@h, c@h], undefined)),
+     ?_assertEqual(c@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, c@h)),
+     ?_assertEqual(b@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, x@h)),
+     ?_assertEqual(none, evatar_ha_rules:standby_node(Ring, a@h, [a@h], undefined))].
+
+majority_test_() ->
+    [?_assert(evatar_ha_rules:majority([a, b, c], [a, b])),
+     ?_assertNot(evatar_ha_rules:majority([a, b, c], [a])),
+     ?_assertNot(evatar_ha_rules:majority([a, b, c, d], [a, b])),
+     ?_assertNot(evatar_ha_rules:majority([a, b, c], [a, x, y]))].
+
+take_over_and_fence_test_() ->
+    [?_assert(evatar_ha_rules:may_take_over(2, false, false)),
+     ?_assertNot(evatar_ha_rules:may_take_over(2, true, true)),
+     ?_assertNot(evatar_ha_rules:may_take_over(3, false, false)),
+     ?_assert(evatar_ha_rules:may_take_over(3, true, false)),
+     ?_assertNot(evatar_ha_rules:must_fence(2, false, false)),
+     ?_assert(evatar_ha_rules:must_fence(3, false, false)),
+     ?_assertNot(evatar_ha_rules:must_fence(3, false, true)),
+     ?_assertNot(evatar_ha_rules:must_fence(3, true, false))].
+
+reconcile_test_() ->
+    P1 = list_to_pid("<0.1.0>"),
+    P2 = list_to_pid("<0.2.0>"),
+    I = fun(Role, Epoch, Node, Pid) -> #{role => Role, epoch => Epoch, node => Node, pid => Pid} end,
+    [?_assertEqual(step_down, evatar_ha_rules:reconcile(I(active, 1, a, P1), I(active, 2, b, P2))),
+     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(active, 2, a, P1), I(fenced, 1, b, P2))),
+     ?_assertEqual(step_down, evatar_ha_rules:reconcile(I(fenced, 2, b, P1), I(active, 2, a, P2))),
+     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(active, 2, a, P1), I(active, 2, b, P2))),
+     ?_assertEqual(stop, evatar_ha_rules:reconcile((I(standby, 1, a, P1))#{peer => P1},
+                                                    I(active, 2, b, P2))),
+     ?_assertEqual(keep, evatar_ha_rules:reconcile((I(standby, 1, a, P1))#{peer => P2},
+                                                    I(active, 2, b, P2))),
+     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(standby, 1, a, P1), I(standby, 2, b, P2)))].
+
+stalled_test() ->
+    ?assert(evatar_ha_rules:stalled(0, 1000, 250)),
+    ?assertNot(evatar_ha_rules:stalled(0, 60, 250)).
