@@ -20,8 +20,12 @@ step() {
   local name=$1; shift
   echo
   echo "== $name: $*"
-  "$@" 2>&1 | tee "$REPORT/$name.log"
-  return "${PIPESTATUS[0]}"
+  # To a file, not through a pipe: a stray child process that inherited the
+  # pipe would otherwise keep the whole run waiting after the tool is done.
+  local rc=0
+  "$@" > "$REPORT/$name.log" 2>&1 < /dev/null || rc=$?
+  cat "$REPORT/$name.log"
+  return "$rc"
 }
 
 # A whole-tool check (xref, dialyzer): one case, passed or failed.

@@ -94,7 +94,10 @@ start_program(#d{opts = Opts, runs = Runs} = D) ->
                      stderr_to_stdout]),
     Command = to_list(maps:get(command, Opts)),
     %% sh puts the program's stderr on the pipe, then becomes the program.
-    Args = ["-c", "exec \"$0\" \"$@\" 2>\"$AGENT_BRIDGE_STDERR\"", Command
+    %% The FIFO is opened read-write (`2<>'), which never blocks: a plain
+    %% `2>' waits for a reader, and if the reader is already gone (a restart
+    %% racing a stop) sh would wait forever holding the node's own stderr.
+    Args = ["-c", "exec \"$0\" \"$@\" 2<>\"$AGENT_BRIDGE_STDERR\"", Command
             | maps:get(args, Opts, [])],
     Env = [{"AGENT_BRIDGE_STDERR", Fifo} | maps:get(env, Opts, [])],
     {ok, Conn} = agent_bridge_conn:start_link({port, {"/bin/sh", Args, Env},
