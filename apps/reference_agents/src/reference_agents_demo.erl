@@ -3,8 +3,10 @@
 %% holiday scenario with an intrusion and narrates every perceived
 %% activity, decision and actuation with its simulated time; `robots' runs
 %% the collaborative LEGO robots instead, `bil' the tour of BIL and EVATAR
-%% over TCP. `--keep' leaves the node running for inspection from a remote
-%% shell. docs/scenarios.md says what a person sees.
+%% over TCP; `mqtt' runs the holiday with the house's devices on MQTT (a
+%% mosquitto of the demo's own). `--keep' leaves the node running for
+%% inspection from a remote shell. docs/scenarios.md says what a person
+%% sees.
 -module(reference_agents_demo).
 
 -export([main/1, inspect/0, stop/0]).
@@ -16,16 +18,25 @@
 %% first).
 -spec main([string()]) -> ok.
 main(Args) ->
-    case parse(Args, #{what => home, keep => false}) of
+    case parse(Args, #{what => home, keep => false, mqtt => false}) of
         {ok, #{what := What, keep := Keep}} ->
-            quietly(fun() -> run(What, Keep) end);
+            case quietly(fun() -> run(What, Keep) end) of
+                ok ->
+                    ok;
+                {error, Message} ->
+                    io:format(standard_error, "The demo could not start: ~ts~n", [Message]),
+                    erlang:halt(1)
+            end;
         {error, Message} ->
             io:format(standard_error, "~s~n~s", [Message, usage()]),
             erlang:halt(2)
     end.
 
+parse([], #{mqtt := true, what := home} = Acc) -> {ok, Acc#{what := mqtt}};
+parse([], #{mqtt := true}) -> {error, "the mqtt option runs the smart home on holiday only"};
 parse([], Acc) -> {ok, Acc};
 parse(["--keep" | Rest], Acc) -> parse(Rest, Acc#{keep := true});
+parse(["mqtt" | Rest], Acc) -> parse(Rest, Acc#{mqtt := true});
 parse([Word | Rest], Acc) when Word =:= "home"; Word =:= "holiday" ->
     parse(Rest, Acc#{what := home});
 parse(["robots" | Rest], Acc) -> parse(Rest, Acc#{what := robots});
@@ -34,8 +45,9 @@ parse(["rooms" | Rest], Acc) -> parse(Rest, Acc#{what := rooms});
 parse([Other | _], _Acc) -> {error, ["unknown demo option: ", Other]}.
 
 usage() ->
-    "usage: make demo [DEMO_ARGS=\"[home|robots|rooms|bil] [--keep]\"]\n"
+    "usage: make demo [DEMO_ARGS=\"[home|mqtt|robots|rooms|bil] [--keep]\"]\n"
     "  home     the smart home on holiday, with an intrusion (the default)\n"
+    "  mqtt     the same, with the house's devices on MQTT (a mosquitto of the demo's own)\n"
     "  robots   two LEGO robots and a coordinator: explore, agree on a lexicon, place the balls\n"
     "  rooms    one VA per room: lights follow the resident, voice commands override\n"
     "  bil      the tour of BIL and EVATAR over TCP\n"
@@ -53,6 +65,31 @@ quietly(Fun) ->
 run(bil, Keep) ->
     ok = reference_agents_tour:main(),
     keep(Keep, none);
+run(mqtt, Keep) ->
+    header("The easy smart home on holiday, its devices on MQTT (paper, section 3.2)",
+           ["Nobody is home. This time the house's devices are MQTT devices, as most cheap "
+            "smart-home devices are today (zigbee2mqtt, Tasmota, ESPHome): the demo starts a "
+            "mosquitto broker on a loopback port, and each simulated device (camera, light "
+            "switches, socket lamp, microphone, time sensor, speaker, keypad) has its own MQTT "
+            "session, publishes its Home Assistant discovery config and its state, and takes "
+            "commands on its topics. The MQTT Avatar discovers them, writes their BIL "
+            "description and joins EVATAR; the notifier, a PC, joins over TCP. The house VA is "
+            "the one of the plain `make demo', unchanged: it runs the holiday policy of "
+            "apps/reference_agents/priv/home.rules, lights on and off in the evening when it "
+            "is dark, and at 21:40 somebody who does not know the code tries the door.",
+            "Simulated time runs 1000 times faster than real time; each line starts with it."]),
+    case reference_agents_holiday:start(#{print => true, spool => "spool", mqtt => true}) of
+        {ok, S} ->
+            ok = reference_agents_holiday:run_until(S, "22:05"),
+            #{home := Home, va := Va} = Outcome = reference_agents_holiday:outcome(S),
+            mqtt_summary(Outcome, Keep),
+            home_summary(Home, Va),
+            finish(Keep, S, fun reference_agents_holiday:stop/1);
+        {error, {broker, Message}} ->
+            {error, Message};
+        {error, Why} ->
+            {error, io_lib:format("~tp", [Why])}
+    end;
 run(home, Keep) ->
     header("The easy smart home on holiday (paper, section 3.2)",
            ["Nobody is home. The house VA is embodied in the simulated smart home (camera, "
@@ -180,6 +217,33 @@ home_summary(#{emails := Emails, photos := Photos, light_log := Log, played := P
               [length(Activities),
                lists:join(", ", lists:usort([A || #{activity := A} <- Activities]))]),
     io:format("~n  Open the .eml file with any mail reader to see the photos of the intruder.~n").
+
+mqtt_summary(#{mqtt := #{host := Host, port := Port},
+               mqtt_avatar := #{status := Status, problems := Problems}}, Keep) ->
+    section("The MQTT side"),
+    io:format("  broker: mosquitto at ~s:~b, started for the demo~s~n",
+              [Host, Port, case Keep of
+                               true -> "";
+                               false -> " and stopped with it"
+                           end]),
+    io:format("  MQTT Avatar: ~b components discovered (~s)~n",
+              [length(maps:get(components, Status, [])),
+               lists:join(", ", [to_list(C) || C <- maps:get(components, Status, [])])]),
+    io:format("  its problems: ~s~n",
+              [case [P || #{what := W} = P <- Problems, W =/= unused_override] of
+                   [] -> "none";
+                   Ps -> lists:join("; ", [maps:get(message, P, io_lib:format("~p", [W]))
+                                           || #{what := W} = P <- Ps])
+               end]),
+    case Keep of
+        true ->
+            io:format("  watch the devices talk: mosquitto_sub -h ~s -p ~b -t '#' -v~n", [Host, Port]);
+        false ->
+            ok
+    end.
+
+to_list(B) when is_binary(B) -> binary_to_list(B);
+to_list(Other) -> io_lib:format("~p", [Other]).
 
 photo_file(Id, Photos) ->
     case [F || #{id := I, file := F} <- Photos, I =:= Id] of

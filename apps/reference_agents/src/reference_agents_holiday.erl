@@ -3,7 +3,10 @@
 %% the house VA joins as its agent with the body of smart_home_va.xml, the
 %% rules file gives the activities and the policies, and the people's
 %% script brings the evening (and, by default, an intruder). The VA runs
-%% the chosen policy (holiday by default) on the simulated clock.
+%% the chosen policy (holiday by default) on the simulated clock. With
+%% `mqtt', the house's devices are MQTT devices on mosquitto instead
+%% (avatar_sim_mqtt_home), discovered and joined by an MQTT Avatar: the VA
+%% is the same.
 -module(reference_agents_holiday).
 
 -export([start/1, run_until/2, outcome/1, stop/1, run/1, default_script/0,
@@ -14,12 +17,16 @@
 %% `speed' and `tick' are the simulation clock's; `until' the local time
 %% (HH:MM) at which run/1 stops; `spool' where the house writes e-mails and
 %% photos; `rules' a rules file (the app's priv/home.rules by default);
-%% `feedback_timeout' EVATAR's, in real ms; `print' narrates as it happens.
+%% `feedback_timeout' EVATAR's, in real ms; `print' narrates as it happens;
+%% `mqtt' puts the devices on MQTT: `true' on a mosquitto of the scenario's
+%% own (started and stopped with it), or a running broker's `#{host, port}'.
 -type opts() :: #{speed => number(), tick => pos_integer(), seed => integer(),
                   start => calendar:datetime(), until => string(),
                   script => list(), spool => file:filename(), rules => file:filename(),
                   policy => binary(), feedback_timeout => pos_integer(),
-                  print => boolean(), io => pid() | atom()}.
+                  print => boolean(), io => pid() | atom(),
+                  mqtt => boolean() | #{host := inet:hostname() | inet:ip_address(),
+                                        port := inet:port_number()}}.
 
 -define(PAIRING, <<"home">>).
 -define(VA_CRED, <<"home-va-secret">>).
@@ -66,19 +73,23 @@ start(Opts, Clock, Rules, RulesFile, S0) ->
            ?PAIRING, #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED,
                        feedback_timeout => maps:get(feedback_timeout, Opts, 5000)}, S0),
     Spool = maps:get(spool, Opts, "spool"),
-    {ok, Home} = avatar_sim:start_home(#{clock => Clock, seed => maps:get(seed, Opts, 1),
-                                         endpoints => [reference_agents_scenario:endpoint(S1)],
-                                         gateways => [#{pairing => ?PAIRING,
-                                                        credential => ?AV_CRED}],
-                                         spool => Spool,
-                                         script => maps:get(script, Opts, default_script())}),
-    S2 = reference_agents_scenario:add(home, Home,
-                                       reference_agents_scenario:add(avatars, [Home], S1)),
-    reference_agents_scenario:say(S2, info,
-                                  io_lib:format("the easy smart home joined pairing ~s; rules "
-                                                "from ~s; policy ~s; spool ~s",
-                                                [?PAIRING, RulesFile, Policy,
-                                                 filename:absname(Spool)])),
+    HomeOpts = #{clock => Clock, seed => maps:get(seed, Opts, 1),
+                 endpoints => [reference_agents_scenario:endpoint(S1)],
+                 spool => Spool, script => maps:get(script, Opts, default_script())},
+    case start_home(maps:get(mqtt, Opts, false), HomeOpts, S1) of
+        {ok, S2, Joined} ->
+            reference_agents_scenario:say(S2, info,
+                                          io_lib:format("~srules from ~s; policy ~s; spool ~s",
+                                                        [Joined, RulesFile, Policy,
+                                                         filename:absname(Spool)])),
+            start_va(Opts, Rules, Policy, S2);
+        {error, Why, S2} ->
+            ok = reference_agents_scenario:stop(S2),
+            {error, Why}
+    end.
+
+start_va(Opts, Rules, Policy, S2) ->
+    Clock = reference_agents_scenario:get(clock, S2),
     Body = (reference_agents_scenario:body("smart_home_va.xml"))#{entity_id := <<"house-va">>},
     {Va, S3} = reference_agents_scenario:start_va(
                  #{name => <<"house-va">>, mind => reference_agents_home,
@@ -92,6 +103,53 @@ start(Opts, Clock, Rules, RulesFile, S0) ->
             {ok, S4};
         {error, _} = E -> ok = reference_agents_scenario:stop(S4), E
     end.
+
+%% The house over TCP: one gateway Avatar with every device.
+start_home(false, HomeOpts, S1) ->
+    {ok, Home} = avatar_sim:start_home(HomeOpts#{gateways => [#{pairing => ?PAIRING,
+                                                                credential => ?AV_CRED}]}),
+    S2 = reference_agents_scenario:add(home, Home,
+                                       reference_agents_scenario:add(avatars, [Home], S1)),
+    {ok, S2, ["the easy smart home joined pairing ", ?PAIRING, "; "]};
+%% The house over MQTT, on a broker of the scenario's own.
+start_home(true, HomeOpts, S1) ->
+    case reference_agents_broker:start_link(#{}) of
+        {ok, Broker} ->
+            S2 = reference_agents_scenario:on_stop(
+                   fun() -> reference_agents_broker:stop(Broker) end,
+                   reference_agents_scenario:add(broker, Broker, S1)),
+            start_home(reference_agents_broker:address(Broker), HomeOpts, S2);
+        {error, Message} ->
+            {error, {broker, Message}, S1}
+    end;
+start_home(#{host := _, port := _} = Mqtt, HomeOpts, S1) ->
+    case avatar_sim_mqtt_home:start(HomeOpts#{mqtt => Mqtt, pairing => ?PAIRING,
+                                              credential => ?AV_CRED}) of
+        {ok, MqttHome} ->
+            S2 = reference_agents_scenario:on_stop(
+                   fun() -> avatar_sim_mqtt_home:stop(MqttHome) end,
+                   reference_agents_scenario:add(mqtt, Mqtt, S1)),
+            House = avatar_sim_mqtt_home:house(MqttHome),
+            S3 = reference_agents_scenario:add(mqtt_home, MqttHome,
+                                               reference_agents_scenario:add(home, House, S2)),
+            reference_agents_scenario:say(S3, info, mqtt_story(Mqtt, MqttHome)),
+            {ok, S3, ""};
+        {error, Why} ->
+            {error, {mqtt_home, Why}, S1}
+    end.
+
+%% Where the devices are and what the MQTT Avatar made of them.
+mqtt_story(#{host := Host, port := Port}, MqttHome) ->
+    #{devices := Devices, entity := Entity} = avatar_sim_mqtt_home:info(MqttHome),
+    #{components := Discovered} = mqtt_avatar:description(avatar_sim_mqtt_home:avatar(MqttHome)),
+    io_lib:format("the easy smart home's ~b devices are on mosquitto at ~s:~b; the MQTT Avatar ~s "
+                  "discovered ~b of them through Home Assistant discovery (~s) and joined "
+                  "pairing ~s; the notifier (a PC) joined over TCP",
+                  [length(Devices), host(Host), Port, Entity, length(Discovered),
+                   lists:join(", ", [Id || #{id := Id} <- Discovered]), ?PAIRING]).
+
+host(Host) when is_tuple(Host) -> inet:ntoa(Host);
+host(Host) -> Host.
 
 %% @doc Lets simulated time run until the house's clock shows `HHMM' (on
 %% the start day, or the next day if that time has passed), then pauses.
@@ -127,14 +185,30 @@ target_ms(NowMs, HHMM) ->
     end.
 
 %% @doc What happened: the VA's view (activities, decisions, outcomes,
-%% e-mails), the house's (lights, e-mails, photos, sounds) and the story.
+%% e-mails), the house's (lights, e-mails, photos, sounds) and the story;
+%% over MQTT also the broker (`mqtt': host and port) and the MQTT Avatar's
+%% view (`mqtt_avatar': its status and problems).
 -spec outcome(reference_agents_scenario:scenario()) -> map().
 outcome(S) ->
     Va = reference_agents_scenario:get(va, S),
     Home = reference_agents_scenario:get(home, S),
-    #{va => reference_agents_va:inspect(Va),
-      home => avatar_sim:state(Home),
-      story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))}.
+    Outcome = #{va => reference_agents_va:inspect(Va),
+                home => avatar_sim:state(Home),
+                story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))},
+    case mqtt_home(S) of
+        none ->
+            Outcome;
+        MqttHome ->
+            A = avatar_sim_mqtt_home:avatar(MqttHome),
+            Outcome#{mqtt => reference_agents_scenario:get(mqtt, S),
+                     mqtt_avatar => #{status => mqtt_avatar:status(A),
+                                      problems => mqtt_avatar:problems(A)}}
+    end.
+
+mqtt_home(S) ->
+    try reference_agents_scenario:get(mqtt_home, S)
+    catch error:{badkey, _} -> none
+    end.
 
 -spec stop(reference_agents_scenario:scenario()) -> ok.
 stop(S) -> reference_agents_scenario:stop(S).

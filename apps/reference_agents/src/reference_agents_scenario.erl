@@ -7,7 +7,7 @@
 
 -export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, embodied/1,
          narrator/1, endpoint/1, stop/1, examples_dir/0, priv_dir/0, body/1,
-         body_subset/3, add/3, get/2, say/3]).
+         body_subset/3, add/3, get/2, say/3, on_stop/2]).
 
 -export_type([scenario/0]).
 
@@ -116,6 +116,12 @@ endpoint(#{endpoint := E}) -> E.
 -spec add(atom(), term(), scenario()) -> scenario().
 add(Key, Value, #{extra := X} = S) -> S#{extra := X#{Key => Value}}.
 
+%% @doc Something to clean up when the scenario stops (an MQTT home, a
+%% broker): run after the VAs are stopped, the last added first.
+-spec on_stop(fun(() -> term()), scenario()) -> scenario().
+on_stop(Fun, #{extra := X} = S) ->
+    S#{extra := X#{on_stop => [Fun | maps:get(on_stop, X, [])]}}.
+
 -spec get(atom(), scenario()) -> term().
 get(Key, #{extra := X}) -> maps:get(Key, X).
 
@@ -130,6 +136,7 @@ say(#{narrator := N}, Kind, Text) ->
 stop(#{vas := Vas, pairings := Ps, listener := L, narrator := N, started := Started,
        restore := Restore, extra := X}) ->
     lists:foreach(fun(Va) -> catch reference_agents_va:stop(Va) end, Vas),
+    lists:foreach(fun(F) -> catch F() end, maps:get(on_stop, X, [])),
     lists:foreach(fun(A) -> catch avatar_sim:stop(A) end, maps:get(avatars, X, [])),
     case X of
         #{clock := Clock} -> catch avatar_sim:stop_clock(Clock);
