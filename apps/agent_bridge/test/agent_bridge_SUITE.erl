@@ -36,6 +36,7 @@ groups() ->
 
 init_per_suite(Config) ->
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = agent_bridge:start_listener(test, #{port => 0,
                                                  conn => #{handshake_timeout => 500,

@@ -34,6 +34,7 @@ groups() ->
 
 init_per_suite(Config) ->
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = application:ensure_all_started(avatar_sim),
     {ok, _} = agent_bridge:start_listener(avatar_sim_test, #{port => 0}),

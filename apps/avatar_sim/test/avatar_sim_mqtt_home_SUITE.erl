@@ -23,6 +23,7 @@ init_per_suite(Config) ->
             {skip, "mosquitto is not installed (Debian package mosquitto)"};
         true ->
             ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+            {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
             {ok, _} = application:ensure_all_started(agent_bridge),
             {ok, _} = application:ensure_all_started(avatar_sim),
             {ok, _} = agent_bridge:start_listener(mqtt_home_suite, #{port => 0}),

@@ -238,7 +238,8 @@ billion_laughs(_Config) ->
     Doc = iolist_to_binary(["<?xml version=\"1.0\"?>\n<!DOCTYPE lolz [\n",
                             "  <!ENTITY lol \"lol\">\n  <!ELEMENT lolz (#PCDATA)>\n",
                             Entities, "]>\n<lolz>&lol9;</lolz>\n"]),
-    {error, #{code := doctype_refused, line := 2, column := 1}} = bil_xml:parse(Doc, ?LIMITS).
+    {error, #{code := doctype_refused, line := 2, column := 1}} =
+        in_small_heap(fun() -> bil_xml:parse(Doc, ?LIMITS) end).
 
 %% One big entity referenced many times (quadratic blowup) is refused.
 quadratic_blowup(_Config) ->
@@ -246,13 +247,14 @@ quadratic_blowup(_Config) ->
     Refs = binary:copy(<<"&a;">>, 20000),
     Doc = <<"<?xml version=\"1.0\"?><!DOCTYPE kaboom [<!ENTITY a \"", Big/binary,
             "\">]><kaboom>", Refs/binary, "</kaboom>">>,
-    {error, #{code := doctype_refused, line := 1, column := 22}} = bil_xml:parse(Doc, ?LIMITS).
+    {error, #{code := doctype_refused, line := 1, column := 22}} =
+        in_small_heap(fun() -> bil_xml:parse(Doc, ?LIMITS) end).
 
 %% An external entity (XXE) is refused, and so is referencing it without a DTD.
 external_entity(_Config) ->
     Doc = <<"<?xml version=\"1.0\"?>\n<!DOCTYPE foo [ <!ELEMENT foo ANY >\n"
             "<!ENTITY xxe SYSTEM \"file:///etc/passwd\" >]>\n<foo>&xxe;</foo>">>,
-    {error, #{code := doctype_refused}} = bil_xml:parse(Doc, ?LIMITS),
+    {error, #{code := doctype_refused}} = in_small_heap(fun() -> bil_xml:parse(Doc, ?LIMITS) end),
     Public = <<"<!DOCTYPE foo PUBLIC \"-//X//Y\" \"http://127.0.0.1:1/x.dtd\"><foo/>">>,
     {error, #{code := doctype_refused}} = bil_xml:parse(Public, ?LIMITS),
     {error, #{code := entity_refused, line := 1, column := 6}} =
@@ -263,8 +265,26 @@ parameter_entities(_Config) ->
     Docs = [<<"<!DOCTYPE foo [<!ENTITY % pe SYSTEM \"http://127.0.0.1:1/evil.dtd\"> %pe;]><foo/>">>,
             <<"<!DOCTYPE foo [<!ENTITY % a \"<!ENTITY b 'x'>\"> %a;]><foo>&b;</foo>">>,
             <<"<?xml version=\"1.0\"?><!-- c --><!DOCTYPE foo SYSTEM \"file:///etc/passwd\"><foo/>">>],
-    [{error, #{code := doctype_refused}} = bil_xml:parse(Doc, ?LIMITS) || Doc <- Docs],
+    [{error, #{code := doctype_refused}} = in_small_heap(fun() -> bil_xml:parse(Doc, ?LIMITS) end)
+     || Doc <- Docs],
     ok.
+
+%% Runs Fun in a process whose heap may not pass about 4 MB: an attack that
+%% made the parser expand or build anything big would kill it.
+in_small_heap(Fun) ->
+    Parent = self(),
+    {Pid, Ref} = spawn_monitor(
+                   fun() ->
+                           process_flag(max_heap_size, #{size => 500000, kill => true,
+                                                         error_logger => false}),
+                           Parent ! {self(), Fun()}
+                   end),
+    receive
+        {Pid, Result} ->
+            receive {'DOWN', Ref, process, Pid, _} -> Result end;
+        {'DOWN', Ref, process, Pid, Reason} ->
+            ct:fail({parser_process_died, Reason})
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Limits
@@ -289,11 +309,12 @@ too_deep(_Config) ->
     Ok = iolist_to_binary([lists:duplicate(32, "<a>"), lists:duplicate(32, "</a>")]),
     {ok, _} = bil_xml:parse(Ok, ?LIMITS).
 
-%% A million nested elements under a large size limit are refused at depth 33
-%% without growing the process much.
+%% A million nested elements under a large size limit are refused at depth 33,
+%% within a small heap.
 million_deep(_Config) ->
     Doc = binary:copy(<<"<a>">>, 1000000),
-    {error, #{code := too_deep}} = bil_xml:parse(Doc, #{max_size => 4000000, max_depth => 32}),
+    {error, #{code := too_deep, column := 97}} =
+        in_small_heap(fun() -> bil_xml:parse(Doc, #{max_size => 4000000, max_depth => 32}) end),
     {error, #{code := truncated}} = bil_xml:parse(Doc, #{max_size => 4000000,
                                                           max_depth => 2000000}).
 

@@ -33,6 +33,9 @@ init_per_suite(Config) ->
             {skip, "mosquitto is not installed (Debian package mosquitto)"};
         true ->
             ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+            %% Started explicitly: an earlier suite may have stopped evatar while
+            %% leaving agent_bridge running, which ensure_all_started would not notice.
+            {ok, _} = application:ensure_all_started(evatar),
             {ok, _} = application:ensure_all_started(agent_bridge),
             {ok, _} = application:ensure_all_started(mqtt_avatar),
             {ok, _} = agent_bridge:start_listener(mqtt_avatar_suite, #{port => 0}),
