@@ -1003,9 +1003,11 @@ resolve(Prefix, {_, Prefixes}) ->
 unbound(Prefix, At, S) ->
     err(malformed, At, S, ["the namespace prefix '", show(Prefix), "' is not declared"]).
 
-%% Raw attributes are {Prefix, Local, Value, At}; namespace declarations
-%% are {Prefix, Value, At} with <<>> for the default namespace. At is the
-%% rest of the input from the attribute's name.
+%% The general attribute parser, for what the fast path leaves (see
+%% fattrs/7). Raw attributes are {Prefix, Local, Value, At}; namespace
+%% declarations are {Prefix, Value, At} with <<>> for the default
+%% namespace. At locates the attribute's name for messages: an offset, or
+%% here the rest of the input from it.
 attributes(B0, QName, Lt, S, Raw, Decls) ->
     B = skip_ws(B0),
     case B of
@@ -1328,7 +1330,7 @@ name_tail(B, N) ->
         _ -> N
     end.
 
-utf8_len(C) when C < 16#80 -> 1;
+%% Only called for non-ASCII characters.
 utf8_len(C) when C < 16#800 -> 2;
 utf8_len(C) when C < 16#10000 -> 3;
 utf8_len(_) -> 4.

@@ -271,6 +271,7 @@ namespaces_test_() ->
 namespace_error_test_() ->
     [{"unbound element prefix", ?_assertEqual({malformed, 2, 3}, err(<<"<a>\n  <p:b/></a>">>))},
      {"unbound attribute prefix", ?_assertEqual({malformed, 1, 4}, err(<<"<a p:x='1'/>">>))},
+     {"unbound prefix on a field", ?_assertEqual({malformed, 1, 4}, err(<<"<a><p:b>x</p:b></a>">>))},
      {"unbound message",
       ?_assertEqual(<<"the namespace prefix 'p' is not declared">>, message(<<"<p:a/>">>))},
      {"prefix out of scope", ?_assertEqual({malformed, 1, 20},
@@ -324,7 +325,15 @@ end_tag_test_() ->
                       "column 1">>, message(<<"<a>\n<b>">>))},
      {"truncated end tag", ?_assertEqual({truncated, 1, 7}, err(<<"<a></a">>))},
      {"truncated end name", ?_assertEqual({truncated, 1, 9}, err(<<"<abc></a">>))},
-     {"stray end tag", ?_assertEqual({malformed, 1, 2}, err(<<"</a>">>))}].
+     {"stray end tag", ?_assertEqual({malformed, 1, 2}, err(<<"</a>">>))},
+     {"long names are cut short in messages, on a character boundary",
+      fun() ->
+              Long = binary:copy(<<"é"/utf8>>, 70),
+              Message = message(<<"<", Long/binary, "></x>">>),
+              ?assertEqual(<<"end tag </x> does not match start tag <",
+                             (binary:copy(<<"é"/utf8>>, 30))/binary, "...> opened at line 1, "
+                             "column 1">>, Message)
+      end}].
 
 depth_test_() ->
     Nest = fun(N) -> iolist_to_binary([lists:duplicate(N, "<a>"), lists:duplicate(N, "</a>")]) end,
