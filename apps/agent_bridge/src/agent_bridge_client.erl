@@ -99,7 +99,7 @@
             ack_timer = false :: boolean(),
             unacked = queue:new() :: queue:queue({binary(), iodata()}),
             unacked_n = 0 :: non_neg_integer(),
-            blocked = queue:new() :: queue:queue({gen_statem:from(), bil:signal()}),
+            blocked = queue:new() :: queue:queue({gen_statem:from(), bil:signal(), signal | request}),
             ack_waiters = [] :: [gen_statem:from()],
             description :: iodata() | undefined,
             heartbeat = 0 :: non_neg_integer(),
@@ -523,10 +523,11 @@ after_acks(Ids, #d{opts = Opts} = D) ->
 %% Callers that waited for room in the window go on.
 unblock(#d{unacked_n = N, window = W, blocked = B} = D) when N < W ->
     case queue:out(B) of
-        {{value, {From, Signal}}, B1} ->
-            D1 = keep(From, Signal, D#d{blocked = B1}),
-            _ = [gen_statem:reply(From, ok) || not is_map_key(maps:get(id, Signal),
-                                                             D1#d.pending)],
+        {{value, {From, Signal, request}}, B1} ->
+            unblock(keep(From, Signal, D#d{blocked = B1}));
+        {{value, {From, Signal, signal}}, B1} ->
+            D1 = keep(none, Signal, D#d{blocked = B1}),
+            gen_statem:reply(From, ok),
             unblock(D1);
         {empty, _} when N =:= 0 ->
             _ = [gen_statem:reply(F, ok) || F <- D#d.ack_waiters],
@@ -552,22 +553,28 @@ ha_send(From, Request, State, #d{unacked_n = N, window = W, blocked = B} = D) ->
                            end,
     case N >= W orelse not queue:is_empty(B) of
         true ->
-            {keep_state, D1#d{blocked = queue:in({From, Signal}, B)}, Timers};
+            {keep_state, D1#d{blocked = queue:in({From, Signal, element(1, Request)}, B)},
+             Timers};
         false ->
-            D2 = keep(From, Signal, D1),
-            Replies = [{reply, From, ok} || element(1, Request) =:= signal],
             _ = State,
-            {keep_state, D2, Replies ++ Timers}
+            case Request of
+                {signal, _} ->
+                    {keep_state, keep(none, Signal, D1), [{reply, From, ok} | Timers]};
+                {request, _, _} ->
+                    {keep_state, keep(From, Signal, D1), Timers}
+            end
     end.
 
 %% Keeps the signal until it is acknowledged and writes it when connected.
-keep(From, #{id := Id} = Signal, #d{unacked = Q, unacked_n = N} = D) ->
+%% `Waiter' is the request/3 caller awaiting the feedback, or `none' for a
+%% signal given to send/2: its feedback goes to the owner like any signal.
+keep(Waiter, #{id := Id} = Signal, #d{unacked = Q, unacked_n = N} = D) ->
     Frame = bil:encode_signal(Signal),
     _ = [write(Frame, D) || D#d.welcome =/= undefined],
     D1 = D#d{unacked = queue:in({Id, Frame}, Q), unacked_n = N + 1},
-    case Signal of
-        #{context := request} -> D1#d{pending = (D1#d.pending)#{Id => From}};
-        _ -> D1
+    case Waiter of
+        none -> D1;
+        From -> D1#d{pending = (D1#d.pending)#{Id => From}}
     end.
 
 answer(Id, Reply, #d{pending = P} = D) ->
