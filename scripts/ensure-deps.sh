@@ -4,7 +4,7 @@
 set -euo pipefail
 
 PKGS=(erlang-nox erlang-dev erlang-xmerl erlang-common-test erlang-proper
-      erlang-proper-dev erlang-dialyzer rebar3 mosquitto libxml2-utils python3 make git)
+      erlang-proper-dev erlang-dialyzer rebar3 mosquitto libxml2-utils python3 openssl make git)
 
 missing=()
 for p in "${PKGS[@]}"; do

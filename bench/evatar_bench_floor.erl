@@ -1,0 +1,87 @@
+%% @doc Internal to the mediator benchmark (evatar_bench). The transport
+%% floor: per pairing, two relay processes owning the server sockets and a
+%% middle process standing for the pairing, forwarding frames untouched
+%% (no parse, no routing, no encode). Driven by the raw generator, it costs
+%% what EVATAR's sockets and process hops cost with none of its work, so
+%% EVATAR's figures can be read against it. In `codec' mode the relays also
+%% parse each frame (bil_control:parse_frame/2) and encode what they write
+%% (bil:encode_signal/1), as agent_bridge_conn does, so the codec's share
+%% can be isolated.
+-module(evatar_bench_floor).
+
+-export([listen/0, relay_pair/3, relay/3, middle/0]).
+
+%% @doc A listening socket for the floor on a free loopback port.
+-spec listen() -> {{inet:ip_address(), inet:port_number()}, gen_tcp:socket()}.
+listen() ->
+    {ok, L} = gen_tcp:listen(0, [binary, {packet, 4}, {active, false}, {ip, {127, 0, 0, 1}},
+                                 {reuseaddr, true}, {nodelay, true}, {backlog, 4096}]),
+    {ok, Addr} = inet:sockname(L),
+    {Addr, L}.
+
+%% @doc Relays between the VA's and the Avatar's accepted sockets through a
+%% middle process; returns the three processes.
+-spec relay_pair(gen_tcp:socket(), gen_tcp:socket(), floor | codec) -> [pid()].
+relay_pair(VaSock, AvSock, Kind) ->
+    Mid = proc_lib:spawn(?MODULE, middle, []),
+    Va = proc_lib:spawn(?MODULE, relay, [Mid, va, Kind]),
+    Av = proc_lib:spawn(?MODULE, relay, [Mid, av, Kind]),
+    ok = gen_tcp:controlling_process(VaSock, Va),
+    ok = gen_tcp:controlling_process(AvSock, Av),
+    Va ! {socket, VaSock},
+    Av ! {socket, AvSock},
+    Mid ! {peers, Va, Av},
+    [Va, Mid, Av].
+
+%% @private
+%% Like agent_bridge_conn: {active, 32} frames in, nosuspend writes out.
+-spec relay(pid(), va | av, floor | codec) -> ok.
+relay(Mid, Tag, Kind) ->
+    receive {socket, S} -> ok end,
+    ok = inet:setopts(S, [{active, 32}]),
+    relay_loop(S, Mid, Tag, Kind).
+
+relay_loop(S, Mid, Tag, Kind) ->
+    receive
+        {tcp, S, Frame} ->
+            Mid ! {Tag, decode(Kind, Frame)},
+            relay_loop(S, Mid, Tag, Kind);
+        {out, Msg} ->
+            Frame = encode(Kind, Msg),
+            case erlang:port_command(S, Frame, [nosuspend]) of
+                true -> ok;
+                false -> ok = gen_tcp:send(S, Frame)
+            end,
+            relay_loop(S, Mid, Tag, Kind);
+        {tcp_passive, S} ->
+            ok = inet:setopts(S, [{active, 32}]),
+            relay_loop(S, Mid, Tag, Kind);
+        {tcp_closed, S} ->
+            Mid ! stop,
+            ok;
+        {inet_reply, _, _} ->
+            relay_loop(S, Mid, Tag, Kind)
+    end.
+
+decode(floor, Frame) ->
+    Frame;
+decode(codec, Frame) ->
+    {ok, {signal, Signal}} = bil_control:parse_frame(Frame, #{}),
+    %% What the pairing stamps before delivering.
+    Signal#{seq := 1, epoch := 1}.
+
+encode(floor, Frame) -> Frame;
+encode(codec, Signal) -> bil:encode_signal(Signal).
+
+%% @private
+%% Stands for the pairing process: one more message hop each way.
+-spec middle() -> ok.
+middle() ->
+    receive {peers, Va, Av} -> middle(Va, Av) end.
+
+middle(Va, Av) ->
+    receive
+        {va, Frame} -> Av ! {out, Frame}, middle(Va, Av);
+        {av, Frame} -> Va ! {out, Frame}, middle(Va, Av);
+        stop -> ok
+    end.

@@ -1,0 +1,631 @@
+%% @doc Internal to the mediator benchmark (evatar_bench). The load
+%% generator: one VA process and one Avatar process per pairing, joined over
+%% loopback TCP either with agent_bridge_client (`client' mode) or with a
+%% minimal raw-socket client that sends pre-encoded frames and finds ids by
+%% binary matching (`raw' mode, so the generator's own CPU stays small).
+-module(evatar_bench_gen).
+
+-export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
+         descriptions/2, credentials/0, idle_join/3]).
+-export([va_init/6, avatar_init/5, sink/0]).
+
+-export_type([mode/0, pair/0]).
+
+%% `floor' is the raw generator against evatar_bench_floor's relays, which
+%% forward frames untouched: the same sockets and process hops as EVATAR
+%% with none of its work. `direct' joins through the evatar API from plain
+%% processes: the pairing's own cost, without TCP, XML or the bridge.
+%% (`codec' is `floor' with relays that parse and encode; the controller's
+%% `split' is `raw' with these processes on another node, see setup/4.)
+-type mode() :: client | raw | floor | codec | direct.
+%% One pairing of the benchmark: its id, the VA process (which the
+%% controller drives) and the Avatar process.
+-type pair() :: #{id := binary(), index := pos_integer(), va := pid(), avatar := pid(),
+                  relays => [pid()]}.
+-type address() :: {inet:ip_address(), inet:port_number()}.
+
+-define(VA_COMPONENT, <<"LightEmulator01">>).
+-define(AV_COMPONENT, <<"HomeLightActuator01">>).
+-define(AGENT_CRED, <<"bench-agent-credential">>).
+-define(AVATAR_CRED, <<"bench-avatar-credential">>).
+-define(SETUP_TIMEOUT, 60000).
+%% Open requests still unanswered this long after the last send are given up.
+-define(DRAIN_TIMEOUT, 15000).
+
+%% ---------------------------------------------------------------------------
+%% Documents
+%% ---------------------------------------------------------------------------
+
+%% @doc The agent and avatar credentials every benchmark pairing uses.
+-spec credentials() -> #{agent_credential := binary(), avatar_credential := binary()}.
+credentials() -> #{agent_credential => ?AGENT_CRED, avatar_credential => ?AVATAR_CRED}.
+
+%% @doc The VA's and the Avatar's descriptions in pairing I (the light
+%% actuator of docs/bil.md, section 4.1).
+-spec descriptions(pos_integer(), binary()) -> {bil:description(), bil:description()}.
+descriptions(I, Tag) ->
+    {VaId, AvId} = entity_ids(I, Tag),
+    Va = #{entity_id => VaId, api_name => <<"LIGHT VA">>, entity_type => agent,
+           context => <<"EmulatorDescription">>,
+           components =>
+               [#{id => ?VA_COMPONENT,
+                  services => [#{category => <<"ACTUATOR">>, type => <<"ActionFeedback">>,
+                                 parameters => [{<<"Feedback">>, <<"yes">>}]}],
+                  consumes => [#{category => <<"actuator">>, type => <<"TurnLightOn">>,
+                                 parameters => [{<<"Light">>, <<"yes">>},
+                                                {<<"Email">>, <<"no">>}]}]}]},
+    Av = #{entity_id => AvId, api_name => <<"LIGHT ACTUATOR">>, entity_type => avatar,
+           context => <<"ActuatorDescription">>,
+           components =>
+               [#{id => ?AV_COMPONENT,
+                  services => [#{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+                                 parameters => [{<<"Light">>, <<"yes">>},
+                                                {<<"Email">>, <<"no">>}]}],
+                  consumes => [#{category => <<"ACTUATOR">>, type => <<"ACTION FEEDBACK">>,
+                                 parameters => [{<<"Feedback">>, <<"yes">>}]}]}]},
+    {Va, Av}.
+
+entity_ids(I, Tag) ->
+    N = integer_to_binary(I),
+    {<<"va-", Tag/binary, "-", N/binary>>, <<"av-", Tag/binary, "-", N/binary>>}.
+
+%% @doc The request's body: with the header, about 530 bytes on the wire.
+-spec request_body() -> bil:entry().
+request_body() ->
+    #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+      parameters => [{<<"Light">>, <<"yes">>}, {<<"Brightness">>, <<"80">>},
+                     {<<"Colour">>, <<"warm-white-2700K">>}, {<<"Room">>, <<"living-room">>}]}.
+
+%% @doc The feedback's body: with the header, about 500 bytes on the wire.
+-spec feedback_body() -> bil:entry().
+feedback_body() ->
+    #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+      parameters => [{<<"Done">>, <<"yes">>}, {<<"Light">>, <<"on">>},
+                     {<<"Duration">>, <<"12">>}]}.
+
+%% ---------------------------------------------------------------------------
+%% Setting up loaded pairings
+%% ---------------------------------------------------------------------------
+
+%% @doc Creates pairings 1..N, and for each starts an Avatar and a VA
+%% process that join over TCP and wait until bound. At most 32 pairings are
+%% set up at a time. Crashes the benchmark on any failure: figures from a
+%% half-built system would mislead. For `floor', Addr is the floor's
+%% address and listening socket.
+-spec setup(pos_integer(), mode(), address() | {address(), gen_tcp:socket()}) -> [pair()].
+setup(N, Mode, Addr) ->
+    setup(N, Mode, Addr, node()).
+
+%% @doc The same, with the VA and Avatar processes on node Node (another
+%% OS process), so that this node's CPU is EVATAR's alone.
+-spec setup(pos_integer(), mode(), address() | {address(), gen_tcp:socket()}, node()) ->
+          [pair()].
+setup(N, Mode, Addr, Node) ->
+    setup_batches(lists:seq(1, N), Mode, Addr, Node, []).
+
+setup_batches([], _Mode, _Addr, _Node, Acc) ->
+    lists:reverse(Acc);
+setup_batches(Is, Mode, Addr, Node, Acc) ->
+    {Batch, Rest} = lists:split(min(32, length(Is)), Is),
+    Pairs = [start_pair(I, Mode, Addr, Node) || I <- Batch],
+    _ = [await_ready(P) || P <- Pairs],
+    setup_batches(Rest, Mode, Addr, Node, lists:reverse(Pairs, Acc)).
+
+%% @doc Makes N closed-loop counters on this node, kept under Key.
+-spec new_counters(term(), pos_integer()) -> ok.
+new_counters(Key, N) ->
+    persistent_term:put(Key, counters:new(N, [write_concurrency])).
+
+%% @doc The sum of the closed-loop counters kept under Key on this node
+%% (see va_idle/1: counters cannot cross nodes).
+-spec count(term()) -> non_neg_integer().
+count(Key) ->
+    C = persistent_term:get(Key),
+    lists:sum([counters:get(C, I) || I <- lists:seq(1, maps:get(size, counters:info(C)))]).
+
+start_pair(I, Kind, {Addr, Listen}, _Node) when Kind =:= floor; Kind =:= codec ->
+    Id = <<"floor-", (integer_to_binary(I))/binary>>,
+    {VaDesc, AvDesc} = descriptions(I, <<"floor">>),
+    Self = self(),
+    Av = proc_lib:spawn(?MODULE, avatar_init, [Self, floor, Addr, Id, AvDesc]),
+    {ok, AvSock} = gen_tcp:accept(Listen, ?SETUP_TIMEOUT),
+    Va = proc_lib:spawn(?MODULE, va_init, [Self, floor, Addr, Id, VaDesc, I]),
+    {ok, VaSock} = gen_tcp:accept(Listen, ?SETUP_TIMEOUT),
+    Relays = evatar_bench_floor:relay_pair(VaSock, AvSock, Kind),
+    _ = [P ! floor_ready || P <- [Va, Av]],
+    #{id => Id, index => I, va => Va, avatar => Av, relays => Relays};
+start_pair(I, Mode, Addr, Node) ->
+    Id = <<"load-", (integer_to_binary(I))/binary>>,
+    {ok, _} = evatar:create_pairing(Id, (credentials())#{join_timeout => ?SETUP_TIMEOUT,
+                                                          feedback_timeout => 10000}),
+    {VaDesc, AvDesc} = descriptions(I, <<"load">>),
+    Self = self(),
+    Av = proc_lib:spawn(Node, ?MODULE, avatar_init, [Self, Mode, Addr, Id, AvDesc]),
+    receive {Av, described} -> ok
+    after ?SETUP_TIMEOUT -> error({avatar_not_described, Id})
+    end,
+    Va = proc_lib:spawn(Node, ?MODULE, va_init, [Self, Mode, Addr, Id, VaDesc, I]),
+    #{id => Id, index => I, va => Va, avatar => Av}.
+
+await_ready(#{id := Id, va := Va}) ->
+    receive {Va, ready} -> ok
+    after ?SETUP_TIMEOUT -> error({not_bound, Id})
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Joining
+%% ---------------------------------------------------------------------------
+
+%% A joined entity: the client process, or the raw socket.
+-type conn() :: {client, pid()} | {raw, gen_tcp:socket()} | {direct, evatar:session()}.
+
+join(client, {Ip, Port}, Pairing, Role, Desc) ->
+    #{entity_id := Entity} = Desc,
+    Cred = cred(Role),
+    {ok, C} = agent_bridge_client:connect([{Ip, Port}],
+                                          #{pairing => Pairing, role => Role,
+                                            entity_id => Entity, credential => Cred}),
+    ok = agent_bridge_client:describe(C, Desc),
+    {client, C};
+join(direct, _Addr, Pairing, Role, Desc) ->
+    #{entity_id := Entity} = Desc,
+    {ok, Session} = evatar:join(Pairing, Role, Entity, cred(Role)),
+    ok = evatar:describe(Session, Desc),
+    {direct, Session};
+join(floor, {Ip, Port}, _Pairing, _Role, _Desc) ->
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false},
+                                         {nodelay, true}], 10000),
+    {raw, S};
+join(raw, {Ip, Port}, Pairing, Role, Desc) ->
+    #{entity_id := Entity} = Desc,
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false},
+                                         {nodelay, true}], 10000),
+    Hello = {hello, #{pairing => Pairing, role => Role, entity_id => Entity,
+                      credential => cred(Role), protocol_version => 1}},
+    ok = gen_tcp:send(S, bil_control:encode(Hello)),
+    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
+    {ok, {control, {welcome, _}}} = bil_control:parse_frame(Frame, #{}),
+    ok = gen_tcp:send(S, bil:encode_description(Desc)),
+    {raw, S}.
+
+cred(agent) -> ?AGENT_CRED;
+cred(avatar) -> ?AVATAR_CRED.
+
+%% Waits for the Binding report that binds the VA's emulator to the
+%% actuator (the Avatar may see an earlier report with only itself); on
+%% the floor, for the relays to be in place.
+await_bound(floor, _Conn) ->
+    receive floor_ready -> ok
+    after ?SETUP_TIMEOUT -> error(floor_not_ready)
+    end;
+await_bound(_Mode, Conn) ->
+    await_bound(Conn).
+
+await_bound({client, C}) ->
+    receive
+        {agent_bridge, C, {binding, Report}} ->
+            case bound(Report) of
+                true -> ok;
+                false -> await_bound({client, C})
+            end;
+        {agent_bridge, C, {closed, Why}} ->
+            error({closed_while_binding, Why})
+    after ?SETUP_TIMEOUT -> error(binding_timeout)
+    end;
+await_bound({direct, _} = Conn) ->
+    receive
+        {evatar, _, {bound, Report}} ->
+            case bound(Report) of
+                true -> ok;
+                false -> await_bound(Conn)
+            end
+    after ?SETUP_TIMEOUT -> error(binding_timeout)
+    end;
+await_bound({raw, S}) ->
+    {ok, Frame} = gen_tcp:recv(S, 0, ?SETUP_TIMEOUT),
+    case bil_control:parse_frame(Frame, #{}) of
+        {ok, {control, {binding, Report}}} ->
+            case bound(Report) of
+                true -> ok;
+                false -> await_bound({raw, S})
+            end;
+        Other ->
+            error({unexpected_while_binding, Other})
+    end.
+
+bound(#{bound := Bound}) ->
+    lists:any(fun(#{consumer := #{component := C}}) -> C =:= ?VA_COMPONENT end, Bound).
+
+activate({client, _}) -> ok;
+activate({direct, _}) -> ok;
+activate({raw, S}) -> ok = inet:setopts(S, [{active, 32}]).
+
+%% ---------------------------------------------------------------------------
+%% The Avatar: answers every request with a feedback, in its own process
+%% ---------------------------------------------------------------------------
+
+%% @private
+-spec avatar_init(pid(), mode(), {inet:ip_address(), inet:port_number()}, binary(),
+                  bil:description()) -> no_return().
+avatar_init(Parent, Mode, Addr, Pairing, Desc) ->
+    monitor(process, Parent),
+    Conn = join(Mode, Addr, Pairing, avatar, Desc),
+    _ = [Parent ! {self(), described} || Mode =/= floor],
+    ok = await_bound(Mode, Conn),
+    ok = activate(Conn),
+    avatar_loop(Conn, feedback_template()).
+
+avatar_loop({client, C} = Conn, T) ->
+    receive
+        {agent_bridge, C, {signal, #{context := request, id := Id, sender := S,
+                                     receiver := R}}} ->
+            ok = agent_bridge_client:send(C, #{context => feedback, id => <<"fb-", Id/binary>>,
+                                               in_reply_to => Id, sender => R, receiver => S,
+                                               body => feedback_body()}),
+            avatar_loop(Conn, T);
+        {agent_bridge, C, {closed, _}} ->
+            exit(normal);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        _Other ->
+            avatar_loop(Conn, T)
+    end;
+avatar_loop({direct, Session} = Conn, T) ->
+    receive
+        {evatar, _, {signal, #{context := request, id := Id, sender := S, receiver := R}}} ->
+            ok = evatar:send(Session, #{context => feedback, id => <<"fb-", Id/binary>>,
+                                        in_reply_to => Id, sender => R, receiver => S,
+                                        timestamp => os:system_time(millisecond),
+                                        seq => undefined, epoch => undefined,
+                                        body => feedback_body()}),
+            avatar_loop(Conn, T);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        _Other ->
+            avatar_loop(Conn, T)
+    end;
+avatar_loop({raw, S} = Conn, {P1, P2, P3} = T) ->
+    receive
+        {tcp, S, Frame} ->
+            case binary:match(Frame, <<"<Context>RequestAwaitingFeedback</Context>">>) of
+                nomatch ->
+                    ok;
+                _ ->
+                    Id = element_text(Frame, <<"<SignalID>">>, <<"</SignalID>">>),
+                    ok = gen_tcp:send(S, [P1, Id, P2, Id, P3])
+            end,
+            avatar_loop(Conn, T);
+        {tcp_passive, S} ->
+            ok = inet:setopts(S, [{active, 32}]),
+            avatar_loop(Conn, T);
+        {tcp_closed, S} ->
+            exit(normal);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        _Other ->
+            avatar_loop(Conn, T)
+    end.
+
+%% The feedback document split around its two ids: the SignalID is
+%% `fb-' followed by the request's id, InReplyTo the request's id.
+feedback_template() ->
+    Doc = iolist_to_binary(
+            bil:encode_signal(#{id => <<"fb-@@ID1@@">>, context => feedback,
+                                sender => ?AV_COMPONENT, receiver => ?VA_COMPONENT,
+                                in_reply_to => <<"@@ID2@@">>,
+                                timestamp => os:system_time(millisecond),
+                                seq => undefined, epoch => undefined,
+                                body => feedback_body()})),
+    [P1, Rest] = binary:split(Doc, <<"@@ID1@@">>),
+    [P2, P3] = binary:split(Rest, <<"@@ID2@@">>),
+    {P1, P2, P3}.
+
+request_template() ->
+    Doc = iolist_to_binary(
+            bil:encode_signal(#{id => <<"@@ID@@">>, context => request,
+                                sender => ?VA_COMPONENT, receiver => ?AV_COMPONENT,
+                                in_reply_to => undefined,
+                                timestamp => os:system_time(millisecond),
+                                seq => undefined, epoch => undefined,
+                                body => request_body()})),
+    [P1, P2] = binary:split(Doc, <<"@@ID@@">>),
+    {P1, P2}.
+
+element_text(Frame, Open, Close) ->
+    {Start, Len} = binary:match(Frame, Open),
+    From = Start + Len,
+    {End, _} = binary:match(Frame, Close, [{scope, {From, byte_size(Frame) - From}}]),
+    binary:part(Frame, From, End - From).
+
+%% ---------------------------------------------------------------------------
+%% The VA: closed-loop and open-loop request senders
+%% ---------------------------------------------------------------------------
+
+-record(va, {conn :: conn(),
+             parent :: pid(),
+             index :: pos_integer(),
+             template :: {binary(), binary()},
+             counters :: counters:counters_ref() | undefined,
+             next = 1 :: pos_integer(),
+             %% request number => scheduled (open loop) or send time, in µs
+             inflight = #{} :: #{pos_integer() => integer()},
+             errors = 0 :: non_neg_integer(),
+             timeouts = 0 :: non_neg_integer()}).
+
+%% @private
+-spec va_init(pid(), mode(), {inet:ip_address(), inet:port_number()}, binary(),
+              bil:description(), pos_integer()) -> no_return().
+va_init(Parent, Mode, Addr, Pairing, Desc, Index) ->
+    monitor(process, Parent),
+    Conn = join(Mode, Addr, Pairing, agent, Desc),
+    ok = await_bound(Mode, Conn),
+    ok = activate(Conn),
+    Parent ! {self(), ready},
+    va_idle(#va{conn = Conn, parent = Parent, index = Index, template = request_template()}).
+
+%% Between phases: waits for the controller's next command.
+va_idle(V) ->
+    receive
+        {closed, CountersOrKey, W} ->
+            %% A counters reference is only valid on the node that made it.
+            Counters = case CountersOrKey of
+                           {persistent, Key} -> persistent_term:get(Key);
+                           C -> C
+                       end,
+            V1 = lists:foldl(fun(_, Acc) -> send_request(now_us(), Acc) end,
+                             V#va{counters = Counters}, lists:seq(1, W)),
+            va_closed(V1);
+        {open, Plan} ->
+            va_open(Plan, V);
+        stop ->
+            exit(normal);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        Other ->
+            case answer(Other, V) of
+                {_, _, V1} -> va_idle(V1);
+                ignore -> va_idle(V)
+            end
+    end.
+
+%% Closed loop: every answer sends the next request at once.
+va_closed(#va{counters = Counters, index = I} = V) ->
+    receive
+        stop_loop ->
+            drain(V, deadline(?DRAIN_TIMEOUT));
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        Msg ->
+            case answer(Msg, V) of
+                {ok, _Sent, V1} ->
+                    ok = counters:add(Counters, I, 1),
+                    va_closed(send_request(now_us(), V1));
+                {error, _Sent, V1} ->
+                    va_closed(send_request(now_us(), V1));
+                ignore ->
+                    va_closed(V)
+            end
+    end.
+
+%% Waits for the requests still open (until Deadline, or `expired'), then
+%% reports to the controller.
+drain(#va{inflight = F, parent = Parent} = V, Deadline)
+  when map_size(F) =:= 0; Deadline =:= expired ->
+    Parent ! {self(), drained, #{errors => V#va.errors, timeouts => V#va.timeouts,
+                                 unanswered => map_size(F)}},
+    va_idle(V#va{inflight = #{}, errors = 0, timeouts = 0});
+drain(V, Deadline) ->
+    receive
+        Msg ->
+            case answer(Msg, V) of
+                {_, _, V1} -> drain(V1, Deadline);
+                ignore -> drain(V, Deadline)
+            end
+    after wait_ms(Deadline) ->
+            drain(V, expired)
+    end.
+
+%% Open loop: request k is due at a fixed time given by the plan,
+%% whatever happened to the earlier ones; its latency is counted from that
+%% due time, so a slow answer delays no later measurement (no coordinated
+%% omission). Due times fall on whole milliseconds, the resolution of
+%% Erlang timers; the lag between due time and actual send is reported.
+%% Plan: #{start := Ms, interval := Us, phase := Us, until := Ms,
+%%         window := {FromUs, ToUs}}.
+va_open(#{start := StartMs, phase := Phase} = Plan, V) ->
+    va_open(Plan, 0, StartMs * 1000 + Phase, V, [], []).
+
+va_open(#{until := Until} = Plan, K, DueUs, V, Lat, Lag) ->
+    DueMs = DueUs div 1000,
+    case DueMs >= Until of
+        true ->
+            open_drain(Plan, V, Lat, Lag, deadline(?DRAIN_TIMEOUT));
+        false ->
+            TRef = erlang:start_timer(DueMs, self(), due, [{abs, true}]),
+            open_wait(Plan, K, DueUs, TRef, V, Lat, Lag)
+    end.
+
+open_wait(#{window := {From, To}} = Plan, K, DueUs, TRef, V, Lat, Lag) ->
+    receive
+        {timeout, TRef, due} ->
+            %% Every request whose due millisecond has come goes now.
+            {K1, Due1, V1, Lag1} = send_due(Plan, K, DueUs, now_us(), V, Lag),
+            va_open(Plan, K1, Due1, V1, Lat, Lag1);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        Msg ->
+            case answer(Msg, V) of
+                {_, SchedUs, V1} when SchedUs >= From, SchedUs < To ->
+                    open_wait(Plan, K, DueUs, TRef, V1, [now_us() - SchedUs | Lat], Lag);
+                {_, _, V1} ->
+                    open_wait(Plan, K, DueUs, TRef, V1, Lat, Lag);
+                ignore ->
+                    open_wait(Plan, K, DueUs, TRef, V, Lat, Lag)
+            end
+    end.
+
+send_due(#{interval := Interval, window := {From, To}}, K, DueUs, Now, V, Lag) ->
+    send_due(Interval, From, To, K, DueUs, Now, V, Lag).
+
+send_due(Interval, From, To, K, DueUs, Now, V, Lag) when DueUs div 1000 * 1000 =< Now ->
+    Sched = DueUs div 1000 * 1000,
+    Lag1 = case Sched >= From andalso Sched < To of
+               true -> [Now - Sched | Lag];
+               false -> Lag
+           end,
+    send_due(Interval, From, To, K + 1, DueUs + Interval, now_us(),
+             send_request(Sched, V), Lag1);
+send_due(_Interval, _From, _To, K, DueUs, _Now, V, Lag) ->
+    {K, DueUs, V, Lag}.
+
+open_drain(#{window := {From, To}}, #va{inflight = F, parent = Parent} = V, Lat, Lag,
+           Deadline) when map_size(F) =:= 0; Deadline =:= expired ->
+    Lost = length([S || S <- maps:values(F), S >= From, S < To]),
+    Parent ! {self(), samples, #{latencies => Lat, send_lags => Lag, errors => V#va.errors,
+                                 timeouts => V#va.timeouts, unanswered => Lost}},
+    va_idle(V#va{inflight = #{}, errors = 0, timeouts = 0});
+open_drain(#{window := {From, To}} = Plan, V, Lat, Lag, Deadline) ->
+    receive
+        Msg ->
+            case answer(Msg, V) of
+                {_, S, V1} when S >= From, S < To ->
+                    open_drain(Plan, V1, [now_us() - S | Lat], Lag, Deadline);
+                {_, _, V1} ->
+                    open_drain(Plan, V1, Lat, Lag, Deadline);
+                ignore ->
+                    open_drain(Plan, V, Lat, Lag, Deadline)
+            end
+    after wait_ms(Deadline) ->
+            open_drain(Plan, V, Lat, Lag, expired)
+    end.
+
+%% Monotonic time can be negative: a deadline is compared, never tested
+%% against zero.
+deadline(Ms) -> now_us() + Ms * 1000.
+
+wait_ms(Deadline) -> max(0, (Deadline - now_us()) div 1000).
+
+now_us() -> erlang:monotonic_time(microsecond).
+
+%% Sends request number `next', remembering `Sched' (its due or send time).
+send_request(Sched, #va{conn = Conn, next = K, inflight = F, template = T} = V) ->
+    Id = <<"q", (integer_to_binary(K))/binary>>,
+    ok = send_request(Conn, Id, T),
+    V#va{next = K + 1, inflight = F#{K => Sched}}.
+
+send_request({client, C}, Id, _T) ->
+    agent_bridge_client:send(C, #{context => request, id => Id, sender => ?VA_COMPONENT,
+                                  receiver => ?AV_COMPONENT, body => request_body()});
+send_request({direct, Session}, Id, _T) ->
+    evatar:send(Session, #{context => request, id => Id, sender => ?VA_COMPONENT,
+                           receiver => ?AV_COMPONENT, in_reply_to => undefined,
+                           timestamp => os:system_time(millisecond), seq => undefined,
+                           epoch => undefined, body => request_body()});
+send_request({raw, S}, Id, {P1, P2}) ->
+    gen_tcp:send(S, [P1, Id, P2]).
+
+%% Matches an incoming message with the open request it answers:
+%% `{ok | error, Sched, V}' (error for an error signal or EVATAR's Timeout
+%% feedback) or `ignore'.
+answer({agent_bridge, C, {signal, Signal}}, #va{conn = {client, C}} = V) ->
+    answer_signal(Signal, V);
+answer({evatar, _, {signal, Signal}}, #va{conn = {direct, _}} = V) ->
+    answer_signal(Signal, V);
+answer({agent_bridge, C, {closed, Why}}, #va{conn = {client, C}}) ->
+    exit({va_closed, Why});
+answer({tcp, S, Frame}, #va{conn = {raw, S}} = V) ->
+    case binary:match(Frame, <<"<InReplyTo>q">>) of
+        nomatch ->
+            ignore;
+        {Pos, Len} ->
+            From = Pos + Len,
+            {End, _} = binary:match(Frame, <<"<">>, [{scope, {From, byte_size(Frame) - From}}]),
+            N = binary_to_integer(binary:part(Frame, From, End - From)),
+            Kind = case binary:match(Frame, <<"<Context>Feedback</Context>">>) of
+                       nomatch -> error;
+                       _ ->
+                           case binary:match(Frame, <<"<ServiceCategory>EVATAR<">>) of
+                               nomatch -> ok;
+                               _ -> timeout
+                           end
+                   end,
+            settle(N, Kind, V)
+    end;
+answer({tcp_passive, S}, #va{conn = {raw, S}}) ->
+    ok = inet:setopts(S, [{active, 32}]),
+    ignore;
+answer({tcp_closed, S}, #va{conn = {raw, S}}) ->
+    exit(va_closed);
+answer(_, _V) ->
+    ignore.
+
+answer_signal(#{in_reply_to := <<"q", N/binary>>, context := Ctx,
+                body := #{category := Cat}}, V) ->
+    Kind = case {Ctx, Cat} of
+               {feedback, <<"EVATAR">>} -> timeout;
+               {feedback, _} -> ok;
+               _ -> error
+           end,
+    settle(binary_to_integer(N), Kind, V);
+answer_signal(_, _V) ->
+    ignore.
+
+settle(K, Kind, #va{inflight = F} = V) ->
+    case maps:take(K, F) of
+        {Sched, F1} ->
+            V1 = V#va{inflight = F1},
+            case Kind of
+                ok -> {ok, Sched, V1};
+                error -> {error, Sched, V1#va{errors = V#va.errors + 1}};
+                timeout -> {error, Sched, V1#va{timeouts = V#va.timeouts + 1}}
+            end;
+        error ->
+            ignore
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Idle pairings
+%% ---------------------------------------------------------------------------
+
+%% @doc Joins pairing I's VA and Avatar with agent_bridge_client, both
+%% owned by Sink, and returns the two client processes once the VA is
+%% bound. For the idle measurement: nothing is sent afterwards.
+-spec idle_join(pos_integer(), pid(), {inet:ip_address(), inet:port_number()}) ->
+          {pid(), pid()}.
+idle_join(I, Sink, {Ip, Port}) ->
+    Id = <<"idle-", (integer_to_binary(I))/binary>>,
+    {VaDesc, AvDesc} = descriptions(I, <<"idle">>),
+    Connect = fun(Role, #{entity_id := E} = Desc) ->
+                      {ok, C} = agent_bridge_client:connect(
+                                  [{Ip, Port}], #{pairing => Id, role => Role, entity_id => E,
+                                                  credential => cred(Role), owner => Sink}),
+                      ok = agent_bridge_client:describe(C, Desc),
+                      C
+              end,
+    Av = Connect(avatar, AvDesc),
+    Va = Connect(agent, VaDesc),
+    ok = await_idle_bound(Id),
+    {Va, Av}.
+
+%% The clients' owner is the sink, so binding is checked on the pairing.
+await_idle_bound(Id) -> await_idle_bound(Id, 2000).
+
+await_idle_bound(Id, 0) -> error({not_bound, Id});
+await_idle_bound(Id, Tries) ->
+    case evatar:bindings(Id) of
+        {ok, Report} ->
+            case bound(Report) of
+                true -> ok;
+                false -> timer:sleep(5), await_idle_bound(Id, Tries - 1)
+            end;
+        {error, not_found} ->
+            error({no_pairing, Id})
+    end.
+
+%% @doc A process that owns idle clients and drops what they send it.
+-spec sink() -> no_return().
+sink() ->
+    receive
+        stop -> exit(normal);
+        _ -> sink()
+    end.

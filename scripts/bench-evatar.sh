@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Runs the mediator benchmark (bench/evatar_bench.erl; how to read it:
+# bench/README.md). One node, real loopback TCP through agent_bridge.
+# Usage: scripts/bench-evatar.sh [ERLANG_OPTION_LIST]
+#   scripts/bench-evatar.sh                      # the full run (about 5 minutes)
+#   scripts/bench-evatar.sh '[quick]'            # smoke run
+#   scripts/bench-evatar.sh '[{sizes, [1000]}, {modes, [raw]}, no_idle]'
+# Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+REBAR=${REBAR:-rebar3}
+BASE=${REBAR_BASE_DIR:-_build}
+OPTS=${1:-[]}
+
+# 10,000 idle pairings with both ends in this node hold 40,000 sockets.
+# Raise the open-file limit if the hard limit allows; otherwise the
+# benchmark binds as many as fit and says so in its output.
+WANT=100000
+if ! ulimit -n "$WANT" 2>/dev/null; then
+  hard=$(ulimit -Hn)
+  if [ "$hard" != unlimited ] && [ "$hard" -gt "$(ulimit -n)" ]; then
+    ulimit -n "$hard"
+  fi
+  echo "NOTE: cannot raise the open-file limit to $WANT (hard limit: $hard); running with" \
+       "ulimit -n $(ulimit -n). The idle measurement will bind fewer than 10,000 pairings" \
+       "and say how many." >&2
+fi
+
+"$REBAR" as bench compile
+
+# +P and +Q: room for 10,000 pairings (six processes and four sockets
+# each, both ends in this node).
+exec erl +P 2000000 +Q 1000000 -noshell \
+  -pa "$BASE"/bench/lib/*/ebin -pa "$BASE"/bench/extras/bench \
+  -eval "try evatar_bench:main($OPTS) of
+           ok -> halt(0)
+         catch C:R:S ->
+           io:format(standard_error, \"evatar_bench failed: ~p:~p~n~p~n\", [C, R, S]),
+           halt(1)
+         end."
