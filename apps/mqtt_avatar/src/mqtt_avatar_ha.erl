@@ -272,11 +272,13 @@ base_topic(K, V, Base) when is_binary(V) ->
         true ->
             case V of
                 <<"~", Rest/binary>> -> <<Base/binary, Rest/binary>>;
-                _ ->
+                %% An empty topic is left for validation to report, not taken apart.
+                _ when byte_size(V) > 0 ->
                     case binary:last(V) of
                         $~ -> <<(binary:part(V, 0, byte_size(V) - 1))/binary, Base/binary>>;
                         _ -> V
-                    end
+                    end;
+                _ -> V
             end;
         false -> V
     end;

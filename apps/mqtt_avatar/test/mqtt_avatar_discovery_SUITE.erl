@@ -17,7 +17,7 @@ all() ->
     [ha_json_light, tasmota_outlet, sensors_and_events, siren_notify_button, zigbee2mqtt_devices,
      malformed_discovery, config_removed, overrides, generated_bil_validates,
      printed_bil_reads_back, hand_written_checks, public_description_binds,
-     prop_discovery_never_crashes, prop_payload_mapping_never_crashes].
+     empty_topic_with_base, prop_discovery_never_crashes, prop_payload_mapping_never_crashes].
 
 %% ---------------------------------------------------------------------------
 %% Home Assistant
@@ -294,6 +294,15 @@ public_description_binds(_Config) ->
 
 %% @doc Discovery configs built from HA's keys with random values (and
 %% random topics) give an entity, a problem or `ignore', never an exception.
+%% @doc An empty topic next to a `~' base topic is a problem, not a crash
+%% (found by prop_discovery_never_crashes).
+empty_topic_with_base(_Config) ->
+    Payload = iolist_to_binary(mqtt_avatar_json:encode(
+                                 #{<<"stat_t">> => <<>>, <<"~">> => <<"a/b">>,
+                                   <<"availability_topic">> => <<"a/b">>})),
+    {_Desc, Problems} = mqtt_avatar:generate([{<<"homeassistant/light/o/config">>, Payload}], #{}),
+    true = is_list(Problems).
+
 prop_discovery_never_crashes(_Config) ->
     Keys = [<<"name">>, <<"unique_id">>, <<"state_topic">>, <<"command_topic">>, <<"stat_t">>,
             <<"cmd_t">>, <<"~">>, <<"availability_topic">>, <<"availability">>, <<"value_template">>,
