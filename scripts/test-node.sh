@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Starts one EVATAR node for the tests of clients written in other languages
+# (clients/python, clients/java). It listens on 127.0.0.1, on EVATAR_PORT
+# or a free port, creates the pairings named on the command line, prints
+#   EVATAR_PORT=<port>
+# on stdout once it accepts connections, and halts when its stdin closes, so
+# a test fixture that dies takes the node with it.
+#
+# Usage: scripts/test-node.sh PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL...
+#   e.g. scripts/test-node.sh home:va-secret:avatar-secret
+# Honours REBAR_BASE_DIR (default _build); the code must be compiled
+# (`rebar3 compile`).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+BASE=${REBAR_BASE_DIR:-_build}
+PORT=${EVATAR_PORT:-0}
+specs=""
+for arg in "$@"; do
+  IFS=: read -r id agent avatar <<<"$arg"
+  if [ -z "${id:-}" ] || [ -z "${agent:-}" ] || [ -z "${avatar:-}" ]; then
+    echo "test-node.sh: bad pairing '$arg', want PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL" >&2
+    exit 2
+  fi
+  specs="$specs{<<\"$id\">>, <<\"$agent\">>, <<\"$avatar\">>},"
+done
+specs="[${specs%,}]"
+exec erl -noshell -kernel logger_level warning \
+  -pa "$BASE"/default/lib/*/ebin -config config/test.config \
+  -eval "
+    {ok, _} = application:ensure_all_started(evatar),
+    {ok, _} = application:ensure_all_started(agent_bridge),
+    [{ok, _} = evatar:create_pairing(Id, #{agent_credential => A, avatar_credential => V})
+     || {Id, A, V} <- $specs],
+    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127,0,0,1}, port => $PORT}),
+    {ok, {_, P}} = agent_bridge:address(test_node),
+    io:format(\"EVATAR_PORT=~b~n\", [P]),
+    WaitEof = fun Loop() -> case io:get_line('') of eof -> ok; {error, _} -> ok; _ -> Loop() end end,
+    WaitEof(),
+    halt(0)."
