@@ -207,7 +207,10 @@ home_summary(#{emails := Emails, photos := Photos, light_log := Log, played := P
         [] -> io:format("  no e-mail was sent~n");
         _ -> ok
     end,
-    io:format("  lights switched: ~b times (~s)~n",
+    %% The house logs changes only: an "off" sent to a light already off is
+    %% answered (Changed=false) but changes nothing.
+    io:format("  lights changed state: ~b times (~s); commands to a light already in"
+              " that state change nothing~n",
               [length(Log), lists:join(", ", [[reference_agents_narrator:format_time(T), " ", R, " ",
                                                 atom_to_list(St)]
                                                || #{time := T, room := R, state := St} <- Log])]),
