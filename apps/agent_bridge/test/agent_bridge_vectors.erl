@@ -8,7 +8,8 @@
 -module(agent_bridge_vectors).
 
 -export([to_json/1, from_json/1, encode/1, kind/1, root/1, pretty/1, vectors_dir/0,
-         connect/1, send_frame/2, recv_frame/2, recv_frame_skipping/3]).
+         connect/1, send_frame/2, recv_frame/2, recv_frame_skipping/3, error_answer/3,
+         frame/1, body/1]).
 
 %% ---------------------------------------------------------------------------
 %% Erlang term -> JSON
@@ -349,3 +350,87 @@ recv_frame_skipping(S, Timeout, Keep) ->
 
 heartbeat(<<_:32, Doc/binary>>) ->
     bil_control:parse_frame(Doc, #{}) =:= {ok, {control, {ack, #{}}}}.
+
+%% @doc A document's frame, written by the Erlang encoders.
+-spec frame(map() | {signal, bil:signal()} | {control, bil_control:control()}
+            | {description, bil:description()}) -> binary().
+frame(Json) when is_map(Json) ->
+    frame(from_json(Json));
+frame(Term) ->
+    Doc = case Term of
+              {signal, S} -> bil:encode_signal(S);
+              {description, D} -> bil:encode_description(D);
+              {control, C} -> bil_control:encode(C)
+          end,
+    iolist_to_binary(agent_bridge_frame:encode(Doc)).
+
+%% @doc The document inside a frame.
+-spec body(binary()) -> binary().
+body(<<_:32, Doc/binary>>) -> Doc.
+
+%% ---------------------------------------------------------------------------
+%% Error vectors (README.md section 5.6)
+%% ---------------------------------------------------------------------------
+
+%% @doc Runs one error vector against the node listening on Port: the setup
+%% (null, <<"agent_connected">> or <<"avatar_connected">>), a fresh
+%% connection, Bytes sent at once, then the first answer that is not a
+%% Welcome: `{Code, Close}', Code the Refused's Code or the Error signal's
+%% ServiceType, Close whether the server closed the connection after it.
+-spec error_answer(inet:port_number(), null | binary(), binary()) ->
+          {binary(), boolean()}.
+error_answer(Port, Setup, Bytes) ->
+    Holder = setup(Port, Setup),
+    S = connect(Port),
+    ok = send_frame(S, Bytes),
+    Answer = answer(S),
+    ok = gen_tcp:close(S),
+    ok = teardown(Holder),
+    Answer.
+
+answer(S) ->
+    {ok, F} = recv_frame(S, 5000),
+    case bil_control:parse_frame(body(F), #{}) of
+        {ok, {control, {welcome, _}}} ->
+            answer(S);
+        {ok, {control, {refused, #{code := Code}}}} ->
+            {Code, closes(S)};
+        {ok, {signal, #{context := error, body := #{type := Type}}}} ->
+            {Type, not still_open(S)}
+    end.
+
+%% After a Refused the server closes (after at most its linger): true when
+%% the connection ends, false when anything else comes.
+closes(S) ->
+    recv_frame(S, 5000) =:= closed.
+
+%% After an Error signal the connection stays: a Bye is answered by a Bye.
+still_open(S) ->
+    ok = send_frame(S, frame({control, {bye, <<>>}})),
+    case recv_frame(S, 5000) of
+        {ok, F} -> bil_control:parse_frame(body(F), #{}) =:= {ok, {control, {bye, <<>>}}};
+        _ -> false
+    end.
+
+setup(_Port, null) ->
+    none;
+setup(Port, Which) ->
+    {Role, Entity, Cred} = case Which of
+                               <<"agent_connected">> -> {agent, <<"va-1">>, <<"va-secret">>};
+                               <<"avatar_connected">> -> {avatar, <<"7008">>, <<"avatar-secret">>}
+                           end,
+    S = connect(Port),
+    ok = send_frame(S, frame({control, {hello, #{pairing => <<"vectors">>, role => Role,
+                                                  entity_id => Entity, credential => Cred,
+                                                  protocol_version => 1}}})),
+    {ok, F} = recv_frame(S, 5000),
+    {ok, {control, {welcome, _}}} = bil_control:parse_frame(body(F), #{}),
+    S.
+
+teardown(none) ->
+    ok;
+teardown(S) ->
+    ok = send_frame(S, frame({control, {bye, <<>>}})),
+    {ok, _} = recv_frame(S, 5000),
+    closed = recv_frame(S, 5000),
+    gen_tcp:close(S).
