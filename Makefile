@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-failover release tar shell clean
+.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-failover release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -48,6 +48,11 @@ bench-failover: deps
 	@bash scripts/bench-failover.sh $(BENCH_ARGS)
 
 bench: bench-bil bench-evatar
+
+## Regenerates the shared protocol test vectors (test/vectors/README.md).
+## Only after a deliberate protocol change: tests check the committed files.
+vectors: compile
+	escript test/vectors/generate.escript
 
 release: deps
 	$(REBAR) release
