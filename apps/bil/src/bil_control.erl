@@ -211,7 +211,12 @@ root(<<"Refused">>, Children) ->
     maybe_fields(Children, <<"/Refused">>,
                  [{<<"Code">>, text}, {<<"Message">>, any_text}],
                  fun([Code, Message]) -> {refused, #{code => Code, message => Message}} end);
+%% Reason is optional; like every reader here, elements after the known
+%% fields are ignored (docs/protocol.md section 2), so a later protocol may
+%% add some.
 root(<<"Bye">>, []) ->
+    {ok, {bye, <<>>}};
+root(<<"Bye">>, [{{_, Name}, _, _} | _]) when Name =/= <<"Reason">> ->
     {ok, {bye, <<>>}};
 root(<<"Bye">>, Children) ->
     maybe_fields(Children, <<"/Bye">>, [{<<"Reason">>, any_text}],

@@ -77,6 +77,11 @@ trailing_fields_ignored_test() ->
     Doc = <<"<bil:Bye " ?NS "><Reason>r</Reason><Later>x</Later></bil:Bye>">>,
     ?assertEqual({ok, {bye, <<"r">>}}, parse(Doc)).
 
+%% A Bye without a Reason but with a field of a later protocol is still a Bye.
+later_field_without_reason_test() ->
+    Doc = <<"<bil:Bye " ?NS "><Later>x</Later></bil:Bye>">>,
+    ?assertEqual({ok, {bye, <<>>}}, parse(Doc)).
+
 signal() ->
     #{id => <<"va1-1">>, context => request, sender => <<"LightEmulator01">>,
       receiver => <<"HomeLightActuator01">>, in_reply_to => undefined,
