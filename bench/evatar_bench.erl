@@ -44,7 +44,10 @@ main(Options) ->
     ok = io:setopts([{encoding, unicode}]),
     Cfg = config(Options),
     Ctx0 = start(),
-    {Ctx, Cfg1} = case lists:member(split, maps:get(modes, Cfg)) of
+    %% The second node also holds the idle clients' sockets: with both ends
+    %% in one OS process, its file-descriptor limit halves what fits.
+    {Ctx, Cfg1} = case lists:member(split, maps:get(modes, Cfg))
+                      orelse maps:get(idle, Cfg) > 0 of
                       true -> gen_node(Ctx0, Cfg);
                       false -> {Ctx0, Cfg}
                   end,
@@ -554,22 +557,28 @@ gc_all() ->
 %% normally) get a VA and an Avatar joined through agent_bridge_client and
 %% bound, then nothing is sent. Both ends run in this node; each role's
 %% share is the sum of its processes' memory and its sockets' memory.
-idle(Target, #{addr := Addr, conn_sup := ConnSup}) ->
-    {Fit, Limits} = idle_fit(),
+idle(Target, #{addr := Addr, conn_sup := ConnSup} = Ctx) ->
+    %% Clients run in the generator's node when there is one: this node then
+    %% holds two sockets per pairing instead of four.
+    {ClientNode, Where} = case Ctx of
+                              #{gen := #{node := GenNode}} -> {GenNode, "the generator's node"};
+                              _ -> {node(), "this node"}
+                          end,
+    {Fit, Limits} = idle_fit(case ClientNode =:= node() of true -> 4; false -> 2 end),
     K = min(Target, Fit),
     Note = case K < Target of
                true ->
-                   fmt("only ~b of the ~b pairings can be bound with both ends in this node: ~s. "
-                       "All ~b pairings are live; ~b are bound with a VA and an Avatar "
-                       "connected. Raise the limit (e.g. `ulimit -n 100000` as a user allowed "
-                       "to raise the hard limit) for the full figure.",
-                       [K, Target, Limits, Target, K]);
+                   fmt("only ~b of the ~b pairings can be bound with both ends connected (clients"
+                       " in ~s): ~s. All ~b pairings are live; ~b are bound with a VA and an "
+                       "Avatar connected. Raise the limit (e.g. `ulimit -n 100000` as a user "
+                       "allowed to raise the hard limit) for the full figure.",
+                       [K, Target, Where, Limits, Target, K]);
                false ->
                    ""
            end,
     io:format("~n-- idle: ~b pairings live, ~b bound with both ends connected~n", [Target, K]),
     _ = [io:format("   NOTE: ~s~n", [Note]) || Note =/= ""],
-    Sink = proc_lib:spawn(evatar_bench_gen, sink, []),
+    Sink = erpc:call(ClientNode, proc_lib, spawn, [evatar_bench_gen, sink, []]),
     %% Let what the loaded runs left behind (closing sockets, exiting
     %% processes) go before the baseline.
     timer:sleep(1000),
@@ -582,10 +591,12 @@ idle(Target, #{addr := Addr, conn_sup := ConnSup}) ->
     M1 = erlang:memory(total),
     G1 = groups(classify()),
     T0 = erlang:monotonic_time(millisecond),
-    ok = join_idle(K, Sink, Addr),
+    ok = join_idle(K, Sink, Addr, ClientNode),
     JoinMs = erlang:monotonic_time(millisecond) - T0,
     io:format("   ~b pairings bound in ~b ms~n", [K, JoinMs]),
-    timer:sleep(1000),
+    %% Idle means idle: past the connections' and pairings' hibernate_after
+    %% (5 s), as a quiet home is most of the time.
+    timer:sleep(6000),
     M2 = erlang:memory(total),
     G2 = groups(classify()),
     gc_all(),
@@ -593,6 +604,7 @@ idle(Target, #{addr := Addr, conn_sup := ConnSup}) ->
     G3 = groups(classify()),
     Fs = erlang:memory(),
     Result = #{live => Target, bound => K, join_ms => JoinMs, note => list_to_binary(Note),
+               clients_in => list_to_binary(Where),
                fd_limit => max_fds(),
                as_is => idle_figures(M2 - M1, G2, G1, K, Target, (M1 - M0) / Target),
                after_gc => idle_figures(M3 - M1, G3, G1, K, Target, (M1 - M0) / Target),
@@ -627,14 +639,15 @@ idle_figures(JoinDelta, G, GEmpty, K, Target, EmptyNode) ->
       evatar_side_per_bound => Evatar,
       node_total_per_bound => EmptyNode + JoinDelta / K}.
 
-%% How many pairings can be bound with both ends in this node: four
-%% sockets, six processes and two ephemeral ports each.
-idle_fit() ->
+%% How many pairings can be bound: `Sockets' sockets in this node each
+%% (4 with the clients here, 2 with them in the generator's node, which has
+%% the same limits and fewer sockets), six processes and two ephemeral ports.
+idle_fit(Sockets) ->
     Fds = case max_fds() of
               undefined -> 1 bsl 30;
-              Max -> (Max - used_fds() - 64) div 4
+              Max -> (Max - used_fds() - 64) div Sockets
           end,
-    Ports = (erlang:system_info(port_limit) - erlang:system_info(port_count) - 64) div 4,
+    Ports = (erlang:system_info(port_limit) - erlang:system_info(port_count) - 64) div Sockets,
     Procs = (erlang:system_info(process_limit) - erlang:system_info(process_count) - 1000) div 6,
     Ephemeral = case file:read_file("/proc/sys/net/ipv4/ip_local_port_range") of
                     {ok, B} ->
@@ -645,8 +658,8 @@ idle_fit() ->
                     {error, _} -> 1 bsl 30
                 end,
     Fit = lists:min([Fds, Ports, Procs, Ephemeral]),
-    Why = [fmt("the file-descriptor limit (ulimit -n) is ~b and 4 sockets per pairing are needed",
-               [max_fds()]) || Fit =:= Fds]
+    Why = [fmt("the file-descriptor limit (ulimit -n) is ~b and ~b sockets per pairing are "
+               "needed in this node", [max_fds(), Sockets]) || Fit =:= Fds]
         ++ [fmt("the port limit (+Q) is ~b", [erlang:system_info(port_limit)]) || Fit =:= Ports]
         ++ [fmt("the process limit (+P) is ~b", [erlang:system_info(process_limit)])
             || Fit =:= Procs]
@@ -654,11 +667,13 @@ idle_fit() ->
             || Fit =:= Ephemeral],
     {max(0, Fit), lists:flatten(lists:join("; ", Why))}.
 
-join_idle(K, Sink, Addr) ->
+join_idle(K, Sink, Addr, ClientNode) ->
     Self = self(),
+    Evatar = node(),
     Workers = [proc_lib:spawn_link(
+                 ClientNode,
                  fun() ->
-                         _ = [evatar_bench_gen:idle_join(I, Sink, Addr)
+                         _ = [evatar_bench_gen:idle_join(I, Sink, Addr, Evatar)
                               || I <- lists:seq(W, K, ?JOIN_WORKERS)],
                          Self ! {self(), joined}
                  end) || W <- lists:seq(1, min(K, ?JOIN_WORKERS))],
@@ -859,8 +874,8 @@ idle_table(#{live := Live, bound := K} = Idle) ->
     #{as_is := A, after_gc := G} = Idle,
     Row = fun(Label, Key) -> [Label, kib(maps:get(Key, A)), kib(maps:get(Key, G))] end,
     [io_lib:format("~n-- Idle: ~s pairings live, ~s bound with a VA and an Avatar connected (both"
-                   " through agent_bridge_client, in this node), nothing sent~n",
-                   [int(Live), int(K)]),
+                   " through agent_bridge_client, in ~s), nothing sent~n",
+                   [int(Live), int(K), maps:get(clients_in, Idle, <<"this node">>)]),
      [io_lib:format("   NOTE: ~s~n", [maps:get(note, Idle)]) || maps:get(note, Idle) =/= <<>>],
      "   Per bound pairing, KiB. Roles are separated by summing process_info(memory) of each\n"
      "   role's processes and port_info(memory) of the sockets they own; rest = node delta not\n"
@@ -875,7 +890,8 @@ idle_table(#{live := Live, bound := K} = Idle) ->
         Row("server sockets (2, port_info memory)", server_sockets),
         Row("rest of the node (ETS, off-heap binaries)", rest),
         Row("= EVATAR side per idle bound pairing", evatar_side_per_bound),
-        Row("client processes (2, agent_bridge_client)", client_procs),
+        Row("client processes (2, agent_bridge_client; 0 when in the generator's node)",
+            client_procs),
         Row("client sockets (2, port_info memory)", client_sockets),
         Row("= node total per idle bound pairing", node_total_per_bound)])].
 

@@ -6,7 +6,7 @@
 -module(evatar_bench_gen).
 
 -export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
-         descriptions/2, credentials/0, idle_join/3]).
+         descriptions/2, credentials/0, idle_join/4]).
 -export([va_init/6, avatar_init/5, sink/0]).
 
 -export_type([mode/0, pair/0]).
@@ -590,9 +590,10 @@ settle(K, Kind, #va{inflight = F} = V) ->
 %% @doc Joins pairing I's VA and Avatar with agent_bridge_client, both
 %% owned by Sink, and returns the two client processes once the VA is
 %% bound. For the idle measurement: nothing is sent afterwards.
--spec idle_join(pos_integer(), pid(), {inet:ip_address(), inet:port_number()}) ->
+%% `Evatar' is the node whose pairing is checked for the binding.
+-spec idle_join(pos_integer(), pid(), {inet:ip_address(), inet:port_number()}, node()) ->
           {pid(), pid()}.
-idle_join(I, Sink, {Ip, Port}) ->
+idle_join(I, Sink, {Ip, Port}, Evatar) ->
     Id = <<"idle-", (integer_to_binary(I))/binary>>,
     {VaDesc, AvDesc} = descriptions(I, <<"idle">>),
     Connect = fun(Role, #{entity_id := E} = Desc) ->
@@ -604,19 +605,17 @@ idle_join(I, Sink, {Ip, Port}) ->
               end,
     Av = Connect(avatar, AvDesc),
     Va = Connect(agent, VaDesc),
-    ok = await_idle_bound(Id),
+    ok = await_idle_bound(Id, Evatar, 2000),
     {Va, Av}.
 
 %% The clients' owner is the sink, so binding is checked on the pairing.
-await_idle_bound(Id) -> await_idle_bound(Id, 2000).
-
-await_idle_bound(Id, 0) -> error({not_bound, Id});
-await_idle_bound(Id, Tries) ->
-    case evatar:bindings(Id) of
+await_idle_bound(Id, _, 0) -> error({not_bound, Id});
+await_idle_bound(Id, Evatar, Tries) ->
+    case erpc:call(Evatar, evatar, bindings, [Id]) of
         {ok, Report} ->
             case bound(Report) of
                 true -> ok;
-                false -> timer:sleep(5), await_idle_bound(Id, Tries - 1)
+                false -> timer:sleep(5), await_idle_bound(Id, Evatar, Tries - 1)
             end;
         {error, not_found} ->
             error({no_pairing, Id})

@@ -38,7 +38,8 @@
                   active_n => pos_integer(),
                   linger => non_neg_integer(),
                   retry_interval => pos_integer(),
-                  heartbeat => pos_integer()}.
+                  heartbeat => pos_integer(),
+                  hibernate_after => timeout()}.
 
 -type start_arg() :: {tcp, opts()}
                    | {port, {file:filename_all(), [string()], [{string(), string()}]}, opts()}.
@@ -68,11 +69,17 @@ default_opts() ->
       active_n => 32,
       linger => 1000,
       retry_interval => 10,
-      heartbeat => 500}.
+      heartbeat => 500,
+      hibernate_after => 5000}.
 
 -spec start_link(start_arg()) -> {ok, pid()}.
+%% An idle connection compacts its heap (hibernates) after
+%% `hibernate_after' ms without a message: thousands of quiet devices then
+%% cost a few KiB each. Version 2 connections send heartbeats, so they stay
+%% awake.
 start_link(Arg) ->
-    gen_statem:start_link(?MODULE, Arg, []).
+    Opts = maps:merge(default_opts(), element(tuple_size(Arg), Arg)),
+    gen_statem:start_link(?MODULE, Arg, [{hibernate_after, maps:get(hibernate_after, Opts)}]).
 
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.

@@ -39,6 +39,10 @@
 -module(evatar_pairing).
 -behaviour(gen_statem).
 
+%% A pairing idle this long compacts its heap: a home's pairing is quiet
+%% most of the time.
+-define(HIBERNATE_AFTER, 5000).
+
 -include_lib("kernel/include/logger.hrl").
 
 -export([start_link/2, start_link/3]).
@@ -92,7 +96,7 @@ start_link(PairingId, Config) ->
           {ok, pid()} | {error, term()}.
 start_link(PairingId, Config, Mode) ->
     gen_statem:start_link({via, evatar_registry, PairingId}, ?MODULE,
-                          {PairingId, Config, Mode}, []).
+                          {PairingId, Config, Mode}, [{hibernate_after, ?HIBERNATE_AFTER}]).
 
 %% @private
 -spec callback_mode() -> gen_statem:callback_mode_result().
