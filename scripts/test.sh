@@ -78,6 +78,35 @@ check dialyzer rebar3 dialyzer
 step eunit rebar3 eunit --cover; count_cases eunit $?
 step ct rebar3 ct --cover; count_cases ct $?
 
+# The clients in other languages (clients/*, docs/clients.md) run their own
+# suites against real nodes started from the default profile's build. Each
+# script ends with the same `N passed, N failed' line, which is added in.
+external() {
+  local name=$1 script=$2 rc=0 line p f
+  [ -f "$script" ] || return 0
+  step "$name" bash "$script" || rc=$?
+  line=$(sed -E 's/\x1b\[[0-9;]*m//g' "$REPORT/$name.log" | grep -E '^[0-9]+ passed, [0-9]+ failed$' | tail -1)
+  if [ -n "$line" ]; then
+    p=$(echo "$line" | cut -d' ' -f1); f=$(echo "$line" | cut -d' ' -f3)
+  else
+    p=0; f=0
+  fi
+  if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  if [ "$p" -eq 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  passed=$((passed + p)); failed=$((failed + f))
+  note "$name: $p passed, $f failed"
+}
+
+if ls clients/*/run-tests.sh >/dev/null 2>&1; then
+  if step compile rebar3 compile; then
+    for script in clients/*/run-tests.sh; do
+      external "clients-$(basename "$(dirname "$script")")" "$script"
+    done
+  else
+    failed=$((failed + 1)); note "compile for the client suites: FAILED (see $REPORT/compile.log)"
+  fi
+fi
+
 if step cover rebar3 cover --verbose; then
   note "cover: report in _build/test/cover/index.html"
 else
