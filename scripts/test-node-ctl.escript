@@ -28,7 +28,9 @@
 
 main(Args) ->
     {Pairings, Home} = args(Args, [], none),
-    logger:set_primary_config(level, warning),
+    %% EVATAR_LOG_LEVEL=notice shows what port programs write on stderr.
+    Level = list_to_existing_atom(os:getenv("EVATAR_LOG_LEVEL", "warning")),
+    logger:set_primary_config(level, Level),
     application:load(agent_bridge),
     application:set_env(agent_bridge, listeners, []),
     {ok, _} = application:ensure_all_started(evatar),
@@ -98,7 +100,7 @@ command(["stop_port", Name], S) ->
     ok = agent_bridge:stop_port(list_to_binary(Name)),
     ok(S);
 command(["runs", Name], S) ->
-    [Pid] = [P || {N, P, _, _} <- supervisor:which_children(agent_bridge_port_sup),
+    [Pid] = [P || {{agent_bridge_port, N}, P, _, _} <- supervisor:which_children(agent_bridge_port_sup),
                   N =:= list_to_binary(Name)],
     io:format("RUNS ~b~n", [agent_bridge_port:runs(Pid)]),
     ok(S);
