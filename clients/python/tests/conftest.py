@@ -16,7 +16,7 @@ REPO = Path(__file__).resolve().parents[3]
 
 PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
             "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar",
-            "dropped:d-va:d-avatar", "sync:y-va:y-avatar"]
+            "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret"]
 
 
 class Node:
