@@ -4,7 +4,7 @@
 // code at the door, then motion in the hall within two minutes) is photographed,
 // reported by e-mail with the photos, and met with the alarm and a spoken warning.
 //
-// Percepts: reading(Component, Type, Params), feedback(Tag, Service, Params),
+// Percepts: reading(Component, Type, Params, Time), feedback(Tag, Service, Params),
 // failure(Tag, Service, Code), bound(Component). Actions: .request, .minute, .log.
 
 // The schedule: at HH:MM, room, on/off, under which condition.
@@ -21,14 +21,15 @@ light("kitchen", kitchen, "KitchenLightEmulator01", "TurnLightOn", "TurnLightOff
 light("bedroom", bedroom, "LampEmulator01", "SwitchSocketOn", "SwitchSocketOff").
 
 // The complex activity "intruder": motion and a failed authorisation within
-// this many minutes, unless a right code was typed in between.
-window(2).
+// this many ms of the house's clock (2 min), unless a right code was typed in
+// between; once recognised, not again within the window.
+window(120000).
 
 // ---------------------------------------------------------------- the clock
 
 // Each TimeOfDay reading: the rules whose time the clock passed since the
 // previous reading fire (the first reading only sets the clock).
-+reading(_, "TimeOfDay", Ps)
++reading(_, "TimeOfDay", Ps, _)
     : .member(p("TimeOfDay", T), Ps) & .member(p("Dark", D), Ps) <-
     .minute(T, M);
     !tick(M, D).
@@ -55,23 +56,23 @@ window(2).
 
 // ------------------------------------------------------------- the intruder
 
-+reading(_, "PasswordInput", Ps) : .member(p("WrongPassword", "yes"), Ps) & now(M) <-
++reading(_, "PasswordInput", Ps, T) : .member(p("WrongPassword", "yes"), Ps) <-
     .log("activity failed_authorisation in hall");
-    +failed_authorisation(M);
-    !recognise(M).
-+reading(_, "PasswordInput", Ps) : .member(p("WrongPassword", "no"), Ps) & now(M) <-
-    +authorisation(M).
-+reading(_, "MotionDetected", Ps)
-    : .member(p("Motion", "yes"), Ps) & .member(p("Room", Room), Ps) & now(M) <-
-    +motion(M, Room);
-    !recognise(M).
+    +failed_authorisation(T);
+    !recognise(T).
++reading(_, "PasswordInput", Ps, T) : .member(p("WrongPassword", "no"), Ps) <-
+    +authorisation(T).
++reading(_, "MotionDetected", Ps, T)
+    : .member(p("Motion", "yes"), Ps) & .member(p("Room", Room), Ps) <-
+    +motion(T, Room);
+    !recognise(T).
 
-+!recognise(M)
-    : window(W) & failed_authorisation(F) & M - F <= W
-      & motion(T, Room) & M - T <= W
++!recognise(T)
+    : window(W) & failed_authorisation(F) & F <= T & T - F <= W
+      & motion(M, Room) & M <= T & T - M <= W
       & not (authorisation(A) & A >= F)
-      & not (intruder(I) & M - I < W) <-
-    +intruder(M);
+      & not (intruder(I) & T - I < W) <-
+    +intruder(T);
     .log("complex activity intruder in ", Room);
     !respond(Room).
 +!recognise(_).

@@ -7,11 +7,12 @@ Install the interpreter with ``pip install agentspeak`` (or the package's
 
 What the agent perceives (beliefs; each addition is a ``+...`` event):
 
-``reading(Component, Type, Params)``
+``reading(Component, Type, Params, Time)``
     the latest sensor signal (``SensorData`` or ``Event``) to the VA's
     ``Component`` of service type ``Type``; it replaces the previous one of
     the same component and type. ``Params`` is a list of ``p(Name, Value)``
-    (strings).
+    (strings); ``Time`` the signal's ``Timestamp`` (ms since 1970 on the
+    sender's clock, which for a simulated Avatar is simulated time).
 ``feedback(Tag, Service, Params)``
     the Feedback answering the request made with ``Tag``.
 ``progress(Tag, Service, Params)``
@@ -166,8 +167,8 @@ class AgentSpeakVA:
 
     def _on_signal(self, s: Signal) -> None:
         if s.context in ("SensorData", "Event"):
-            self._perceive("reading", (s.receiver, s.type, self._plist(s.body.parameters)),
-                           replace=2)
+            self._perceive("reading", (s.receiver, s.type, self._plist(s.body.parameters),
+                                       s.timestamp), replace=2)
 
     def _on_binding(self, b: Binding) -> None:
         now = {r.consumer_component for r in b.bound if r.consumer_entity == self.client.entity_id}
