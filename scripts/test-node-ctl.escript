@@ -10,7 +10,13 @@
 %% starting with OK or ERROR. It halts when stdin closes.
 %%
 %% Arguments: PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL[:FEEDBACK_TIMEOUT_MS]...
-%%            [--home PAIRING:AVATAR_CREDENTIAL:SPOOL_DIR]
+%%            [--home PAIRING:AVATAR_CREDENTIAL:SPOOL_DIR] [--cluster N]
+%% --cluster N starts instead N EVATAR nodes in a cluster (separate OS
+%% processes, peer nodes on 127.0.0.1), each with a listener; the pairings
+%% are created on node 1 (active) with their standby on node 2, and the
+%% script waits until the standby is synced. It prints
+%%   EVATAR_PORTS=<port1>,<port2>,...
+%% before EVATAR_PORT=<port1>.
 %% --home starts the easy smart home (one gateway with every device) joined
 %% to PAIRING, on a clock at 17:55 on 2024-11-15 running at speed 2, with the
 %% holiday evening's script (an intruder at 21:40), as
@@ -24,9 +30,17 @@
 %%   speed N                      pause the home's clock and set its speed
 %%   run_until HH:MM              run the clock until that local time, pause
 %%   outcome                      the home's state: LIGHT/EMAIL/PHOTO/PLAYED lines
+%%   kill I                       (cluster) kill -9 node I (1-based)
+%%   ha PAIRING                   (cluster) HA I ROLE EPOCH per node holding the pairing
 -mode(compile).
 
-main(Args) ->
+main(Args0) ->
+    case lists:splitwith(fun(A) -> A =/= "--cluster" end, Args0) of
+        {Args, ["--cluster", N | More]} -> cluster(list_to_integer(N), Args ++ More);
+        {Args, []} -> single(Args)
+    end.
+
+single(Args) ->
     {Pairings, Home} = args(Args, [], none),
     %% EVATAR_LOG_LEVEL=notice shows what port programs write on stderr.
     Level = list_to_existing_atom(os:getenv("EVATAR_LOG_LEVEL", "warning")),
@@ -128,11 +142,80 @@ command(["outcome"], #{home := Home} = S) ->
     [io:format("PLAYED ~s\t~b\t~s~n", [K, V, W])
      || #{kind := K, volume := V, what := W} <- Played],
     ok(S);
+command(["kill", I], #{nodes := Nodes} = S) ->
+    {P, _} = lists:nth(list_to_integer(I), Nodes),
+    OsPid = peer:call(P, os, getpid, []),
+    _ = os:cmd("kill -9 " ++ OsPid),
+    ok(S);
+command(["ha", Pairing], #{nodes := Nodes} = S) ->
+    Id = list_to_binary(Pairing),
+    [case catch peer:call(P, evatar, ha_status, [Id], 2000) of
+         {ok, #{role := Role, epoch := Epoch}} -> io:format("HA ~b ~s ~b~n", [I, Role, Epoch]);
+         _ -> ok
+     end || {I, {P, _}} <- lists:zip(lists:seq(1, length(Nodes)), Nodes)],
+    ok(S);
 command(Other, S) ->
     io:format("ERROR unknown command ~0p~n", [Other]),
     S.
 
 ok(S) -> io:format("OK~n"), S.
+
+%% A cluster of N peer nodes, set up as apps/evatar/test/evatar_ha_SUITE does.
+cluster(N, Args) ->
+    {Pairings, none} = args(Args, [], none),
+    Unique = os:getpid(),
+    Names = [list_to_atom("evatar_ctl" ++ integer_to_list(I) ++ "_" ++ Unique)
+             || I <- lists:seq(1, N)],
+    NodeNames = [list_to_atom(atom_to_list(Nm) ++ "@127.0.0.1") || Nm <- Names],
+    Started = [begin
+                   {ok, P, Node} = peer:start(#{name => Nm, host => "127.0.0.1",
+                                                longnames => true, connection => standard_io,
+                                                args => ["-setcookie", "evatar_ctl",
+                                                         "-kernel", "prevent_overlapping_partitions",
+                                                         "false"]}),
+                   {P, Node}
+               end || Nm <- Names],
+    Ports = [setup_peer(P, NodeNames) || {P, _} <- Started],
+    wait(fun() -> lists:all(fun({P, _}) ->
+                                    length(maps:get(up, peer:call(P, evatar, cluster_status, [])))
+                                        =:= N
+                            end, Started)
+         end),
+    [{P1, _}, {_, Node2} | _] = Started,
+    [{ok, _} = peer:call(P1, evatar, create_pairing, [Id, O#{standby_node => Node2}])
+     || {Id, O} <- Pairings],
+    wait(fun() -> lists:all(fun({Id, _}) ->
+                                    case peer:call(P1, evatar, ha_status, [Id]) of
+                                        {ok, #{role := active, synced := true}} -> true;
+                                        _ -> false
+                                    end
+                            end, Pairings)
+         end),
+    io:format("EVATAR_PORTS=~s~n", [lists:join(",", [integer_to_list(Pt) || Pt <- Ports])]),
+    io:format("EVATAR_PORT=~b~n", [hd(Ports)]),
+    loop(#{nodes => Started}).
+
+setup_peer(P, Nodes) ->
+    ok = peer:call(P, application, load, [evatar]),
+    ok = peer:call(P, application, load, [agent_bridge]),
+    ok = peer:call(P, logger, set_primary_config, [level, error]),
+    Env = [{cluster, Nodes}, {heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
+           {resume_timeout, 10000}],
+    _ = [ok = peer:call(P, application, set_env, [evatar, K, V]) || {K, V} <- Env],
+    ok = peer:call(P, application, set_env, [agent_bridge, listeners, []]),
+    {ok, _} = peer:call(P, application, ensure_all_started, [agent_bridge]),
+    {ok, _} = peer:call(P, agent_bridge, start_listener,
+                        [ctl, #{ip => {127, 0, 0, 1}, port => 0}]),
+    {ok, {_, Port}} = peer:call(P, agent_bridge, address, [ctl]),
+    Port.
+
+wait(F) -> wait(F, 200).
+wait(_F, 0) -> error(timeout);
+wait(F, N) ->
+    case F() of
+        true -> ok;
+        false -> timer:sleep(50), wait(F, N - 1)
+    end.
 
 wait_clock(Clock, Target) ->
     case avatar_sim:now(Clock) >= Target of
