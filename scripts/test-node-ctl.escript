@@ -20,7 +20,8 @@
 %% --home starts the easy smart home (one gateway with every device) joined
 %% to PAIRING, on a clock at 17:55 on 2024-11-15 running at speed 2, with the
 %% holiday evening's script (an intruder at 21:40), as
-%% reference_agents_holiday does.
+%% reference_agents_holiday does; --home-start YYYY-MM-DDTHH:MM starts the
+%% clock at another date and time.
 %%
 %% Commands:
 %%   port NAME PROGRAM [ARG...]   start PROGRAM under a port connector
@@ -40,7 +41,14 @@ main(Args0) ->
         {Args, []} -> single(Args)
     end.
 
-single(Args) ->
+single(Args0) ->
+    {Args, Start} = case lists:splitwith(fun(A) -> A =/= "--home-start" end, Args0) of
+                        {Before, ["--home-start", When | After]} ->
+                            {Before ++ After, datetime(When)};
+                        {_, []} ->
+                            {Args0, reference_agents_holiday:start_datetime()}
+                    end,
+    put(home_start, Start),
     {Pairings, Home} = args(Args, [], none),
     %% EVATAR_LOG_LEVEL=notice shows what port programs write on stderr.
     Level = list_to_existing_atom(os:getenv("EVATAR_LOG_LEVEL", "warning")),
@@ -82,7 +90,7 @@ start_home(none, _Port) ->
 start_home({Pairing, Cred, Spool}, Port) ->
     {ok, _} = application:ensure_all_started(avatar_sim),
     {ok, Clock} = avatar_sim:start_clock(#{speed => 2, tick => 500,
-                                           start => reference_agents_holiday:start_datetime()}),
+                                           start => get(home_start)}),
     {ok, Home} = avatar_sim:start_home(#{clock => Clock, seed => 1,
                                          endpoints => [{{127, 0, 0, 1}, Port}],
                                          spool => Spool,
@@ -222,6 +230,12 @@ wait_clock(Clock, Target) ->
         true -> ok;
         false -> timer:sleep(20), wait_clock(Clock, Target)
     end.
+
+datetime(Text) ->
+    [Date, Time] = string:split(Text, "T"),
+    [Y, Mo, D] = [list_to_integer(X) || X <- string:split(Date, "-", all)],
+    [H, Mi] = [list_to_integer(X) || X <- string:split(Time, ":", all)],
+    {{Y, Mo, D}, {H, Mi, 0}}.
 
 hhmm(Ms) ->
     {_, {H, M, _}} = calendar:system_time_to_universal_time(Ms, millisecond),

@@ -10,7 +10,7 @@ import asyncio
 import os
 import sys
 from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import pytest
 
@@ -25,11 +25,13 @@ BODY = str(REPO / "apps" / "bil" / "priv" / "examples" / "smart_home_va.xml")
 SPEED = 1000
 
 
-@pytest.fixture(scope="module")
-def outcome(tmp_path_factory: pytest.TempPathFactory) -> Dict[str, object]:
-    spool = tmp_path_factory.mktemp("holiday-spool")
+def evening(spool: Path, until: str = "22:05", start: Optional[str] = None) -> Dict[str, object]:
+    """Runs the house and the AgentSpeak VA from 17:55 (or ``start``) until
+    ``until`` on the simulated clock; returns the house's outcome lines and
+    the agent's log."""
+    extra = ["--home-start", start] if start else []
     node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
-                                     "--home", "home:home-gateway-secret:%s" % spool])
+                                     "--home", "home:home-gateway-secret:%s" % spool] + extra)
 
     def command(text: str) -> List[str]:
         node.command(text)
@@ -49,7 +51,7 @@ def outcome(tmp_path_factory: pytest.TempPathFactory) -> Dict[str, object]:
         runner = asyncio.ensure_future(va.run(stop))
         await va.client.wait_binding(lambda b: holiday_va.all_bound(va), timeout=30)
         await loop.run_in_executor(None, command, "speed %d" % SPEED)
-        await loop.run_in_executor(None, command, "run_until 22:05")
+        await loop.run_in_executor(None, command, "run_until " + until)
         await asyncio.sleep(0.2)  # the last answers reach the house
         lines = await loop.run_in_executor(None, command, "outcome")
         stop.set()
@@ -62,6 +64,11 @@ def outcome(tmp_path_factory: pytest.TempPathFactory) -> Dict[str, object]:
     finally:
         node.stop()
     return {"lines": lines, "log": log, "spool": str(spool)}
+
+
+@pytest.fixture(scope="module")
+def outcome(tmp_path_factory: pytest.TempPathFactory) -> Dict[str, object]:
+    return evening(tmp_path_factory.mktemp("holiday-spool"))
 
 
 def test_evening_light_schedule(outcome) -> None:  # type: ignore[no-untyped-def]
@@ -114,3 +121,11 @@ def test_the_agent_recognised_the_intruder(outcome) -> None:  # type: ignore[no-
         if i < len(expected) and line.startswith(expected[i]):
             i += 1
     assert i == len(expected), log
+
+
+def test_no_lights_in_daylight(tmp_path: Path) -> None:
+    """In June the sun sets after 21:00 in London: the 18:00 rule, which asks
+    for darkness, does nothing."""
+    june = evening(tmp_path, until="18:10", start="2024-06-15T17:55")
+    assert [l for l in june["lines"] if l.startswith("LIGHT ")] == []
+    assert not [l for l in june["log"] if l.startswith("policy")]

@@ -40,8 +40,9 @@ What it can do (internal actions):
 from __future__ import annotations
 
 import asyncio
+import importlib
 import logging
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Iterator, List, Optional, Set, Tuple
 
 from .bil import Binding, Description, Signal
 from .client import Client, ClosedError, FeedbackTimeout, SignalError
@@ -53,9 +54,9 @@ LOG = logging.getLogger("evatar.bdi")
 
 def _import_agentspeak() -> Any:
     try:
-        import agentspeak
-        import agentspeak.runtime
-        import agentspeak.stdlib
+        agentspeak = importlib.import_module("agentspeak")
+        importlib.import_module("agentspeak.runtime")
+        importlib.import_module("agentspeak.stdlib")
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("evatar.bdi needs python-agentspeak: pip install agentspeak") from e
     return agentspeak
@@ -89,7 +90,7 @@ class AgentSpeakVA:
         self.requests: List[Tuple[str, str, List[Tuple[str, str]]]] = []
         self._tasks: "set[asyncio.Future[None]]" = set()
         self._wake = asyncio.Event()
-        self._bound: set = set()
+        self._bound: Set[str] = set()
         self.env = self.as_.runtime.Environment()
         actions = self._actions()
         with open(source) as f:
@@ -104,19 +105,16 @@ class AgentSpeakVA:
         actions = as_.Actions(as_.stdlib.actions)
         va = self
 
-        @actions.add(".request", 4)
         def _request(agent: Any, term: Any, intention: Any) -> Iterator[None]:
             comp, service, params, tag = (as_.grounded(a, intention.scope) for a in term.args)
             va._spawn(va._request(str(comp), str(service), va._params(params), tag, True))
             yield
 
-        @actions.add(".send", 3)
         def _send(agent: Any, term: Any, intention: Any) -> Iterator[None]:
             comp, service, params = (as_.grounded(a, intention.scope) for a in term.args)
             va._spawn(va._request(str(comp), str(service), va._params(params), None, False))
             yield
 
-        @actions.add(".minute", 2)
         def _minute(agent: Any, term: Any, intention: Any) -> Iterator[None]:
             text = str(as_.grounded(term.args[0], intention.scope))
             try:
@@ -127,7 +125,6 @@ class AgentSpeakVA:
             if as_.unify(term.args[1], minute, intention.scope, intention.stack):
                 yield
 
-        @actions.add(".log")
         def _log(agent: Any, term: Any, intention: Any) -> Iterator[None]:
             text = "".join(_text(v) if isinstance(v, (str, int, float)) else as_.asl_str(v)
                            for v in (as_.grounded(a, intention.scope) for a in term.args))
@@ -135,6 +132,10 @@ class AgentSpeakVA:
             LOG.info("%s", text)
             yield
 
+        actions.add(".request", 4)(_request)
+        actions.add(".send", 3)(_send)
+        actions.add(".minute", 2)(_minute)
+        actions.add(".log")(_log)
         return actions
 
     def _params(self, term: Any) -> List[Tuple[str, str]]:

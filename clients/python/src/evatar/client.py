@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import logging
 import os
 import secrets
 import sys
@@ -49,6 +50,7 @@ Event = Union[Signal, Binding, "Reconnected", "Closed"]
 #: Refusals after which a version 2 client tries the next endpoint (section 11.3).
 RETRY_CODES = frozenset(["NotActive", "Fenced", "StaleEpoch", "PairingDown", "UnknownPairing",
                          "HandshakeTimeout", "SilentLink", "SessionResumed"])
+LOG = logging.getLogger("evatar.client")
 ACK_DELAY = 0.005
 ACK_EVERY = 32
 
@@ -599,9 +601,12 @@ class Client:
                 return
             handler = self._handlers.get(doc.receiver) if doc.context != "Error" else None
             if handler is not None:
-                r = handler(doc)
-                if inspect.isawaitable(r):
-                    asyncio.ensure_future(r)
+                try:
+                    r = handler(doc)
+                    if inspect.isawaitable(r):
+                        asyncio.ensure_future(r).add_done_callback(_log_failure)
+                except Exception:
+                    LOG.exception("the handler of %s failed on signal %s", doc.receiver, doc.id)
                 return
             self._events.put_nowait(doc)
         elif isinstance(doc, Binding):
@@ -713,6 +718,11 @@ class Client:
         if self._link is not None and reason != "normal":
             self._link.abort()
             self._link = None
+
+
+def _log_failure(task: "asyncio.Future[Any]") -> None:
+    if not task.cancelled() and task.exception() is not None:
+        LOG.error("a signal handler failed", exc_info=task.exception())
 
 
 def _describe(e: BaseException) -> str:

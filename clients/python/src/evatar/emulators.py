@@ -103,7 +103,9 @@ Listener = Callable[[Signal], Union[None, Awaitable[None]]]
 
 class SensorEmulator(Emulator):
     """A VA's sensor emulator: provides ``SENSOR``/``type`` (with
-    ``parameters``, e.g. the room) and keeps what the bound sensor sends.
+    ``parameters``, e.g. the room) and keeps what the bound sensor sends
+    (``SensorData`` and ``Event`` signals): each reading goes to
+    ``listener`` if one is given, else to the queue read by :meth:`reading`.
     ``reads`` are the Avatar services it consumes, if any."""
 
     def __init__(self, client: Client, component_id: str, type: str,
@@ -119,7 +121,7 @@ class SensorEmulator(Emulator):
         return await asyncio.wait_for(self.readings.get(), timeout)
 
     async def _on_signal(self, signal: Signal) -> None:
-        if signal.context != "SensorData":
+        if signal.context not in ("SensorData", "Event"):
             return
         self.latest = signal
         if self.listener is not None:
