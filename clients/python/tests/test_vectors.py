@@ -288,3 +288,39 @@ def test_error_answer(v: Dict[str, Any], node) -> None:  # type: ignore[no-untyp
         w.close()
         if other is not None:
             bye(other)
+
+
+@pytest.mark.parametrize("v", of_kind("transcript"))
+def test_transcript_replay(v: Dict[str, Any], node) -> None:  # type: ignore[no-untyped-def]
+    """README section 5.5: the recorded session replayed against a node."""
+    wires: Dict[str, Wire] = {}
+    sessions: Dict[str, str] = {}  # entity id -> the live SessionID
+    try:
+        for n, step in enumerate(v["steps"]):
+            name, expect = step["connection"], step["expect"]
+            if name not in wires:
+                wires[name] = Wire(node.port)
+            w = wires[name]
+            if step["from"] == "client":
+                data = read(step["file"])
+                if expect.get("control") == "Resume":
+                    live = dict(expect, session_id=sessions[expect["entity_id"]])
+                    data = encode_frame(encode(document(live)))
+                w.send(data)
+                continue
+            empty_ack = {"control": "Ack", "accepted": None, "received": None}
+            while True:
+                got = w.doc()
+                assert got is not None, "step %d: %s closed" % (n, name)
+                m = meaning(got)
+                if m == empty_ack and expect != empty_ack:
+                    continue
+                break
+            if isinstance(got, Welcome):
+                sessions[got.entity_id] = got.session_id
+                assert len(got.session_id) == 32
+                m["session_id"] = expect["session_id"]
+            assert m == expect, "step %d on %s" % (n, name)
+    finally:
+        for w in wires.values():
+            w.close()
