@@ -171,7 +171,11 @@ async def _open_stdio() -> Tuple[asyncio.StreamReader, asyncio.StreamWriter]:
 
 
 class Client:
-    """A client of EVATAR. Create it, then ``await client.connect()``.
+    """A client of EVATAR. Create it inside a coroutine (it makes asyncio
+    queues and events, which Python before 3.10 binds to the current loop),
+    then ``await client.connect()``. Events accumulate until read: a program
+    that uses only emulators and handlers may leave Binding events unread,
+    but should read them now and then in a long run.
 
     :param endpoints: ``[("127.0.0.1", 7400), ...]`` (one per node for high
         availability) or ``["stdio"]`` when started by the port connector.
