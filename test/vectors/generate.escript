@@ -129,11 +129,7 @@ doc(Name, Kind, Bytes0, Notes) ->
 
 %% A canonical vector: the document the encoder writes for Term.
 canon(Name, Kind, Term, Notes) ->
-    Bytes = case Term of
-                {signal, S} -> bil:encode_signal(S);
-                {description, D} -> bil:encode_description(D);
-                {control, C} -> bil_control:encode(C)
-            end,
+    Bytes = body(frame_of(Term)),
     V = doc(Name, Kind, Bytes, Notes),
     {obj, [_, _, _, {<<"canonical">>, true} | _]} = V,
     V.
@@ -393,7 +389,10 @@ transcripts(Port) ->
 %% A recorder: connections by name; every frame sent and received is a step.
 -record(rec, {name, port, conns = #{}, steps = [], n = 0, keep_beat = false}).
 
-client(R0, Conn, Frame0) ->
+%% Sends one frame on Conn, then reads one frame on each connection of
+%% Replies, in that order (heartbeats skipped), and checks that nothing else
+%% comes: the recording is the same on every run.
+client(R0, Conn, Frame0, Replies) ->
     Frame = iolist_to_binary(Frame0),
     R1 = case maps:is_key(Conn, R0#rec.conns) of
              true -> R0;
@@ -401,35 +400,26 @@ client(R0, Conn, Frame0) ->
                                               R0#rec.conns)}
          end,
     ok = agent_bridge_vectors:send_frame(maps:get(Conn, R1#rec.conns), Frame),
-    collect(step(R1, <<"client">>, Conn, Frame)).
+    R2 = lists:foldl(fun(From, Acc) ->
+                             S = maps:get(From, Acc#rec.conns),
+                             {ok, F} = agent_bridge_vectors:recv_frame_skipping(S, 5000, false),
+                             step(Acc, <<"server">>, From, F)
+                     end, step(R1, <<"client">>, Conn, Frame), Replies),
+    [{quiet, C, true} = {quiet, C, lists:member(
+                                     agent_bridge_vectors:recv_frame_skipping(S, ?QUIET, false),
+                                     [timeout, closed])}
+     || {C, S} <- maps:to_list(R2#rec.conns)],
+    R2.
 
-client_doc(R, Conn, Term) ->
-    Doc = case Term of
-              {signal, S} -> bil:encode_signal(S);
-              {description, D} -> bil:encode_description(D);
-              {control, C} -> bil_control:encode(C)
-          end,
-    client(R, Conn, agent_bridge_frame:encode(Doc)).
-
-%% Reads what the server sends on every connection until all are quiet.
-collect(R) ->
-    {R1, Got} = maps:fold(fun(Conn, S, {Acc, Any}) ->
-                                  case agent_bridge_vectors:recv_frame_skipping(S, ?QUIET, false) of
-                                      {ok, F} -> {step(Acc, <<"server">>, Conn, F), true};
-                                      _ -> {Acc, Any}
-                                  end
-                          end, {R, false}, R#rec.conns),
-    case Got of
-        true -> collect(R1);
-        false -> R1
-    end.
+client_doc(R, Conn, Term, Replies) ->
+    client(R, Conn, agent_bridge_vectors:frame(Term), Replies).
 
 heartbeat_step(R, Conn) ->
     {ok, F} = agent_bridge_vectors:recv_frame_skipping(maps:get(Conn, R#rec.conns), 5000, true),
     {ok, {control, {ack, #{}}}} = bil_control:parse_frame(body(F), #{}),
     step(R, <<"server">>, Conn, F).
 
-body(<<_:32, Doc/binary>>) -> Doc.
+body(Frame) -> agent_bridge_vectors:body(Frame).
 
 step(#rec{name = Name, n = N, steps = Steps} = R, From, Conn, Frame) ->
     {ok, Term} = bil_control:parse_frame(body(Frame), #{}),
@@ -461,19 +451,19 @@ transcript_v1(Port) ->
                                              type => <<"ACTION FEEDBACK">>,
                                              parameters => Params}}}
              end,
-    R1 = client_doc(R0, "agent", {control, hello(agent, <<"va-1">>, ?AGENT_CRED, 1)}),
-    R2 = client_doc(R1, "avatar", {control, hello(avatar, <<"7008">>, ?AVATAR_CRED, 1)}),
-    R3 = client_doc(R2, "agent", {description, agent_description()}),
-    R4 = client_doc(R3, "avatar", {description, avatar_description()}),
-    R5 = client_doc(R4, "agent", {signal, Req}),
-    R6 = client_doc(R5, "avatar", Answer(<<"av-000001">>, progress, [{<<"Percent">>, <<"50">>}])),
-    R7 = client_doc(R6, "avatar", Answer(<<"av-000002">>, feedback, [{<<"Feedback">>, <<"yes">>}])),
+    R1 = client_doc(R0, "agent", {control, hello(agent, <<"va-1">>, ?AGENT_CRED, 1)}, ["agent"]),
+    R2 = client_doc(R1, "avatar", {control, hello(avatar, <<"7008">>, ?AVATAR_CRED, 1)}, ["avatar"]),
+    R3 = client_doc(R2, "agent", {description, agent_description()}, ["agent"]),
+    R4 = client_doc(R3, "avatar", {description, avatar_description()}, ["agent", "avatar"]),
+    R5 = client_doc(R4, "agent", {signal, Req}, ["avatar"]),
+    R6 = client_doc(R5, "avatar", Answer(<<"av-000001">>, progress, [{<<"Percent">>, <<"50">>}]), ["agent"]),
+    R7 = client_doc(R6, "avatar", Answer(<<"av-000002">>, feedback, [{<<"Feedback">>, <<"yes">>}]), ["agent"]),
     R8 = client_doc(R7, "avatar", {signal, sig(<<"av-000003">>, sensor_data, <<"LightSensor01">>,
                                                <<"LightSensorEmulator01">>, undefined, undefined,
                                                undefined, <<"SENSOR">>, <<"LightLevel">>,
-                                               [{<<"Lux">>, <<"312">>}])}),
-    R9 = client_doc(R8, "agent", {control, {bye, <<>>}}),
-    R10 = client_doc(R9, "avatar", {control, {bye, <<>>}}),
+                                               [{<<"Lux">>, <<"312">>}])}, ["agent"]),
+    R9 = client_doc(R8, "agent", {control, {bye, <<>>}}, ["agent", "avatar"]),
+    R10 = client_doc(R9, "avatar", {control, {bye, <<>>}}, ["avatar"]),
     finish(R10, "docs/protocol.md section 3 recorded from a node: a VA (connection agent) and "
                 "an Avatar (connection avatar) join pairing vectors with version 1, describe "
                 "themselves, get Bindings; a request goes to the Avatar, Progress and Feedback "
@@ -485,12 +475,12 @@ transcript_v1(Port) ->
 transcript_v2(Port) ->
     R0 = #rec{name = "transcript_v2", port = Port},
     Req = (request())#{id := <<"va-1-000001">>},
-    R1 = client_doc(R0, "agent", {control, hello(agent, <<"va-1">>, ?AGENT_CRED, 2)}),
+    R1 = client_doc(R0, "agent", {control, hello(agent, <<"va-1">>, ?AGENT_CRED, 2)}, ["agent"]),
     #rec{steps = [{obj, [_, _, _, {<<"expect">>, #{<<"session_id">> := Session}}]} | _]} = R1,
-    R2 = client_doc(R1, "agent", {description, agent_description()}),
-    R3 = client_doc(R2, "avatar", {control, hello(avatar, <<"7008">>, ?AVATAR_CRED, 1)}),
-    R4 = client_doc(R3, "avatar", {description, avatar_description()}),
-    R5 = client_doc(R4, "agent", {signal, Req}),
+    R2 = client_doc(R1, "agent", {description, agent_description()}, ["agent"]),
+    R3 = client_doc(R2, "avatar", {control, hello(avatar, <<"7008">>, ?AVATAR_CRED, 1)}, ["avatar"]),
+    R4 = client_doc(R3, "avatar", {description, avatar_description()}, ["agent", "avatar"]),
+    R5 = client_doc(R4, "agent", {signal, Req}, ["agent", "avatar"]),
     R6 = client_doc(R5, "avatar",
                     {signal, Req#{id := <<"av-000001">>, context := feedback,
                                   sender := <<"HomeLightActuator01">>,
@@ -498,24 +488,24 @@ transcript_v2(Port) ->
                                   in_reply_to := <<"va-1-000001">>, timestamp := ?TS + 50,
                                   body := #{category => <<"ACTUATOR">>,
                                             type => <<"ACTION FEEDBACK">>,
-                                            parameters => [{<<"Feedback">>, <<"yes">>}]}}}),
+                                            parameters => [{<<"Feedback">>, <<"yes">>}]}}}, ["agent"]),
     Seq1 = last_sequence(R6, "agent"),
-    R7 = client_doc(R6, "agent", {control, {ack, #{received => Seq1}}}),
+    R7 = client_doc(R6, "agent", {control, {ack, #{received => Seq1}}}, []),
     R8 = client_doc(R7, "avatar", {signal, sig(<<"av-000002">>, sensor_data, <<"LightSensor01">>,
                                                <<"LightSensorEmulator01">>, undefined, undefined,
                                                undefined, <<"SENSOR">>, <<"LightLevel">>,
-                                               [{<<"Lux">>, <<"312">>}])}),
+                                               [{<<"Lux">>, <<"312">>}])}, ["agent"]),
     R9 = client_doc(R8, "agent_resumed",
                     {control, {resume, #{pairing => ?PAIRING, role => agent,
                                          entity_id => <<"va-1">>, credential => ?AGENT_CRED,
                                          protocol_version => 2, session_id => Session,
-                                         received => Seq1, epoch => 1}}}),
+                                         received => Seq1, epoch => 1}}}, ["agent", "agent_resumed", "agent_resumed"]),
     Seq2 = last_sequence(R9, "agent_resumed"),
     true = Seq2 > Seq1,
-    R10 = client_doc(R9, "agent_resumed", {control, {ack, #{received => Seq2}}}),
+    R10 = client_doc(R9, "agent_resumed", {control, {ack, #{received => Seq2}}}, []),
     R11 = heartbeat_step(R10, "agent_resumed"),
-    R12 = client_doc(R11, "agent_resumed", {control, {bye, <<>>}}),
-    R13 = client_doc(R12, "avatar", {control, {bye, <<>>}}),
+    R12 = client_doc(R11, "agent_resumed", {control, {bye, <<>>}}, ["agent_resumed", "avatar"]),
+    R13 = client_doc(R12, "avatar", {control, {bye, <<>>}}, ["avatar"]),
     finish(R13, "version 2 recorded from a node: the VA (connection agent) says Hello with "
                 "ProtocolVersion 2 and gets a version 2 Welcome; its request is acknowledged "
                 "(Ack Accepted); it acknowledges the Feedback (Ack Received); a SensorData it "
@@ -533,13 +523,7 @@ last_sequence(#rec{steps = Steps}, Conn) ->
 %% Error answers, recorded from the node
 %% ---------------------------------------------------------------------------
 
-frame_of(Term) ->
-    Doc = case Term of
-              {signal, S} -> bil:encode_signal(S);
-              {description, D} -> bil:encode_description(D);
-              {control, C} -> bil_control:encode(C)
-          end,
-    iolist_to_binary(agent_bridge_frame:encode(Doc)).
+frame_of(Term) -> agent_bridge_vectors:frame(Term).
 
 raw_frame(Doc) -> iolist_to_binary(agent_bridge_frame:encode(Doc)).
 
@@ -609,74 +593,18 @@ errors(Port) ->
                                                       max_frame => 1}}}))/binary>>,
        "a good Hello, then a Welcome (a client does not send one)")].
 
-%% Connects, sends Bytes, and records the first answer that is not the
-%% Welcome: a Refused (its Code) or an Error signal (its ServiceType); then
-%% whether the server closed the connection.
+%% Connects, sends Bytes, and records the answer (agent_bridge_vectors:error_answer/3).
 error_vector(Port, Name, Setup, Bytes, Notes) ->
-    Holder = setup(Port, Setup),
-    S = gen_tcp_raw(Port),
-    ok = agent_bridge_vectors:send_frame(S, Bytes),
-    {Code, Close} = answer(S),
-    gen_tcp:close(S),
-    teardown(Holder),
-    File = write("frames", Name, ".bin", Bytes),
     SetupJson = case Setup of
                     none -> null;
                     _ -> atom_to_binary(Setup)
                 end,
+    {Code, Close} = agent_bridge_vectors:error_answer(Port, SetupJson, Bytes),
+    File = write("frames", Name, ".bin", Bytes),
     io:format("~s: ~s close=~p~n", [Name, Code, Close]),
     {obj, [{<<"name">>, list_to_binary(Name)}, {<<"kind">>, <<"error">>}, {<<"file">>, File},
            {<<"setup">>, SetupJson}, {<<"notes">>, list_to_binary(Notes)},
            {<<"expect">>, {obj, [{<<"error">>, Code}, {<<"close">>, Close}]}}]}.
-
-gen_tcp_raw(Port) -> agent_bridge_vectors:connect(Port).
-
-answer(S) ->
-    case agent_bridge_vectors:recv_frame(S, 5000) of
-        {ok, F} ->
-            case bil_control:parse_frame(body(F), #{}) of
-                {ok, {control, {welcome, _}}} ->
-                    answer(S);
-                {ok, {control, {refused, #{code := Code}}}} ->
-                    {Code, closed(S)};
-                {ok, {signal, #{context := error, body := #{type := Type}}}} ->
-                    {Type, closed(S)}
-            end
-    end.
-
-%% After a Refused the server closes (after its linger); after an Error
-%% signal the connection stays, which a Bye answered by a Bye proves.
-closed(S) ->
-    case agent_bridge_vectors:recv_frame(S, 3000) of
-        closed ->
-            true;
-        timeout ->
-            ok = agent_bridge_vectors:send_frame(S, frame_of({control, {bye, <<>>}})),
-            {ok, F} = agent_bridge_vectors:recv_frame(S, 3000),
-            {ok, {control, {bye, _}}} = bil_control:parse_frame(body(F), #{}),
-            false
-    end.
-
-setup(_Port, none) ->
-    none;
-setup(Port, Which) ->
-    {Role, Entity, Cred} = case Which of
-                               agent_connected -> {agent, <<"va-1">>, ?AGENT_CRED};
-                               avatar_connected -> {avatar, <<"7008">>, ?AVATAR_CRED}
-                           end,
-    S = agent_bridge_vectors:connect(Port),
-    ok = agent_bridge_vectors:send_frame(S, frame_of({control, hello(Role, Entity, Cred, 1)})),
-    {ok, F} = agent_bridge_vectors:recv_frame(S, 5000),
-    {ok, {control, {welcome, _}}} = bil_control:parse_frame(body(F), #{}),
-    S.
-
-teardown(none) ->
-    ok;
-teardown(S) ->
-    ok = agent_bridge_vectors:send_frame(S, frame_of({control, {bye, <<>>}})),
-    {ok, _} = agent_bridge_vectors:recv_frame(S, 5000),
-    closed = agent_bridge_vectors:recv_frame(S, 5000),
-    ok.
 
 %% ---------------------------------------------------------------------------
 %% Invalid input every decoder refuses (checked offline)
