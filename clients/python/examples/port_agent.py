@@ -7,18 +7,26 @@ it speaks the wire protocol on its stdin/stdout.
 When the porch motion sensor reports motion it turns the porch light on,
 then tells the light what the feedback said (a Request carrying
 ``Confirmed``). A reading with ``Exit=yes`` makes it exit (EVATAR starts it
-again).
+again). When EVATAR closes its stdin the session ends and it exits.
+With a fourth argument it writes its process id to that file.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
+from typing import Optional
 
-from evatar import STDIO, ActuatorEmulator, Client, Entry, SensorEmulator, describe
+from evatar import (STDIO, ActuatorEmulator, Client, ClosedError, Entry, SensorEmulator,
+                    describe)
 
 
-async def main(pairing: str, credential: str, entity_id: str) -> None:
+async def main(pairing: str, credential: str, entity_id: str,
+               pid_file: Optional[str] = None) -> None:
+    if pid_file:
+        with open(pid_file, "w") as f:
+            f.write(str(os.getpid()))
     client = Client([STDIO], pairing=pairing, role="agent", entity_id=entity_id,
                     credential=credential)
     light = ActuatorEmulator(client, "PorchLightEmulator",
@@ -28,7 +36,11 @@ async def main(pairing: str, credential: str, entity_id: str) -> None:
     await describe(client, [light, motion], "PORCH VA")
     print("porch VA joined", pairing, flush=True)  # goes to stderr, logged by EVATAR
     while True:
-        reading = await motion.reading()
+        try:
+            reading = await motion.reading()
+        except ClosedError as e:
+            print("porch VA: session ended:", e.reason, flush=True)
+            return
         if reading.param("Exit") == "yes":
             await client.close()
             return
@@ -41,4 +53,4 @@ async def main(pairing: str, credential: str, entity_id: str) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(*sys.argv[1:4]))
+    asyncio.run(main(*sys.argv[1:5]))

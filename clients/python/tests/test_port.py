@@ -5,6 +5,7 @@ over TCP, and is started again by EVATAR when it exits."""
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
 from pathlib import Path
 from typing import Iterator, List
@@ -37,7 +38,15 @@ def command(node: Node, text: str) -> List[str]:
         lines.append(line)
 
 
-def test_port_program_is_an_agent(ctl: Node) -> None:
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_port_program_is_an_agent(ctl: Node, tmp_path: Path) -> None:
     requests: List[Signal] = []
     confirmations: "asyncio.Queue[Signal]" = asyncio.Queue()
 
@@ -50,6 +59,7 @@ def test_port_program_is_an_agent(ctl: Node) -> None:
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
+        pid_file = tmp_path / "porch-va.pid"
         av = Client([("127.0.0.1", ctl.port)], pairing="porch", role="avatar",
                     entity_id="porch-house", credential="porch-avatar")
         lamp = Actuator(av, "PorchLight", [Entry("ACTUATOR", "TurnLightOn", {"Light": "yes"})],
@@ -58,8 +68,8 @@ def test_port_program_is_an_agent(ctl: Node) -> None:
         await av.connect()
         await describe(av, [lamp, sensor])
         await loop.run_in_executor(None, command, ctl,
-                                   "port porch-va %s %s porch porch-va porch-va-1"
-                                   % (sys.executable, PROGRAM))
+                                   "port porch-va %s %s porch porch-va porch-va-1 %s"
+                                   % (sys.executable, PROGRAM, pid_file))
 
         async def bound_to_port_va() -> None:
             await av.wait_binding(lambda b: "porch-va-1" in b.entities and any(
@@ -79,7 +89,15 @@ def test_port_program_is_an_agent(ctl: Node) -> None:
                 await av.wait_binding(lambda b: "porch-va-1" not in b.entities, timeout=10)
         [runs] = await loop.run_in_executor(None, command, ctl, "runs porch-va")
         assert runs == "RUNS 2"
+        pid = int(pid_file.read_text())
+        assert alive(pid)
+        # Stopped by EVATAR: the program sees end-of-file on stdin and exits.
         await loop.run_in_executor(None, command, ctl, "stop_port porch-va")
         await av.wait_binding(lambda b: "porch-va-1" not in b.entities, timeout=10)
+        for _ in range(100):
+            if not alive(pid):
+                break
+            await asyncio.sleep(0.05)
+        assert not alive(pid)
         await av.close()
     run(main())

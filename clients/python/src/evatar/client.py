@@ -216,6 +216,7 @@ class Client:
         self._closed: Optional[Closed] = None
         self._description: Optional[bytes] = None
         self._binding_changed = asyncio.Event()
+        self._closed_event = asyncio.Event()
         # Protocol version 2.
         self.session_id: Optional[str] = None
         self.epoch = 0
@@ -364,6 +365,18 @@ class Client:
         await asyncio.wait_for(wait(), timeout)
         if self._unacked:
             raise ClosedError(self._closed.reason if self._closed else "closed")
+
+    @property
+    def closed(self) -> Optional[Closed]:
+        """Why the session ended, or None while it goes on."""
+        return self._closed
+
+    async def wait_closed(self) -> Closed:
+        """Returns when the session ends (EVATAR closed it, a final
+        refusal, :meth:`close`, or end-of-file on stdin for a port program)."""
+        await self._closed_event.wait()
+        assert self._closed is not None
+        return self._closed
 
     @property
     def unacked(self) -> int:
@@ -711,6 +724,7 @@ class Client:
         if self._closed is not None:
             return
         self._closed = Closed(reason, refused)
+        self._closed_event.set()
         self._cancel_ack_timer()
         self._connected.clear()
         for fut in self._pending.values():

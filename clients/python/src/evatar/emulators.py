@@ -23,7 +23,7 @@ import inspect
 from typing import Any, Awaitable, Callable, List, Optional, Sequence, Union
 
 from .bil import Component, Description, Entry, ParamsLike, Signal
-from .client import Client, EvatarError
+from .client import Client, ClosedError, EvatarError
 
 __all__ = ["Emulator", "ActuatorEmulator", "SensorEmulator", "Actuator", "Sensor", "describe",
            "NotBoundError"]
@@ -117,8 +117,27 @@ class SensorEmulator(Emulator):
         self.listener = listener
 
     async def reading(self, timeout: Optional[float] = None) -> Signal:
-        """The next reading (raises asyncio.TimeoutError)."""
-        return await asyncio.wait_for(self.readings.get(), timeout)
+        """The next reading. Raises asyncio.TimeoutError after ``timeout``
+        seconds, and :class:`~evatar.ClosedError` once the session has ended
+        and every reading has been taken."""
+        get = asyncio.ensure_future(self.readings.get())
+        closed = asyncio.ensure_future(self.client.wait_closed())
+        try:
+            await asyncio.wait([get, closed], timeout=timeout,
+                               return_when=asyncio.FIRST_COMPLETED)
+        except BaseException:
+            get.cancel()
+            raise
+        finally:
+            closed.cancel()
+        if get.done() and not get.cancelled():
+            return get.result()
+        get.cancel()
+        if self.client.closed is not None:
+            if not self.readings.empty():
+                return self.readings.get_nowait()
+            raise ClosedError(self.client.closed.reason if self.client.closed else "closed")
+        raise asyncio.TimeoutError("no reading within %s s" % timeout)
 
     async def _on_signal(self, signal: Signal) -> None:
         if signal.context not in ("SensorData", "Event"):
