@@ -48,16 +48,17 @@ def alive(pid: int) -> bool:
 
 def test_port_program_is_an_agent(ctl: Node, tmp_path: Path) -> None:
     requests: List[Signal] = []
-    confirmations: "asyncio.Queue[Signal]" = asyncio.Queue()
-
-    def turn_on(req: Signal):  # type: ignore[no-untyped-def]
-        if req.param("Confirmed") is not None:
-            confirmations.put_nowait(req)
-        else:
-            requests.append(req)
-        return {"Done": "yes"}
 
     async def main() -> None:
+        confirmations: "asyncio.Queue[Signal]" = asyncio.Queue()
+
+        def turn_on(req: Signal):  # type: ignore[no-untyped-def]
+            if req.param("Confirmed") is not None:
+                confirmations.put_nowait(req)
+            else:
+                requests.append(req)
+            return {"Done": "yes"}
+
         loop = asyncio.get_running_loop()
         pid_file = tmp_path / "porch-va.pid"
         av = Client([("127.0.0.1", ctl.port)], pairing="porch", role="avatar",

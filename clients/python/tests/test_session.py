@@ -106,12 +106,12 @@ def test_request_feedback_round_trip(endpoint) -> None:  # type: ignore[no-untyp
 
 
 def test_feedback_timeouts(endpoint) -> None:  # type: ignore[no-untyped-def]
-    never = asyncio.Event()
-
-    async def silent(req: Signal) -> None:
-        await never.wait()  # never answers
-
     async def main() -> None:
+        never = asyncio.Event()
+
+        async def silent(req: Signal) -> None:
+            await never.wait()  # never answers
+
         va, light = light_va(endpoint, "timeouts", "t-va")
         av, act = light_avatar(endpoint, "timeouts", "t-avatar", silent)
         await va.connect()
