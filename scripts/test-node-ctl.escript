@@ -32,6 +32,7 @@
 %%   run_until HH:MM              run the clock until that local time, pause
 %%   outcome                      the home's state: LIGHT/EMAIL/PHOTO/PLAYED lines
 %%   kill I                       (cluster) kill -9 node I (1-based)
+%%   freeze I                     (cluster) kill -STOP node I: a node that hangs
 %%   ha PAIRING                   (cluster) HA I ROLE EPOCH per node holding the pairing
 -mode(compile).
 
@@ -101,8 +102,8 @@ start_home({Pairing, Cred, Spool}, Port) ->
 
 loop(S) ->
     case io:get_line('') of
-        eof -> halt(0);
-        {error, _} -> halt(0);
+        eof -> stop();
+        {error, _} -> stop();
         Line ->
             Words = string:lexemes(string:trim(Line), " "),
             try command(Words, S) of
@@ -150,10 +151,15 @@ command(["outcome"], #{home := Home} = S) ->
     [io:format("PLAYED ~s\t~b\t~s~n", [K, V, W])
      || #{kind := K, volume := V, what := W} <- Played],
     ok(S);
-command(["kill", I], #{nodes := Nodes} = S) ->
-    {P, _} = lists:nth(list_to_integer(I), Nodes),
-    OsPid = peer:call(P, os, getpid, []),
-    _ = os:cmd("kill -9 " ++ OsPid),
+command(["kill", I], #{ospids := OsPids} = S) ->
+    _ = os:cmd("kill -9 " ++ lists:nth(list_to_integer(I), OsPids)),
+    ok(S);
+command(["freeze", I], #{ospids := OsPids} = S) ->
+    OsPid = lists:nth(list_to_integer(I), OsPids),
+    _ = os:cmd("kill -STOP " ++ OsPid),
+    %% kill -9 when this script ends: a stopped node would not see its
+    %% control connection close.
+    put(frozen, [OsPid | case get(frozen) of undefined -> []; F -> F end]),
     ok(S);
 command(["ha", Pairing], #{nodes := Nodes} = S) ->
     Id = list_to_binary(Pairing),
@@ -167,6 +173,13 @@ command(Other, S) ->
     S.
 
 ok(S) -> io:format("OK~n"), S.
+
+stop() ->
+    _ = [os:cmd("kill -9 " ++ OsPid) || OsPid <- case get(frozen) of
+                                                     undefined -> [];
+                                                     F -> F
+                                                 end],
+    halt(0).
 
 %% A cluster of N peer nodes, set up as apps/evatar/test/evatar_ha_SUITE does.
 cluster(N, Args) ->
@@ -201,7 +214,8 @@ cluster(N, Args) ->
          end),
     io:format("EVATAR_PORTS=~s~n", [lists:join(",", [integer_to_list(Pt) || Pt <- Ports])]),
     io:format("EVATAR_PORT=~b~n", [hd(Ports)]),
-    loop(#{nodes => Started}).
+    OsPids = [peer:call(P, os, getpid, []) || {P, _} <- Started],
+    loop(#{nodes => Started, ospids => OsPids}).
 
 setup_peer(P, Nodes) ->
     ok = peer:call(P, application, load, [evatar]),

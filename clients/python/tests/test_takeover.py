@@ -3,7 +3,7 @@
 its standby on node 2. Node 1 is killed (kill -9) while the Avatar streams
 readings and the VA has requests open; both clients go to the next
 endpoint, resume their sessions on node 2 (epoch 2) and nothing is lost or
-passed twice."""
+passed twice. Node 1 either dies (kill -9) or hangs (SIGSTOP)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from evatar import (Actuator, ActuatorEmulator, Client, Entry, Reconnected, Sens
 from conftest import Node, run
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def cluster() -> Iterator[Node]:
     n = Node("test-node-ctl.sh", ["home:ha-va:ha-avatar:10000", "--cluster", "3"])
     yield n
@@ -44,7 +44,12 @@ async def reconnected(c: Client) -> Reconnected:
             return ev
 
 
-def test_takeover_resume(cluster: Node) -> None:
+@pytest.mark.parametrize("failure", ["kill", "freeze"])
+def test_takeover_resume(cluster: Node, failure: str) -> None:
+    """``kill``: node 1's process dies, the connections drop. ``freeze``:
+    node 1 hangs (SIGSTOP) with the connections open; the clients see it
+    fall silent (three heartbeats) and leave, the cluster sees it miss its
+    heartbeats and node 2 takes over."""
     ports = [int(p) for p in next(l for l in cluster.lines
                                   if l.startswith("EVATAR_PORTS=")).split("=")[1].split(",")]
     endpoints = [("127.0.0.1", p) for p in ports]
@@ -83,11 +88,13 @@ def test_takeover_resume(cluster: Node) -> None:
         # Node 1 dies with requests open and readings on their way.
         requests = [asyncio.ensure_future(light.act("TurnLightOn", {"N": str(i)}, timeout=60))
                     for i in range(5)]
-        await loop.run_in_executor(None, command, cluster, "kill 1")
+        await loop.run_in_executor(None, command, cluster, "%s 1" % failure)
         for i in range(20, 60):
             await sensor.emit({"N": str(i)})
         ev = await reconnected(va)
         assert ev.resumed and ev.session_id == session and ev.epoch == 2
+        if failure == "freeze":
+            assert ev.reason == "server_silent"
         assert va.endpoint == endpoints[1]
         assert (await reconnected(av)).resumed
         fbs = await asyncio.gather(*requests)
@@ -102,6 +109,8 @@ def test_takeover_resume(cluster: Node) -> None:
         assert set(answered) == {str(i) for i in range(5)}
         await va.await_acks(10)
         await av.await_acks(10)
+        if failure == "freeze":
+            await loop.run_in_executor(None, command, cluster, "kill 1")
         ha = await loop.run_in_executor(None, command, cluster, "ha home")
         assert "HA 2 active 2" in ha
         await va.close()

@@ -125,6 +125,7 @@ class _Link:
         self.reader = reader
         self.writer = writer
         self.max_in = MAX_FRAME
+        self.silent = False
 
     async def read(self) -> bytes:
         head = await self.reader.readexactly(4)
@@ -566,6 +567,8 @@ class Client:
             if watchdog:
                 watchdog.cancel()
         link.abort()
+        if link.silent:
+            reason = "server_silent"
         if self._link is link:
             self._link = None
         if self._closed is not None:
@@ -593,6 +596,7 @@ class Client:
         while True:
             await asyncio.sleep(hb)
             if time.monotonic() - self._last_rx > 3 * hb:
+                link.silent = True
                 link.abort()
                 return
 
