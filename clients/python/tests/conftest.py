@@ -25,7 +25,8 @@ class Node:
     def __init__(self, script: str, args: List[str]) -> None:
         self.proc = subprocess.Popen([str(REPO / "scripts" / script)] + args,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=sys.stderr, cwd=str(REPO), text=True, bufsize=1)
+                                     stderr=sys.stderr, cwd=str(REPO), text=True, bufsize=1,
+                                     errors="replace")
         self.port: Optional[int] = None
         self.lines: List[str] = []
         assert self.proc.stdout is not None
