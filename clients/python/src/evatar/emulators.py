@@ -1,0 +1,216 @@
+"""Sensor and actuator emulators (paper, section 2.2) and their Avatar-side
+counterparts.
+
+In a VA, an **actuator emulator** is the object the agent's virtual actuator
+talks to: it consumes the Avatar's actuator service (it sends the requests)
+and provides the ``ACTION FEEDBACK`` service the device answers through. A
+**sensor emulator** provides the ``SENSOR`` service a physical sensor feeds
+and passes the readings to the agent.
+
+In an Avatar, an :class:`Actuator` provides actuator services and answers
+requests with Feedback; a :class:`Sensor` consumes a VA's sensor service and
+sends it ``SensorData``.
+
+Each object knows its own BIL component (:meth:`Emulator.component`), so a
+body is described with :func:`describe`. Receivers are found in the latest
+Binding report, so a program never names the other side's components.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+from typing import Any, Awaitable, Callable, List, Optional, Sequence, Union
+
+from .bil import Component, Description, Entry, ParamsLike, Signal
+from .client import Client, ClosedError, EvatarError
+
+__all__ = ["Emulator", "ActuatorEmulator", "SensorEmulator", "Actuator", "Sensor", "describe",
+           "NotBoundError"]
+
+
+class NotBoundError(EvatarError):
+    """The component has no provider bound for that service (yet)."""
+
+
+class Emulator:
+    """A component of this entity's body bound to a client."""
+
+    def __init__(self, client: Client, component_id: str, services: Sequence[Entry],
+                 consumes: Sequence[Entry] = ()) -> None:
+        self.client = client
+        self.id = component_id
+        self.services = list(services)
+        self.consumes = list(consumes)
+        client.on(component_id, self._on_signal)
+
+    def component(self) -> Component:
+        return Component(self.id, list(self.services), list(self.consumes))
+
+    def provider_of(self, type: str, category: Optional[str] = None) -> str:
+        """The component bound to provide what this one consumes as ``type``."""
+        b = self.client.binding
+        if b is not None:
+            for row in b.bound:
+                if (row.consumer_entity == self.client.entity_id and row.consumer_component == self.id
+                        and row.type == type and (category is None or row.category == category)):
+                    return row.provider_component
+        raise NotBoundError("%s has no provider for %s" % (self.id, type))
+
+    def is_bound(self, type: str) -> bool:
+        try:
+            self.provider_of(type)
+            return True
+        except NotBoundError:
+            return False
+
+    async def _on_signal(self, signal: Signal) -> None:
+        pass
+
+
+class ActuatorEmulator(Emulator):
+    """A VA's actuator emulator. ``actions`` are the Avatar services it
+    consumes (e.g. ``Entry("ACTUATOR", "TurnLightOn", {"Light": "yes",
+    "Room": "kitchen"})``); ``feedback`` the parameters of the ``ACTION
+    FEEDBACK`` service it provides (give it one telling it apart, such as
+    the room, when there are several)."""
+
+    def __init__(self, client: Client, component_id: str, actions: Sequence[Entry],
+                 feedback: ParamsLike = None) -> None:
+        params = feedback if feedback is not None else {"Feedback": "yes"}
+        super().__init__(client, component_id,
+                         [Entry("ACTUATOR", "ACTION FEEDBACK", params)], actions)
+        self.progress: "asyncio.Queue[Signal]" = asyncio.Queue()
+
+    async def act(self, type: str, parameters: ParamsLike = None,
+                  timeout: float = 10.0) -> Signal:
+        """Requests the action ``type`` of the bound Avatar actuator and
+        returns its feedback (see :meth:`Client.request`)."""
+        entry = next((e for e in self.consumes if e.type == type), None)
+        if entry is None:
+            raise ValueError("%s does not consume %s" % (self.id, type))
+        return await self.client.request(sender=self.id, receiver=self.provider_of(type),
+                                         category=entry.category, type=type,
+                                         parameters=parameters, timeout=timeout)
+
+    async def _on_signal(self, signal: Signal) -> None:
+        if signal.context == "Progress":
+            self.progress.put_nowait(signal)
+
+
+Listener = Callable[[Signal], Union[None, Awaitable[None]]]
+
+
+class SensorEmulator(Emulator):
+    """A VA's sensor emulator: provides ``SENSOR``/``type`` (with
+    ``parameters``, e.g. the room) and keeps what the bound sensor sends
+    (``SensorData`` and ``Event`` signals): each reading goes to
+    ``listener`` if one is given, else to the queue read by :meth:`reading`.
+    ``reads`` are the Avatar services it consumes, if any."""
+
+    def __init__(self, client: Client, component_id: str, type: str,
+                 parameters: ParamsLike = None,
+                 reads: Sequence[Entry] = (), listener: Optional[Listener] = None) -> None:
+        super().__init__(client, component_id, [Entry("SENSOR", type, parameters or [])], reads)
+        self.readings: "asyncio.Queue[Signal]" = asyncio.Queue()
+        self.latest: Optional[Signal] = None
+        self.listener = listener
+
+    async def reading(self, timeout: Optional[float] = None) -> Signal:
+        """The next reading. Raises asyncio.TimeoutError after ``timeout``
+        seconds, and :class:`~evatar.ClosedError` once the session has ended
+        and every reading has been taken."""
+        get = asyncio.ensure_future(self.readings.get())
+        closed = asyncio.ensure_future(self.client.wait_closed())
+        try:
+            await asyncio.wait([get, closed], timeout=timeout,
+                               return_when=asyncio.FIRST_COMPLETED)
+        except BaseException:
+            get.cancel()
+            raise
+        finally:
+            closed.cancel()
+        if get.done() and not get.cancelled():
+            return get.result()
+        get.cancel()
+        if self.client.closed is not None:
+            if not self.readings.empty():
+                return self.readings.get_nowait()
+            raise ClosedError(self.client.closed.reason if self.client.closed else "closed")
+        raise asyncio.TimeoutError("no reading within %s s" % timeout)
+
+    async def _on_signal(self, signal: Signal) -> None:
+        if signal.context not in ("SensorData", "Event"):
+            return
+        self.latest = signal
+        if self.listener is not None:
+            r = self.listener(signal)
+            if inspect.isawaitable(r):
+                await r
+        else:
+            self.readings.put_nowait(signal)
+
+
+Action = Callable[[Signal], Union[ParamsLike, Awaitable[ParamsLike]]]
+
+
+class Actuator(Emulator):
+    """An Avatar actuator: provides ``services`` and answers each request
+    with Feedback carrying what ``action(request)`` returns (parameters). If
+    ``action`` raises, the Feedback carries ``Done=no`` and ``Message``."""
+
+    def __init__(self, client: Client, component_id: str, services: Sequence[Entry],
+                 action: Action, feedback: ParamsLike = None) -> None:
+        super().__init__(client, component_id, services,
+                         [Entry("ACTUATOR", "ACTION FEEDBACK",
+                                feedback if feedback is not None else {"Feedback": "yes"})])
+        self.action = action
+        self.handled = 0
+
+    async def _on_signal(self, signal: Signal) -> None:
+        if signal.context not in ("RequestAwaitingFeedback", "Request"):
+            return
+        try:
+            r: Any = self.action(signal)
+            if inspect.isawaitable(r):
+                r = await r
+            params = r if r is not None else {"Done": "yes"}
+        except Exception as e:  # reported to the requester, not raised here
+            params = {"Done": "no", "Message": str(e)}
+        self.handled += 1
+        if signal.context == "RequestAwaitingFeedback":
+            await self.client.reply(signal, parameters=params)
+
+
+class Sensor(Emulator):
+    """An Avatar sensor: consumes the VA's ``SENSOR``/``type`` service
+    (``parameters`` say which, e.g. the room) and sends it readings."""
+
+    def __init__(self, client: Client, component_id: str, type: str,
+                 parameters: ParamsLike = None,
+                 services: Sequence[Entry] = ()) -> None:
+        provided = list(services) or [Entry("SENSOR", "Read" + type, {"Value": "yes"})]
+        super().__init__(client, component_id, provided,
+                         [Entry("SENSOR", type, parameters or [])])
+        self.type = type
+
+    async def emit(self, parameters: ParamsLike = None) -> Signal:
+        """Sends one reading to the bound sensor emulator."""
+        return await self.client.send(sender=self.id, receiver=self.provider_of(self.type, "SENSOR"),
+                                      context="SensorData", category="SENSOR", type=self.type,
+                                      parameters=parameters)
+
+
+async def describe(client: Client, emulators: Sequence[Emulator], api_name: str = "",
+                   context: str = "") -> Description:
+    """Describes the client's body made of ``emulators`` and sends it."""
+    d = Description(entity_id=client.entity_id,
+                    entity_type="Agent" if client.role == "agent" else "Avatar",
+                    components=[e.component() for e in emulators],
+                    api_name=api_name, context=context)
+    await client.describe(d)
+    return d
+
+
+def components(emulators: List[Emulator]) -> List[Component]:
+    return [e.component() for e in emulators]

@@ -1,0 +1,77 @@
+"""Fixtures: a real EVATAR node started by scripts/test-node.sh from the
+compiled umbrella (honours REBAR_BASE_DIR), on a free port of 127.0.0.1."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Iterator, List, Optional
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[3]
+
+PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
+            "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar",
+            "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret"]
+
+
+class Node:
+    """An EVATAR node in an OS process; stops when its stdin closes."""
+
+    def __init__(self, script: str, args: List[str]) -> None:
+        self.proc = subprocess.Popen([str(REPO / "scripts" / script)] + args,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=sys.stderr, cwd=str(REPO), text=True, bufsize=1,
+                                     errors="replace")
+        self.port: Optional[int] = None
+        self.lines: List[str] = []
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.strip()
+            self.lines.append(line)
+            if line.startswith("EVATAR_PORT="):
+                self.port = int(line.split("=", 1)[1])
+                break
+        if self.port is None:
+            self.stop()
+            raise RuntimeError("the node did not start: %s" % self.lines)
+
+    def readline(self) -> str:
+        assert self.proc.stdout is not None
+        return self.proc.stdout.readline()
+
+    def command(self, text: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(text + "\n")
+        self.proc.stdin.flush()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                assert self.proc.stdin is not None
+                self.proc.stdin.close()
+                self.proc.wait(10)
+            except (subprocess.TimeoutExpired, BrokenPipeError):
+                self.proc.kill()
+                self.proc.wait()
+
+
+@pytest.fixture(scope="session")
+def node() -> Iterator[Node]:
+    n = Node("test-node.sh", PAIRINGS)
+    yield n
+    n.stop()
+
+
+@pytest.fixture
+def endpoint(node: Node) -> tuple:
+    return ("127.0.0.1", node.port)
+
+
+def run(coro):  # type: ignore[no-untyped-def]
+    """Runs a coroutine to completion on a new event loop."""
+    return asyncio.run(coro)
