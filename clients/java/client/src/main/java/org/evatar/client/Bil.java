@@ -65,7 +65,7 @@ public final class Bil {
                     .onUnmappableCharacter(CodingErrorAction.REPORT)
                     .decode(ByteBuffer.wrap(bytes));
         } catch (CharacterCodingException e) {
-            throw new ProtocolException("Malformed", "not UTF-8");
+            throw ProtocolException.malformed("bad_encoding", "not UTF-8");
         }
         Document doc;
         try {
@@ -79,25 +79,43 @@ public final class Bil {
             });
             doc = b.parse(new ByteArrayInputStream(bytes));
         } catch (SAXParseException e) {
-            throw new ProtocolException("Malformed",
+            throw ProtocolException.malformed(classify(e.getMessage()),
                     "line " + e.getLineNumber() + ": " + e.getMessage());
         } catch (Exception e) {
-            throw new ProtocolException("Malformed", String.valueOf(e.getMessage()));
+            throw ProtocolException.malformed("malformed", String.valueOf(e.getMessage()));
         }
         if (doc.getDoctype() != null) {
-            throw new ProtocolException("Malformed", "DOCTYPE not allowed");
+            throw ProtocolException.malformed("doctype_refused", "DOCTYPE not allowed");
         }
         Element root = doc.getDocumentElement();
         checkDepth(root, 1);
         if (!NS.equals(root.getNamespaceURI())) {
-            throw new ProtocolException("Malformed", "root element not in namespace " + NS);
+            throw ProtocolException.malformed("wrong_namespace", "root element not in namespace " + NS);
         }
         return root;
     }
 
+    /** The JDK parser's messages, told apart as well as its wording allows. */
+    private static String classify(String m) {
+        String s = m == null ? "" : m;
+        if (s.contains("DOCTYPE")) {
+            return "doctype_refused";
+        }
+        if (s.contains("entity") && s.contains("referenced")) {
+            return "entity_refused";
+        }
+        if (s.contains("Invalid byte") || s.contains("invalid XML character") || s.contains("UTF-8")) {
+            return "bad_encoding";
+        }
+        if (s.contains("must start and end within the same entity") || s.contains("Premature end of file")) {
+            return "truncated";
+        }
+        return "malformed";
+    }
+
     private static void checkDepth(Element e, int depth) throws ProtocolException {
         if (depth > MAX_DEPTH) {
-            throw new ProtocolException("Malformed", "elements nested deeper than " + MAX_DEPTH);
+            throw ProtocolException.malformed("too_deep", "elements nested deeper than " + MAX_DEPTH);
         }
         for (Element c : children(e)) {
             checkDepth(c, depth + 1);
@@ -131,10 +149,10 @@ public final class Bil {
         for (Node n = e.getFirstChild(); n != null; n = n.getNextSibling()) {
             switch (n.getNodeType()) {
                 case Node.TEXT_NODE, Node.CDATA_SECTION_NODE -> sb.append(n.getNodeValue());
-                case Node.ELEMENT_NODE -> throw new ProtocolException(
-                        "Malformed", "element " + e.getLocalName() + " must hold text only");
-                case Node.ENTITY_REFERENCE_NODE -> throw new ProtocolException(
-                        "Malformed", "unknown entity in " + e.getLocalName());
+                case Node.ELEMENT_NODE -> throw ProtocolException.malformed(
+                        "bad_value", "element " + e.getLocalName() + " must hold text only");
+                case Node.ENTITY_REFERENCE_NODE -> throw ProtocolException.malformed(
+                        "entity_refused", "unknown entity in " + e.getLocalName());
                 default -> { }
             }
         }
@@ -150,6 +168,7 @@ public final class Bil {
                 case '&' -> sb.append("&amp;");
                 case '<' -> sb.append("&lt;");
                 case '>' -> sb.append("&gt;");
+                case '\r' -> sb.append("&#13;");
                 default -> sb.append(c);
             }
         }
@@ -163,15 +182,25 @@ public final class Bil {
 
     /** A number field: 1 to 20 decimal digits. */
     static long number(Element e) throws ProtocolException {
-        String t = text(e).strip();
+        String t = text(e);
         if (t.isEmpty() || t.length() > 20 || !t.chars().allMatch(c -> c >= '0' && c <= '9')) {
-            throw new ProtocolException("Malformed", e.getLocalName() + " is not a number: " + t);
+            throw ProtocolException.malformed("bad_value", e.getLocalName() + " is not a number: " + t);
         }
         try {
             return Long.parseLong(t);
         } catch (NumberFormatException ex) {
-            throw new ProtocolException("Malformed", e.getLocalName() + " is too large: " + t);
+            throw ProtocolException.malformed("bad_value", e.getLocalName() + " is over 2^63-1: " + t);
         }
+    }
+
+    /** Refuses an element where field {@code name} should be (or nothing). */
+    static ProtocolException missing(String where, String name, Element found) {
+        if (found != null && name.equals(found.getLocalName()) && found.getNamespaceURI() != null) {
+            return ProtocolException.malformed("wrong_namespace", where + ": field " + name
+                    + " must be in no namespace, not " + found.getNamespaceURI());
+        }
+        return ProtocolException.malformed("missing_element", where + ": " + name + " missing"
+                + (found == null ? "" : " (found " + found.getLocalName() + ")"));
     }
 
     /** True for a legal XML element name as BIL uses them (parameter names). */

@@ -99,7 +99,7 @@ public sealed interface Control {
         @Override
         public String encode() {
             StringBuilder sb = open("Bye");
-            if (reason != null) {
+            if (reason != null && !reason.isEmpty()) {
                 Bil.field(sb, "Reason", reason);
             }
             return close(sb, "Bye");
@@ -108,7 +108,7 @@ public sealed interface Control {
 
     /** One bound relationship of a Binding report. */
     record Bound(String consumerEntity, String consumerComponent, String providerEntity,
-                 String providerComponent, String category, String type, String score, long candidates) {}
+                 String providerComponent, String category, String type, long score, long candidates) {}
 
     /** One consumer service left without a provider. */
     record Unbound(String consumerEntity, String consumerComponent, String category, String type,
@@ -144,7 +144,7 @@ public sealed interface Control {
                 Bil.field(sb, "ProviderComponent", b.providerComponent);
                 Bil.field(sb, "ServiceCategory", b.category);
                 Bil.field(sb, "ServiceType", b.type);
-                Bil.field(sb, "Score", b.score);
+                Bil.field(sb, "Score", Long.toString(b.score));
                 Bil.field(sb, "Candidates", Long.toString(b.candidates));
                 sb.append("</Bound>");
             }
@@ -195,15 +195,15 @@ public sealed interface Control {
     static Control decode(Element root) throws ProtocolException {
         Fields f = new Fields(root);
         return switch (root.getLocalName()) {
-            case "Hello" -> new Hello(f.text("Pairing"), f.text("Role"), f.text("EntityID"),
-                    f.text("Credential"), (int) f.number("ProtocolVersion"));
+            case "Hello" -> new Hello(f.text("Pairing"), role(f.text("Role")), f.text("EntityID"),
+                    f.text("Credential"), version(f.number("ProtocolVersion")));
             case "Resume" -> resume(f);
             case "Welcome" -> welcome(f);
             case "Ack" -> new Ack(f.optText("Accepted"), f.optNumber("Received"));
             case "Refused" -> new Refused(f.text("Code"), f.text("Message"));
             case "Bye" -> new Bye(f.optText("Reason"));
             case "Binding" -> binding(root);
-            default -> throw new ProtocolException("Malformed", "unknown document " + root.getLocalName());
+            default -> throw ProtocolException.malformed("wrong_root", "unknown document " + root.getLocalName());
         };
     }
 
@@ -219,7 +219,7 @@ public sealed interface Control {
         long epoch = f.number("Epoch");
         String resumed = f.text("Resumed");
         if (!resumed.equals("true") && !resumed.equals("false")) {
-            throw new ProtocolException("Malformed", "Resumed must be true or false: " + resumed);
+            throw ProtocolException.malformed("bad_value", "Resumed must be true or false: " + resumed);
         }
         String last = f.text("LastAccepted");
         return new Welcome(pairing, entity, session, join, max, epoch, resumed.equals("true"),
@@ -229,12 +229,12 @@ public sealed interface Control {
     private static Binding binding(Element root) throws ProtocolException {
         List<Element> cs = Bil.children(root);
         if (cs.isEmpty() || !Bil.isField(cs.get(0), "Entities")) {
-            throw new ProtocolException("Malformed", "Binding: Entities missing");
+            throw Bil.missing("Binding", "Entities", cs.isEmpty() ? null : cs.get(0));
         }
         List<String> ids = new ArrayList<>();
         for (Element e : Bil.children(cs.get(0))) {
             if (!Bil.isField(e, "EntityID")) {
-                throw new ProtocolException("Malformed", "Binding/Entities: unexpected " + e.getLocalName());
+                throw Bil.missing("Binding/Entities", "EntityID", e);
             }
             ids.add(Bil.text(e));
         }
@@ -245,7 +245,7 @@ public sealed interface Control {
             if (Bil.isField(row, "Bound") && unbound.isEmpty()) {
                 bound.add(new Bound(f.text("ConsumerEntity"), f.text("ConsumerComponent"),
                         f.text("ProviderEntity"), f.text("ProviderComponent"), f.text("ServiceCategory"),
-                        f.text("ServiceType"), f.text("Score"), f.number("Candidates")));
+                        f.text("ServiceType"), f.number("Score"), f.number("Candidates")));
             } else if (Bil.isField(row, "Unbound")) {
                 unbound.add(new Unbound(f.text("ConsumerEntity"), f.text("ConsumerComponent"),
                         f.text("ServiceCategory"), f.text("ServiceType"), f.text("Reason")));
@@ -256,9 +256,23 @@ public sealed interface Control {
         return new Binding(ids, bound, unbound);
     }
 
+    private static String role(String r) throws ProtocolException {
+        if (!r.equals("agent") && !r.equals("avatar")) {
+            throw ProtocolException.malformed("bad_value", "Role must be agent or avatar: " + r);
+        }
+        return r;
+    }
+
+    private static int version(long v) throws ProtocolException {
+        if (v > Integer.MAX_VALUE) {
+            throw new ProtocolException("BadHandshake", "bad_value", "ProtocolVersion " + v);
+        }
+        return (int) v;
+    }
+
     private static Resume resume(Fields f) throws ProtocolException {
         String pairing = f.text("Pairing");
-        String role = f.text("Role");
+        String role = role(f.text("Role"));
         String entity = f.text("EntityID");
         String credential = f.text("Credential");
         if (f.number("ProtocolVersion") != 2) {
@@ -285,8 +299,7 @@ public sealed interface Control {
 
         String text(String name) throws ProtocolException {
             if (!at(name)) {
-                throw new ProtocolException("Malformed", where + ": field " + name + " missing"
-                        + (next < elements.size() ? " (found " + elements.get(next).getLocalName() + ")" : ""));
+                throw Bil.missing(where, name, next < elements.size() ? elements.get(next) : null);
             }
             return Bil.text(elements.get(next++));
         }

@@ -72,28 +72,42 @@ public record Description(String entityId, String apiName, String entityType, St
         return components.stream().filter(c -> c.id().equals(id)).findFirst();
     }
 
+    /** The description as EVATAR writes them: two spaces per level, one element a line. */
     public String encode() {
         StringBuilder sb = new StringBuilder(1024);
-        sb.append("<?xml version=\"1.0\" encoding=\"UTF-8\"?>");
-        sb.append("<bil:description xmlns:bil=\"").append(Bil.NS).append("\"><bil:context>");
-        Bil.field(sb, "EntityID", entityId);
-        Bil.field(sb, "APIName", apiName);
-        Bil.field(sb, "EntityType", entityType);
-        Bil.field(sb, "Context", context);
-        sb.append("</bil:context><bil:types>");
-        for (Component c : components) {
-            sb.append("<bil:Component>");
-            Bil.field(sb, "ComponentID", c.id());
-            for (Service s : c.services()) {
-                entry(sb, "Service", s);
+        sb.append("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
+        sb.append("<bil:description xmlns:bil=\"").append(Bil.NS).append("\">\n");
+        sb.append("  <bil:context>\n");
+        line(sb, 4, "EntityID", entityId);
+        line(sb, 4, "APIName", apiName);
+        line(sb, 4, "EntityType", entityType);
+        line(sb, 4, "Context", context);
+        sb.append("  </bil:context>\n");
+        if (components.isEmpty()) {
+            sb.append("  <bil:types/>\n");
+        } else {
+            sb.append("  <bil:types>\n");
+            for (Component c : components) {
+                sb.append("    <bil:Component>\n");
+                line(sb, 6, "ComponentID", c.id());
+                for (Service s : c.services()) {
+                    entry(sb, "Service", s);
+                }
+                for (Service s : c.consumes()) {
+                    entry(sb, "Consumes", s);
+                }
+                sb.append("    </bil:Component>\n");
             }
-            for (Service s : c.consumes()) {
-                entry(sb, "Consumes", s);
-            }
-            sb.append("</bil:Component>");
+            sb.append("  </bil:types>\n");
         }
-        sb.append("</bil:types></bil:description>");
+        sb.append("</bil:description>\n");
         return sb.toString();
+    }
+
+    private static void line(StringBuilder sb, int indent, String name, String text) {
+        sb.append(" ".repeat(indent));
+        Bil.field(sb, name, text);
+        sb.append('\n');
     }
 
     public byte[] toBytes() {
@@ -101,24 +115,26 @@ public record Description(String entityId, String apiName, String entityType, St
     }
 
     private static void entry(StringBuilder sb, String tag, Service s) {
-        sb.append('<').append(tag).append('>');
-        Bil.field(sb, "ServiceCategory", s.category());
-        Bil.field(sb, "ServiceType", s.type());
-        if (!s.parameters().isEmpty()) {
-            sb.append("<ServiceParameters>");
+        sb.append("      <").append(tag).append(">\n");
+        line(sb, 8, "ServiceCategory", s.category());
+        line(sb, 8, "ServiceType", s.type());
+        if (s.parameters().isEmpty()) {
+            sb.append("        <ServiceParameters/>\n");
+        } else {
+            sb.append("        <ServiceParameters>\n");
             for (Param p : s.parameters()) {
-                Bil.field(sb, p.name(), p.value());
+                line(sb, 10, p.name(), p.value());
             }
-            sb.append("</ServiceParameters>");
+            sb.append("        </ServiceParameters>\n");
         }
-        sb.append("</").append(tag).append('>');
+        sb.append("      </").append(tag).append(">\n");
     }
 
     /** Parses a description document (for example one of apps/bil/priv/examples). */
     public static Description parse(byte[] xml) throws ProtocolException {
         Element root = Bil.parse(xml);
         if (!Bil.isBil(root, "description")) {
-            throw new ProtocolException("Malformed", "not a bil:description: " + root.getLocalName());
+            throw ProtocolException.malformed("wrong_root", "not a bil:description: " + root.getLocalName());
         }
         return decode(root);
     }
@@ -131,24 +147,24 @@ public record Description(String entityId, String apiName, String entityType, St
     static Description decode(Element root) throws ProtocolException {
         List<Element> parts = Bil.children(root);
         if (parts.size() != 2 || !Bil.isBil(parts.get(0), "context") || !Bil.isBil(parts.get(1), "types")) {
-            throw new ProtocolException("Malformed", "description must hold bil:context then bil:types");
+            throw ProtocolException.malformed("missing_element", "description must hold bil:context then bil:types");
         }
         Control.Fields f = new Control.Fields(parts.get(0));
-        String id = f.text("EntityID").strip();
+        String id = f.text("EntityID");
         String api = f.text("APIName");
-        String type = f.text("EntityType").strip();
+        String type = f.text("EntityType");
         String ctx = f.text("Context");
         List<Component> comps = new ArrayList<>();
         for (Element c : Bil.children(parts.get(1))) {
             if (!Bil.isBil(c, "Component")) {
-                throw new ProtocolException("Malformed", "bil:types holds " + c.getLocalName());
+                throw ProtocolException.malformed("wrong_root", "bil:types holds " + c.getLocalName());
             }
             Iterator<Element> it = Bil.children(c).iterator();
             Element e = it.hasNext() ? it.next() : null;
             if (e == null || !Bil.isField(e, "ComponentID")) {
-                throw new ProtocolException("Malformed", "Component: ComponentID missing");
+                throw Bil.missing("Component", "ComponentID", e);
             }
-            String cid = Bil.text(e).strip();
+            String cid = Bil.text(e);
             List<Service> services = new ArrayList<>();
             List<Service> consumes = new ArrayList<>();
             while (it.hasNext()) {
@@ -158,31 +174,38 @@ public record Description(String entityId, String apiName, String entityType, St
                 } else if (Bil.isField(e, "Consumes")) {
                     consumes.add(service(e));
                 } else {
-                    throw new ProtocolException("Malformed", "Component " + cid + ": unexpected " + e.getLocalName());
+                    throw ProtocolException.malformed("malformed", "Component " + cid + ": unexpected " + e.getLocalName());
                 }
             }
             try {
                 comps.add(new Component(cid, services, consumes));
             } catch (IllegalArgumentException ex) {
-                throw new ProtocolException("Malformed", ex.getMessage());
+                throw ProtocolException.malformed("bad_value", ex.getMessage());
             }
         }
         try {
             return new Description(id, api, type, ctx, comps);
         } catch (IllegalArgumentException ex) {
-            throw new ProtocolException("Malformed", ex.getMessage());
+            throw ProtocolException.malformed("bad_value", ex.getMessage());
         }
     }
 
     private static Service service(Element e) throws ProtocolException {
         Control.Fields f = new Control.Fields(e);
-        String cat = f.text("ServiceCategory").strip();
-        String type = f.text("ServiceType").strip();
+        String cat = f.text("ServiceCategory");
+        String type = f.text("ServiceType");
         List<Param> ps = new ArrayList<>();
         List<Element> rest = Bil.children(e);
         if (rest.size() > 2 && Bil.isField(rest.get(2), "ServiceParameters")) {
+            java.util.Set<String> seen = new java.util.HashSet<>();
             for (Element p : Bil.children(rest.get(2))) {
-                ps.add(new Param(p.getLocalName(), Bil.text(p).strip()));
+                if (p.getNamespaceURI() != null) {
+                    throw ProtocolException.malformed("wrong_namespace", "parameter in a namespace: " + p.getLocalName());
+                }
+                if (!seen.add(p.getLocalName())) {
+                    throw ProtocolException.malformed("duplicate_element", "parameter " + p.getLocalName() + " twice");
+                }
+                ps.add(new Param(p.getLocalName(), Bil.text(p)));
             }
         }
         return new Service(cat, type, ps);

@@ -21,6 +21,6 @@ public final class Documents {
         if (Control.isControl(name)) {
             return Control.decode(root);
         }
-        throw new ProtocolException("Malformed", "unknown document bil:" + name);
+        throw ProtocolException.malformed("wrong_root", "unknown document bil:" + name);
     }
 }

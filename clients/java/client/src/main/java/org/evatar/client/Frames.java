@@ -51,7 +51,7 @@ public final class Frames {
         }
         long n = ((len[0] & 0xffL) << 24) | ((len[1] & 0xffL) << 16) | ((len[2] & 0xffL) << 8) | (len[3] & 0xffL);
         if (n == 0) {
-            throw new ProtocolException("Malformed", "frame of length 0");
+            throw ProtocolException.malformed("empty_frame", "frame of length 0");
         }
         if (n > max) {
             throw new ProtocolException("FrameTooLarge", "frame of " + n + " bytes, limit " + max);
@@ -71,7 +71,7 @@ public final class Frames {
             throw new EOFException("no frame");
         }
         if (in.available() > 0) {
-            throw new ProtocolException("Malformed", in.available() + " bytes after the frame");
+            throw ProtocolException.malformed("malformed", in.available() + " bytes after the frame");
         }
         return doc;
     }

@@ -23,6 +23,10 @@ public record Signal(String id, String context, String sender, String receiver,
     public static final String EVENT = "Event";
     public static final String ERROR = "Error";
 
+    /** The contexts on the wire (docs/bil.md section 3). */
+    public static final java.util.Set<String> CONTEXTS = java.util.Set.of(REQUEST, REQUEST_NO_FEEDBACK,
+            FEEDBACK, PROGRESS, SENSOR_DATA, EVENT, ERROR);
+
     public Signal {
         require(id, "SignalID");
         require(context, "Context");
@@ -84,7 +88,9 @@ public record Signal(String id, String context, String sender, String receiver,
         sb.append("</bil:Header><bil:Body>");
         Bil.field(sb, "ServiceCategory", category);
         Bil.field(sb, "ServiceType", type);
-        if (!parameters.isEmpty()) {
+        if (parameters.isEmpty()) {
+            sb.append("<ServiceParameters/>");
+        } else {
             sb.append("<ServiceParameters>");
             for (Param p : parameters) {
                 Bil.field(sb, p.name(), p.value());
@@ -102,17 +108,21 @@ public record Signal(String id, String context, String sender, String receiver,
     /** Decodes a parsed {@code bil:Envelope}. */
     public static Signal decode(Element root) throws ProtocolException {
         if (!Bil.isBil(root, "Envelope")) {
-            throw new ProtocolException("Malformed", "not an Envelope: " + root.getLocalName());
+            throw ProtocolException.malformed("wrong_root", "not an Envelope: " + root.getLocalName());
         }
         List<Element> parts = Bil.children(root);
         if (parts.size() != 2 || !Bil.isBil(parts.get(0), "Header") || !Bil.isBil(parts.get(1), "Body")) {
-            throw new ProtocolException("Malformed", "Envelope must hold bil:Header then bil:Body");
+            throw ProtocolException.malformed(parts.stream().anyMatch(x -> x.getNamespaceURI() == null)
+                    ? "wrong_namespace" : "missing_element", "Envelope must hold bil:Header then bil:Body");
         }
         Builder b = builder();
         Iterator<Element> h = Bil.children(parts.get(0)).iterator();
         Element e = next(h);
         b.id = expect(e, "SignalID");
         b.context = expect(next(h), "Context");
+        if (!CONTEXTS.contains(b.context)) {
+            throw ProtocolException.malformed("bad_value", "unknown Context " + b.context);
+        }
         b.sender = expect(next(h), "Sender");
         b.receiver = expect(next(h), "Receiver");
         e = next(h);
@@ -121,7 +131,7 @@ public record Signal(String id, String context, String sender, String receiver,
             e = next(h);
         }
         if (e == null || !Bil.isField(e, "Timestamp")) {
-            throw new ProtocolException("Malformed", "Header: Timestamp missing");
+            throw Bil.missing("Header", "Timestamp", e);
         }
         b.timestamp = Bil.number(e);
         e = next(h);
@@ -134,28 +144,32 @@ public record Signal(String id, String context, String sender, String receiver,
             e = next(h);
         }
         if (e != null) {
-            throw new ProtocolException("Malformed", "Header: unexpected element " + e.getLocalName());
+            throw ProtocolException.malformed("malformed", "Header: unexpected element " + e.getLocalName());
         }
         Iterator<Element> body = Bil.children(parts.get(1)).iterator();
         b.category = expect(next(body), "ServiceCategory");
         b.type = expect(next(body), "ServiceType");
         e = next(body);
         if (e != null && Bil.isField(e, "ServiceParameters")) {
+            java.util.Set<String> seen = new java.util.HashSet<>();
             for (Element p : Bil.children(e)) {
                 if (p.getNamespaceURI() != null) {
-                    throw new ProtocolException("Malformed", "parameter in a namespace: " + p.getLocalName());
+                    throw ProtocolException.malformed("wrong_namespace", "parameter in a namespace: " + p.getLocalName());
+                }
+                if (!seen.add(p.getLocalName())) {
+                    throw ProtocolException.malformed("duplicate_element", "parameter " + p.getLocalName() + " twice");
                 }
                 b.parameters.add(new Param(p.getLocalName(), Bil.text(p)));
             }
             e = next(body);
         }
         if (e != null) {
-            throw new ProtocolException("Malformed", "Body: unexpected element " + e.getLocalName());
+            throw ProtocolException.malformed("malformed", "Body: unexpected element " + e.getLocalName());
         }
         try {
             return b.build();
         } catch (IllegalArgumentException ex) {
-            throw new ProtocolException("Malformed", ex.getMessage());
+            throw ProtocolException.malformed("bad_value", ex.getMessage());
         }
     }
 
@@ -165,16 +179,15 @@ public record Signal(String id, String context, String sender, String receiver,
 
     private static String expect(Element e, String name) throws ProtocolException {
         if (e == null || !Bil.isField(e, name)) {
-            throw new ProtocolException("Malformed", name + " missing"
-                    + (e == null ? "" : " (found " + e.getLocalName() + ")"));
+            throw Bil.missing("Envelope", name, e);
         }
         return nonEmpty(e);
     }
 
     private static String nonEmpty(Element e) throws ProtocolException {
-        String t = Bil.text(e).strip();
+        String t = Bil.text(e);
         if (t.isEmpty()) {
-            throw new ProtocolException("Malformed", e.getLocalName() + " is empty");
+            throw ProtocolException.malformed("bad_value", e.getLocalName() + " is empty");
         }
         return t;
     }
