@@ -32,8 +32,11 @@ cd "$here"
 rm -rf client/target/surefire-reports jason/target/surefire-reports
 offline=()
 if [ -n "${MAVEN_OFFLINE:-}" ]; then offline=(-o); fi
-mvn -q -B "${offline[@]}" -Devatar.repo="$repo" test
-rc=$?
+# Maven writes colour resets even with -q -B: strip them, so that the summary
+# below is a line of its own.
+mvn -q -B -Dstyle.color=never "${offline[@]}" -Devatar.repo="$repo" test 2>&1 |
+  awk '{ gsub(/\033\[[0-9;]*m/, ""); if (length($0)) print; fflush() }'
+rc=${PIPESTATUS[0]}
 
 read -r passed failed < <(
   cat client/target/surefire-reports/TEST-*.xml jason/target/surefire-reports/TEST-*.xml 2>/dev/null |
