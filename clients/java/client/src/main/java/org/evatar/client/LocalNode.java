@@ -25,6 +25,7 @@ public final class LocalNode implements AutoCloseable {
     private final Writer stdin;
     private final BlockingQueue<String> lines = new LinkedBlockingQueue<>();
     private final int port;
+    private List<Integer> ports = List.of();
 
     private LocalNode(Process p, int port, Writer stdin) {
         this.process = p;
@@ -51,7 +52,7 @@ public final class LocalNode implements AutoCloseable {
         return start(repo().resolve("scripts/test-node.sh"), pairings);
     }
 
-    /** Starts a node script and waits (at most 60 s) for its EVATAR_PORT line. */
+    /** Starts a node script and waits (at most 120 s) for its EVATAR_PORT line. */
     public static LocalNode start(Path script, String... pairings) throws IOException {
         List<String> cmd = new ArrayList<>();
         cmd.add(script.toString());
@@ -74,15 +75,22 @@ public final class LocalNode implements AutoCloseable {
         }, "evatar-node-stdout");
         t.setDaemon(true);
         t.start();
+        List<Integer> ports = new ArrayList<>();
         try {
             while (true) {
-                String l = q.poll(60, TimeUnit.SECONDS);
+                String l = q.poll(120, TimeUnit.SECONDS);
                 if (l == null || l.equals("\u0000EOF")) {
                     p.destroy();
                     throw new IOException("the node did not print EVATAR_PORT (" + script + ")");
                 }
+                if (l.startsWith("EVATAR_PORTS=")) {
+                    for (String x : l.substring(13).strip().split(",")) {
+                        ports.add(Integer.parseInt(x));
+                    }
+                }
                 if (l.startsWith("EVATAR_PORT=")) {
                     LocalNode n = new LocalNode(p, Integer.parseInt(l.substring(12).strip()), w);
+                    n.ports = ports.isEmpty() ? List.of(n.port) : List.copyOf(ports);
                     q.drainTo(n.lines);
                     Thread fwd = new Thread(() -> {
                         try {
@@ -118,31 +126,29 @@ public final class LocalNode implements AutoCloseable {
     }
 
     /**
-     * Sends one command line (fields joined by TAB) to a node script that takes
-     * commands (clients/java/scripts/java-node.sh) and returns its answer lines:
-     * one line, or up to {@code END} when {@code multi}.
+     * Sends one command to a node script that takes commands on stdin
+     * (scripts/test-node-ctl.sh: {@code port}, {@code entities}, {@code outcome}...)
+     * and returns the lines it answered before its final {@code OK}; an
+     * {@code ERROR} line is an IOException. Words are joined by spaces.
      */
-    public List<String> command(boolean multi, long timeoutSeconds, String... fields) throws IOException {
+    public List<String> command(long timeoutSeconds, String... words) throws IOException {
         synchronized (this) {
-            stdin.write(String.join("\t", fields) + "\n");
+            stdin.write(String.join(" ", words) + "\n");
             stdin.flush();
             List<String> out = new ArrayList<>();
             try {
                 while (true) {
                     String l = lines.poll(timeoutSeconds, TimeUnit.SECONDS);
                     if (l == null) {
-                        throw new IOException("no answer to " + fields[0] + " within " + timeoutSeconds + " s");
+                        throw new IOException("no answer to " + words[0] + " within " + timeoutSeconds + " s");
                     }
                     if (l.equals("\u0000EOF")) {
                         throw new IOException("the node stopped");
                     }
-                    if (!multi) {
-                        if (l.startsWith("ERROR")) {
-                            throw new IOException("node: " + l);
-                        }
-                        return List.of(l);
+                    if (l.startsWith("ERROR")) {
+                        throw new IOException("node: " + l);
                     }
-                    if (l.equals("END")) {
+                    if (l.equals("OK")) {
                         return out;
                     }
                     out.add(l);
@@ -152,6 +158,16 @@ public final class LocalNode implements AutoCloseable {
                 throw new IOException("interrupted", e);
             }
         }
+    }
+
+    /** The script with commands and a simulated home, a cluster...: scripts/test-node-ctl.sh. */
+    public static LocalNode startCtl(String... args) throws IOException {
+        return start(repo().resolve("scripts/test-node-ctl.sh"), args);
+    }
+
+    /** With {@code --cluster N}: every node's port, in order. */
+    public List<Integer> ports() {
+        return ports;
     }
 
     /** Closes the node's stdin (it halts) and waits for it; kills it after 10 s. */

@@ -18,8 +18,7 @@ class PortConnectorTest {
     @Test
     @Timeout(value = 90, unit = TimeUnit.SECONDS)
     void javaAgentRunAsAPortTalksToATcpAvatar() throws Exception {
-        try (LocalNode node = LocalNode.start(LocalNode.repo().resolve("clients/java/scripts/java-node.sh"),
-                "ported:va-ported:av-ported")) {
+        try (LocalNode node = LocalNode.startCtl("ported:va-ported:av-ported")) {
             NodeClientTest.Lamp lamp = new NodeClientTest.Lamp();
             EvatarClient.Options o = new EvatarClient.Options().pairing("ported").role("avatar")
                     .entityId("lamp-p").credential("av-ported").endpoint(node.host(), node.port());
@@ -27,7 +26,7 @@ class PortConnectorTest {
                 lamp.client = av;
                 av.describe(Bodies.avatar("lamp-p"));
                 String java = ProcessHandle.current().info().command().orElse("java");
-                node.command(false, 30, "port", "java-va", java, "-cp", System.getProperty("java.class.path"),
+                node.command(30, "port", "java-va", java, "-cp", System.getProperty("java.class.path"),
                         PortAgentMain.class.getName(), "ported", "va-ported", "va-port");
                 // The program joins through the node, binds, and asks the lamp twice.
                 av.awaitBinding(b -> b.entities().contains("va-port"), Duration.ofSeconds(30));
@@ -41,11 +40,11 @@ class PortConnectorTest {
                 assertEquals("on", second.param("After").orElseThrow());
                 assertEquals("stdio", second.param("Transport").orElseThrow());
                 assertEquals("LightEmulator01", second.sender());
-                assertTrue(node.command(false, 10, "entities", "ported").get(0).contains("va-port"));
+                assertTrue(node.command(10, "entities", "ported").get(0).contains("va-port"));
                 // Stopping the port closes the program's stdin: it leaves the pairing.
-                node.command(false, 30, "stop_port", "java-va");
+                node.command(30, "stop_port", "java-va");
                 av.awaitBinding(b -> !b.entities().contains("va-port"), Duration.ofSeconds(30));
-                assertEquals("OK lamp-p", node.command(false, 10, "entities", "ported").get(0));
+                assertEquals("ENTITIES lamp-p", node.command(10, "entities", "ported").get(0));
             }
         }
     }

@@ -33,9 +33,8 @@ class HolidayAgentTest {
     @Test
     @Timeout(value = 150, unit = TimeUnit.SECONDS)
     void holidayEveningAsTheErlangSuiteAsserts(@TempDir Path spool) throws Exception {
-        try (LocalNode node = LocalNode.start(REPO.resolve("clients/java/scripts/java-node.sh"),
-                "home:home-va-secret:home-gateway-secret")) {
-            node.command(false, 30, "home", "home", "home-gateway-secret", spool.toString());
+        try (LocalNode node = LocalNode.startCtl("home:home-va-secret:home-gateway-secret",
+                "--home", "home:home-gateway-secret:" + spool)) {
             Description body = Description.parse(Files.readAllBytes(
                     REPO.resolve("apps/bil/priv/examples/smart_home_va.xml"))).withEntityId("house-va");
             EvatarClient.Options o = new EvatarClient.Options().pairing("home").role("agent")
@@ -48,8 +47,9 @@ class HolidayAgentTest {
                         "LampEmulator01", "CameraEmulator01", "NotifierEmulator01", "SpeakerEmulator01")
                         .stream().allMatch(c -> !b.consumedBy("house-va", c).isEmpty()), Duration.ofSeconds(30));
                 assertTrue(agent.believes("embodied") || waitBelief(agent, "embodied"));
-                node.command(false, 120, "run", "22:05");
-                List<String> state = node.command(true, 30, "state");
+                node.command(10, "speed", "1000");
+                node.command(120, "run_until", "22:05");
+                List<String> state = node.command(30, "outcome");
                 check(state, spool, agent);
             } finally {
                 agent.stop();
@@ -72,14 +72,17 @@ class HolidayAgentTest {
         List<String[]> emails = new ArrayList<>();
         List<String[]> photos = new ArrayList<>();
         List<String[]> played = new ArrayList<>();
+        // scripts/test-node-ctl.escript's outcome: "LIGHT HH:MM room state", then
+        // "EMAIL file<TAB>subject<TAB>ids", "PHOTO id<TAB>room<TAB>file", "PLAYED kind<TAB>volume<TAB>what".
         for (String l : state) {
-            String[] f = l.split(" ", 5);
-            switch (f[0]) {
-                case "light" -> lights.add(f);
-                case "email" -> emails.add(f);
-                case "photo" -> photos.add(f);
-                case "played" -> played.add(l.split(" ", 4));
-                default -> throw new AssertionError("unexpected state line " + l);
+            String head = l.substring(0, l.indexOf(' '));
+            String[] rest = l.substring(head.length() + 1).split("\t", -1);
+            switch (head) {
+                case "LIGHT" -> lights.add(l.split(" "));
+                case "EMAIL" -> emails.add(new String[] {head, "", rest[1], rest[0], rest[2]});
+                case "PHOTO" -> photos.add(new String[] {head, rest[0], rest[1], rest[2]});
+                case "PLAYED" -> played.add(new String[] {head, rest[0], rest[1], rest[2]});
+                default -> throw new AssertionError("unexpected outcome line " + l);
             }
         }
         // The evening light schedule: these changes, once each, each at or after

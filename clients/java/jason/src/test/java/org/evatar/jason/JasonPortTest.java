@@ -47,8 +47,7 @@ class JasonPortTest {
                 List.of(svc("ACTUATOR", "TurnLightOn", "Light", "yes"),
                         svc("ACTUATOR", "TurnLightOff", "Light", "yes"))))).encode());
         List<Signal> requests = new CopyOnWriteArrayList<>();
-        try (LocalNode node = LocalNode.start(LocalNode.repo().resolve("clients/java/scripts/java-node.sh"),
-                "jp:va-jp:av-jp")) {
+        try (LocalNode node = LocalNode.startCtl("jp:va-jp:av-jp")) {
             EvatarClient[] lamp = new EvatarClient[1];
             lamp[0] = EvatarClient.connect(new EvatarClient.Options().pairing("jp").role("avatar").entityId("lamp")
                     .credential("av-jp").endpoint(node.host(), node.port()), new EvatarClient.Listener() {
@@ -73,7 +72,7 @@ class JasonPortTest {
                                 svc("ACTUATOR", "TurnLightOff", "Light", "yes")),
                         List.of(svc("ACTUATOR", "ACTION FEEDBACK", "Feedback", "yes"))))));
                 String java = ProcessHandle.current().info().command().orElse("java");
-                node.command(false, 30, "port", "jason", java, "-cp", System.getProperty("java.class.path"),
+                node.command(30, "port", "jason", java, "-cp", System.getProperty("java.class.path"),
                         EvatarAgent.class.getName(), asl.toString(), body.toString(), "jp", "jason-va", "va-jp",
                         "--stdio");
                 Control.Binding b = av.awaitBinding(x -> x.entities().contains("jason-va"), Duration.ofSeconds(30));
@@ -85,7 +84,7 @@ class JasonPortTest {
                 assertEquals(List.of("TurnLightOn", "TurnLightOff"), requests.stream().map(Signal::type).toList());
                 assertEquals("on", requests.get(1).param("After").orElseThrow());
                 assertEquals("jason", requests.get(1).param("Agent").orElseThrow());
-                node.command(false, 30, "stop_port", "jason");
+                node.command(30, "stop_port", "jason");
                 av.awaitBinding(x -> !x.entities().contains("jason-va"), Duration.ofSeconds(30));
             }
         }

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# A test node driven by commands on stdin (port connectors, avatar_sim's
+# smart home on a simulated clock) for the tests of clients in other
+# languages; see scripts/test-node-ctl.escript for the arguments and the
+# commands. Like scripts/test-node.sh it prints EVATAR_PORT=<port> once it
+# accepts connections and halts when its stdin closes. Honours
+# REBAR_BASE_DIR (default _build); the code must be compiled.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+BASE=${REBAR_BASE_DIR:-_build}
+ERL_LIBS="$BASE/default/lib" exec escript scripts/test-node-ctl.escript "$@"
