@@ -8,20 +8,24 @@ import java.util.List;
 import java.util.concurrent.CompletableFuture;
 import java.util.concurrent.CopyOnWriteArrayList;
 import java.util.concurrent.TimeUnit;
-import org.junit.jupiter.api.Test;
 import org.junit.jupiter.api.Timeout;
+import org.junit.jupiter.params.ParameterizedTest;
+import org.junit.jupiter.params.provider.ValueSource;
 
 /**
  * Protocol version 2 across a real takeover: two EVATAR nodes in a cluster
  * (scripts/test-node-ctl.sh --cluster 2), the pairing active on node 1 with
- * its standby on node 2; node 1 is killed (kill -9) and both clients resume
- * their sessions on node 2, losing nothing EVATAR had accepted.
+ * its standby on node 2; node 1 is killed (kill -9) or frozen (kill -STOP: it
+ * still accepts TCP connections but says nothing, so the clients must notice
+ * the silence) and both clients resume their sessions on node 2, losing
+ * nothing EVATAR had accepted.
  */
 class TakeoverTest {
 
-    @Test
+    @ParameterizedTest
+    @ValueSource(strings = {"kill", "freeze"})
     @Timeout(value = 120, unit = TimeUnit.SECONDS)
-    void sessionsSurviveTheActiveNodeDying() throws Exception {
+    void sessionsSurviveTheActiveNode(String fault) throws Exception {
         try (LocalNode cluster = LocalNode.startCtl("ha:va-ha:av-ha", "--cluster", "2")) {
             List<Integer> ports = cluster.ports();
             assertEquals(2, ports.size());
@@ -68,7 +72,7 @@ class TakeoverTest {
                 assertTrue(av.awaitAcks(Duration.ofSeconds(10)));
                 assertTrue(va.awaitAcks(Duration.ofSeconds(10)));
 
-                cluster.command(10, "kill", "1");
+                cluster.command(10, fault, "1");
                 CompletableFuture<Signal> off = light.request("TurnLightOff", List.of());
                 assertEquals("off", off.get(60, TimeUnit.SECONDS).param("Light").orElseThrow());
                 long end = System.nanoTime() + TimeUnit.SECONDS.toNanos(30);
