@@ -1,0 +1,760 @@
+package org.evatar.client;
+
+import java.io.EOFException;
+import java.io.IOException;
+import java.net.InetSocketAddress;
+import java.net.SocketTimeoutException;
+import java.time.Duration;
+import java.util.ArrayList;
+import java.util.Iterator;
+import java.util.LinkedHashMap;
+import java.util.List;
+import java.util.Map;
+import java.util.Objects;
+import java.util.concurrent.BlockingQueue;
+import java.util.concurrent.CompletableFuture;
+import java.util.concurrent.ConcurrentHashMap;
+import java.util.concurrent.ExecutionException;
+import java.util.concurrent.LinkedBlockingQueue;
+import java.util.concurrent.TimeUnit;
+import java.util.concurrent.TimeoutException;
+import java.util.concurrent.atomic.AtomicLong;
+import java.util.function.Predicate;
+
+/**
+ * A VA or an Avatar connected to EVATAR (docs/protocol.md): the handshake,
+ * descriptions, signals, requests awaiting feedback, and with
+ * {@link Options#ha(boolean)} protocol version 2 (acknowledgements, resume,
+ * several endpoints, reconnect). One reader thread per client; every method
+ * is thread-safe.
+ *
+ * <p>Incoming signals go to the {@link Listener}; without one they wait in an
+ * inbox read with {@link #receive(Duration)}. Feedback answering a
+ * {@link #request} completes that request instead.
+ */
+public final class EvatarClient implements AutoCloseable {
+
+    /** What the client tells its owner. Every method runs on the reader thread: do not block long. */
+    public interface Listener {
+        default void onSignal(Signal signal) {}
+
+        default void onBinding(Control.Binding binding) {}
+
+        /** Version 2: the session continued (or started again) on {@code endpoint}. */
+        default void onReconnected(String endpoint, boolean resumed, long epoch) {}
+
+        /** The client is closed for good: {@code reason} is {@code bye}, {@code closed}, a Refused code... */
+        default void onClosed(String reason, Throwable cause) {}
+    }
+
+    /** Options of a connection; {@code pairing}, {@code role}, {@code entityId} are required. */
+    public static final class Options {
+        String pairing;
+        String role = "agent";
+        String entityId;
+        String credential = "";
+        final List<InetSocketAddress> endpoints = new ArrayList<>();
+        boolean ha;
+        int connectTimeoutMs = 5000;
+        int handshakeTimeoutMs = 5000;
+        int backoffMinMs = 20;
+        int backoffMaxMs = 500;
+        long reconnectLimitMs = 30000;
+
+        public Options pairing(String v) { pairing = v; return this; }
+        /** {@code agent} (a VA) or {@code avatar}. */
+        public Options role(String v) { role = v; return this; }
+        public Options entityId(String v) { entityId = v; return this; }
+        public Options credential(String v) { credential = v; return this; }
+        public Options endpoint(String host, int port) { endpoints.add(new InetSocketAddress(host, port)); return this; }
+        /** Speak protocol version 2: acknowledgements, resume and reconnect to the next endpoint. */
+        public Options ha(boolean v) { ha = v; return this; }
+        public Options connectTimeout(Duration d) { connectTimeoutMs = (int) d.toMillis(); return this; }
+        /** Keep it small with several endpoints: a stopped node may still accept TCP connections. */
+        public Options handshakeTimeout(Duration d) { handshakeTimeoutMs = (int) d.toMillis(); return this; }
+        public Options reconnectBackoff(Duration min, Duration max) {
+            backoffMinMs = (int) min.toMillis();
+            backoffMaxMs = (int) max.toMillis();
+            return this;
+        }
+        /** How long to go without a session before giving up ({@code gave_up}). */
+        public Options reconnectLimit(Duration d) { reconnectLimitMs = d.toMillis(); return this; }
+
+        void check() {
+            Objects.requireNonNull(pairing, "pairing");
+            Objects.requireNonNull(entityId, "entityId");
+            if (!role.equals("agent") && !role.equals("avatar")) {
+                throw new IllegalArgumentException("role must be agent or avatar: " + role);
+            }
+        }
+    }
+
+    /** Refused codes after which a version 2 client tries its next endpoint (section 11.3). */
+    private static final List<String> RETRY_CODES = List.of("NotActive", "Fenced", "StaleEpoch",
+            "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink", "SessionResumed");
+    private static final int ACK_EVERY = 32;
+    private static final long ACK_DELAY_MS = 5;
+
+    private final Options opts;
+    private final Listener listener;
+    private final BlockingQueue<Signal> inbox = new LinkedBlockingQueue<>();
+    private final Map<String, CompletableFuture<Signal>> pending = new ConcurrentHashMap<>();
+    private final Object lock = new Object();
+    private final AtomicLong counter = new AtomicLong();
+    private final String idPrefix;
+    private final boolean stdio;
+
+    // Guarded by lock.
+    private Transport transport;
+    private int endpointIndex;
+    private Control.Welcome welcome;
+    private String sessionId;
+    private Description description;
+    private Control.Binding binding;
+    private final LinkedHashMap<String, byte[]> unacked = new LinkedHashMap<>();
+    private long highestSeq;
+    private long highestEpoch;
+    private long lastAckedSeq;
+    private long maxFrame = Frames.HANDSHAKE_MAX;
+    private boolean closing;
+    private String closedReason;
+    private int reconnects;
+
+    private final Thread reader;
+    private final Thread acker;
+
+    private EvatarClient(Options opts, Listener listener, boolean stdio) {
+        this.opts = opts;
+        this.listener = listener;
+        this.stdio = stdio;
+        this.idPrefix = opts.entityId + "-" + Long.toHexString(System.nanoTime() & 0xffffffL) + "-";
+        this.reader = new Thread(this::readLoop, "evatar-client-" + opts.entityId);
+        this.reader.setDaemon(true);
+        this.acker = new Thread(this::ackLoop, "evatar-acks-" + opts.entityId);
+        this.acker.setDaemon(true);
+    }
+
+    /**
+     * Connects over TCP to the first endpoint that welcomes the client (each
+     * is tried in order) and returns once the Welcome arrived.
+     *
+     * @throws RefusedException EVATAR refused (BadCredential, Occupied...)
+     * @throws IOException no endpoint could be reached
+     */
+    public static EvatarClient connect(Options opts, Listener listener) throws IOException, ProtocolException {
+        opts.check();
+        if (opts.endpoints.isEmpty()) {
+            throw new IllegalArgumentException("no endpoint");
+        }
+        EvatarClient c = new EvatarClient(opts, listener, false);
+        Exception last = null;
+        for (int i = 0; i < opts.endpoints.size(); i++) {
+            try {
+                c.open(i, false);
+                c.start();
+                return c;
+            } catch (RefusedException e) {
+                if (!opts.ha || !RETRY_CODES.contains(e.code()) || i == opts.endpoints.size() - 1) {
+                    throw e;
+                }
+                last = e;
+            } catch (IOException | ProtocolException e) {
+                last = e;
+            }
+        }
+        if (last instanceof ProtocolException pe) {
+            throw pe;
+        }
+        throw (IOException) last;
+    }
+
+    /** Connects over this program's stdin/stdout, for a program EVATAR started (the port connector). */
+    public static EvatarClient connectStdio(Options opts, Listener listener) throws IOException, ProtocolException {
+        opts.check();
+        EvatarClient c = new EvatarClient(opts, listener, true);
+        c.open(0, false);
+        c.start();
+        return c;
+    }
+
+    private void start() {
+        reader.start();
+        if (opts.ha) {
+            acker.start();
+        }
+    }
+
+    // ------------------------------------------------------------------ handshake
+
+    /** Opens endpoint {@code i}, says Hello (or Resume), reads the Welcome. */
+    private void open(int i, boolean resume) throws IOException, ProtocolException {
+        Transport t = stdio ? Transport.stdio()
+                : Transport.tcp(opts.endpoints.get(i), opts.connectTimeoutMs);
+        try {
+            Control hello;
+            synchronized (lock) {
+                hello = resume && sessionId != null
+                        ? new Control.Resume(opts.pairing, opts.role, opts.entityId, opts.credential,
+                                sessionId, highestSeq, highestEpoch)
+                        : new Control.Hello(opts.pairing, opts.role, opts.entityId, opts.credential,
+                                opts.ha ? 2 : 1);
+            }
+            Frames.write(t.out(), hello.toBytes());
+            t.readTimeout(opts.handshakeTimeoutMs);
+            byte[] doc;
+            try {
+                doc = Frames.read(t.in(), Frames.HANDSHAKE_MAX);
+            } catch (SocketTimeoutException e) {
+                throw new RefusedException("HandshakeTimeout", "no answer to the Hello within "
+                        + opts.handshakeTimeoutMs + " ms");
+            }
+            if (doc == null) {
+                throw new EOFException("connection closed during the handshake");
+            }
+            Object answer = Documents.decode(doc);
+            if (answer instanceof Control.Refused r) {
+                throw new RefusedException(r.code(), r.message());
+            }
+            if (!(answer instanceof Control.Welcome w)) {
+                throw new ProtocolException("BadHandshake", "expected Welcome, got " + answer.getClass().getSimpleName());
+            }
+            if (opts.ha && !w.isVersion2()) {
+                throw new ProtocolException("BadHandshake", "version 1 Welcome to a version 2 Hello");
+            }
+            t.readTimeout(opts.ha ? (int) Math.max(3 * w.heartbeat(), 1000) : 0);
+            synchronized (lock) {
+                transport = t;
+                endpointIndex = i;
+                welcome = w;
+                maxFrame = w.maxFrame();
+                if (opts.ha) {
+                    afterWelcome(w);
+                }
+                sessionId = w.sessionId();
+            }
+        } catch (IOException | ProtocolException | RuntimeException e) {
+            t.close();
+            throw e;
+        }
+    }
+
+    /** Section 11.3 rules 2 and 6 (called holding the lock). */
+    private void afterWelcome(Control.Welcome w) throws IOException {
+        if (Boolean.TRUE.equals(w.resumed())) {
+            if (w.lastAccepted() != null) {
+                dropAcceptedUpTo(w.lastAccepted());
+            }
+        } else {
+            highestSeq = 0;
+            lastAckedSeq = 0;
+            highestEpoch = w.epoch();
+            if (description != null && sessionId != null) {
+                write(description.toBytes());
+            }
+        }
+        if (Boolean.TRUE.equals(w.resumed()) || sessionId != null) {
+            for (byte[] s : unacked.values()) {
+                write(s);
+            }
+        }
+        highestEpoch = Math.max(highestEpoch, w.epoch());
+        lock.notifyAll();
+    }
+
+    private void dropAcceptedUpTo(String id) {
+        if (!unacked.containsKey(id)) {
+            return;
+        }
+        Iterator<String> it = unacked.keySet().iterator();
+        while (it.hasNext()) {
+            String k = it.next();
+            it.remove();
+            if (k.equals(id)) {
+                break;
+            }
+        }
+        lock.notifyAll();
+    }
+
+    // ------------------------------------------------------------------ API
+
+    /** The Welcome of the current connection. */
+    public Control.Welcome welcome() {
+        synchronized (lock) {
+            return welcome;
+        }
+    }
+
+    public String entityId() {
+        return opts.entityId;
+    }
+
+    /** Sends (and remembers, to send again after a new session) this entity's description. */
+    public void describe(Description d) throws IOException {
+        if (!d.entityId().equals(opts.entityId)) {
+            throw new IllegalArgumentException("the description's EntityID " + d.entityId()
+                    + " is not this client's " + opts.entityId);
+        }
+        synchronized (lock) {
+            description = d;
+            writeOrQueue(d.toBytes(), false);
+        }
+    }
+
+    /**
+     * Sends a signal; fills in SignalID and Timestamp when the builder has
+     * none. Returns the SignalID. In version 2 it waits while the window of
+     * unacknowledged signals is full, and a signal sent while disconnected is
+     * sent after the reconnect.
+     */
+    public String send(Signal.Builder b) throws IOException {
+        if (b.id() == null) {
+            b.id(nextId());
+        }
+        Signal s = b.build();
+        byte[] bytes = s.toBytes();
+        synchronized (lock) {
+            if (opts.ha) {
+                long window = welcome == null ? 1024 : welcome.dedupWindow();
+                while (unacked.size() >= window - 1 && closedReason == null) {
+                    try {
+                        lock.wait(100);
+                    } catch (InterruptedException e) {
+                        Thread.currentThread().interrupt();
+                        throw new IOException("interrupted waiting for acknowledgements");
+                    }
+                }
+                unacked.put(s.id(), bytes);
+            }
+            writeOrQueue(bytes, opts.ha);
+        }
+        return s.id();
+    }
+
+    /** A fresh SignalID, unique for this client. */
+    public String nextId() {
+        return idPrefix + counter.incrementAndGet();
+    }
+
+    /**
+     * Sends a request awaiting feedback; the future completes with the
+     * {@code Feedback} (the provider's, or EVATAR's Timeout/ProviderGone) or
+     * the {@code Error} that answers it.
+     */
+    public CompletableFuture<Signal> request(Signal.Builder b) throws IOException {
+        b.context(Signal.REQUEST);
+        if (b.id() == null) {
+            b.id(nextId());
+        }
+        String id = b.id();
+        CompletableFuture<Signal> f = new CompletableFuture<>();
+        pending.put(id, f);
+        f.whenComplete((r, e) -> pending.remove(id));
+        try {
+            send(b);
+        } catch (IOException e) {
+            pending.remove(id);
+            throw e;
+        }
+        return f;
+    }
+
+    /** {@link #request(Signal.Builder)} and wait; a {@link TimeoutException} when nothing answers in time. */
+    public Signal request(Signal.Builder b, Duration timeout) throws IOException, TimeoutException, InterruptedException {
+        CompletableFuture<Signal> f = request(b);
+        try {
+            return f.get(timeout.toMillis(), TimeUnit.MILLISECONDS);
+        } catch (ExecutionException e) {
+            throw new IOException("request failed: " + e.getCause().getMessage(), e.getCause());
+        } catch (TimeoutException e) {
+            f.cancel(false);
+            throw e;
+        }
+    }
+
+    /** The next signal from the inbox (only filled when the client has no listener), or null. */
+    public Signal receive(Duration timeout) throws InterruptedException {
+        return inbox.poll(timeout.toMillis(), TimeUnit.MILLISECONDS);
+    }
+
+    /** The last Binding report received, or null. */
+    public Control.Binding binding() {
+        synchronized (lock) {
+            return binding;
+        }
+    }
+
+    /** Waits for a Binding report that satisfies {@code test} (the last one counts too). */
+    public Control.Binding awaitBinding(Predicate<Control.Binding> test, Duration timeout)
+            throws InterruptedException, TimeoutException {
+        long end = System.nanoTime() + timeout.toNanos();
+        synchronized (lock) {
+            while (binding == null || !test.test(binding)) {
+                long left = TimeUnit.NANOSECONDS.toMillis(end - System.nanoTime());
+                if (left <= 0) {
+                    throw new TimeoutException("no such Binding within " + timeout.toMillis() + " ms; last: " + binding);
+                }
+                if (closedReason != null) {
+                    throw new TimeoutException("client closed: " + closedReason);
+                }
+                lock.wait(left);
+            }
+            return binding;
+        }
+    }
+
+    /** Version 2: waits until EVATAR acknowledged every signal sent. */
+    public boolean awaitAcks(Duration timeout) throws InterruptedException {
+        long end = System.nanoTime() + timeout.toNanos();
+        synchronized (lock) {
+            while (!unacked.isEmpty()) {
+                long left = TimeUnit.NANOSECONDS.toMillis(end - System.nanoTime());
+                if (left <= 0 || closedReason != null) {
+                    return false;
+                }
+                lock.wait(left);
+            }
+            return true;
+        }
+    }
+
+    /** How many signals wait for EVATAR's acknowledgement (version 2). */
+    public int unacknowledged() {
+        synchronized (lock) {
+            return unacked.size();
+        }
+    }
+
+    /** How many times a version 2 client reconnected. */
+    public int reconnects() {
+        synchronized (lock) {
+            return reconnects;
+        }
+    }
+
+    /** Null while open; else why it closed. */
+    public String closedReason() {
+        synchronized (lock) {
+            return closedReason;
+        }
+    }
+
+    /** Waits until the client is closed; returns the reason or null on timeout. */
+    public String awaitClosed(Duration timeout) throws InterruptedException {
+        reader.join(timeout.toMillis());
+        return closedReason();
+    }
+
+    /** Drops the current connection without a Bye (as a crash or a network fault would). For tests. */
+    public void dropConnection() throws IOException {
+        Transport t;
+        synchronized (lock) {
+            t = transport;
+        }
+        if (t != null) {
+            t.close();
+        }
+    }
+
+    /** Says Bye, waits (at most 2 s) for EVATAR to close, and closes. */
+    @Override
+    public void close() {
+        Transport t;
+        synchronized (lock) {
+            if (closedReason != null) {
+                return;
+            }
+            closing = true;
+            t = transport;
+            try {
+                if (t != null) {
+                    write(new Control.Bye(null).toBytes());
+                }
+            } catch (IOException e) {
+                // Closed already: nothing to say Bye on.
+            }
+        }
+        try {
+            reader.join(2000);
+        } catch (InterruptedException e) {
+            Thread.currentThread().interrupt();
+        }
+        if (t != null) {
+            try {
+                t.close();
+            } catch (IOException e) {
+                // Nothing more to do.
+            }
+        }
+        finish("closed", null);
+    }
+
+    // ------------------------------------------------------------------ writing
+
+    private void write(byte[] doc) throws IOException {
+        if (doc.length > maxFrame) {
+            throw new IOException("document of " + doc.length + " bytes over MaxFrame " + maxFrame);
+        }
+        Frames.write(transport.out(), doc);
+    }
+
+    /** Writes now; in version 2, a failed write is left for the reconnect when {@code keep}. */
+    private void writeOrQueue(byte[] doc, boolean keep) throws IOException {
+        if (closedReason != null) {
+            throw new IOException("client closed: " + closedReason);
+        }
+        if (transport == null) {
+            if (keep) {
+                return;
+            }
+            throw new IOException("not connected");
+        }
+        try {
+            write(doc);
+        } catch (IOException e) {
+            if (!keep) {
+                throw e;
+            }
+        }
+    }
+
+    // ------------------------------------------------------------------ reading
+
+    private void readLoop() {
+        while (true) {
+            Transport t;
+            synchronized (lock) {
+                t = transport;
+            }
+            String lost;
+            Throwable cause = null;
+            try {
+                lost = readFrames(t);
+            } catch (RefusedException e) {
+                lost = e.code();
+                cause = e;
+            } catch (IOException | ProtocolException e) {
+                lost = e instanceof SocketTimeoutException ? "silent" : "closed";
+                cause = e;
+            }
+            try {
+                t.close();
+            } catch (IOException e) {
+                // Already closed.
+            }
+            boolean stop;
+            synchronized (lock) {
+                transport = null;
+                stop = closing || !opts.ha || stdio || lost.equals("bye")
+                        || (cause instanceof RefusedException && !RETRY_CODES.contains(lost));
+            }
+            if (stop || !reconnect(lost)) {
+                if (!closing || closedReason == null) {
+                    finish(closing ? "closed" : lost, cause);
+                }
+                return;
+            }
+        }
+    }
+
+    /** Reads until the connection ends; returns {@code bye} or {@code closed}. */
+    private String readFrames(Transport t) throws IOException, ProtocolException {
+        while (true) {
+            long max;
+            synchronized (lock) {
+                max = maxFrame;
+            }
+            byte[] doc = Frames.read(t.in(), max);
+            if (doc == null) {
+                return "closed";
+            }
+            Object d;
+            try {
+                d = Documents.decode(doc);
+            } catch (ProtocolException e) {
+                System.err.println("evatar-client " + opts.entityId + ": dropped a frame: " + e.getMessage());
+                continue;
+            }
+            if (d instanceof Signal s) {
+                onSignal(s);
+            } else if (d instanceof Control.Binding b) {
+                synchronized (lock) {
+                    binding = b;
+                    lock.notifyAll();
+                }
+                if (listener != null) {
+                    listener.onBinding(b);
+                }
+            } else if (d instanceof Control.Ack a) {
+                if (a.accepted() != null) {
+                    synchronized (lock) {
+                        dropAcceptedUpTo(a.accepted());
+                    }
+                }
+            } else if (d instanceof Control.Refused r) {
+                throw new RefusedException(r.code(), r.message());
+            } else if (d instanceof Control.Bye) {
+                synchronized (lock) {
+                    if (!closing && opts.ha) {
+                        return "closed";
+                    }
+                }
+                return "bye";
+            }
+        }
+    }
+
+    private void onSignal(Signal s) {
+        if (s.sequence() != null) {
+            synchronized (lock) {
+                if (s.sequence() <= highestSeq
+                        || (s.epoch() != null && s.epoch() < highestEpoch)) {
+                    return;
+                }
+                highestSeq = s.sequence();
+                if (s.epoch() != null) {
+                    highestEpoch = Math.max(highestEpoch, s.epoch());
+                }
+            }
+        }
+        String answered = s.inReplyTo();
+        if (answered != null && (s.context().equals(Signal.FEEDBACK) || s.context().equals(Signal.ERROR))) {
+            CompletableFuture<Signal> f = pending.remove(answered);
+            if (f != null) {
+                f.complete(s);
+                ackSoon();
+                return;
+            }
+        }
+        if (listener != null) {
+            listener.onSignal(s);
+        } else {
+            inbox.add(s);
+        }
+        ackSoon();
+    }
+
+    // ------------------------------------------------------------------ version 2
+
+    private void ackSoon() {
+        if (!opts.ha) {
+            return;
+        }
+        synchronized (lock) {
+            if (highestSeq - lastAckedSeq >= ACK_EVERY) {
+                sendAck();
+            } else {
+                lock.notifyAll();
+            }
+        }
+    }
+
+    private void sendAck() {
+        if (transport != null && highestSeq > lastAckedSeq) {
+            try {
+                write(new Control.Ack(null, highestSeq).toBytes());
+                lastAckedSeq = highestSeq;
+            } catch (IOException e) {
+                // The reader sees the broken connection and reconnects; the Resume carries Received.
+            }
+        }
+    }
+
+    /** Sends Ack Received within a few ms of processing a signal. */
+    private void ackLoop() {
+        try {
+            while (true) {
+                synchronized (lock) {
+                    if (closedReason != null) {
+                        return;
+                    }
+                    if (highestSeq <= lastAckedSeq || transport == null) {
+                        lock.wait(200);
+                        continue;
+                    }
+                }
+                Thread.sleep(ACK_DELAY_MS);
+                synchronized (lock) {
+                    sendAck();
+                }
+            }
+        } catch (InterruptedException e) {
+            Thread.currentThread().interrupt();
+        }
+    }
+
+    /** Section 11.3 rule 5: next endpoint, round the list, growing pause after each round. */
+    private boolean reconnect(String why) {
+        long start = System.currentTimeMillis();
+        int n = opts.endpoints.size();
+        int idx;
+        synchronized (lock) {
+            idx = endpointIndex;
+        }
+        long pause = opts.backoffMinMs;
+        Exception last = null;
+        int tried = 0;
+        while (System.currentTimeMillis() - start < opts.reconnectLimitMs) {
+            synchronized (lock) {
+                if (closing) {
+                    return false;
+                }
+            }
+            idx = (idx + 1) % n;
+            try {
+                open(idx, true);
+                Control.Welcome w;
+                synchronized (lock) {
+                    reconnects++;
+                    w = welcome;
+                }
+                if (listener != null) {
+                    listener.onReconnected(transportName(), Boolean.TRUE.equals(w.resumed()), w.epoch());
+                }
+                return true;
+            } catch (RefusedException e) {
+                last = e;
+                if (!RETRY_CODES.contains(e.code())) {
+                    finish(e.code(), e);
+                    return false;
+                }
+            } catch (IOException | ProtocolException e) {
+                last = e;
+            }
+            if (++tried % n == 0) {
+                try {
+                    Thread.sleep(pause);
+                } catch (InterruptedException e) {
+                    Thread.currentThread().interrupt();
+                    return false;
+                }
+                pause = Math.min(pause * 2, opts.backoffMaxMs);
+            }
+        }
+        finish("gave_up", last);
+        return false;
+    }
+
+    private String transportName() {
+        synchronized (lock) {
+            return transport == null ? "?" : transport.describe();
+        }
+    }
+
+    private void finish(String reason, Throwable cause) {
+        synchronized (lock) {
+            if (closedReason != null) {
+                return;
+            }
+            closedReason = reason;
+            lock.notifyAll();
+        }
+        IOException gone = new IOException("client closed: " + reason, cause);
+        for (CompletableFuture<Signal> f : pending.values()) {
+            f.completeExceptionally(gone);
+        }
+        if (listener != null) {
+            listener.onClosed(reason, cause);
+        }
+    }
+}

@@ -1,0 +1,70 @@
+package org.evatar.client;
+
+import java.io.BufferedInputStream;
+import java.io.BufferedOutputStream;
+import java.io.Closeable;
+import java.io.FileDescriptor;
+import java.io.FileInputStream;
+import java.io.FileOutputStream;
+import java.io.IOException;
+import java.io.InputStream;
+import java.io.OutputStream;
+import java.net.InetSocketAddress;
+import java.net.Socket;
+
+/** Where frames travel: a TCP connection, or stdin/stdout when EVATAR started the program (a port). */
+public interface Transport extends Closeable {
+    InputStream in();
+
+    OutputStream out();
+
+    /** Reads block at most {@code ms} (0: for ever); a no-op where the transport cannot time out. */
+    void readTimeout(int ms) throws IOException;
+
+    /** A short name for logs and reports. */
+    String describe();
+
+    /** Opens a TCP connection to an endpoint. */
+    static Transport tcp(InetSocketAddress endpoint, int connectTimeoutMs) throws IOException {
+        Socket s = new Socket();
+        try {
+            s.setTcpNoDelay(true);
+            s.connect(endpoint, connectTimeoutMs);
+        } catch (IOException e) {
+            s.close();
+            throw e;
+        }
+        InputStream in = new BufferedInputStream(s.getInputStream(), 65536);
+        OutputStream out = new BufferedOutputStream(s.getOutputStream(), 65536);
+        return new Transport() {
+            public InputStream in() { return in; }
+            public OutputStream out() { return out; }
+            public void readTimeout(int ms) throws IOException { s.setSoTimeout(ms); }
+            public String describe() { return endpoint.getHostString() + ":" + endpoint.getPort(); }
+            public void close() throws IOException { s.close(); }
+        };
+    }
+
+    /**
+     * This process's stdin and stdout (docs/protocol.md section 9). Nothing else
+     * may write to stdout: log to stderr. The streams are taken from the file
+     * descriptors, so a stray {@code System.out.println} cannot corrupt frames
+     * once {@link #redirectSystemOut()} has been called.
+     */
+    static Transport stdio() {
+        InputStream in = new BufferedInputStream(new FileInputStream(FileDescriptor.in), 65536);
+        OutputStream out = new BufferedOutputStream(new FileOutputStream(FileDescriptor.out), 65536);
+        return new Transport() {
+            public InputStream in() { return in; }
+            public OutputStream out() { return out; }
+            public void readTimeout(int ms) { }
+            public String describe() { return "stdio"; }
+            public void close() throws IOException { out.close(); in.close(); }
+        };
+    }
+
+    /** Points {@code System.out} at stderr, so only frames reach the real stdout. */
+    static void redirectSystemOut() {
+        System.setOut(System.err);
+    }
+}
