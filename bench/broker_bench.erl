@@ -21,6 +21,7 @@
                 | {sizes, [pos_integer()]}
                 | {loads, [float()]}            % open-loop rates, shares of the maximum
                 | {seconds, number()}           % each measuring window
+                | {rounds, pos_integer()}       % closed-loop turns per system
                 | {warmup, number()}            % before each window
                 | {profile_n, pos_integer()}
                 | {profile_seconds, number()}
@@ -47,15 +48,15 @@ main(Options) ->
     ok = ensure_distribution(Cfg),
     Machine0 = machine(),
     Versions = broker_bench_sut:versions(),
-    io:format("Broker comparison: systems ~w, N ~w, ~p s windows after ~p s warm-up, "
-              "open loop at ~w of each maximum~s~nload average at start: ~w~n",
+    io:format("Broker comparison: systems ~w, N ~w, ~p s windows (closed loop in ~b rounds) "
+              "after ~p s warm-up, open loop at ~w of each maximum~s~nload average at start: ~w~n",
               [maps:get(systems, Cfg), maps:get(sizes, Cfg), maps:get(seconds, Cfg),
-               maps:get(warmup, Cfg), maps:get(loads, Cfg),
+               maps:get(rounds, Cfg), maps:get(warmup, Cfg), maps:get(loads, Cfg),
                case maps:get(quick, Cfg) of
                    true -> " (QUICK: a smoke run, figures not meant to be read)";
                    false -> ""
                end, maps:get(load_average, Machine0)]),
-    Runs = [run(Sys, N, Cfg) || N <- maps:get(sizes, Cfg), Sys <- maps:get(systems, Cfg)],
+    Runs = lists:append([run_size(N, Cfg) || N <- maps:get(sizes, Cfg)]),
     Profile = case maps:get(profile, Cfg) andalso lists:member(evatar, maps:get(systems, Cfg)) of
                   true -> profile(Cfg);
                   false -> undefined
@@ -79,9 +80,9 @@ main(Options) ->
 config(Options) ->
     Quick = lists:member(quick, Options),
     Default = case Quick of
-                  true -> #{sizes => [1, 100], seconds => 2, warmup => 0.5,
+                  true -> #{sizes => [1, 100], seconds => 2, warmup => 0.5, rounds => 2,
                             profile_seconds => 2};
-                  false -> #{sizes => [1, 100, 1000], seconds => 6, warmup => 2,
+                  false -> #{sizes => [1, 100, 1000], seconds => 6, warmup => 2, rounds => 3,
                              profile_seconds => 5}
               end,
     Cfg = lists:foldl(fun({K, V}, Acc) -> Acc#{K => V};
@@ -145,40 +146,72 @@ loadavg() ->
     [binary_to_float(X) || X <- lists:sublist(binary:split(B, <<" ">>, [global]), 3)].
 
 %% ---------------------------------------------------------------------------
-%% One system at one size
+%% One size: the three systems side by side
 %% ---------------------------------------------------------------------------
 
-run(Sys, N, Cfg) ->
-    io:format("~n-- ~s, N = ~b: starting...~n", [Sys, N]),
+%% Every system is started (fresh for this N) and gets its N pairs; then
+%% their closed loops take turns, `rounds' windows each, and their open
+%% loops take turns rate by rate, so that a burst of other load on a shared
+%% machine falls on all of them alike rather than on whichever ran then.
+run_size(N, #{systems := Systems, loads := Loads} = Cfg) ->
+    io:format("~n-- N = ~b: starting ~w...~n", [N, Systems]),
+    run_size(N, Systems, Cfg, Loads, []).
+
+run_size(N, [Sys | Rest], Cfg, Loads, Started) ->
     Sut = broker_bench_sut:start(Sys, maps:get(run_dir, Cfg), Cfg),
-    OsPid = maps:get(os_pid, Sut),
     try
-        #{rss := Rss0} = broker_bench_sut:memory_kib(OsPid),
-        T0 = erlang:monotonic_time(millisecond),
-        Pairs = broker_bench_gen:setup(N, Sut),
-        SetupMs = erlang:monotonic_time(millisecond) - T0,
-        io:format("   ~b pairs (~b connections) ready in ~b ms; closed loop...~n",
-                  [N, 2 * N, SetupMs]),
-        Closed = closed_loop(Pairs, Cfg, OsPid),
-        #{hwm := HwmClosed} = broker_bench_sut:memory_kib(OsPid),
-        Rate = maps:get(rate, Closed),
-        io:format("   ~s round trips/s, ~s CPU s per 100k~n",
-                  [int(Rate), f2(maps:get(cpu_s_per_100k, Closed))]),
-        Open = [begin
-                    O = open_loop(Pairs, max(1.0, Rate * L), Cfg, OsPid),
-                    io:format("   open ~b%: ~s/s offered, p50 ~s ms, p99 ~s ms, p99.9 ~s ms~n",
-                              [round(L * 100), int(maps:get(offered, O)), ms(maps:get(p50, O)),
-                               ms(maps:get(p99, O)), ms(maps:get(p999, O))]),
-                    O#{load => L}
-                end || L <- maps:get(loads, Cfg)],
-        #{rss := Rss1, hwm := Hwm} = broker_bench_sut:memory_kib(OsPid),
-        ok = broker_bench_gen:teardown(Pairs),
-        #{system => Sys, n => N, setup_ms => SetupMs, closed => Closed, open => Open,
-          memory_kib => #{rss_after_start => Rss0, rss_at_end => Rss1,
-                          peak_rss_closed => HwmClosed, peak_rss => Hwm}}
+        run_size(N, Rest, Cfg, Loads, [Sut | Started])
     after
         broker_bench_sut:stop(Sut)
-    end.
+    end;
+run_size(N, [], Cfg, Loads, Started) ->
+    Suts = lists:reverse(Started),
+    Ready = [begin
+                 OsPid = maps:get(os_pid, Sut),
+                 #{rss := Rss0} = broker_bench_sut:memory_kib(OsPid),
+                 T0 = erlang:monotonic_time(millisecond),
+                 Pairs = broker_bench_gen:setup(N, Sut),
+                 SetupMs = erlang:monotonic_time(millisecond) - T0,
+                 io:format("   ~s: ~b pairs (~b connections) ready in ~b ms~n",
+                           [Sys, N, 2 * N, SetupMs]),
+                 #{system => Sys, os_pid => OsPid, pairs => Pairs, setup_ms => SetupMs,
+                   rss0 => Rss0}
+             end || #{system := Sys} = Sut <- Suts],
+    Rounds = maps:get(rounds, Cfg),
+    RoundCfg = Cfg#{seconds := maps:get(seconds, Cfg) / Rounds,
+                    warmup := maps:get(warmup, Cfg) / 2},
+    Windows = [[{Sys, closed_loop(Pairs, RoundCfg, OsPid)}
+                || #{system := Sys, pairs := Pairs, os_pid := OsPid} <- Ready]
+               || _ <- lists:seq(1, Rounds)],
+    Closed = maps:from_list(
+               [{Sys, combine([W || Round <- Windows, {S, W} <- Round, S =:= Sys])}
+                || #{system := Sys} <- Ready]),
+    _ = [io:format("   ~s closed loop: ~s round trips/s (rounds ~s), ~s CPU s per 100k~n",
+                   [Sys, int(maps:get(rate, C)), rates(C), f2(maps:get(cpu_s_per_100k, C))])
+         || #{system := Sys} <- Ready, C <- [maps:get(Sys, Closed)]],
+    HwmClosed = maps:from_list([{Sys, maps:get(hwm, broker_bench_sut:memory_kib(OsPid))}
+                                || #{system := Sys, os_pid := OsPid} <- Ready]),
+    Open = [{Sys, L, open_at(Sys, Pairs, maps:get(rate, maps:get(Sys, Closed)), L, Cfg, OsPid)}
+            || L <- Loads, #{system := Sys, pairs := Pairs, os_pid := OsPid} <- Ready],
+    Runs = [begin
+                #{rss := Rss1, hwm := Hwm} = broker_bench_sut:memory_kib(OsPid),
+                #{system => Sys, n => N, setup_ms => SetupMs, closed => maps:get(Sys, Closed),
+                  open => [O || {S, _, O} <- Open, S =:= Sys],
+                  memory_kib => #{rss_after_start => Rss0, rss_at_end => Rss1,
+                                  peak_rss_closed => maps:get(Sys, HwmClosed),
+                                  peak_rss => Hwm}}
+            end || #{system := Sys, os_pid := OsPid, setup_ms := SetupMs, rss0 := Rss0} <- Ready],
+    _ = [ok = broker_bench_gen:teardown(Pairs) || #{pairs := Pairs} <- Ready],
+    Runs.
+
+open_at(Sys, Pairs, Max, L, Cfg, OsPid) ->
+    O = open_loop(Pairs, max(1.0, Max * L), Cfg, OsPid),
+    io:format("   ~s open ~b%: ~s/s offered, p50 ~s ms, p99 ~s ms, p99.9 ~s ms~n",
+              [Sys, round(L * 100), int(maps:get(offered, O)), ms(maps:get(p50, O)),
+               ms(maps:get(p99, O)), ms(maps:get(p999, O))]),
+    O#{load => L}.
+
+rates(#{round_rates := Rs}) -> string:join([int(R) || R <- Rs], " / ").
 
 %% Closed loop: every agent keeps one request in flight; the rate is
 %% counted over the window after the warm-up.
@@ -197,6 +230,17 @@ closed_loop(Pairs, #{warmup := Warm, seconds := Secs}, OsPid) ->
     (usage(S1, S2, Done))#{rate => Done / seconds(S1, S2), round_trips => Done,
                            errors => sum(errors, Drained),
                            unanswered => sum(unanswered, Drained)}.
+
+%% The closed-loop windows of one system as one: totals over all of them,
+%% and each window's rate.
+combine(Ws) ->
+    Total = fun(K) -> lists:sum([maps:get(K, W) || W <- Ws]) end,
+    Done = Total(round_trips),
+    Secs = Total(seconds),
+    (derive(Secs, Total(sut_s), Total(gen_s), Total(machine_s), Done))#{
+      rate => Done / Secs, round_trips => Done, rounds => length(Ws),
+      round_rates => [maps:get(rate, W) || W <- Ws],
+      errors => Total(errors), unanswered => Total(unanswered)}.
 
 %% Open loop at Rate round trips/s over all pairs: each agent on its own
 %% fixed schedule, phases spread at random, latency from the scheduled time.
@@ -255,14 +299,18 @@ seconds(S1, S2) -> (maps:get(t, S2) - maps:get(t, S1)) / 1.0e6.
 usage(S1, S2, RoundTrips) ->
     Secs = seconds(S1, S2),
     D = fun(K) -> maps:get(K, S2) - maps:get(K, S1) end,
-    Sut = D(sut) / 100,
-    Gen = D(gen) / 100,
-    Machine = D(busy) / max(1, D(total)) * cpu_count(),
+    Machine = D(busy) / max(1, D(total)) * cpu_count() * Secs,
+    derive(Secs, D(sut) / 100, D(gen) / 100, Machine, RoundTrips).
+
+%% From CPU seconds over a window: cores used, and CPU seconds per 100,000
+%% round trips.
+derive(Secs, Sut, Gen, Machine, RoundTrips) ->
     Per100k = fun(_, 0) -> undefined;
                  (Cpu, K) -> Cpu / K * 100000
               end,
-    #{seconds => Secs, sut_cores => Sut / Secs, gen_cores => Gen / Secs,
-      other_cores => max(0.0, Machine - (Sut + Gen) / Secs),
+    #{seconds => Secs, sut_s => Sut, gen_s => Gen, machine_s => Machine,
+      sut_cores => Sut / Secs, gen_cores => Gen / Secs,
+      other_cores => max(0.0, (Machine - Sut - Gen) / Secs),
       cpu_s_per_100k => Per100k(Sut, RoundTrips),
       gen_cpu_s_per_100k => Per100k(Gen, RoundTrips)}.
 
@@ -402,9 +450,11 @@ markdown(Date, Machine, Versions, Cfg, Runs, Ratios, Goals, Profile) ->
                    [maps:get(otp, Versions), maps:get(erts, Versions),
                     maps:get(mosquitto, Versions), maps:get(rabbitmq, Versions),
                     maps:get(evatar, Versions)]),
-     io_lib:format("- ~p s measuring windows after ~p s warm-up; open loop at ~s of each "
-                   "system's own maximum; systems ~w; N ~w~n",
-                   [maps:get(seconds, Cfg), maps:get(warmup, Cfg),
+     io_lib:format("- closed loop: ~p s per system in ~b rounds, the systems taking turns, each "
+                   "round after ~p s warm-up; open loop: ~p s windows after ~p s warm-up, at ~s "
+                   "of each system's own maximum, the systems taking turns; systems ~w; N ~w~n",
+                   [maps:get(seconds, Cfg), maps:get(rounds, Cfg), maps:get(warmup, Cfg) / 2,
+                    maps:get(seconds, Cfg), maps:get(warmup, Cfg),
                     string:join([fmt("~b%", [round(L * 100)]) || L <- maps:get(loads, Cfg)], ", "),
                     Systems, maps:get(sizes, Cfg)]),
      "- a round trip: the agent sends a BIL RequestAwaitingFeedback signal (~530 bytes) to its\n"
@@ -456,7 +506,12 @@ size_table(N, Systems, Runs, Ratios) ->
             ++ [Ratio(EM, K) || has_both(Systems, mosquitto)]
             ++ [Ratio(ER, K) || has_both(Systems, rabbitmq)]
             || {K, Label, Fmt} <- Keys],
-    Context = [context_row("closed loop: cores used by the system", Rs, sut_cores, Systems),
+    Blank = ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)],
+    Context = [[["closed loop: round trips/s in each round" | [case R of
+                                                                   undefined -> "-";
+                                                                   #{closed := C} -> rates(C)
+                                                               end || R <- Rs]] ++ Blank],
+               context_row("closed loop: cores used by the system", Rs, sut_cores, Systems),
                context_row("closed loop: cores used by the generator VM", Rs, gen_cores, Systems),
                context_row("closed loop: cores used by other processes", Rs, other_cores, Systems),
                [["setup of N pairs, ms" | [case R of undefined -> "-";
