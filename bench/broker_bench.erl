@@ -219,7 +219,7 @@ closed_loop(Pairs, #{warmup := Warm, seconds := Secs}, OsPid) ->
     N = length(Pairs),
     C = counters:new(N, [write_concurrency]),
     Count = fun() -> lists:sum([counters:get(C, I) || I <- lists:seq(1, N)]) end,
-    _ = [A ! {closed, C} || #{agent := A} <- Pairs],
+    _ = [A ! {closed, C, 1} || #{agent := A} <- Pairs],
     timer:sleep(round(Warm * 1000)),
     S1 = snapshot(Count(), OsPid),
     timer:sleep(round(Secs * 1000)),
@@ -228,7 +228,7 @@ closed_loop(Pairs, #{warmup := Warm, seconds := Secs}, OsPid) ->
     Drained = collect(Pairs, drained),
     Done = maps:get(count, S2) - maps:get(count, S1),
     (usage(S1, S2, Done))#{rate => Done / seconds(S1, S2), round_trips => Done,
-                           errors => sum(errors, Drained),
+                           errors => sum(errors, Drained) + sum(timeouts, Drained),
                            unanswered => sum(unanswered, Drained)}.
 
 %% The closed-loop windows of one system as one: totals over all of them,
@@ -266,7 +266,7 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, OsPid) ->
                                   achieved => length(Lat) / Secs, samples => length(Lat),
                                   p50 => P50, p99 => P99, p999 => P999, max => Max,
                                   send_lag_p99 => Lag99,
-                                  errors => sum(errors, Samples),
+                                  errors => sum(errors, Samples) + sum(timeouts, Samples),
                                   unanswered => sum(unanswered, Samples)}.
 
 sleep_until(Ms) ->
@@ -326,7 +326,7 @@ profile(#{profile_n := N, profile_seconds := Secs, out := Out} = Cfg) ->
         Pairs = broker_bench_gen:setup(N, Sut),
         C = counters:new(N, [write_concurrency]),
         Count = fun() -> lists:sum([counters:get(C, I) || I <- lists:seq(1, N)]) end,
-        _ = [A ! {closed, C} || #{agent := A} <- Pairs],
+        _ = [A ! {closed, C, 1} || #{agent := A} <- Pairs],
         timer:sleep(1000),
         File = filename:absname(filename:join(Out, "eprof-brokers.txt")),
         ok = filelib:ensure_dir(File),

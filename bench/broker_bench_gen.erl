@@ -14,10 +14,8 @@
 %%   it to match the request. Each end thus encodes and parses what the
 %%   client library would through EVATAR.
 %%
-%% The agent counts a round trip when the answer to its request arrives.
-%% Closed loop: one request in flight per agent, the next sent on each
-%% answer. Open loop: requests due on a fixed schedule, latency measured
-%% from the scheduled send time (no coordinated omission).
+%% The agent counts a round trip when the answer to its request arrives;
+%% its closed and open loops are bench_requester's, as in evatar_bench_gen.
 -module(broker_bench_gen).
 
 -export([setup/2, teardown/1]).
@@ -32,7 +30,6 @@
 -define(VA_COMPONENT, <<"LightEmulator01">>).
 -define(AV_COMPONENT, <<"HomeLightActuator01">>).
 -define(SETUP_TIMEOUT, 120000).
--define(DRAIN_TIMEOUT, 15000).
 -define(BATCH, 32).
 
 %% ---------------------------------------------------------------------------
@@ -182,17 +179,8 @@ feedback(#{id := Id, sender := S, receiver := R}) ->
       sender => R, receiver => S, body => evatar_bench_gen:feedback_body()}.
 
 %% ---------------------------------------------------------------------------
-%% The agent: closed-loop and open-loop request senders
+%% The agent: bench_requester over this connection
 %% ---------------------------------------------------------------------------
-
--record(a, {conn :: conn(),
-            parent :: pid(),
-            index :: pos_integer(),
-            counters :: counters:counters_ref() | undefined,
-            next = 1 :: pos_integer(),
-            %% request number => scheduled (open loop) or send time, in µs
-            inflight = #{} :: #{pos_integer() => integer()},
-            errors = 0 :: non_neg_integer()}).
 
 %% @private
 -spec agent_init(pid(), target(), pos_integer()) -> no_return().
@@ -205,174 +193,36 @@ agent_init(Parent, Sut, I) ->
            catch Class:R -> Parent ! {self(), failed, {agent, I, Class, R}}, exit(normal)
            end,
     Parent ! {self(), ready},
-    idle(#a{conn = Conn, parent = Parent, index = I}).
+    bench_requester:run(#{parent => Parent, index => I,
+                          send => fun(K) -> send(Conn, K) end,
+                          answer => fun(Msg) -> answer(Msg, Conn) end}).
 
-%% Between phases: waits for the controller's next command.
-idle(A) ->
-    receive
-        {closed, Counters} ->
-            closed(send_request(now_us(), A#a{counters = Counters}));
-        {open, Plan} ->
-            open(Plan, A);
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Other ->
-            case answer(Other, A) of
-                {_, _, A1} -> idle(A1);
-                ignore -> idle(A)
-            end
-    end.
-
-%% Closed loop: every answer sends the next request at once.
-closed(#a{counters = Counters, index = I} = A) ->
-    receive
-        stop_loop ->
-            drain(A, now_us() + ?DRAIN_TIMEOUT * 1000);
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Msg ->
-            case answer(Msg, A) of
-                {ok, _, A1} ->
-                    ok = counters:add(Counters, I, 1),
-                    closed(send_request(now_us(), A1));
-                {error, _, A1} ->
-                    closed(send_request(now_us(), A1));
-                ignore ->
-                    closed(A)
-            end
-    end.
-
-drain(#a{inflight = F, parent = Parent} = A, Deadline)
-  when map_size(F) =:= 0; Deadline =:= expired ->
-    Parent ! {self(), drained, #{errors => A#a.errors, unanswered => map_size(F)}},
-    idle(A#a{inflight = #{}, errors = 0});
-drain(A, Deadline) ->
-    receive
-        Msg ->
-            case answer(Msg, A) of
-                {_, _, A1} -> drain(A1, Deadline);
-                ignore -> drain(A, Deadline)
-            end
-    after max(0, (Deadline - now_us()) div 1000) ->
-            drain(A, expired)
-    end.
-
-%% Open loop: request k is due at start + phase + k * interval whatever
-%% happened to the earlier ones; due times fall on whole milliseconds (the
-%% resolution of Erlang timers) and latency counts from the due time.
-%% Plan: #{start := Ms, interval := Us, phase := Us, until := Ms,
-%%         window := {FromUs, ToUs}}.
-open(#{start := StartMs, phase := Phase} = Plan, A) ->
-    open(Plan, StartMs * 1000 + Phase, A, [], []).
-
-open(#{until := Until} = Plan, DueUs, A, Lat, Lag) ->
-    case DueUs div 1000 >= Until of
-        true ->
-            open_drain(Plan, A, Lat, Lag, now_us() + ?DRAIN_TIMEOUT * 1000);
-        false ->
-            TRef = erlang:start_timer(DueUs div 1000, self(), due, [{abs, true}]),
-            open_wait(Plan, DueUs, TRef, A, Lat, Lag)
-    end.
-
-open_wait(#{window := {From, To}} = Plan, DueUs, TRef, A, Lat, Lag) ->
-    receive
-        {timeout, TRef, due} ->
-            {Due1, A1, Lag1} = send_due(Plan, DueUs, A, Lag),
-            open(Plan, Due1, A1, Lat, Lag1);
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Msg ->
-            case answer(Msg, A) of
-                {_, S, A1} when S >= From, S < To ->
-                    open_wait(Plan, DueUs, TRef, A1, [now_us() - S | Lat], Lag);
-                {_, _, A1} ->
-                    open_wait(Plan, DueUs, TRef, A1, Lat, Lag);
-                ignore ->
-                    open_wait(Plan, DueUs, TRef, A, Lat, Lag)
-            end
-    end.
-
-%% Every request whose due millisecond has come goes now.
-send_due(#{interval := Interval, window := {From, To}} = Plan, DueUs, A, Lag) ->
-    Now = now_us(),
-    Sched = DueUs div 1000 * 1000,
-    case Sched =< Now of
-        true ->
-            Lag1 = case Sched >= From andalso Sched < To of
-                       true -> [Now - Sched | Lag];
-                       false -> Lag
-                   end,
-            send_due(Plan, DueUs + Interval, send_request(Sched, A), Lag1);
-        false ->
-            {DueUs, A, Lag}
-    end.
-
-open_drain(#{window := {From, To}}, #a{inflight = F, parent = Parent} = A, Lat, Lag, Deadline)
-  when map_size(F) =:= 0; Deadline =:= expired ->
-    Lost = length([S || S <- maps:values(F), S >= From, S < To]),
-    Parent ! {self(), samples, #{latencies => Lat, send_lags => Lag, errors => A#a.errors,
-                                 unanswered => Lost}},
-    idle(A#a{inflight = #{}, errors = 0});
-open_drain(#{window := {From, To}} = Plan, A, Lat, Lag, Deadline) ->
-    receive
-        Msg ->
-            case answer(Msg, A) of
-                {_, S, A1} when S >= From, S < To ->
-                    open_drain(Plan, A1, [now_us() - S | Lat], Lag, Deadline);
-                {_, _, A1} ->
-                    open_drain(Plan, A1, Lat, Lag, Deadline);
-                ignore ->
-                    open_drain(Plan, A, Lat, Lag, Deadline)
-            end
-    after max(0, (Deadline - now_us()) div 1000) ->
-            open_drain(Plan, A, Lat, Lag, expired)
-    end.
-
-now_us() -> erlang:monotonic_time(microsecond).
-
-%% Sends request number `next', remembering Sched (its due or send time).
-send_request(Sched, #a{conn = Conn, next = K, inflight = F} = A) ->
+-spec send(conn(), pos_integer()) -> ok.
+send(Conn, K) ->
     Req = #{context => request, id => <<"q", (integer_to_binary(K))/binary>>,
             sender => ?VA_COMPONENT, receiver => ?AV_COMPONENT,
             body => evatar_bench_gen:request_body()},
-    ok = send(Conn, Req),
-    A#a{next = K + 1, inflight = F#{K => Sched}}.
+    case Conn of
+        {evatar, C} ->
+            agent_bridge_client:send(C, Req);
+        {mqtt, C, Topic} ->
+            Signal = Req#{in_reply_to => undefined, timestamp => os:system_time(millisecond),
+                          seq => undefined, epoch => undefined},
+            mqtt_client:publish_async(C, Topic, bil:encode_signal(Signal), #{qos => 1})
+    end.
 
-send({evatar, C}, Req) ->
-    agent_bridge_client:send(C, Req);
-send({mqtt, C, Topic}, Req) ->
-    Signal = Req#{in_reply_to => undefined, timestamp => os:system_time(millisecond),
-                  seq => undefined, epoch => undefined},
-    mqtt_client:publish_async(C, Topic, bil:encode_signal(Signal), #{qos => 1}).
-
-%% Matches a message with the open request it answers: `{ok | error,
-%% Sched, A}' (error for an error signal or EVATAR's Timeout feedback), or
-%% `ignore'.
-answer({agent_bridge, C, {signal, Signal}}, #a{conn = {evatar, C}} = A) ->
-    settle(Signal, A);
-answer({agent_bridge, C, {closed, Why}}, #a{conn = {evatar, C}}) ->
+%% Which request a message answers, and how (see bench_requester).
+-spec answer(term(), conn()) -> {pos_integer(), ok | error | timeout} | ignore.
+answer({agent_bridge, C, {signal, Signal}}, {evatar, C}) ->
+    evatar_bench_gen:answer_kind(Signal);
+answer({agent_bridge, C, {closed, Why}}, {evatar, C}) ->
     exit({agent_closed, Why});
-answer({mqtt_client, C, {publish, #{payload := Payload}}}, #a{conn = {mqtt, C, _}} = A) ->
+answer({mqtt_client, C, {publish, #{payload := Payload}}}, {mqtt, C, _}) ->
     case bil:parse_signal(Payload) of
-        {ok, Signal} -> settle(Signal, A);
+        {ok, Signal} -> evatar_bench_gen:answer_kind(Signal);
         {error, _} -> ignore
     end;
-answer({mqtt_client, C, {disconnected, Why}}, #a{conn = {mqtt, C, _}}) ->
+answer({mqtt_client, C, {disconnected, Why}}, {mqtt, C, _}) ->
     exit({agent_disconnected, Why});
-answer(_, _A) ->
-    ignore.
-
-settle(#{in_reply_to := <<"q", N/binary>>, context := Ctx, body := #{category := Cat}},
-       #a{inflight = F} = A) ->
-    case maps:take(binary_to_integer(N), F) of
-        {Sched, F1} ->
-            case {Ctx, Cat} of
-                {feedback, <<"EVATAR">>} -> {error, Sched, A#a{inflight = F1, errors = A#a.errors + 1}};
-                {feedback, _} -> {ok, Sched, A#a{inflight = F1}};
-                _ -> {error, Sched, A#a{inflight = F1, errors = A#a.errors + 1}}
-            end;
-        error ->
-            ignore
-    end;
-settle(_, _A) ->
+answer(_, _Conn) ->
     ignore.
