@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-failover release tar shell clean vectors
+.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -42,6 +42,11 @@ bench-bil: deps
 ## The mediator: N pairings over loopback TCP, round trips/s, latency, memory.
 bench-evatar: deps
 	@bash scripts/bench-evatar.sh $(BENCH_ARGS)
+
+## EVATAR against mosquitto and RabbitMQ's MQTT plugin, side by side
+## (installs the brokers if missing). BENCH_ARGS=quick for a smoke run.
+bench-brokers: deps
+	@bash scripts/bench-brokers.sh $(BENCH_ARGS)
 
 ## Failover times (kill -9, silent stall: p50/p99 over 50 trials) and TLS distribution's cost.
 bench-failover: deps

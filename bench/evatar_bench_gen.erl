@@ -6,7 +6,7 @@
 -module(evatar_bench_gen).
 
 -export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
-         descriptions/2, credentials/0, idle_join/4]).
+         descriptions/2, credentials/0, idle_join/4, answer_kind/1]).
 -export([va_init/6, avatar_init/5, sink/0]).
 
 -export_type([mode/0, pair/0]).
@@ -29,8 +29,6 @@
 -define(AGENT_CRED, <<"bench-agent-credential">>).
 -define(AVATAR_CRED, <<"bench-avatar-credential">>).
 -define(SETUP_TIMEOUT, 60000).
-%% Open requests still unanswered this long after the last send are given up.
--define(DRAIN_TIMEOUT, 15000).
 
 %% ---------------------------------------------------------------------------
 %% Documents
@@ -117,7 +115,7 @@ new_counters(Key, N) ->
     persistent_term:put(Key, counters:new(N, [write_concurrency])).
 
 %% @doc The sum of the closed-loop counters kept under Key on this node
-%% (see va_idle/1: counters cannot cross nodes).
+%% (counters cannot cross nodes: see bench_requester).
 -spec count(term()) -> non_neg_integer().
 count(Key) ->
     C = persistent_term:get(Key),
@@ -338,19 +336,8 @@ element_text(Frame, Open, Close) ->
     binary:part(Frame, From, End - From).
 
 %% ---------------------------------------------------------------------------
-%% The VA: closed-loop and open-loop request senders
+%% The VA: bench_requester over this connection
 %% ---------------------------------------------------------------------------
-
--record(va, {conn :: conn(),
-             parent :: pid(),
-             index :: pos_integer(),
-             template :: {binary(), binary()},
-             counters :: counters:counters_ref() | undefined,
-             next = 1 :: pos_integer(),
-             %% request number => scheduled (open loop) or send time, in µs
-             inflight = #{} :: #{pos_integer() => integer()},
-             errors = 0 :: non_neg_integer(),
-             timeouts = 0 :: non_neg_integer()}).
 
 %% @private
 -spec va_init(pid(), mode(), {inet:ip_address(), inet:port_number()}, binary(),
@@ -361,157 +348,13 @@ va_init(Parent, Mode, Addr, Pairing, Desc, Index) ->
     ok = await_bound(Mode, Conn),
     ok = activate(Conn),
     Parent ! {self(), ready},
-    va_idle(#va{conn = Conn, parent = Parent, index = Index, template = request_template()}).
-
-%% Between phases: waits for the controller's next command.
-va_idle(V) ->
-    receive
-        {closed, CountersOrKey, W} ->
-            %% A counters reference is only valid on the node that made it.
-            Counters = case CountersOrKey of
-                           {persistent, Key} -> persistent_term:get(Key);
-                           C -> C
-                       end,
-            V1 = lists:foldl(fun(_, Acc) -> send_request(now_us(), Acc) end,
-                             V#va{counters = Counters}, lists:seq(1, W)),
-            va_closed(V1);
-        {open, Plan} ->
-            va_open(Plan, V);
-        stop ->
-            exit(normal);
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Other ->
-            case answer(Other, V) of
-                {_, _, V1} -> va_idle(V1);
-                ignore -> va_idle(V)
-            end
-    end.
-
-%% Closed loop: every answer sends the next request at once.
-va_closed(#va{counters = Counters, index = I} = V) ->
-    receive
-        stop_loop ->
-            drain(V, deadline(?DRAIN_TIMEOUT));
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Msg ->
-            case answer(Msg, V) of
-                {ok, _Sent, V1} ->
-                    ok = counters:add(Counters, I, 1),
-                    va_closed(send_request(now_us(), V1));
-                {error, _Sent, V1} ->
-                    va_closed(send_request(now_us(), V1));
-                ignore ->
-                    va_closed(V)
-            end
-    end.
-
-%% Waits for the requests still open (until Deadline, or `expired'), then
-%% reports to the controller.
-drain(#va{inflight = F, parent = Parent} = V, Deadline)
-  when map_size(F) =:= 0; Deadline =:= expired ->
-    Parent ! {self(), drained, #{errors => V#va.errors, timeouts => V#va.timeouts,
-                                 unanswered => map_size(F)}},
-    va_idle(V#va{inflight = #{}, errors = 0, timeouts = 0});
-drain(V, Deadline) ->
-    receive
-        Msg ->
-            case answer(Msg, V) of
-                {_, _, V1} -> drain(V1, Deadline);
-                ignore -> drain(V, Deadline)
-            end
-    after wait_ms(Deadline) ->
-            drain(V, expired)
-    end.
-
-%% Open loop: request k is due at a fixed time given by the plan,
-%% whatever happened to the earlier ones; its latency is counted from that
-%% due time, so a slow answer delays no later measurement (no coordinated
-%% omission). Due times fall on whole milliseconds, the resolution of
-%% Erlang timers; the lag between due time and actual send is reported.
-%% Plan: #{start := Ms, interval := Us, phase := Us, until := Ms,
-%%         window := {FromUs, ToUs}}.
-va_open(#{start := StartMs, phase := Phase} = Plan, V) ->
-    va_open(Plan, 0, StartMs * 1000 + Phase, V, [], []).
-
-va_open(#{until := Until} = Plan, K, DueUs, V, Lat, Lag) ->
-    DueMs = DueUs div 1000,
-    case DueMs >= Until of
-        true ->
-            open_drain(Plan, V, Lat, Lag, deadline(?DRAIN_TIMEOUT));
-        false ->
-            TRef = erlang:start_timer(DueMs, self(), due, [{abs, true}]),
-            open_wait(Plan, K, DueUs, TRef, V, Lat, Lag)
-    end.
-
-open_wait(#{window := {From, To}} = Plan, K, DueUs, TRef, V, Lat, Lag) ->
-    receive
-        {timeout, TRef, due} ->
-            %% Every request whose due millisecond has come goes now.
-            {K1, Due1, V1, Lag1} = send_due(Plan, K, DueUs, now_us(), V, Lag),
-            va_open(Plan, K1, Due1, V1, Lat, Lag1);
-        {'DOWN', _, process, _, _} ->
-            exit(normal);
-        Msg ->
-            case answer(Msg, V) of
-                {_, SchedUs, V1} when SchedUs >= From, SchedUs < To ->
-                    open_wait(Plan, K, DueUs, TRef, V1, [now_us() - SchedUs | Lat], Lag);
-                {_, _, V1} ->
-                    open_wait(Plan, K, DueUs, TRef, V1, Lat, Lag);
-                ignore ->
-                    open_wait(Plan, K, DueUs, TRef, V, Lat, Lag)
-            end
-    end.
-
-send_due(#{interval := Interval, window := {From, To}}, K, DueUs, Now, V, Lag) ->
-    send_due(Interval, From, To, K, DueUs, Now, V, Lag).
-
-send_due(Interval, From, To, K, DueUs, Now, V, Lag) when DueUs div 1000 * 1000 =< Now ->
-    Sched = DueUs div 1000 * 1000,
-    Lag1 = case Sched >= From andalso Sched < To of
-               true -> [Now - Sched | Lag];
-               false -> Lag
-           end,
-    send_due(Interval, From, To, K + 1, DueUs + Interval, now_us(),
-             send_request(Sched, V), Lag1);
-send_due(_Interval, _From, _To, K, DueUs, _Now, V, Lag) ->
-    {K, DueUs, V, Lag}.
-
-open_drain(#{window := {From, To}}, #va{inflight = F, parent = Parent} = V, Lat, Lag,
-           Deadline) when map_size(F) =:= 0; Deadline =:= expired ->
-    Lost = length([S || S <- maps:values(F), S >= From, S < To]),
-    Parent ! {self(), samples, #{latencies => Lat, send_lags => Lag, errors => V#va.errors,
-                                 timeouts => V#va.timeouts, unanswered => Lost}},
-    va_idle(V#va{inflight = #{}, errors = 0, timeouts = 0});
-open_drain(#{window := {From, To}} = Plan, V, Lat, Lag, Deadline) ->
-    receive
-        Msg ->
-            case answer(Msg, V) of
-                {_, S, V1} when S >= From, S < To ->
-                    open_drain(Plan, V1, [now_us() - S | Lat], Lag, Deadline);
-                {_, _, V1} ->
-                    open_drain(Plan, V1, Lat, Lag, Deadline);
-                ignore ->
-                    open_drain(Plan, V, Lat, Lag, Deadline)
-            end
-    after wait_ms(Deadline) ->
-            open_drain(Plan, V, Lat, Lag, expired)
-    end.
-
-%% Monotonic time can be negative: a deadline is compared, never tested
-%% against zero.
-deadline(Ms) -> now_us() + Ms * 1000.
-
-wait_ms(Deadline) -> max(0, (Deadline - now_us()) div 1000).
-
-now_us() -> erlang:monotonic_time(microsecond).
-
-%% Sends request number `next', remembering `Sched' (its due or send time).
-send_request(Sched, #va{conn = Conn, next = K, inflight = F, template = T} = V) ->
-    Id = <<"q", (integer_to_binary(K))/binary>>,
-    ok = send_request(Conn, Id, T),
-    V#va{next = K + 1, inflight = F#{K => Sched}}.
+    Template = request_template(),
+    bench_requester:run(#{parent => Parent, index => Index,
+                          send => fun(K) ->
+                                          Id = <<"q", (integer_to_binary(K))/binary>>,
+                                          send_request(Conn, Id, Template)
+                                  end,
+                          answer => fun(Msg) -> answer(Msg, Conn) end}).
 
 send_request({client, C}, Id, _T) ->
     agent_bridge_client:send(C, #{context => request, id => Id, sender => ?VA_COMPONENT,
@@ -524,16 +367,15 @@ send_request({direct, Session}, Id, _T) ->
 send_request({raw, S}, Id, {P1, P2}) ->
     gen_tcp:send(S, [P1, Id, P2]).
 
-%% Matches an incoming message with the open request it answers:
-%% `{ok | error, Sched, V}' (error for an error signal or EVATAR's Timeout
-%% feedback) or `ignore'.
-answer({agent_bridge, C, {signal, Signal}}, #va{conn = {client, C}} = V) ->
-    answer_signal(Signal, V);
-answer({evatar, _, {signal, Signal}}, #va{conn = {direct, _}} = V) ->
-    answer_signal(Signal, V);
-answer({agent_bridge, C, {closed, Why}}, #va{conn = {client, C}}) ->
+%% Which request a message answers, and how (see bench_requester).
+-spec answer(term(), conn()) -> {pos_integer(), ok | error | timeout} | ignore.
+answer({agent_bridge, C, {signal, Signal}}, {client, C}) ->
+    answer_kind(Signal);
+answer({evatar, _, {signal, Signal}}, {direct, _}) ->
+    answer_kind(Signal);
+answer({agent_bridge, C, {closed, Why}}, {client, C}) ->
     exit({va_closed, Why});
-answer({tcp, S, Frame}, #va{conn = {raw, S}} = V) ->
+answer({tcp, S, Frame}, {raw, S}) ->
     case binary:match(Frame, <<"<InReplyTo>q">>) of
         nomatch ->
             ignore;
@@ -549,39 +391,30 @@ answer({tcp, S, Frame}, #va{conn = {raw, S}} = V) ->
                                _ -> timeout
                            end
                    end,
-            settle(N, Kind, V)
+            {N, Kind}
     end;
-answer({tcp_passive, S}, #va{conn = {raw, S}}) ->
+answer({tcp_passive, S}, {raw, S}) ->
     ok = inet:setopts(S, [{active, 32}]),
     ignore;
-answer({tcp_closed, S}, #va{conn = {raw, S}}) ->
+answer({tcp_closed, S}, {raw, S}) ->
     exit(va_closed);
-answer(_, _V) ->
+answer(_, _Conn) ->
     ignore.
 
-answer_signal(#{in_reply_to := <<"q", N/binary>>, context := Ctx,
-                body := #{category := Cat}}, V) ->
+%% @doc A parsed signal that answers request `q<K>': `{K, ok}' for a
+%% feedback, `{K, timeout}' for EVATAR's own Timeout feedback (body
+%% category EVATAR), `{K, error}' for anything else; `ignore' when it
+%% answers no benchmark request.
+-spec answer_kind(bil:signal()) -> {pos_integer(), ok | error | timeout} | ignore.
+answer_kind(#{in_reply_to := <<"q", N/binary>>, context := Ctx, body := #{category := Cat}}) ->
     Kind = case {Ctx, Cat} of
                {feedback, <<"EVATAR">>} -> timeout;
                {feedback, _} -> ok;
                _ -> error
            end,
-    settle(binary_to_integer(N), Kind, V);
-answer_signal(_, _V) ->
+    {binary_to_integer(N), Kind};
+answer_kind(_) ->
     ignore.
-
-settle(K, Kind, #va{inflight = F} = V) ->
-    case maps:take(K, F) of
-        {Sched, F1} ->
-            V1 = V#va{inflight = F1},
-            case Kind of
-                ok -> {ok, Sched, V1};
-                error -> {error, Sched, V1#va{errors = V#va.errors + 1}};
-                timeout -> {error, Sched, V1#va{timeouts = V#va.timeouts + 1}}
-            end;
-        error ->
-            ignore
-    end.
 
 %% ---------------------------------------------------------------------------
 %% Idle pairings

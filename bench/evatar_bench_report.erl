@@ -5,7 +5,7 @@
 -module(evatar_bench_report).
 
 -export([percentiles/2, json/1, fmt/2, int/1, kib/1, ms/1, table/2, md_table/2,
-         write/3]).
+         write/3, write/4]).
 
 %% @doc The values at the given fractions (0 < Q =< 1) of a list of
 %% samples, nearest rank; `undefined' for each when there are none.
@@ -99,11 +99,16 @@ md_table(Header, Rows) ->
 %% with the date and time; returns the two file names.
 -spec write(file:filename(), map(), iodata()) -> {string(), string()}.
 write(Dir, Results, Markdown) ->
+    write(Dir, "evatar", Results, Markdown).
+
+%% @doc The same, the file names starting with Prefix instead of `evatar'.
+-spec write(file:filename(), string(), map(), iodata()) -> {string(), string()}.
+write(Dir, Prefix, Results, Markdown) ->
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     {{Y, Mo, D}, {H, Mi, S}} = calendar:local_time(),
     Stamp = fmt("~4..0b-~2..0b-~2..0b-~2..0b~2..0b~2..0b", [Y, Mo, D, H, Mi, S]),
-    Json = filename:join(Dir, "evatar-" ++ Stamp ++ ".json"),
-    Md = filename:join(Dir, "evatar-" ++ Stamp ++ ".md"),
+    Json = filename:join(Dir, Prefix ++ "-" ++ Stamp ++ ".json"),
+    Md = filename:join(Dir, Prefix ++ "-" ++ Stamp ++ ".md"),
     ok = file:write_file(Json, [json(Results), $\n]),
     ok = file:write_file(Md, Markdown),
     {Json, Md}.
