@@ -31,7 +31,11 @@ fi
 
 # +P and +Q: room for 10,000 pairings (six processes and four sockets
 # each, both ends in this node).
-exec erl +P 2000000 +Q 1000000 -noshell \
+# The scheduler flags of config/vm.args (the release's); override with
+# EVATAR_BENCH_SCHED_FLAGS (e.g. "" for the VM's defaults) to compare.
+SCHED=${EVATAR_BENCH_SCHED_FLAGS-+sbwt none +sbwtdcpu none +sbwtdio none}
+# shellcheck disable=SC2086
+exec erl +P 2000000 +Q 1000000 $SCHED -noshell \
   -pa "$BASE"/bench/lib/*/ebin -pa "$BASE"/bench/extras/bench \
   -eval "try evatar_bench:main($OPTS) of
            ok -> halt(0)
