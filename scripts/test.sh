@@ -22,9 +22,10 @@ step() {
   echo "== $name: $*"
   # To a file, not through a pipe: a stray child process that inherited the
   # pipe would otherwise keep the whole run waiting after the tool is done.
-  local rc=0
+  local rc=0 t0=$SECONDS
   "$@" > "$REPORT/$name.log" 2>&1 < /dev/null || rc=$?
   cat "$REPORT/$name.log"
+  echo "== $name took $((SECONDS - t0)) s"
   return "$rc"
 }
 
@@ -114,7 +115,7 @@ else
 fi
 
 echo
-echo "== summary"
+echo "== summary (${SECONDS} s in all)"
 for line in "${summary[@]}"; do echo "   $line"; done
 echo "$passed passed, $failed failed"
 [ "$failed" -eq 0 ]
