@@ -58,10 +58,8 @@ demo_from_scratch(Config) ->
 %% @doc On a node already running EVATAR with other pairings, the tour uses
 %% its own listener and pairing, and leaves the rest running as it was.
 demo_on_running_node(Config) ->
-    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
-    {ok, _} = application:ensure_all_started(agent_bridge),
-    {ok, _} = evatar:create_pairing(<<"bystander">>, #{agent_credential => <<"a">>,
-                                                      avatar_credential => <<"b">>}),
+    ok = agent_bridge_test_node:start([]),
+    {ok, _} = agent_bridge_test_node:create_pairing(<<"bystander">>, #{}),
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],
     true = lists:member(<<"bystander">>, Pairings),
