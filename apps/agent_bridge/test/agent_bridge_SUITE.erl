@@ -476,14 +476,7 @@ queue_len(Pid) ->
     {message_queue_len, N} = erlang:process_info(Pid, message_queue_len),
     N.
 
-wait_until(Fun) -> wait_until(Fun, 500).
-
-wait_until(_Fun, 0) -> {error, timeout};
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(20), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 500).
 
 %% A VA and an Avatar bound to each other; the Avatar runs a responder.
 bound_pair(Config) ->

@@ -6,7 +6,8 @@
 -module(agent_bridge_test_node).
 
 -export([start/1, start_with_broker/3, stop/2, listen/1, listen/2, va_credential/0,
-         avatar_credential/0, create_pairing/2, stop_broker/1, wait_binding/3, wait_signal/3]).
+         avatar_credential/0, create_pairing/2, stop_broker/1, wait_binding/3, wait_signal/3,
+         wait_until/2]).
 
 %% @doc Starts evatar, agent_bridge (without a default listener) and Apps.
 -spec start([atom()]) -> ok.
@@ -87,6 +88,15 @@ wait_binding(C, Pred, Timeout) ->
 -spec wait_signal(pid(), fun((map()) -> boolean()), timeout()) -> map().
 wait_signal(C, Pred, Timeout) ->
     wait_report(C, signal, Pred, Timeout, no_signal).
+
+%% @doc ok once Fun() is true, asked every 20 ms at most Tries times.
+-spec wait_until(fun(() -> boolean()), non_neg_integer()) -> ok | {error, timeout}.
+wait_until(_Fun, 0) -> {error, timeout};
+wait_until(Fun, Tries) ->
+    case Fun() of
+        true -> ok;
+        false -> timer:sleep(20), wait_until(Fun, Tries - 1)
+    end.
 
 wait_report(C, Kind, Pred, Timeout, Failure) ->
     receive

@@ -480,14 +480,7 @@ param(Name, Params) ->
         false -> ct:fail({missing_parameter, Name, Params})
     end.
 
-wait_until(Fun) -> wait_until(Fun, 250).
-
-wait_until(_Fun, 0) -> {error, timeout};
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(20), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 250).
 
 remember(Kind, Pid) ->
     put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).
