@@ -198,65 +198,49 @@ device_never_answers(Config) ->
 %% 18:00 rule fails for that light only. When the switch comes back the VA
 %% is embodied again and switches the light to what the policy wants.
 device_leaves_and_comes_back(Config) ->
-    Spool = filename:join(?config(priv_dir, Config), "detach"),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
-    try
-        Home = reference_agents_scenario:get(home, S),
-        Va = reference_agents_scenario:get(va, S),
-        Clock = reference_agents_scenario:get(clock, S),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:detach_device(Home, <<"LivingLightSwitch01">>),
-        {ok, #{embodiment := #{failed := Failed}}} =
-            await_verdict(Va, partial),
-        ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
-        ok = avatar_sim:pause(Clock),
-        ok = avatar_sim:set_speed(Clock, ?SPEED),
-        ok = reference_agents_holiday:run_until(S, "18:05"),
-        #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
-        ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
-                     [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
-        #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
-        {ok, _} = await_verdict(Va, embodied),
-        {ok, _} = reference_agents_scenario:await(
-                    fun() ->
-                            case avatar_sim:state(Home) of
-                                #{lights := #{<<"living">> := on}} -> {true, on};
-                                _ -> false
-                            end
-                    end, 10000, living_light_restored),
-        #{states := States} = reference_agents_va:inspect(Va),
-        ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
-                             dedupe([St || {St, _} <- States])))
-    after
-        reference_agents_holiday:stop(S)
-    end.
+    live_evening(Config, "detach", fun detach_living_switch/4).
+
+detach_living_switch(S, Home, Va, Clock) ->
+    ok = avatar_sim:detach_device(Home, <<"LivingLightSwitch01">>),
+    {ok, #{embodiment := #{failed := Failed}}} =
+        await_verdict(Va, partial),
+    ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
+    ok = avatar_sim:pause(Clock),
+    ok = avatar_sim:set_speed(Clock, ?SPEED),
+    ok = reference_agents_holiday:run_until(S, "18:05"),
+    #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+    ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
+                 [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
+    #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
+    ok = avatar_sim:set_speed(Clock, 2),
+    ok = avatar_sim:resume(Clock),
+    ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
+    {ok, _} = await_verdict(Va, embodied),
+    {ok, _} = reference_agents_scenario:await(
+                fun() ->
+                        case avatar_sim:state(Home) of
+                            #{lights := #{<<"living">> := on}} -> {true, on};
+                            _ -> false
+                        end
+                end, 10000, living_light_restored),
+    #{states := States} = reference_agents_va:inspect(Va),
+    ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
+                         dedupe([St || {St, _} <- States]))).
 
 %% @doc The whole gateway loses its connection: the VA sees its body go
 %% (observing) and, when the gateway is back, tests it and is embodied
 %% again.
 gateway_leaves_and_comes_back(Config) ->
-    Spool = filename:join(?config(priv_dir, Config), "gateway"),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
-    try
-        Home = reference_agents_scenario:get(home, S),
-        Va = reference_agents_scenario:get(va, S),
-        Clock = reference_agents_scenario:get(clock, S),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
-        {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
-        ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
-        {ok, _} = await_verdict(Va, embodied),
-        #{states := States} = reference_agents_va:inspect(Va),
-        ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
-                             dedupe([St || {St, _} <- States])))
-    after
-        reference_agents_holiday:stop(S)
-    end.
+    live_evening(Config, "gateway", fun disconnect_gateway/4).
+
+disconnect_gateway(_S, Home, Va, _Clock) ->
+    ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
+    {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
+    ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
+    {ok, _} = await_verdict(Va, embodied),
+    #{states := States} = reference_agents_va:inspect(Va),
+    ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
+                         dedupe([St || {St, _} <- States]))).
 
 %% @doc A rules file with a mistake is refused before anything runs, with
 %% a message naming the file and the line.
@@ -327,6 +311,23 @@ no_room_light_before_dusk(Config) ->
 %% ---------------------------------------------------------------------------
 %% Helpers
 %% ---------------------------------------------------------------------------
+
+%% Runs Case(S, Home, Va, Clock) on a holiday evening whose clock runs at
+%% twice real time, so that the VA sees each change to the house as it
+%% happens; the scenario is stopped whatever the outcome.
+live_evening(Config, Name, Case) ->
+    Spool = filename:join(?config(priv_dir, Config), Name),
+    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
+    try
+        Home = reference_agents_scenario:get(home, S),
+        Va = reference_agents_scenario:get(va, S),
+        Clock = reference_agents_scenario:get(clock, S),
+        ok = avatar_sim:set_speed(Clock, 2),
+        ok = avatar_sim:resume(Clock),
+        Case(S, Home, Va, Clock)
+    after
+        reference_agents_holiday:stop(S)
+    end.
 
 await_verdict(Va, Verdict) ->
     reference_agents_scenario:await(
