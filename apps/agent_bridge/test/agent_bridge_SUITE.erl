@@ -50,6 +50,8 @@ end_per_suite(Config) ->
     {Va, Av, _} = ?config(bystander, Config),
     ok = agent_bridge_client:close(Va),
     exit(Av, shutdown),
+    %% The suites that run next may count the node's pairings.
+    ok = evatar:delete_pairing(<<"bystander">>),
     agent_bridge_test_node:stop([test, small], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
