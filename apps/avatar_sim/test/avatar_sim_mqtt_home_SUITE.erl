@@ -22,7 +22,7 @@ init_per_suite(Config) ->
 
 end_per_suite(Config) ->
     ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
-    agent_bridge_test_node:stop([mqtt_home_suite], []).
+    agent_bridge_test_node:stop([mqtt_home_suite], [avatar_sim]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
