@@ -10,8 +10,8 @@
 -compile([export_all, nowarn_export_all]).
 
 -define(NS, "xmlns:bil=\"urn:evatar:bil:1\"").
--define(VA_CRED, <<"va-secret">>).
--define(AV_CRED, <<"avatar-secret">>).
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -36,19 +36,13 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
-    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
-    {ok, _} = application:ensure_all_started(agent_bridge),
-    {ok, _} = agent_bridge:start_listener(test, #{port => 0,
-                                                 conn => #{handshake_timeout => 500,
+    ok = agent_bridge_test_node:start([]),
+    Addr = agent_bridge_test_node:listen(test, #{conn => #{handshake_timeout => 500,
                                                            linger => 200}}),
-    {ok, _} = agent_bridge:start_listener(small, #{port => 0,
-                                                  conn => #{max_out_frames => 50,
-                                                            max_out_bytes => 65536,
-                                                            pairing_watermark => 20,
-                                                            active_n => 4}}),
-    {ok, Addr} = agent_bridge:address(test),
-    {ok, Small} = agent_bridge:address(small),
+    Small = agent_bridge_test_node:listen(small, #{conn => #{max_out_frames => 50,
+                                                             max_out_bytes => 65536,
+                                                             pairing_watermark => 20,
+                                                             active_n => 4}}),
     Bystander = start_bystander(Addr),
     [{addr, Addr}, {small, Small}, {bystander, Bystander} | Config].
 
@@ -56,17 +50,14 @@ end_per_suite(Config) ->
     {Va, Av, _} = ?config(bystander, Config),
     ok = agent_bridge_client:close(Va),
     exit(Av, shutdown),
-    ok = agent_bridge:stop_listener(test),
-    ok = agent_bridge:stop_listener(small),
-    ok = application:stop(agent_bridge),
-    ok.
+    %% The suites that run next may count the node's pairings.
+    ok = evatar:delete_pairing(<<"bystander">>),
+    agent_bridge_test_node:stop([test, small], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
-                                               avatar_credential => ?AV_CRED,
-                                               join_timeout => 2000,
-                                               feedback_timeout => 300}),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 2000,
+                                                               feedback_timeout => 300}),
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -208,9 +199,7 @@ malformed_signal_keeps_connection(Config) ->
 %% An entity that never describes itself is dropped after the join timeout.
 join_timeout_drops(Config) ->
     Pairing = <<"join_timeout_short">>,
-    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
-                                               avatar_credential => ?AV_CRED,
-                                               join_timeout => 200}),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 200}),
     S = raw_connect(Config),
     ok = gen_tcp:send(S, bil_control:encode({hello, #{pairing => Pairing, role => avatar,
                                                       entity_id => <<"av">>,
@@ -489,14 +478,7 @@ queue_len(Pid) ->
     {message_queue_len, N} = erlang:process_info(Pid, message_queue_len),
     N.
 
-wait_until(Fun) -> wait_until(Fun, 500).
-
-wait_until(_Fun, 0) -> {error, timeout};
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(20), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 500).
 
 %% A VA and an Avatar bound to each other; the Avatar runs a responder.
 bound_pair(Config) ->
@@ -507,14 +489,7 @@ bound_pair(Config) ->
     {Va, Av}.
 
 wait_binding(Va, Pred) ->
-    receive
-        {agent_bridge, Va, {binding, Report}} ->
-            case Pred(Report) of
-                true -> Report;
-                false -> wait_binding(Va, Pred)
-            end
-    after 5000 -> ct:fail(no_binding)
-    end.
+    agent_bridge_test_node:wait_binding(Va, Pred, 5000).
 
 collect_sensor(_Va, 0, Acc) ->
     lists:reverse(Acc);
@@ -563,8 +538,7 @@ responder(C, Answer) ->
 
 start_bystander(Addr) ->
     Pairing = <<"bystander">>,
-    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
-                                               avatar_credential => ?AV_CRED}),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{}),
     Config = [{addr, Addr}, {pairing, Pairing}],
     Parent = self(),
     %% The bystander's clients belong to a long-lived process, not to the

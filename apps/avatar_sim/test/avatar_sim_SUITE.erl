@@ -10,8 +10,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, <<"va-secret">>).
--define(AV_CRED, <<"avatar-secret">>).
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
 -define(WAIT, 10000).
 
 suite() -> [{timetrap, {seconds, 60}}].
@@ -33,27 +33,18 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
-    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
-    {ok, _} = application:ensure_all_started(agent_bridge),
-    {ok, _} = application:ensure_all_started(avatar_sim),
-    {ok, _} = agent_bridge:start_listener(avatar_sim_test, #{port => 0}),
-    {ok, Addr} = agent_bridge:address(avatar_sim_test),
-    [{addr, Addr} | Config].
+    ok = agent_bridge_test_node:start([avatar_sim]),
+    [{addr, agent_bridge_test_node:listen(avatar_sim_test)} | Config].
 
 end_per_suite(_Config) ->
-    ok = agent_bridge:stop_listener(avatar_sim_test),
-    ok = application:stop(avatar_sim),
-    ok = application:stop(agent_bridge),
-    ok.
+    agent_bridge_test_node:stop([avatar_sim_test], [avatar_sim, agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Timeout = case Case of muted_device_times_out -> 300; _ -> 5000 end,
     Pairings = [<<(atom_to_binary(Case))/binary, "-", (integer_to_binary(N))/binary>>
                 || N <- [1, 2]],
-    [{ok, _} = evatar:create_pairing(P, #{agent_credential => ?VA_CRED,
-                                          avatar_credential => ?AV_CRED,
-                                          feedback_timeout => Timeout}) || P <- Pairings],
+    [{ok, _} = agent_bridge_test_node:create_pairing(P, #{feedback_timeout => Timeout})
+     || P <- Pairings],
     Spool = filename:join(?config(priv_dir, Config), atom_to_list(Case) ++ "-spool"),
     [{pairings, Pairings}, {spool, Spool} | Config].
 
@@ -311,8 +302,7 @@ same_seed_same_signals(Config) ->
     ?assertEqual(Got1, Got2),
     ?assertEqual(Log1, Log2),
     ok = evatar:delete_pairing(pairing(1, Config)),
-    {ok, _} = evatar:create_pairing(pairing(1, Config), #{agent_credential => ?VA_CRED,
-                                                          avatar_credential => ?AV_CRED}),
+    {ok, _} = agent_bridge_test_node:create_pairing(pairing(1, Config), #{}),
     {_, Log3} = Run(8, pairing(1, Config)),
     ?assertNotEqual(Log1, Log3).
 
@@ -429,24 +419,10 @@ signals(Va) ->
     end.
 
 wait_signal(Va, Pred) ->
-    receive
-        {agent_bridge, Va, {signal, S}} ->
-            case Pred(S) of
-                true -> S;
-                false -> wait_signal(Va, Pred)
-            end
-    after ?WAIT -> ct:fail(no_signal)
-    end.
+    agent_bridge_test_node:wait_signal(Va, Pred, ?WAIT).
 
 wait_binding(Va, Pred) ->
-    receive
-        {agent_bridge, Va, {binding, B}} ->
-            case Pred(B) of
-                true -> B;
-                false -> wait_binding(Va, Pred)
-            end
-    after ?WAIT -> ct:fail(no_binding)
-    end.
+    agent_bridge_test_node:wait_binding(Va, Pred, ?WAIT).
 
 wait_for(F) -> wait_for(F, 200).
 wait_for(_F, 0) -> ct:fail(condition_not_met);

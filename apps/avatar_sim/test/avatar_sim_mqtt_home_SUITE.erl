@@ -8,8 +8,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, <<"va-secret">>).
--define(AV_CRED, <<"avatar-secret">>).
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 90}}].
 
@@ -18,30 +18,15 @@ all() ->
      photos_with_progress, device_power_cut, notifier_over_tcp].
 
 init_per_suite(Config) ->
-    case mqtt_broker:available() of
-        false ->
-            {skip, "mosquitto is not installed (Debian package mosquitto)"};
-        true ->
-            ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
-            {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
-            {ok, _} = application:ensure_all_started(agent_bridge),
-            {ok, _} = application:ensure_all_started(avatar_sim),
-            {ok, _} = agent_bridge:start_listener(mqtt_home_suite, #{port => 0}),
-            {ok, Addr} = agent_bridge:address(mqtt_home_suite),
-            {ok, Broker} = mqtt_broker:start(#{}),
-            [{addr, Addr}, {broker, Broker} | Config]
-    end.
+    agent_bridge_test_node:start_with_broker([avatar_sim], mqtt_home_suite, Config).
 
 end_per_suite(Config) ->
-    ok = mqtt_broker:stop(?config(broker, Config)),
-    ok = agent_bridge:stop_listener(mqtt_home_suite),
-    ok.
+    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
+    agent_bridge_test_node:stop([mqtt_home_suite], [avatar_sim]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = evatar:create_pairing(Pairing, #{agent_credential => ?VA_CRED,
-                                               avatar_credential => ?AV_CRED,
-                                               feedback_timeout => 5000}),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{feedback_timeout => 5000}),
     Spool = filename:join(?config(priv_dir, Config), Case),
     {ok, Home} = avatar_sim_mqtt_home:start(
                    #{mqtt => #{host => {127, 0, 0, 1}, port => maps:get(port, ?config(broker, Config))},

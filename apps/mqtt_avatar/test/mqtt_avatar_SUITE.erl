@@ -9,8 +9,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, <<"va-secret">>).
--define(AV_CRED, <<"avatar-secret">>).
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -28,33 +28,15 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    case mqtt_broker:available() of
-        false ->
-            {skip, "mosquitto is not installed (Debian package mosquitto)"};
-        true ->
-            ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
-            %% Started explicitly: an earlier suite may have stopped evatar while
-            %% leaving agent_bridge running, which ensure_all_started would not notice.
-            {ok, _} = application:ensure_all_started(evatar),
-            {ok, _} = application:ensure_all_started(agent_bridge),
-            {ok, _} = application:ensure_all_started(mqtt_avatar),
-            {ok, _} = agent_bridge:start_listener(mqtt_avatar_suite, #{port => 0}),
-            {ok, Addr} = agent_bridge:address(mqtt_avatar_suite),
-            {ok, Broker} = mqtt_broker:start(#{}),
-            [{addr, Addr}, {broker, Broker} | Config]
-    end.
+    agent_bridge_test_node:start_with_broker([mqtt_avatar], mqtt_avatar_suite, Config).
 
 end_per_suite(Config) ->
-    ok = mqtt_broker:stop(?config(broker, Config)),
-    ok = agent_bridge:stop_listener(mqtt_avatar_suite),
-    ok = application:stop(mqtt_avatar),
-    ok.
+    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
+    agent_bridge_test_node:stop([mqtt_avatar_suite], [mqtt_avatar]).
 
 init_per_testcase(Case, Config) ->
     Name = atom_to_binary(Case),
-    {ok, _} = evatar:create_pairing(Name, #{agent_credential => ?VA_CRED,
-                                            avatar_credential => ?AV_CRED,
-                                            feedback_timeout => 1500}),
+    {ok, _} = agent_bridge_test_node:create_pairing(Name, #{feedback_timeout => 1500}),
     [{pairing, Name}, {prefix, Name} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -487,24 +469,10 @@ provider_of_service(Va, Provider, Type) ->
     C.
 
 wait_binding(Va, Pred) ->
-    receive
-        {agent_bridge, Va, {binding, Report}} ->
-            case Pred(Report) of
-                true -> Report;
-                false -> wait_binding(Va, Pred)
-            end
-    after 10000 -> ct:fail(no_binding)
-    end.
+    agent_bridge_test_node:wait_binding(Va, Pred, 10000).
 
 wait_signal(Va, Pred) ->
-    receive
-        {agent_bridge, Va, {signal, S}} ->
-            case Pred(S) of
-                true -> S;
-                false -> wait_signal(Va, Pred)
-            end
-    after 5000 -> ct:fail(no_signal)
-    end.
+    agent_bridge_test_node:wait_signal(Va, Pred, 5000).
 
 param(Name, Params) ->
     case lists:keyfind(Name, 1, Params) of
@@ -512,14 +480,7 @@ param(Name, Params) ->
         false -> ct:fail({missing_parameter, Name, Params})
     end.
 
-wait_until(Fun) -> wait_until(Fun, 250).
-
-wait_until(_Fun, 0) -> {error, timeout};
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(20), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 250).
 
 remember(Kind, Pid) ->
     put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).

@@ -49,7 +49,7 @@ end_per_testcase(_Case, _Config) ->
 demo_from_scratch(Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
-    {ok, Output} = run_demo(["bil"]),
+    {ok, Output} = reference_agents_demo_capture:run(["bil"]),
     ok = check_story(Output),
     ?assertNot(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertNot(lists:keymember(evatar, 1, application:which_applications())),
@@ -58,14 +58,12 @@ demo_from_scratch(Config) ->
 %% @doc On a node already running EVATAR with other pairings, the tour uses
 %% its own listener and pairing, and leaves the rest running as it was.
 demo_on_running_node(Config) ->
-    {ok, _} = application:ensure_all_started(evatar),  % see mqtt_avatar_SUITE
-    {ok, _} = application:ensure_all_started(agent_bridge),
-    {ok, _} = evatar:create_pairing(<<"bystander">>, #{agent_credential => <<"a">>,
-                                                      avatar_credential => <<"b">>}),
+    ok = agent_bridge_test_node:start([]),
+    {ok, _} = agent_bridge_test_node:create_pairing(<<"bystander">>, #{}),
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],
     true = lists:member(<<"bystander">>, Pairings),
-    {ok, Output} = run_demo(["bil"]),
+    {ok, Output} = reference_agents_demo_capture:run(["bil"]),
     ok = check_story(Output),
     ?assert(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertEqual(Pairings, [Id || #{id := Id} <- evatar:pairings()]),
@@ -79,7 +77,7 @@ demo_on_running_node(Config) ->
 home_demo(Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
-    {ok, Output} = run_demo([]),
+    {ok, Output} = reference_agents_demo_capture:run([]),
     ct:log("~ts", [Output]),
     Patterns = ["\\[18:0[0-9]:[0-9]{2}\\] house-va +DECIDE +policy holiday at 18:00 if dark do light living on",
                 "\\[21:4[0-9]:[0-9]{2}\\] house-va +PERCEIVE +activity failed_authorisation in hall",
@@ -97,7 +95,7 @@ home_demo(Config) ->
 %% @doc `robots': the robots explore, the lexicon is agreed, every ball is
 %% placed, and the summary says so.
 robots_demo(_Config) ->
-    {ok, Output} = run_demo(["robots"]),
+    {ok, Output} = reference_agents_demo_capture:run(["robots"]),
     ct:log("~ts", [Output]),
     Expected = ["coordinator", "every robot VA is embodied", "lexicon built: blue-ball (blue), "
                 "green-ball (green), red-ball (red)", "every ball is at its target",
@@ -109,19 +107,17 @@ robots_demo(_Config) ->
 %% reference_agents_demo:stop/0 is called.
 keep_prints_the_remote_shell_command(Config) ->
     Old = group_leader(),
-    Capture = spawn_link(fun() -> capture([]) end),
+    Capture = reference_agents_demo_capture:start(),
     true = group_leader(Capture, self()),
     Self = self(),
     Demo = spawn(fun() -> Self ! {result, self(), reference_agents_demo:main(["bil", "--keep"])} end),
     true = group_leader(Old, self()),
     {ok, Text} = reference_agents_scenario:await(
                    fun() ->
-                           Capture ! {peek, self()},
-                           receive {output, Capture, T} ->
-                                   case string:find(T, "reference_agents_demo:stop()") of
-                                       nomatch -> false;
-                                       _ -> {true, T}
-                                   end
+                           T = reference_agents_demo_capture:peek(Capture),
+                           case string:find(T, "reference_agents_demo:stop()") of
+                               nomatch -> false;
+                               _ -> {true, T}
                            end
                    end, 60000, kept),
     ct:log("~ts", [Text]),
@@ -185,43 +181,3 @@ agent_bridge_address() ->
         true -> agent_bridge:address(reference_agents_tour);
         false -> {error, not_found}
     end.
-
-%% Runs the demo with this process's group leader replaced by one that
-%% collects the text; the processes the demo starts inherit it.
-run_demo(Args) ->
-    Old = group_leader(),
-    Capture = spawn_link(fun() -> capture([]) end),
-    true = group_leader(Capture, self()),
-    Result = try reference_agents_demo:main(Args)
-             after true = group_leader(Old, self())
-             end,
-    ok = Result,
-    Capture ! {done, self()},
-    receive {output, Capture, Text} -> {ok, Text} end.
-
-%% A minimal I/O server: keeps what is written, refuses to read.
-capture(Acc) ->
-    receive
-        {io_request, From, ReplyAs, Request} ->
-            {Reply, Acc1} = io_request(Request, Acc),
-            From ! {io_reply, ReplyAs, Reply},
-            capture(Acc1);
-        {peek, From} ->
-            From ! {output, self(), unicode:characters_to_list(lists:reverse(Acc))},
-            capture(Acc);
-        {done, From} ->
-            From ! {output, self(), unicode:characters_to_list(lists:reverse(Acc))}
-    end.
-
-io_request({put_chars, Encoding, Chars}, Acc) ->
-    {ok, [unicode:characters_to_binary(Chars, Encoding) | Acc]};
-io_request({put_chars, Encoding, M, F, A}, Acc) ->
-    io_request({put_chars, Encoding, apply(M, F, A)}, Acc);
-io_request({put_chars, Chars}, Acc) ->
-    io_request({put_chars, latin1, Chars}, Acc);
-io_request({put_chars, M, F, A}, Acc) ->
-    io_request({put_chars, latin1, apply(M, F, A)}, Acc);
-io_request({requests, Requests}, Acc) ->
-    lists:foldl(fun(R, {_, A}) -> io_request(R, A) end, {ok, Acc}, Requests);
-io_request(_Other, Acc) ->
-    {{error, enotsup}, Acc}.

@@ -82,59 +82,22 @@ pairings() ->
 %% take photos and write an e-mail "INTRUSION" with them attached: a real
 %% MIME message in the spool, its PNG photos next to it.
 intrusion_email_with_photos(Config) ->
-    #{home := #{emails := Emails, photos := Photos}, va := #{mind := Mind}} = ?config(outcome, Config),
-    [#{file := File, subject := <<"INTRUSION">>, attachments := Attached}] = Emails,
-    ?assertEqual(3, length(Attached)),
-    ?assertEqual(filename:absname(?config(spool, Config)), filename:dirname(binary_to_list(File))),
-    {ok, Eml} = file:read_file(File),
-    ?assertMatch({match, _}, re:run(Eml, "^Subject: INTRUSION\r?$", [multiline])),
-    ?assertEqual(3, length(binary:matches(Eml, <<"Content-Type: image/png">>))),
-    [begin
-         [PhotoFile] = [F || #{id := I, file := F} <- Photos, I =:= Id],
-         {ok, <<137, "PNG", _/binary>>} = file:read_file(PhotoFile)
-     end || Id <- Attached],
-    %% Photos of the hall taken after the intrusion was recognised.
-    ?assertEqual([<<"hall">>], lists:usort([R || #{id := I, room := R} <- Photos,
-                                                 lists:member(I, Attached)])),
-    #{emails := [File]} = Mind,
-    ok.
+    reference_agents_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
+                                                                ?config(spool, Config)).
 
 %% @doc The story tells, in order, the perceived activities, the complex
 %% activity, the decision of the policy and the actuations with their
 %% outcomes (the alarm sounded, the message played).
 intrusion_narrated(Config) ->
-    #{story := Story, home := #{played := Played}} = ?config(outcome, Config),
-    Texts = [T || #{who := <<"house-va">>, text := T} <- Story],
-    Expected = [<<"activity failed_authorisation in hall">>,
-                <<"complex activity intruder in hall">>,
-                <<"policy holiday on intruder do photos 3">>,
-                <<"take 3 photos">>,
-                <<"camera: 3 photos taken">>,
-                <<"e-mail \"INTRUSION\" with 3 photo(s) attached">>,
-                <<"e-mail written to ">>],
-    ?assertEqual(ok, in_order(Expected, Texts)),
-    ?assertMatch([#{kind := sound, what := <<"alarm">>, volume := 100},
-                  #{kind := voice, what := <<"You are being recorded.", _/binary>>}],
-                 [P || #{volume := V} = P <- Played, V > 0]).
+    _ = reference_agents_holiday_checks:intrusion_narrated(?config(outcome, Config)),
+    ok.
 
 %% @doc The holiday policy switches the lights as scheduled in the rules
 %% file, once each, and only those: each change at or after its time and
 %% before the next scheduled time (the VA hears the time once a simulated
 %% minute, and the clock runs far faster than the VA thinks).
 evening_light_schedule(Config) ->
-    #{home := #{light_log := Log}} = ?config(outcome, Config),
-    Got = [{minute(T), Room, State} || #{time := T, room := Room, state := State} <- Log],
-    Want = [{"18:00", <<"living">>, on}, {"19:10", <<"kitchen">>, on},
-            {"19:40", <<"kitchen">>, off}, {"20:30", <<"bedroom">>, on},
-            {"20:30", <<"living">>, off}, {"22:00", <<"bedroom">>, off}],
-    ct:log("~p", [Got]),
-    ?assertEqual(lists:sort([{R, S} || {_, R, S} <- Want]), lists:sort([{R, S} || {_, R, S} <- Got])),
-    Next = fun(At) -> case [A || {A, _, _} <- Want, A > At] of [N | _] -> N; [] -> "23:59" end end,
-    [begin
-         [M] = [Mi || {Mi, R, S} <- Got, R =:= Room, S =:= State],
-         ?assert(M >= At andalso M < Next(At))
-     end || {At, Room, State} <- Want],
-    ok.
+    reference_agents_holiday_checks:evening_light_schedule(?config(outcome, Config)).
 
 %% @doc In June the sun sets after 21:00 in London: the 18:00 rule, which
 %% asks for darkness, does nothing.
@@ -235,65 +198,49 @@ device_never_answers(Config) ->
 %% 18:00 rule fails for that light only. When the switch comes back the VA
 %% is embodied again and switches the light to what the policy wants.
 device_leaves_and_comes_back(Config) ->
-    Spool = filename:join(?config(priv_dir, Config), "detach"),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
-    try
-        Home = reference_agents_scenario:get(home, S),
-        Va = reference_agents_scenario:get(va, S),
-        Clock = reference_agents_scenario:get(clock, S),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:detach_device(Home, <<"LivingLightSwitch01">>),
-        {ok, #{embodiment := #{failed := Failed}}} =
-            await_verdict(Va, partial),
-        ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
-        ok = avatar_sim:pause(Clock),
-        ok = avatar_sim:set_speed(Clock, ?SPEED),
-        ok = reference_agents_holiday:run_until(S, "18:05"),
-        #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
-        ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
-                     [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
-        #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
-        {ok, _} = await_verdict(Va, embodied),
-        {ok, _} = reference_agents_scenario:await(
-                    fun() ->
-                            case avatar_sim:state(Home) of
-                                #{lights := #{<<"living">> := on}} -> {true, on};
-                                _ -> false
-                            end
-                    end, 10000, living_light_restored),
-        #{states := States} = reference_agents_va:inspect(Va),
-        ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
-                             dedupe([St || {St, _} <- States])))
-    after
-        reference_agents_holiday:stop(S)
-    end.
+    live_evening(Config, "detach", fun detach_living_switch/4).
+
+detach_living_switch(S, Home, Va, Clock) ->
+    ok = avatar_sim:detach_device(Home, <<"LivingLightSwitch01">>),
+    {ok, #{embodiment := #{failed := Failed}}} =
+        await_verdict(Va, partial),
+    ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
+    ok = avatar_sim:pause(Clock),
+    ok = avatar_sim:set_speed(Clock, ?SPEED),
+    ok = reference_agents_holiday:run_until(S, "18:05"),
+    #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+    ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
+                 [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
+    #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
+    ok = avatar_sim:set_speed(Clock, 2),
+    ok = avatar_sim:resume(Clock),
+    ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
+    {ok, _} = await_verdict(Va, embodied),
+    {ok, _} = reference_agents_scenario:await(
+                fun() ->
+                        case avatar_sim:state(Home) of
+                            #{lights := #{<<"living">> := on}} -> {true, on};
+                            _ -> false
+                        end
+                end, 10000, living_light_restored),
+    #{states := States} = reference_agents_va:inspect(Va),
+    ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
+                         dedupe([St || {St, _} <- States]))).
 
 %% @doc The whole gateway loses its connection: the VA sees its body go
 %% (observing) and, when the gateway is back, tests it and is embodied
 %% again.
 gateway_leaves_and_comes_back(Config) ->
-    Spool = filename:join(?config(priv_dir, Config), "gateway"),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
-    try
-        Home = reference_agents_scenario:get(home, S),
-        Va = reference_agents_scenario:get(va, S),
-        Clock = reference_agents_scenario:get(clock, S),
-        ok = avatar_sim:set_speed(Clock, 2),
-        ok = avatar_sim:resume(Clock),
-        ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
-        {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
-        ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
-        {ok, _} = await_verdict(Va, embodied),
-        #{states := States} = reference_agents_va:inspect(Va),
-        ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
-                             dedupe([St || {St, _} <- States])))
-    after
-        reference_agents_holiday:stop(S)
-    end.
+    live_evening(Config, "gateway", fun disconnect_gateway/4).
+
+disconnect_gateway(_S, Home, Va, _Clock) ->
+    ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
+    {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
+    ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
+    {ok, _} = await_verdict(Va, embodied),
+    #{states := States} = reference_agents_va:inspect(Va),
+    ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
+                         dedupe([St || {St, _} <- States]))).
 
 %% @doc A rules file with a mistake is refused before anything runs, with
 %% a message naming the file and the line.
@@ -365,6 +312,23 @@ no_room_light_before_dusk(Config) ->
 %% Helpers
 %% ---------------------------------------------------------------------------
 
+%% Runs Case(S, Home, Va, Clock) on a holiday evening whose clock runs at
+%% twice real time, so that the VA sees each change to the house as it
+%% happens; the scenario is stopped whatever the outcome.
+live_evening(Config, Name, Case) ->
+    Spool = filename:join(?config(priv_dir, Config), Name),
+    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
+    try
+        Home = reference_agents_scenario:get(home, S),
+        Va = reference_agents_scenario:get(va, S),
+        Clock = reference_agents_scenario:get(clock, S),
+        ok = avatar_sim:set_speed(Clock, 2),
+        ok = avatar_sim:resume(Clock),
+        Case(S, Home, Va, Clock)
+    after
+        reference_agents_holiday:stop(S)
+    end.
+
 await_verdict(Va, Verdict) ->
     reference_agents_scenario:await(
       fun() ->
@@ -375,7 +339,7 @@ await_verdict(Va, Verdict) ->
       end, 15000, {verdict, Verdict}).
 
 minute(Ms) ->
-    lists:flatten(string:slice(reference_agents_narrator:format_time(Ms), 0, 5)).
+    reference_agents_holiday_checks:minute(Ms).
 
 %% The minute of Room's first change to State at or after At.
 after_change(Room, State, At, Changes) ->
@@ -387,13 +351,6 @@ next_change(Room, M, Changes) ->
     case [S || {Mi, R, S} <- Changes, R =:= Room, Mi >= M] of
         [S | _] -> S;
         [] -> none
-    end.
-
-in_order([], _Texts) -> ok;
-in_order([E | Es], Texts) ->
-    case lists:dropwhile(fun(T) -> binary:match(T, E) =:= nomatch end, Texts) of
-        [] -> {missing, E};
-        [_ | Rest] -> in_order(Es, Rest)
     end.
 
 dedupe([A, A | Rest]) -> dedupe([A | Rest]);

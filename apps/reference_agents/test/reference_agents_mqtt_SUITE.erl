@@ -92,40 +92,15 @@ pairings() ->
 %% the notifier write the e-mail "INTRUSION" with them attached: a MIME
 %% message in the spool, its PNG photos of the hall next to it.
 intrusion_email_with_photos(Config) ->
-    #{home := #{emails := Emails, photos := Photos}, va := #{mind := Mind}} = ?config(outcome, Config),
-    [#{file := File, subject := <<"INTRUSION">>, attachments := Attached}] = Emails,
-    ?assertEqual(3, length(Attached)),
-    ?assertEqual(filename:absname(?config(spool, Config)), filename:dirname(binary_to_list(File))),
-    {ok, Eml} = file:read_file(File),
-    ?assertMatch({match, _}, re:run(Eml, "^Subject: INTRUSION\r?$", [multiline])),
-    ?assertEqual(3, length(binary:matches(Eml, <<"Content-Type: image/png">>))),
-    [begin
-         [PhotoFile] = [F || #{id := I, file := F} <- Photos, I =:= Id],
-         {ok, <<137, "PNG", _/binary>>} = file:read_file(PhotoFile)
-     end || Id <- Attached],
-    ?assertEqual([<<"hall">>], lists:usort([R || #{id := I, room := R} <- Photos,
-                                                 lists:member(I, Attached)])),
-    #{emails := [File]} = Mind,
-    ok.
+    reference_agents_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
+                                                                ?config(spool, Config)).
 
 %% @doc The story tells, in order, the activities perceived from MQTT
 %% readings, the intruder, the policy's decision and the actuations with
 %% their outcomes; the MQTT speaker sounded the alarm, then played the
 %% message.
 intrusion_narrated(Config) ->
-    #{story := Story, home := #{played := Played}} = ?config(outcome, Config),
-    Texts = [T || #{who := <<"house-va">>, text := T} <- Story],
-    Expected = [<<"activity failed_authorisation in hall">>,
-                <<"complex activity intruder in hall">>,
-                <<"policy holiday on intruder do photos 3">>,
-                <<"take 3 photos">>,
-                <<"camera: 3 photos taken">>,
-                <<"e-mail \"INTRUSION\" with 3 photo(s) attached">>,
-                <<"e-mail written to ">>],
-    ?assertEqual(ok, in_order(Expected, Texts)),
-    ?assertMatch([#{kind := sound, what := <<"alarm">>, volume := 100},
-                  #{kind := voice, what := <<"You are being recorded.", _/binary>>}],
-                 [P || #{volume := V} = P <- Played, V > 0]),
+    Texts = reference_agents_holiday_checks:intrusion_narrated(?config(outcome, Config)),
     %% Nothing the VA asked of its MQTT body went unanswered.
     ?assertEqual([], [T || T <- Texts, binary:match(T, <<"FAILED">>) =/= nomatch]).
 
@@ -133,19 +108,7 @@ intrusion_narrated(Config) ->
 %% each and only those, each change at or after its time and before the
 %% next scheduled time, as over TCP.
 evening_light_schedule(Config) ->
-    #{home := #{light_log := Log}} = ?config(outcome, Config),
-    Got = [{minute(T), Room, State} || #{time := T, room := Room, state := State} <- Log],
-    Want = [{"18:00", <<"living">>, on}, {"19:10", <<"kitchen">>, on},
-            {"19:40", <<"kitchen">>, off}, {"20:30", <<"bedroom">>, on},
-            {"20:30", <<"living">>, off}, {"22:00", <<"bedroom">>, off}],
-    ct:log("~p", [Got]),
-    ?assertEqual(lists:sort([{R, S} || {_, R, S} <- Want]), lists:sort([{R, S} || {_, R, S} <- Got])),
-    Next = fun(At) -> case [A || {A, _, _} <- Want, A > At] of [N | _] -> N; [] -> "23:59" end end,
-    [begin
-         [M] = [Mi || {Mi, R, S} <- Got, R =:= Room, S =:= State],
-         ?assert(M >= At andalso M < Next(At))
-     end || {At, Room, State} <- Want],
-    ok.
+    reference_agents_holiday_checks:evening_light_schedule(?config(outcome, Config)).
 
 %% @doc The devices were MQTT devices: the MQTT Avatar discovered every
 %% device of smart_home.xml but the notifier, without problems, and the
@@ -177,7 +140,7 @@ broker_stopped_with_the_scenario(Config) ->
 %% are and how many were discovered, then the holiday evening, and ends
 %% with where the e-mail and its photos landed.
 mqtt_demo(Config) ->
-    {ok, Output} = run_demo(["mqtt"]),
+    {ok, Output} = reference_agents_demo_capture:run(["mqtt"]),
     ct:log("~ts", [Output]),
     Patterns = ["scenario +the easy smart home's 12 devices are on mosquitto at 127\\.0\\.0\\.1:[0-9]+; "
                 "the MQTT Avatar easy-home-mqtt discovered 12 of them through Home Assistant discovery",
@@ -229,49 +192,3 @@ tmp() ->
         "" -> "/tmp";
         T -> T
     end.
-
-minute(Ms) ->
-    lists:flatten(string:slice(reference_agents_narrator:format_time(Ms), 0, 5)).
-
-in_order([], _Texts) -> ok;
-in_order([E | Es], Texts) ->
-    case lists:dropwhile(fun(T) -> binary:match(T, E) =:= nomatch end, Texts) of
-        [] -> {missing, E};
-        [_ | Rest] -> in_order(Es, Rest)
-    end.
-
-%% Runs the demo with this process's group leader replaced by one that
-%% keeps the text; the processes the demo starts inherit it.
-run_demo(Args) ->
-    Old = group_leader(),
-    Capture = spawn_link(fun() -> capture([]) end),
-    true = group_leader(Capture, self()),
-    Result = try reference_agents_demo:main(Args)
-             after true = group_leader(Old, self())
-             end,
-    ok = Result,
-    Capture ! {done, self()},
-    receive {output, Capture, Text} -> {ok, Text} end.
-
-capture(Acc) ->
-    receive
-        {io_request, From, ReplyAs, Request} ->
-            {Reply, Acc1} = io_request(Request, Acc),
-            From ! {io_reply, ReplyAs, Reply},
-            capture(Acc1);
-        {done, From} ->
-            From ! {output, self(), iolist_to_binary(lists:reverse(Acc))}
-    end.
-
-io_request({put_chars, Encoding, Chars}, Acc) ->
-    {ok, [unicode:characters_to_binary(Chars, Encoding) | Acc]};
-io_request({put_chars, Encoding, M, F, A}, Acc) ->
-    io_request({put_chars, Encoding, apply(M, F, A)}, Acc);
-io_request({put_chars, Chars}, Acc) ->
-    io_request({put_chars, latin1, Chars}, Acc);
-io_request({put_chars, M, F, A}, Acc) ->
-    io_request({put_chars, latin1, apply(M, F, A)}, Acc);
-io_request({requests, Requests}, Acc) ->
-    lists:foldl(fun(R, {_, A}) -> io_request(R, A) end, {ok, Acc}, Requests);
-io_request(_Other, Acc) ->
-    {{error, enotsup}, Acc}.
