@@ -201,6 +201,8 @@ handle_event(info, {evatar_register_retry, Claim}, State, #data{reg = #{claim :=
     {keep_state, send_register(Data)};
 handle_event(info, {evatar_register_retry, _}, _State, _Data) ->
     keep_state_and_data;
+handle_event(info, evatar_flush, _State, Data) ->
+    {keep_state, flush(Data)};
 handle_event(info, evatar_held_check, standby, Data) ->
     {keep_state, check_held(Data#data{held_armed = false})};
 handle_event(info, evatar_held_check, _State, Data) ->
@@ -493,6 +495,11 @@ flush_maybe(#data{unflushed = N} = Data) ->
     case erlang:process_info(self(), message_queue_len) of
         {message_queue_len, 0} -> flush(Data);
         _ when N >= ?FLUSH_EVERY -> flush(Data);
+        _ when N =:= 0 ->
+            %% Deferred: whatever the waiting messages are (not all of them
+            %% flush), this one flushes once they are handled.
+            self() ! evatar_flush,
+            Data#data{unflushed = 1};
         _ -> Data#data{unflushed = N + 1}
     end.
 
