@@ -16,7 +16,7 @@
 -behaviour(gen_server).
 
 -export([start_link/0, opt/1, configured/0, size/0, alive/1, alive_now/1, alive_nodes/0,
-         quorum/0, majority_now/0, heard_within/2, heard_after/2, await_quorum/2,
+         quorum/0, majority_now/0, heard_within/2, heard_after/2,
          place_standby/1, status/0, quorum_size/0, stall_gen/0, unstalled/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
@@ -30,11 +30,10 @@
             heard = #{} :: #{node() => integer()},
             quorum = true :: boolean(),
             last_tick :: integer(),
-            attempts = #{} :: #{node() => integer()},
-            waiters = [] :: [{pid(), integer()}]}).
+            attempts = #{} :: #{node() => integer()}}).
 
 -type event() :: {node_suspected, node()} | {node_down, node()} | {node_alive, node()}
-               | {quorum, boolean()} | quorum_confirmed | stalled.
+               | {quorum, boolean()} | stalled.
 -export_type([event/0]).
 
 %% @doc Starts the membership process, registered as `evatar_cluster'.
@@ -152,12 +151,6 @@ unstalled(Gen) ->
               end,
     not Overdue andalso stall_gen() =:= Gen.
 
-%% @doc Sends `{evatar_cluster, quorum_confirmed}' to `Pid' once a majority
-%% has been heard after `SinceMs' (monotonic milliseconds).
--spec await_quorum(pid(), integer()) -> ok.
-await_quorum(Pid, SinceMs) ->
-    gen_server:cast(?MODULE, {await_quorum, Pid, SinceMs}).
-
 %% @doc The node where a standby of a pairing active here should go.
 -spec place_standby(node() | undefined) -> node() | none.
 place_standby(Preferred) ->
@@ -213,8 +206,6 @@ handle_call(_Request, _From, S) ->
 
 %% @private
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
-handle_cast({await_quorum, Pid, Since}, #s{waiters = W} = S) ->
-    {noreply, S#s{waiters = [{Pid, Since} | W]}};
 handle_cast(_Msg, S) ->
     {noreply, S}.
 
@@ -347,7 +338,7 @@ reconnect(Peers, Connected, Now, #s{attempts = Attempts} = S) ->
             S#s{attempts = maps:merge(Attempts, maps:from_list([{N, Now} || N <- Due]))}
     end.
 
-quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old, waiters = Waiters} = S) ->
+quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old} = S) ->
     Lease = opt(lease_ms),
     Connected = erlang:nodes(),
     Recent = [node() | [N || {N, T} <- maps:to_list(Heard), Now - T =< Lease,
@@ -357,16 +348,7 @@ quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old, waiters = Waiters} = 
         true -> ok;
         false -> true = ets:insert(?TABLE, {quorum, Q}), broadcast({quorum, Q})
     end,
-    Waiting = lists:filter(
-                fun({Pid, Since}) ->
-                        After = [node() | [N || {N, T} <- maps:to_list(Heard), T > Since,
-                                                lists:member(N, Connected)]],
-                        case evatar_ha_rules:majority(Nodes, After) of
-                            true -> Pid ! {evatar_cluster, quorum_confirmed}, false;
-                            false -> is_process_alive(Pid)
-                        end
-                end, Waiters),
-    S#s{quorum = Q, waiters = Waiting}.
+    S#s{quorum = Q}.
 
 broadcast(Event) ->
     _ = [Pid ! {evatar_cluster, Event} || {_Id, Pid} <- evatar_registry:all()],

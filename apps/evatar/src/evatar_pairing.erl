@@ -442,6 +442,19 @@ internal([{log, _, _} = E | Rest], Reply, Held, Data) ->
     internal(Rest, Reply, Held, Data1);
 internal([{reply, Reply} | Rest], _Reply, Held, Data) ->
     internal(Rest, Reply, Held, Data);
+internal([{Kind, EntityId, What} | Rest], Reply, Held, #data{pids = Pids} = Data)
+  when Kind =:= deliver; Kind =:= report ->
+    %% Bound now to the connection it was meant for: released later, it
+    %% must not reach a connection that attached since (that one gets the
+    %% resume's redelivery, in Sequence order).
+    Msg = case Kind of
+              deliver -> {signal, What};
+              report -> {bound, What}
+          end,
+    case Pids of
+        #{EntityId := {Pid, _}} -> internal(Rest, Reply, [{send, Pid, Msg} | Held], Data);
+        #{} -> internal(Rest, Reply, Held, Data)
+    end;
 internal([E | Rest], Reply, Held, Data) ->
     internal(Rest, Reply, [E | Held], Data);
 internal([], Reply, Held, Data) ->
@@ -459,6 +472,9 @@ reply(From, Reply, #data{version = V} = Data) ->
 
 execute([{deliver, EntityId, Signal} | Rest], Reply, Data) ->
     ok = tell(EntityId, {signal, Signal}, Data),
+    execute(Rest, Reply, Data);
+execute([{send, Pid, Msg} | Rest], Reply, #data{id = Id} = Data) ->
+    Pid ! {evatar, Id, Msg},
     execute(Rest, Reply, Data);
 execute([{report, EntityId, Report} | Rest], Reply, Data) ->
     ok = tell(EntityId, {bound, Report}, Data),
