@@ -15,19 +15,19 @@
 %%               |        |
 %%   none found  |        | snapshot received
 %%               v        v
-%%  +-----------------+  takeover (active dead, or silent and     +---------+
-%%  | active          | <---- the rules allow), or handover ---- | standby |
+%%  +-----------------+  takeover: election won (active dead or  +---------+
+%%  | active          | <---- silent), or handover ------------- | standby |
 %%  | waiting | bound |                                          |         |
 %%  |                 | ---- handover (silent client link) ----> |         |
 %%  +-----------------+                                          +---------+
-%%     |    ^     | lower epoch met, stale,                  dismissed, or an
-%%     |    |     | or delete                                active of higher
-%%     |    |     +--------------> (stop) <----------------- epoch elsewhere
-%%     |    | standby confirms (quorum back)
+%%     |    ^     | lower epoch met, stale,                  dismissed, stale
+%%     |    |     | or delete                                claim, or an active
+%%     |    |     +--------------> (stop) <----------------- of higher epoch
+%%     |    | election won again (a new epoch)
 %%     v    |
 %%  +---------+  no majority and no word from the standby's node
-%%  | fenced  |  within the lease: clients closed with Fenced, nothing
-%%  +---------+  externalised, timers postponed
+%%  | fenced  |  within the lease, or this node was stalled: clients
+%%  +---------+  closed with Fenced, nothing externalised, timers postponed
 %% '''
 %% The active's name is the logic's {@link evatar_pairing_logic:phase/1}
 %% (`waiting' or `bound'); `handing_over' is the short planned-handover
@@ -35,7 +35,10 @@
 %% time and version, and every effect seen outside (a delivery, a report, a
 %% reply, an Ack) is held until the standby confirms that version: what a
 %% client sees is always in the standby's history. Without one (degraded)
-%% effects go out at once; Acks are batched until the mailbox is empty.
+%% effects go out at once, except after a takeover or the loss of the
+%% standby's node: then they are held until a majority of nodes accepted the
+%% new configuration (elections and registrations: docs/architecture.md
+%% section 8.4). Acks are batched until the mailbox is empty.
 -module(evatar_pairing).
 -behaviour(gen_statem).
 
@@ -83,7 +86,7 @@
                %% standby until that registration is accepted.
                conf = {1, 0} :: evatar_ha_rules:claim(),
                promised = 0 :: non_neg_integer(),
-               election :: undefined | #{epoch := pos_integer(), granted := [node()],
+               election :: undefined | #{epoch := non_neg_integer(), granted := [node()],
                                          replied := [node()], dead := boolean(),
                                          why := term(), attempt := non_neg_integer()},
                reg :: undefined | #{claim := evatar_ha_rules:claim(), ok := [node()],
