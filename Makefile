@@ -24,15 +24,14 @@ test: deps
 
 check: test
 
-## The multi-node high-availability suites (real OS-process nodes, kill -9,
-## SIGSTOP, partitions through proxies, the nemesis). Not part of `make test`
-## while issue 5 is open: see docs/ha.md.
+## Only the multi-node high-availability suites (real OS-process nodes, kill -9,
+## SIGSTOP, partitions through proxies, a 45 s nemesis); `make test` runs them too.
 test-ha: deps
-	EVATAR_HA_SUITES=1 $(REBAR) ct --dir test
+	$(REBAR) ct --dir test
 
 ## Randomized faults while traffic flows, for EVATAR_SOAK_SECONDS (default 600).
 soak: deps
-	EVATAR_HA_SUITES=1 EVATAR_SOAK_SECONDS=$${EVATAR_SOAK_SECONDS:-600} $(REBAR) ct --suite test/nemesis_SUITE --group nemesis
+	EVATAR_SOAK_SECONDS=$${EVATAR_SOAK_SECONDS:-600} $(REBAR) ct --suite test/nemesis_SUITE --group nemesis
 
 ## BIL codec and binding benchmarks (figures printed side by side with xmerl).
 bench-bil: deps

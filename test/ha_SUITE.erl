@@ -56,16 +56,7 @@ groups() ->
 %% Setup
 %% ---------------------------------------------------------------------------
 
-%% The multi-node suites run only when asked (make test-ha): issue 5's
-%% mechanism still fails some of them (partial partitions, signals lost
-%% at takeovers), and a known-red suite would hide every other result.
 init_per_suite(Config) ->
-    case os:getenv("EVATAR_HA_SUITES") of
-        "1" -> init_per_suite_(Config);
-        _ -> {skip, "multi-node HA suite: run with EVATAR_HA_SUITES=1 (make test-ha)"}
-    end.
-
-init_per_suite_(Config) ->
     [{dist, ha_cluster:ensure_distributed()} | Config].
 
 end_per_suite(Config) ->

@@ -16,11 +16,13 @@
 -behaviour(gen_server).
 
 -export([start_link/0, opt/1, configured/0, size/0, alive/1, alive_now/1, alive_nodes/0,
-         quorum/0, majority_now/0, heard_within/2, await_quorum/2, place_standby/1,
-         status/0]).
+         quorum/0, majority_now/0, heard_within/2, heard_after/2,
+         place_standby/1, status/0, quorum_size/0, stall_gen/0, unstalled/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, evatar_cluster_view).
+%% This node's votes: {PairingId, evatar_ha_rules:record()}.
+-define(VOTES, evatar_cluster_votes).
 -define(RECONNECT_MS, 500).
 
 -record(s, {nodes :: [node()],
@@ -28,11 +30,10 @@
             heard = #{} :: #{node() => integer()},
             quorum = true :: boolean(),
             last_tick :: integer(),
-            attempts = #{} :: #{node() => integer()},
-            waiters = [] :: [{pid(), integer()}]}).
+            attempts = #{} :: #{node() => integer()}}).
 
 -type event() :: {node_suspected, node()} | {node_down, node()} | {node_alive, node()}
-               | {quorum, boolean()} | quorum_confirmed.
+               | {quorum, boolean()} | stalled.
 -export_type([event/0]).
 
 %% @doc Starts the membership process, registered as `evatar_cluster'.
@@ -115,11 +116,40 @@ heard_within(Node, Ms) ->
         [] -> false
     end.
 
-%% @doc Sends `{evatar_cluster, quorum_confirmed}' to `Pid' once a majority
-%% has been heard after `SinceMs' (monotonic milliseconds).
--spec await_quorum(pid(), integer()) -> ok.
-await_quorum(Pid, SinceMs) ->
-    gen_server:cast(?MODULE, {await_quorum, Pid, SinceMs}).
+%% @doc Whether `Node' was heard after `SinceMs' (monotonic milliseconds).
+-spec heard_after(node(), integer()) -> boolean().
+heard_after(Node, _Since) when Node =:= node() -> true;
+heard_after(Node, Since) ->
+    case ets:lookup(?TABLE, {heard, Node}) of
+        [{_, T}] -> T > Since;
+        [] -> false
+    end.
+
+%% @doc How many nodes must grant a vote or accept a registration.
+-spec quorum_size() -> pos_integer().
+quorum_size() -> evatar_ha_rules:quorum_size(size()).
+
+%% @doc A number that changes each time this node finds it was itself
+%% stopped or starved for longer than `suspect_ms' (SIGSTOP, a frozen VM):
+%% the others may have given its pairings away meanwhile.
+-spec stall_gen() -> non_neg_integer().
+stall_gen() ->
+    case ets:lookup(?TABLE, stall_gen) of
+        [{_, G}] -> G;
+        [] -> 0
+    end.
+
+%% @doc Whether this node was not stalled since stall generation `Gen' (nor
+%% is it now: its last tick is not overdue), as an active that began
+%% serving at `Gen' needs to go on.
+-spec unstalled(non_neg_integer()) -> boolean().
+unstalled(Gen) ->
+    Overdue = case ets:lookup(?TABLE, last_tick) of
+                  [{_, T}] -> evatar_ha_rules:stalled(T, erlang:monotonic_time(millisecond),
+                                                      opt(suspect_ms) + opt(heartbeat_ms));
+                  [] -> false
+              end,
+    not Overdue andalso stall_gen() =:= Gen.
 
 %% @doc The node where a standby of a pairing active here should go.
 -spec place_standby(node() | undefined) -> node() | none.
@@ -144,8 +174,10 @@ status() ->
 -spec init([]) -> {ok, #s{}}.
 init([]) ->
     _ = ets:new(?TABLE, [named_table, protected, set, {read_concurrency, true}]),
+    _ = ets:new(?VOTES, [named_table, protected, set]),
     Nodes = lists:usort([node() | configured_nodes()]),
-    true = ets:insert(?TABLE, [{configured, Nodes}, {quorum, true}]),
+    true = ets:insert(?TABLE, [{configured, Nodes}, {quorum, true}, {stall_gen, 0},
+                               {last_tick, erlang:monotonic_time(millisecond)}]),
     _ = case is_alive() of
             true -> net_kernel:monitor_nodes(true);
             false -> ok
@@ -174,8 +206,6 @@ handle_call(_Request, _From, S) ->
 
 %% @private
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
-handle_cast({await_quorum, Pid, Since}, #s{waiters = W} = S) ->
-    {noreply, S#s{waiters = [{Pid, Since} | W]}};
 handle_cast(_Msg, S) ->
     {noreply, S}.
 
@@ -198,6 +228,26 @@ handle_info({evatar_ha, 1, {inventory, _Node, Instances}}, S) ->
 handle_info({evatar_ha, 1, {ask, Id, ReplyTo}}, S) ->
     ok = evatar_ha_proto_v1:instance(ReplyTo, Id, node(), evatar_registry:role(Id)),
     {noreply, S};
+handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}}, S)
+  when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
+    Record = record(Id),
+    Others = [P || P <- lists:usort([maps:get(holder, Record), Active]), is_pid(P),
+                   P =/= Cand, not (ActiveDead andalso P =:= Active)],
+    Blocked = lists:any(fun serving/1, Others),
+    Result = case evatar_ha_rules:vote(Record, Ec, Cand, Claim, Blocked) of
+                 {granted, R1} -> true = ets:insert(?VOTES, {Id, R1}), granted;
+                 {refused, _} = Refused -> Refused
+             end,
+    ok = evatar_ha_proto_v1:vote_reply(Cand, Id, Ec, node(), Result),
+    {noreply, S};
+handle_info({evatar_ha, 1, {register, Id, E, Seq, From}}, S)
+  when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
+    Result = case evatar_ha_rules:register(record(Id), E, Seq, From) of
+                 {ok, R1} -> true = ets:insert(?VOTES, {Id, R1}), ok;
+                 {refused, _} = Refused -> Refused
+             end,
+    ok = evatar_ha_proto_v1:register_reply(From, Id, {E, Seq}, node(), Result),
+    {noreply, S};
 handle_info({evatar_ha, 1, {start_standby, Id, Config, Active, Epoch}}, S) ->
     ok = start_standby(Id, Config, Active, Epoch),
     {noreply, S};
@@ -217,6 +267,17 @@ handle_info({nodeup, _Node}, S) ->
 handle_info(_Msg, S) ->
     {noreply, S}.
 
+record(Id) ->
+    case ets:lookup(?VOTES, Id) of
+        [{_, R}] -> R;
+        [] -> evatar_ha_rules:new_record()
+    end.
+
+%% Whether an instance may still be serving, as far as this node can tell:
+%% a local process that is alive, or a remote one whose node is heard.
+serving(Pid) when node(Pid) =:= node() -> is_process_alive(Pid);
+serving(Pid) -> alive_now(node(Pid)).
+
 %% ---------------------------------------------------------------------------
 %% The periodic evaluation
 %% ---------------------------------------------------------------------------
@@ -227,9 +288,14 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
     Connected = erlang:nodes(),
     Peers = [N || N <- Nodes, N =/= node()],
     S1 = case evatar_ha_rules:stalled(Last, Now, Suspect) of
-             true -> forgive(Peers, Connected, Now, S);
-             false -> S
+             true ->
+                 true = ets:insert(?TABLE, {stall_gen, stall_gen() + 1}),
+                 broadcast(stalled),
+                 forgive(Peers, Connected, Now, S);
+             false ->
+                 S
          end,
+    true = ets:insert(?TABLE, {last_tick, Now}),
     _ = [evatar_ha_proto_v1:heartbeat(N, node()) || N <- Peers, lists:member(N, Connected)],
     S2 = lists:foldl(fun(N, Acc) -> evaluate(N, Connected, Now, Suspect, Acc) end, S1, Peers),
     S3 = reconnect(Peers, Connected, Now, S2),
@@ -272,7 +338,7 @@ reconnect(Peers, Connected, Now, #s{attempts = Attempts} = S) ->
             S#s{attempts = maps:merge(Attempts, maps:from_list([{N, Now} || N <- Due]))}
     end.
 
-quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old, waiters = Waiters} = S) ->
+quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old} = S) ->
     Lease = opt(lease_ms),
     Connected = erlang:nodes(),
     Recent = [node() | [N || {N, T} <- maps:to_list(Heard), Now - T =< Lease,
@@ -282,16 +348,7 @@ quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old, waiters = Waiters} = 
         true -> ok;
         false -> true = ets:insert(?TABLE, {quorum, Q}), broadcast({quorum, Q})
     end,
-    Waiting = lists:filter(
-                fun({Pid, Since}) ->
-                        After = [node() | [N || {N, T} <- maps:to_list(Heard), T > Since,
-                                                lists:member(N, Connected)]],
-                        case evatar_ha_rules:majority(Nodes, After) of
-                            true -> Pid ! {evatar_cluster, quorum_confirmed}, false;
-                            false -> is_process_alive(Pid)
-                        end
-                end, Waiters),
-    S#s{quorum = Q, waiters = Waiting}.
+    S#s{quorum = Q}.
 
 broadcast(Event) ->
     _ = [Pid ! {evatar_cluster, Event} || {_Id, Pid} <- evatar_registry:all()],

@@ -12,8 +12,9 @@
 
 -export([introduced_in/0, tag/0]).
 -export([heartbeat/2, inventory/2, ask/3, instance/4, start_standby/5]).
--export([offer/3, snapshot/4, events/3, confirm/3, resync/3, dismiss/2, stale/3,
-         handover/3, handover_done/3, check/3, check_ok/3, peer_instance/2]).
+-export([offer/3, snapshot/5, events/3, confirm/3, resync/3, dismiss/2, stale/3,
+         handover/3, handover_done/4, peer_instance/2]).
+-export([vote/7, vote_reply/5, register/5, register_reply/5]).
 
 -export_type([message/0, instance_info/0]).
 
@@ -28,16 +29,22 @@
               | {start_standby, evatar:pairing_id(), evatar_pairing_logic:config(), pid(),
                  pos_integer()}
               | {offer, pid(), non_neg_integer()}
-              | {snapshot, pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state()}
+              | {snapshot, pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state(),
+                 evatar_ha_rules:claim()}
               | {events, pid(), pos_integer(), [repl_event()]}
               | {confirm, pid(), pos_integer(), non_neg_integer()}
               | {resync, pid(), non_neg_integer()}
               | {dismiss, pid()}
               | {stale, pid(), pos_integer()}
               | {handover, pid(), pos_integer(), non_neg_integer()}
-              | {handover_done, pid(), pos_integer()}
-              | {check, pid(), pos_integer()}
-              | {check_ok, pid(), pos_integer(), non_neg_integer()}
+              | {handover_done, pid(), pos_integer(), evatar_ha_rules:claim()}
+              | {vote, evatar:pairing_id(), pos_integer(), pid(), evatar_ha_rules:claim(),
+                 pid() | undefined, boolean()}
+              | {vote_reply, evatar:pairing_id(), pos_integer(), node(),
+                 granted | {refused, evatar_ha_rules:refusal()}}
+              | {register, evatar:pairing_id(), pos_integer(), non_neg_integer(), pid()}
+              | {register_reply, evatar:pairing_id(), evatar_ha_rules:claim(), node(),
+                 ok | {refused, evatar_ha_rules:refusal()}}
               | {peer_instance, pid(), atom(), pos_integer()}.
 -type message() :: {evatar_ha, 1, body()}.
 
@@ -89,9 +96,12 @@ peer_instance(To, {Pid, Role, Epoch}) -> pid(To, {peer_instance, Pid, Role, Epoc
 -spec offer(pid(), pid(), non_neg_integer()) -> ok.
 offer(To, Standby, Version) -> pid(To, {offer, Standby, Version}).
 
-%% @doc The active's whole state at `Version' (the standby replaces its own).
--spec snapshot(pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state()) -> ok.
-snapshot(To, Epoch, Version, State) -> pid(To, {snapshot, self(), Epoch, Version, State}).
+%% @doc The active's whole state at `Version' (the standby replaces its own),
+%% with the claim the standby holds from now on.
+-spec snapshot(pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state(),
+               evatar_ha_rules:claim()) -> ok.
+snapshot(To, Epoch, Version, State, Claim) ->
+    pid(To, {snapshot, self(), Epoch, Version, State, Claim}).
 
 %% @doc Events in version order, each with the time it was applied at.
 -spec events(pid(), pos_integer(), [repl_event()]) -> ok.
@@ -119,18 +129,37 @@ stale(To, From, Epoch) -> pid(To, {stale, From, Epoch}).
 -spec handover(pid(), pos_integer(), non_neg_integer()) -> ok.
 handover(To, Epoch, Version) -> pid(To, {handover, self(), Epoch, Version}).
 
-%% @doc The standby took over at `Epoch'; the old active becomes its standby.
--spec handover_done(pid(), pid(), pos_integer()) -> ok.
-handover_done(To, From, Epoch) -> pid(To, {handover_done, From, Epoch}).
+%% @doc The standby took over at `Epoch'; the old active becomes its standby
+%% with `Claim'.
+-spec handover_done(pid(), pid(), pos_integer(), evatar_ha_rules:claim()) -> ok.
+handover_done(To, From, Epoch, Claim) -> pid(To, {handover_done, From, Epoch, Claim}).
 
-%% @doc A fenced active asks its standby whether it still is its standby at
-%% `Epoch'.
--spec check(pid(), pid(), pos_integer()) -> ok.
-check(To, Active, Epoch) -> pid(To, {check, Active, Epoch}).
+%% --- votes: between an instance and every node's evatar_cluster ------------
 
-%% @doc The answer to {@link check/3}: yes, at `Version'.
--spec check_ok(pid(), pos_integer(), non_neg_integer()) -> ok.
-check_ok(To, Epoch, Version) -> pid(To, {check_ok, self(), Epoch, Version}).
+%% @doc Instance `Cand' (holding `Claim') asks node `To' for pairing `Id' at
+%% epoch `Ec'; `Active' is the active it followed (itself when a fenced
+%% active asks again), `ActiveDead' whether it saw that process die (or
+%% hand the pairing over).
+-spec vote(node(), evatar:pairing_id(), pos_integer(), pid(), evatar_ha_rules:claim(),
+           pid() | undefined, boolean()) -> ok.
+vote(To, Id, Ec, Cand, Claim, Active, ActiveDead) ->
+    cluster(To, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}).
+
+%% @doc A node's answer to {@link vote/7}.
+-spec vote_reply(pid(), evatar:pairing_id(), pos_integer(), node(),
+                 granted | {refused, evatar_ha_rules:refusal()}) -> ok.
+vote_reply(To, Id, Ec, Node, Result) -> pid(To, {vote_reply, Id, Ec, Node, Result}).
+
+%% @doc The active `From' of `Id' asks node `To' to record its configuration
+%% `{E, Seq}' (a standby dropped, or a takeover made).
+-spec register(node(), evatar:pairing_id(), pos_integer(), non_neg_integer(), pid()) -> ok.
+register(To, Id, E, Seq, From) -> cluster(To, {register, Id, E, Seq, From}).
+
+%% @doc A node's answer to {@link register/5}.
+-spec register_reply(pid(), evatar:pairing_id(), evatar_ha_rules:claim(), node(),
+                     ok | {refused, evatar_ha_rules:refusal()}) -> ok.
+register_reply(To, Id, Claim, Node, Result) ->
+    pid(To, {register_reply, Id, Claim, Node, Result}).
 
 %% ---------------------------------------------------------------------------
 

@@ -6,10 +6,22 @@
 %% section 8).
 -module(evatar_ha_rules).
 
--export([standby_node/4, majority/2, may_take_over/3, must_fence/3,
-         reconcile/2, stalled/3]).
+-export([standby_node/4, majority/2, must_fence/3,
+         reconcile/2, stalled/3, quorum_size/1, new_record/0, vote/5, register/4]).
 
--export_type([instance/0, verdict/0]).
+-export_type([instance/0, verdict/0, claim/0, record/0, refusal/0]).
+
+%% A claim: the configuration {Epoch, Seq} an instance holds. The active
+%% makes a new one (Seq + 1) each time its standby changes and gives it to
+%% the new standby with the snapshot; a takeover at epoch E starts at {E, 1}.
+%% Whoever holds the highest claim holds everything any instance released.
+-type claim() :: {non_neg_integer(), non_neg_integer()}.
+%% What one node (a voter) remembers of one pairing: the highest epoch it
+%% promised (voted for, or saw registered), the instance it promised it to
+%% (the holder), and the highest claim it saw.
+-type record() :: #{promised := non_neg_integer(), holder := pid() | undefined,
+                    conf := claim()}.
+-type refusal() :: stale_claim | {promised, non_neg_integer()} | holder_live.
 
 -type instance() :: #{role := active | standby | fenced | starting,
                       epoch := non_neg_integer(),
@@ -42,16 +54,6 @@ standby_node(Configured, Self, Alive, Preferred) ->
 majority(Configured, Heard) ->
     Votes = length([N || N <- lists:usort(Heard), lists:member(N, Configured)]),
     Votes * 2 > length(lists:usort(Configured)).
-
-%% @doc Whether a standby whose active is gone or silent may take over: in a
-%% cluster of 3 or more configured nodes only with a majority heard; in a
-%% cluster of 2 (or 1) always, since a crash and a partition cannot be told
-%% apart there (availability first, docs/architecture.md).
--spec may_take_over(ClusterSize :: pos_integer(), Majority :: boolean(),
-                    ActiveAlive :: boolean()) -> boolean().
-may_take_over(_Size, _Majority, true) -> false;
-may_take_over(Size, _Majority, false) when Size =< 2 -> true;
-may_take_over(_Size, Majority, false) -> Majority.
 
 %% @doc Whether an active must fence itself: in a cluster of 3 or more, when
 %% it hears neither its standby's node nor a majority within the lease.
@@ -91,3 +93,51 @@ reconcile(_Me, _Other) ->
           boolean().
 stalled(LastTick, Now, SuspectMs) ->
     Now - LastTick > SuspectMs.
+
+%% ---------------------------------------------------------------------------
+%% Votes: one promise per pairing and epoch on every node
+%% ---------------------------------------------------------------------------
+
+%% @doc How many nodes must grant a vote or accept a registration: a strict
+%% majority of the configured nodes; 1 in a cluster of 2 or 1, where the
+%% availability rule holds (a node decides alone, docs/architecture.md).
+-spec quorum_size(pos_integer()) -> pos_integer().
+quorum_size(Size) when Size =< 2 -> 1;
+quorum_size(Size) -> Size div 2 + 1.
+
+%% @doc A voter's record of a pairing it has heard nothing about.
+-spec new_record() -> record().
+new_record() -> #{promised => 0, holder => undefined, conf => {0, 0}}.
+
+%% @doc Whether a voter grants candidate `Cand' the pairing at epoch `Ec',
+%% the candidate holding claim `Claim'. `Blocked' is whether another
+%% instance this voter knows as serving (its holder, or the active the
+%% candidate followed, unless the candidate saw that process die) is still
+%% heard: while it is, nobody else gets the pairing (the lease). A claim
+%% older than the highest this voter saw is stale for good: a newer
+%% configuration has released what that candidate lacks. One promise per
+%% epoch: an epoch at or below the promised one goes only to the instance
+%% it was promised to.
+-spec vote(record(), pos_integer(), pid(), claim(), Blocked :: boolean()) ->
+          {granted, record()} | {refused, refusal()}.
+vote(#{conf := Conf}, _Ec, _Cand, Claim, _Blocked) when Claim < Conf ->
+    {refused, stale_claim};
+vote(#{promised := P, holder := H}, Ec, Cand, _Claim, _Blocked)
+  when Ec < P; Ec =:= P, H =/= Cand ->
+    {refused, {promised, P}};
+vote(_Record, _Ec, _Cand, _Claim, true) ->
+    {refused, holder_live};
+vote(#{conf := Conf} = R, Ec, Cand, Claim, false) ->
+    {granted, R#{promised := Ec, holder := Cand, conf := max(Conf, Claim)}}.
+
+%% @doc Whether a voter accepts the active `From''s new configuration
+%% `{E, Seq}' (the standby dropped, or a takeover confirmed): not when it
+%% promised a later epoch to someone else, nor when it saw a newer claim.
+-spec register(record(), pos_integer(), non_neg_integer(), pid()) ->
+          {ok, record()} | {refused, refusal()}.
+register(#{promised := P}, E, _Seq, _From) when E < P ->
+    {refused, {promised, P}};
+register(#{conf := Conf}, E, Seq, _From) when {E, Seq} < Conf ->
+    {refused, stale_claim};
+register(R, E, Seq, From) ->
+    {ok, R#{promised := E, holder := From, conf := {E, Seq}}}.

@@ -15,19 +15,19 @@
 %%               |        |
 %%   none found  |        | snapshot received
 %%               v        v
-%%  +-----------------+  takeover (active dead, or silent and     +---------+
-%%  | active          | <---- the rules allow), or handover ---- | standby |
+%%  +-----------------+  takeover: election won (active dead or  +---------+
+%%  | active          | <---- silent), or handover ------------- | standby |
 %%  | waiting | bound |                                          |         |
 %%  |                 | ---- handover (silent client link) ----> |         |
 %%  +-----------------+                                          +---------+
-%%     |    ^     | lower epoch met, stale,                  dismissed, or an
-%%     |    |     | or delete                                active of higher
-%%     |    |     +--------------> (stop) <----------------- epoch elsewhere
-%%     |    | standby confirms (quorum back)
+%%     |    ^     | lower epoch met, stale,                  dismissed, stale
+%%     |    |     | or delete                                claim, or an active
+%%     |    |     +--------------> (stop) <----------------- of higher epoch
+%%     |    | election won again (a new epoch)
 %%     v    |
 %%  +---------+  no majority and no word from the standby's node
-%%  | fenced  |  within the lease: clients closed with Fenced, nothing
-%%  +---------+  externalised, timers postponed
+%%  | fenced  |  within the lease, or this node was stalled: clients
+%%  +---------+  closed with Fenced, nothing externalised, timers postponed
 %% '''
 %% The active's name is the logic's {@link evatar_pairing_logic:phase/1}
 %% (`waiting' or `bound'); `handing_over' is the short planned-handover
@@ -35,7 +35,10 @@
 %% time and version, and every effect seen outside (a delivery, a report, a
 %% reply, an Ack) is held until the standby confirms that version: what a
 %% client sees is always in the standby's history. Without one (degraded)
-%% effects go out at once; Acks are batched until the mailbox is empty.
+%% effects go out at once, except after a takeover or the loss of the
+%% standby's node: then they are held until a majority of nodes accepted the
+%% new configuration (elections and registrations: docs/architecture.md
+%% section 8.4). Acks are batched until the mailbox is empty.
 -module(evatar_pairing).
 -behaviour(gen_statem).
 
@@ -80,6 +83,23 @@
                active :: pid() | undefined,
                active_mon :: reference() | undefined,
                active_lost = false :: boolean(),
+               %% Every role: the configuration this instance holds (the
+               %% active's current one, a standby's claim), the highest
+               %% promise seen in refusals, a running election, a running
+               %% registration, and whether effects are held without a
+               %% standby until that registration is accepted.
+               conf = {1, 0} :: evatar_ha_rules:claim(),
+               promised = 0 :: non_neg_integer(),
+               election :: undefined | #{epoch := non_neg_integer(), granted := [node()],
+                                         replied := [node()], dead := boolean(),
+                                         why := term(), attempt := non_neg_integer()},
+               reg :: undefined | #{claim := evatar_ha_rules:claim(), ok := [node()],
+                                    no := [node()]},
+               hold = false :: boolean(),
+               gen = 0 :: non_neg_integer(),
+               %% Standby: resumes held until it takes over or hears its active.
+               held = [] :: [{gen_statem:from(), term(), integer()}],
+               held_armed = false :: boolean(),
                asks = 0 :: non_neg_integer(),
                answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}]}).
 
@@ -143,9 +163,9 @@ handle_event(internal, retry_ask, starting, Data) ->
     ask_peers(peers(), Data);
 handle_event(state_timeout, retry_ask, starting, Data) ->
     ask_peers(peers(), Data);
-handle_event(info, {evatar_ha, 1, {snapshot, Active, Epoch, Version, State}}, starting,
+handle_event(info, {evatar_ha, 1, {snapshot, Active, Epoch, Version, State, Claim}}, starting,
              #data{active = Active} = Data) ->
-    become_standby(Epoch, Version, State, Data);
+    become_standby(Epoch, Version, State, Claim, Data);
 handle_event(info, {evatar_ha, 1, {dismiss, Active}}, starting, #data{active = Active} = Data) ->
     stop_instance(dismissed, Data);
 handle_event(state_timeout, offered, starting, Data) ->
@@ -169,21 +189,31 @@ handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{standby_mon = Re
     standby_down(Why, State, Data);
 handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{active_mon = Ref} = Data) ->
     active_down(Why, State, Data#data{active_mon = undefined});
-handle_event({call, From}, {inspect, ha}, _State, Data) ->
-    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
-handle_event({call, From}, {inspect, What}, State, #data{logic = Logic} = Data) ->
-    Reply = case What of
-                summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
-                                                                   role => Data#data.role,
-                                                                   state => phase(State, Logic)};
-                bindings -> evatar_pairing_logic:bindings(Logic);
-                registry -> evatar_pairing_logic:registration_list(Logic);
-                stats -> evatar_pairing_logic:stats(Logic);
-                state -> Logic
-            end,
-    {keep_state, Data, [{reply, From, Reply}]};
+handle_event({call, From}, {inspect, What}, State, Data) ->
+    %% An active whose node was stalled since it began serving may have been
+    %% replaced meanwhile: it fences before it says anything.
+    case stalled_active(State, Data) of
+        true -> fence_now(Data, [postpone]);
+        false -> inspect(From, What, State, Data)
+    end;
 handle_event({timeout, place}, place, State, Data) ->
     {keep_state, place(State, Data#data{placing = false})};
+handle_event(info, {evatar_election_retry, Ec}, State, #data{election = #{epoch := Ec}} = Data)
+  when State =:= standby; State =:= fenced ->
+    {keep_state, elect(Data)};
+handle_event(info, {evatar_election_retry, _}, _State, _Data) ->
+    keep_state_and_data;
+handle_event(info, {evatar_register_retry, Claim}, State, #data{reg = #{claim := Claim}} = Data)
+  when State =/= fenced ->
+    {keep_state, send_register(Data)};
+handle_event(info, {evatar_register_retry, _}, _State, _Data) ->
+    keep_state_and_data;
+handle_event(info, evatar_flush, _State, Data) ->
+    {keep_state, flush(Data)};
+handle_event(info, evatar_held_check, standby, Data) ->
+    {keep_state, check_held(Data#data{held_armed = false})};
+handle_event(info, evatar_held_check, _State, Data) ->
+    {keep_state, Data#data{held_armed = false}};
 
 %% ---------------------------------------------------------------------------
 %% Standby, fenced, handing over: no client traffic
@@ -194,6 +224,13 @@ handle_event({call, From}, delete, State, #data{id = Id} = Data)
     ?LOG_INFO(#{what => pairing_deleted, pairing => Id}),
     _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
     {stop_and_reply, normal, [{reply, From, ok}]};
+handle_event({call, From}, {resume, _, _, _, _, _} = Request, standby, Data) ->
+    %% A client that lost the active comes here: answer once this instance
+    %% either took over (it serves the resume then) or heard its active
+    %% after the request came (NotActive), instead of sending the client
+    %% through its endpoints and back-off while a takeover is under way.
+    Held = [{From, Request, erlang:monotonic_time(millisecond)} | Data#data.held],
+    {keep_state, arm_held(Data#data{held = Held})};
 handle_event({call, From}, Request, standby, #data{active = Active}) ->
     Reply = case Request of
                 {leave, _} -> ok;
@@ -277,6 +314,20 @@ handle_event(EventType, Event, _State, #data{id = Id}) ->
                   event => Event}),
     keep_state_and_data.
 
+inspect(From, ha, _State, Data) ->
+    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
+inspect(From, What, State, #data{logic = Logic} = Data) ->
+    Reply = case What of
+                summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
+                                                                   role => Data#data.role,
+                                                                   state => phase(State, Logic)};
+                bindings -> evatar_pairing_logic:bindings(Logic);
+                registry -> evatar_pairing_logic:registration_list(Logic);
+                stats -> evatar_pairing_logic:stats(Logic);
+                state -> Logic
+            end,
+    {keep_state, Data, [{reply, From, Reply}]}.
+
 %% @private
 %% Only an orderly stop runs this (the process does not trap exits): tell
 %% every entity's process, so it can close its connection with a reason.
@@ -297,7 +348,13 @@ terminate(_Reason, _State, _Data) ->
 %% The connection is registered before the event runs: a resume delivers
 %% again at once what the entity has not acknowledged. A refusal puts back
 %% whatever was registered before.
-join(Event, EntityId, Pid, From, #data{pids = Pids, refs = Refs} = Data) ->
+join(Event, EntityId, Pid, From, Data) ->
+    case stalled_active(waiting, Data) of
+        true -> fence_now(Data, [postpone]);
+        false -> join1(Event, EntityId, Pid, From, Data)
+    end.
+
+join1(Event, EntityId, Pid, From, #data{pids = Pids, refs = Refs} = Data) ->
     Old = maps:get(EntityId, Pids, undefined),
     Ref = erlang:monitor(process, Pid),
     Data1 = Data#data{pids = Pids#{EntityId => {Pid, Ref}}, refs = Refs#{Ref => EntityId}},
@@ -367,8 +424,13 @@ step(Event, #data{logic = Logic, version = V} = Data) ->
     {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
     Data1 = Data#data{logic = Logic1, version = V + 1},
     case Data1#data.standby of
-        undefined ->
+        undefined when not Data1#data.hold ->
             execute(Effects, ok, Data1);
+        undefined ->
+            %% No standby, and a registration under way: held until the
+            %% cluster has accepted it (then released at once).
+            {Reply, Held, Data2} = internal(Effects, ok, [], Data1),
+            {Reply, hold(V + 1, Held, Data2)};
         _ ->
             {Reply, Held, Data2} = internal(Effects, ok, [], Data1),
             Data3 = Data2#data{repl = [{V + 1, Now, Event} | Data2#data.repl]},
@@ -387,6 +449,19 @@ internal([{log, _, _} = E | Rest], Reply, Held, Data) ->
     internal(Rest, Reply, Held, Data1);
 internal([{reply, Reply} | Rest], _Reply, Held, Data) ->
     internal(Rest, Reply, Held, Data);
+internal([{Kind, EntityId, What} | Rest], Reply, Held, #data{pids = Pids} = Data)
+  when Kind =:= deliver; Kind =:= report ->
+    %% Bound now to the connection it was meant for: released later, it
+    %% must not reach a connection that attached since (that one gets the
+    %% resume's redelivery, in Sequence order).
+    Msg = case Kind of
+              deliver -> {signal, What};
+              report -> {bound, What}
+          end,
+    case Pids of
+        #{EntityId := {Pid, _}} -> internal(Rest, Reply, [{send, Pid, Msg} | Held], Data);
+        #{} -> internal(Rest, Reply, Held, Data)
+    end;
 internal([E | Rest], Reply, Held, Data) ->
     internal(Rest, Reply, [E | Held], Data);
 internal([], Reply, Held, Data) ->
@@ -396,7 +471,7 @@ hold(_V, [], Data) -> Data;
 hold(V, Effects, #data{outbox = Q} = Data) -> Data#data{outbox = queue:in({V, Effects}, Q)}.
 
 %% A call's reply, held like any other effect while there is a standby.
-reply(From, Reply, #data{standby = undefined} = Data) ->
+reply(From, Reply, #data{standby = undefined, hold = false} = Data) ->
     gen_statem:reply(From, Reply),
     Data;
 reply(From, Reply, #data{version = V} = Data) ->
@@ -404,6 +479,9 @@ reply(From, Reply, #data{version = V} = Data) ->
 
 execute([{deliver, EntityId, Signal} | Rest], Reply, Data) ->
     ok = tell(EntityId, {signal, Signal}, Data),
+    execute(Rest, Reply, Data);
+execute([{send, Pid, Msg} | Rest], Reply, #data{id = Id} = Data) ->
+    Pid ! {evatar, Id, Msg},
     execute(Rest, Reply, Data);
 execute([{report, EntityId, Report} | Rest], Reply, Data) ->
     ok = tell(EntityId, {bound, Report}, Data),
@@ -440,9 +518,16 @@ flush_maybe(#data{unflushed = N} = Data) ->
     case erlang:process_info(self(), message_queue_len) of
         {message_queue_len, 0} -> flush(Data);
         _ when N >= ?FLUSH_EVERY -> flush(Data);
+        _ when N =:= 0 ->
+            %% Deferred: whatever the waiting messages are (not all of them
+            %% flush), this one flushes once they are handled.
+            self() ! evatar_flush,
+            Data#data{unflushed = 1};
         _ -> Data#data{unflushed = N + 1}
     end.
 
+flush(#data{standby = undefined, hold = true} = Data) ->
+    Data#data{unflushed = 0};
 flush(#data{standby = undefined} = Data) ->
     send_acks(Data#data{unflushed = 0});
 flush(#data{repl = []} = Data) ->
@@ -525,30 +610,36 @@ arm_timers(#data{logic = Logic} = Data) ->
 become_active(new, #data{id = Id, config = Config} = Data) ->
     Logic = evatar_pairing_logic:new(Id, Config),
     ?LOG_INFO(#{what => pairing_started, pairing => Id}),
-    Data1 = publish(Data#data{logic = Logic, role = active}),
+    Data1 = publish(Data#data{logic = Logic, role = active, gen = evatar_cluster:stall_gen()}),
     {next_state, evatar_pairing_logic:phase(Logic), Data1,
      [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
 
-%% A standby (fully applied up to its version) takes over at epoch + 1.
-take_over(Why, #data{id = Id, logic = Logic, active_mon = Mon} = Data) ->
-    _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
-    Epoch = evatar_pairing_logic:epoch(Logic) + 1,
+%% An instance that won the election at `Epoch' takes over: a standby
+%% (fully applied up to its version) or a fenced active asking again. It
+%% holds every effect until the cluster accepted its new configuration
+%% `{Epoch, 1}' (send_register/1), which no other instance's claim can
+%% reach; then it releases them and places a standby. Resumes held while it
+%% was a standby are served now.
+take_over(Why, Epoch, #data{id = Id, active_mon = Mon, standby_mon = SMon} = Data) ->
+    _ = [erlang:demonitor(M, [flush]) || M <- [Mon, SMon], is_reference(M)],
+    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
     ?LOG_WARNING(#{what => takeover, pairing => Id, epoch => Epoch, reason => Why,
                    version => Data#data.version}),
     Data1 = Data#data{role = active, active = undefined, active_mon = undefined,
                       active_lost = false, standby = undefined, standby_mon = undefined,
-                      synced = false, outbox = queue:new(), repl = []},
+                      synced = false, repl = [], election = undefined, hold = true,
+                      conf = {Epoch, 1}, gen = evatar_cluster:stall_gen(), held = []},
     Data2 = arm_timers(Data1),
     {_, Data3} = step({takeover, Epoch}, Data2),
-    Data4 = arm_silent(publish(Data3)),
-    next(Data4, [{{timeout, place}, 0, place} || wants_standby(Data4)]).
+    Data4 = arm_silent(publish(send_register(Data3))),
+    next(Data4, [{next_event, {call, From}, Request} || {From, Request, _} <- lists:reverse(Data#data.held)]).
 
-become_standby(_Epoch, Version, State, #data{id = Id, active = Active} = Data) ->
+become_standby(_Epoch, Version, State, Claim, #data{id = Id, active = Active} = Data) ->
     ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(State), Version),
     ?LOG_INFO(#{what => standby_synced, pairing => Id, active => node_of(Active),
                 version => Version}),
     Data1 = publish(Data#data{logic = State, version = Version, role = standby,
-                              active_lost = false}),
+                              active_lost = false, conf = Claim, election = undefined}),
     {next_state, standby, Data1}.
 
 offer_to(Active, #data{version = V} = Data) ->
@@ -632,7 +723,7 @@ place(_State, Data) ->
 %% ---------------------------------------------------------------------------
 
 %% Active: a new instance offers to be the standby.
-ha({offer, Standby, _V}, State, #data{standby = undefined} = Data)
+ha({offer, Standby, _V}, State, #data{standby = undefined, reg = undefined} = Data)
   when State =:= waiting; State =:= bound ->
     Mon = erlang:monitor(process, Standby),
     Data1 = Data#data{standby = Standby, standby_mon = Mon, synced = false, placing = false},
@@ -656,12 +747,14 @@ ha({confirm, Standby, _E, V}, State, #data{standby = Standby, confirmed = C} = D
 ha({confirm, _Other, _E, _V}, _State, _Data) ->
     keep_state_and_data;
 
-%% Standby: the state, then the events in order.
-ha({snapshot, Active, Epoch, Version, State}, standby, #data{active = Active} = Data) ->
-    become_standby(Epoch, Version, State, Data);
+%% Standby: the state, then the events in order. Word from the active ends
+%% any election this standby had started.
+ha({snapshot, Active, Epoch, Version, State, Claim}, standby, #data{active = Active} = Data) ->
+    become_standby(Epoch, Version, State, Claim, Data);
 ha({events, Active, _Epoch, Events}, standby, #data{active = Active, logic = Logic} = Data) ->
     Before = evatar_pairing_logic:epoch(Logic),
-    {keep_state, Data1} = apply_events(Events, remonitor_active(Data#data{active_lost = false})),
+    {keep_state, Data1} = apply_events(Events, remonitor_active(Data#data{active_lost = false,
+                                                                          election = undefined})),
     case evatar_pairing_logic:epoch(Data1#data.logic) of
         Before -> {keep_state, Data1};
         _ -> {keep_state, publish(Data1)}
@@ -676,21 +769,18 @@ ha({handover, Active, Epoch, Version}, standby,
    #data{active = Active, version = Version, logic = Logic} = Data) ->
     case evatar_pairing_logic:epoch(Logic) =:= Epoch of
         true ->
-            %% The old active becomes this one's standby, already in sync.
-            {next_state, S, D, A} = take_over(handover, Data),
-            Mon = erlang:monitor(process, Active),
-            D1 = D#data{standby = Active, standby_mon = Mon, synced = true,
-                        confirmed = Version, placing = false},
-            D2 = flush(D1),
-            ok = evatar_ha_proto_v1:handover_done(Active, self(),
-                                                  evatar_pairing_logic:epoch(D2#data.logic)),
-            {next_state, S, publish(D2), A};
+            %% The active gives the pairing up: an election in which its
+            %% lease does not count.
+            {keep_state, elect(Data#data{active_lost = true,
+                                         election = #{epoch => 0, granted => [], replied => [],
+                                                      dead => true, why => handover,
+                                                      attempt => 0}})};
         false ->
             keep_state_and_data
     end;
 ha({handover, _Active, _Epoch, _Version}, _State, _Data) ->
     keep_state_and_data;
-ha({handover_done, New, _Epoch}, handing_over, #data{standby = New, id = Id} = Data) ->
+ha({handover_done, New, _Epoch, Claim}, handing_over, #data{standby = New, id = Id} = Data) ->
     ?LOG_WARNING(#{what => handed_over, pairing => Id, to => node_of(New)}),
     Data1 = disconnect_all(not_active, <<"the pairing moved to ", (node_name(New))/binary>>,
                            Data),
@@ -698,40 +788,74 @@ ha({handover_done, New, _Epoch}, handing_over, #data{standby = New, id = Id} = D
     Mon = erlang:monitor(process, New),
     Data2 = cancel_all(Data1#data{role = standby, active = New, active_mon = Mon,
                                   standby = undefined, standby_mon = undefined,
-                                  outbox = queue:new(), repl = [], acks = #{}}),
+                                  outbox = queue:new(), repl = [], acks = #{}, conf = Claim,
+                                  hold = false, reg = undefined}),
     {next_state, standby, publish(Data2)};
-ha({check, Active, Epoch}, standby, #data{active = Active, logic = Logic} = Data) ->
-    case evatar_pairing_logic:epoch(Logic) of
-        Epoch ->
-            ok = evatar_ha_proto_v1:check_ok(Active, Epoch, Data#data.version),
-            {keep_state, remonitor_active(Data#data{active_lost = false})};
-        Mine when Mine > Epoch ->
-            ok = evatar_ha_proto_v1:stale(Active, self(), Mine),
-            keep_state_and_data;
-        _ ->
-            keep_state_and_data
-    end;
-ha({check, From, Epoch}, State, Data) ->
-    other_instance(From, active, Epoch, State, Data);
-ha({check_ok, Standby, Epoch, V}, fenced, #data{standby = Standby, logic = Logic} = Data) ->
-    case evatar_pairing_logic:epoch(Logic) =:= Epoch of
-        true -> unfence(V, Data);
-        false -> keep_state_and_data
-    end;
-ha({check_ok, _, _, _}, _State, _Data) ->
-    keep_state_and_data;
 ha({stale, From, Epoch}, State, Data) ->
     other_instance(From, active, Epoch, State, Data);
 ha({peer_instance, Pid, Role, Epoch}, State, Data) when is_pid(Pid), is_atom(Role),
                                                        is_integer(Epoch) ->
     other_instance(Pid, Role, Epoch, State, Data);
+
+%% Elections and registrations: the answers of every node.
+ha({vote_reply, _Id, Ec, Node, Result}, State,
+   #data{election = #{epoch := Ec, granted := G, replied := R} = El} = Data)
+  when State =:= standby; State =:= fenced ->
+    El1 = El#{replied := lists:usort([Node | R])},
+    case Result of
+        granted ->
+            G1 = lists:usort([Node | G]),
+            case length(G1) >= evatar_cluster:quorum_size() of
+                true -> won(El1, State, Data);
+                false -> {keep_state, Data#data{election = El1#{granted := G1}}}
+            end;
+        {refused, stale_claim} ->
+            %% A newer configuration released what this instance lacks.
+            lost(stale_claim, State, Data);
+        {refused, {promised, P}} ->
+            {keep_state, retry_soon(Data#data{election = El1, promised = max(P, Data#data.promised)})};
+        {refused, holder_live} ->
+            {keep_state, Data#data{election = El1}}
+    end;
+ha({vote_reply, _, _, _, _}, _State, _Data) ->
+    keep_state_and_data;
+ha({register_reply, _Id, Claim, Node, ok}, State,
+   #data{reg = #{claim := Claim, ok := Ok} = Reg} = Data) ->
+    Ok1 = lists:usort([Node | Ok]),
+    case length(Ok1) >= evatar_cluster:quorum_size() of
+        true -> registered(State, Data#data{reg = undefined});
+        false -> {keep_state, Data#data{reg = Reg#{ok := Ok1}}}
+    end;
+ha({register_reply, _Id, Claim, Node, {refused, Why}}, State,
+   #data{reg = #{claim := Claim, no := No} = Reg} = Data) ->
+    No1 = lists:usort([Node | No]),
+    Size = evatar_cluster:size(),
+    case Size - length(No1) < evatar_cluster:quorum_size() of
+        true ->
+            %% Too many nodes promised the pairing to another instance, or saw
+            %% a newer configuration: this one cannot go on serving.
+            ?LOG_WARNING(#{what => registration_refused, pairing => Data#data.id,
+                           reason => Why}),
+            D1 = Data#data{reg = undefined},
+            case State of
+                S when S =:= waiting; S =:= bound -> fence_now(D1, []);
+                _ -> {keep_state, D1}
+            end;
+        false ->
+            {keep_state, Data#data{reg = Reg#{no := No1}}}
+    end;
+ha({register_reply, _, _, _, _}, _State, _Data) ->
+    keep_state_and_data;
 ha(_Body, _State, _Data) ->
     keep_state_and_data.
 
-snapshot_to(#data{standby = Standby, logic = Logic, version = V} = Data) ->
-    ok = evatar_ha_proto_v1:snapshot(Standby, evatar_pairing_logic:epoch(Logic), V, Logic),
+%% A new standby gets the whole state and a new claim: the configuration
+%% with it as the standby.
+snapshot_to(#data{standby = Standby, logic = Logic, version = V, conf = {E, Seq}} = Data) ->
+    Claim = {E, Seq + 1},
+    ok = evatar_ha_proto_v1:snapshot(Standby, evatar_pairing_logic:epoch(Logic), V, Logic, Claim),
     %% The snapshot holds every event queued so far.
-    Data#data{repl = [], unflushed = 0}.
+    Data#data{repl = [], unflushed = 0, conf = Claim}.
 
 apply_events([{V, Now, Event} | Rest], #data{version = Mine} = Data) when V =:= Mine + 1 ->
     {Logic1, _Effects} = evatar_pairing_logic:handle(Event, Now, Data#data.logic),
@@ -801,46 +925,51 @@ cluster_event({Lost, Node}, State, #data{standby = Standby} = Data)
 cluster_event({Lost, Node}, standby, #data{active = Active} = Data)
   when (Lost =:= node_suspected orelse Lost =:= node_down), is_pid(Active),
        node(Active) =:= Node ->
-    try_take_over(Data#data{active_lost = true});
+    {keep_state, start_election(active_silent, false, Data#data{active_lost = true})};
 cluster_event({node_alive, Node}, standby, #data{active = Active, active_lost = true} = Data)
   when is_pid(Active), node(Active) =:= Node ->
-    %% The active's node is back: pick up the replication again.
+    %% The active's node is back: pick up the replication again (an
+    %% election under way goes on: the nodes decide).
     ok = evatar_ha_proto_v1:resync(Active, self(), Data#data.version),
-    {keep_state, remonitor_active(Data#data{active_lost = false})};
+    {keep_state, remonitor_active(Data)};
 cluster_event({quorum, true}, standby, #data{active_lost = true} = Data) ->
-    try_take_over(Data);
+    {keep_state, start_election(active_silent, false, Data)};
 cluster_event({quorum, false}, State, Data) when State =:= waiting; State =:= bound ->
     maybe_fence(Data);
+cluster_event(stalled, State, Data) when State =:= waiting; State =:= bound ->
+    %% This node was stopped for longer than suspect_ms: the pairing may
+    %% have another active by now.
+    fence_now(Data, []);
 cluster_event({quorum, true}, fenced, Data) ->
-    try_unfence(Data);
+    {keep_state, start_election(fenced, false, Data)};
 cluster_event({node_alive, _}, fenced, Data) ->
-    try_unfence(Data);
-cluster_event(quorum_confirmed, State, #data{standby = undefined})
-  when State =:= waiting; State =:= bound ->
-    keep_state_and_data;
-cluster_event(quorum_confirmed, State, #data{standby = Standby} = Data)
-  when State =:= waiting; State =:= bound ->
-    %% The standby's node is lost and a majority heard since: it cannot be
-    %% taking over, so go on alone.
-    case evatar_cluster:alive_now(node(Standby)) of
-        true -> keep_state_and_data;
-        false -> {keep_state, place(State, drop_standby(Data))}
-    end;
+    {keep_state, start_election(fenced, false, Data)};
 cluster_event(_Event, _State, _Data) ->
     keep_state_and_data.
 
+%% The standby's process died (its node is up): it cannot take over, so go
+%% on without it at once. Its node is lost or silent: it may be taking over
+%% (a partition looks the same), so first the cluster must accept a
+%% configuration without it; everything stays held until then.
 standby_down(Why, State, #data{id = Id, standby = Standby} = Data) ->
     ?LOG_WARNING(#{what => standby_lost, pairing => Id, standby => node_of(Standby),
                    reason => Why}),
-    case Why =:= noconnection andalso evatar_cluster:size() > 2 of
-        true ->
-            %% A partition looks the same: wait until a majority is heard
-            %% without the standby's node (or fence when it is not).
-            evatar_cluster:await_quorum(self(), erlang:monotonic_time(millisecond)),
-            keep_state_and_data;
-        false ->
-            Data1 = drop_standby(Data),
-            {keep_state, place(State, Data1)}
+    case Why of
+        noconnection ->
+            #data{standby_mon = Mon, conf = {E, Seq}} = Data,
+            _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
+            _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
+            Claim = {E, Seq + 1},
+            Data1 = Data#data{standby = undefined, standby_mon = undefined, synced = false,
+                              repl = [], unflushed = 0, conf = Claim, hold = true,
+                              reg = #{claim => Claim, ok => [], no => []}},
+            %% A heartbeat later: by then a partition that cuts this node
+            %% off entirely has fenced it, and it registers nothing.
+            _ = erlang:send_after(evatar_cluster:opt(heartbeat_ms), self(),
+                                  {evatar_register_retry, Claim}),
+            {keep_state, publish(Data1)};
+        _ ->
+            {keep_state, place(State, drop_standby(Data))}
     end.
 
 drop_standby(#data{standby = Standby, standby_mon = Mon} = Data) ->
@@ -851,65 +980,148 @@ drop_standby(#data{standby = Standby, standby_mon = Mon} = Data) ->
     publish(Data1).
 
 active_down(noconnection, standby, Data) ->
-    try_take_over(Data#data{active_lost = true});
+    {keep_state, start_election(active_silent, false, Data#data{active_lost = true})};
 active_down(Why, standby, Data) ->
-    %% The process died and its node is up: nobody else can be active.
-    take_over({active_died, Why}, Data);
+    %% The process died and its node is up: its lease counts no more.
+    {keep_state, start_election({active_died, Why}, true, Data#data{active_lost = true})};
 active_down(_Why, _State, _Data) ->
     keep_state_and_data.
 
-try_take_over(#data{active = Active} = Data) ->
-    Alive = is_pid(Active) andalso evatar_cluster:alive_now(node(Active)),
-    case evatar_ha_rules:may_take_over(evatar_cluster:size(), evatar_cluster:majority_now(),
-                                       Alive) of
-        true ->
-            take_over(active_silent, Data);
-        false when Alive ->
-            %% The active's node is back (or never really went): follow it
-            %% again from where this standby stands.
-            ok = evatar_ha_proto_v1:resync(Active, self(), Data#data.version),
-            {keep_state, remonitor_active(Data#data{active_lost = false})};
-        false ->
-            {keep_state, Data}
-    end.
+%% ---------------------------------------------------------------------------
+%% Elections: a standby whose active is gone, or a fenced active, asks every
+%% node for the pairing at a new epoch (evatar_ha_rules:vote/5 decides on
+%% each node); a majority of grants (1 of 2 in a two-node cluster) wins.
+%% ---------------------------------------------------------------------------
 
-maybe_fence(#data{standby = Standby, id = Id} = Data) ->
+start_election(_Why, _Dead, #data{election = #{}} = Data) ->
+    Data;
+start_election(Why, Dead, Data) ->
+    elect(Data#data{election = #{epoch => 0, granted => [], replied => [], dead => Dead,
+                                 why => Why, attempt => 0}}).
+
+%% (Re)sends the vote requests at an epoch above any promise seen.
+elect(#data{election = #{dead := Dead, attempt := N} = El, id = Id, logic = Logic,
+            conf = Claim} = Data) ->
+    %% The same epoch again (a node grants its promise to the same
+    %% candidate twice), unless a refusal showed a higher promise.
+    Ec = max(maps:get(epoch, El),
+             max(evatar_pairing_logic:epoch(Logic), Data#data.promised) + 1),
+    Active = case Data#data.role of
+                 standby -> Data#data.active;
+                 _ -> self()
+             end,
+    _ = [evatar_ha_proto_v1:vote(N1, Id, Ec, self(), Claim, Active, Dead)
+         || N1 <- evatar_cluster:configured()],
+    %% Quick retries at first (a node may not have seen a killed node's
+    %% connection close yet), then once per heartbeat.
+    Hb = evatar_cluster:opt(heartbeat_ms),
+    _ = erlang:send_after(min(Hb, 10 bsl min(N, 6)), self(), {evatar_election_retry, Ec}),
+    Data#data{election = El#{epoch := Ec, granted := [], replied := [], attempt := N + 1}}.
+
+%% Refused for a promise to another candidate: ask again above it.
+retry_soon(#data{election = #{epoch := Ec}} = Data) ->
+    _ = erlang:send_after(5, self(), {evatar_election_retry, Ec}),
+    Data.
+
+won(#{epoch := Ec, why := handover}, standby, #data{active = Old, version = V} = Data) ->
+    %% The old active becomes this one's standby, already in sync, with
+    %% the claim {Ec, 1}.
+    {next_state, S, D, A} = take_over(handover, Ec, Data),
+    Mon = erlang:monitor(process, Old),
+    D1 = D#data{standby = Old, standby_mon = Mon, synced = true, confirmed = V,
+                placing = false, reg = undefined, hold = false},
+    ok = evatar_ha_proto_v1:handover_done(Old, self(), Ec, {Ec, 1}),
+    {next_state, S, publish(flush(D1)), A};
+won(#{epoch := Ec, why := Why}, _State, Data) ->
+    take_over(Why, Ec, Data).
+
+lost(Why, standby, Data) ->
+    stop_instance(Why, reply_held(Data));
+lost(Why, _State, Data) ->
+    step_down(Why, Data).
+
+%% Asks every node to record this active's configuration; effects stay held
+%% until a majority did (registered/2).
+send_register(#data{id = Id, conf = {E, Seq}} = Data) ->
+    Done = case Data#data.reg of
+               #{claim := {E, Seq}, ok := Ok} -> Ok;
+               _ -> []
+           end,
+    _ = [evatar_ha_proto_v1:register(N, Id, E, Seq, self())
+         || N <- evatar_cluster:configured(), not lists:member(N, Done)],
+    _ = erlang:send_after(2 * evatar_cluster:opt(heartbeat_ms) + 50, self(),
+                          {evatar_register_retry, {E, Seq}}),
+    Data#data{hold = true, reg = #{claim => {E, Seq}, ok => Done, no => []}}.
+
+registered(State, Data) ->
+    Data1 = release_all(Data#data{hold = false}),
+    {keep_state, place(State, Data1), [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
+
+%% ---------------------------------------------------------------------------
+%% Fencing
+%% ---------------------------------------------------------------------------
+
+maybe_fence(#data{standby = Standby} = Data) ->
     StandbyHeard = is_pid(Standby) andalso
         evatar_cluster:heard_within(node(Standby), evatar_cluster:opt(lease_ms)),
     case evatar_ha_rules:must_fence(evatar_cluster:size(), evatar_cluster:majority_now(),
                                     StandbyHeard) of
-        true ->
-            ?LOG_WARNING(#{what => fenced, pairing => Id}),
-            Data1 = disconnect_all(fenced, <<"this node lost the majority of the cluster">>,
-                                   Data#data{role = fenced}),
-            {next_state, fenced, publish(Data1)};
-        false ->
-            keep_state_and_data
-    end.
-
-try_unfence(#data{standby = Standby, logic = Logic}) when is_pid(Standby) ->
-    case evatar_cluster:majority_now() of
-        true ->
-            ok = evatar_ha_proto_v1:check(Standby, self(), evatar_pairing_logic:epoch(Logic)),
-            keep_state_and_data;
-        false ->
-            keep_state_and_data
-    end;
-try_unfence(#data{standby = undefined} = Data) ->
-    %% Without a standby nobody can have taken over (a takeover needs one).
-    case evatar_cluster:majority_now() of
-        true -> unfence(Data#data.version, Data);
+        true -> fence_now(Data, []);
         false -> keep_state_and_data
     end.
 
-unfence(StandbyVersion, #data{id = Id, version = V} = Data) ->
-    ?LOG_NOTICE(#{what => unfenced, pairing => Id}),
-    Data1 = Data#data{role = active},
-    Data2 = case is_pid(Data1#data.standby) andalso StandbyVersion < V of
-                true -> snapshot_to(Data1);
+%% Stops serving: every client is closed with Fenced (they go to their
+%% other endpoints), nothing goes out; with a majority heard it asks for
+%% the pairing again at once (an election in which its standby may win).
+fence_now(#data{id = Id} = Data, Actions) ->
+    ?LOG_WARNING(#{what => fenced, pairing => Id}),
+    Data1 = disconnect_all(fenced, <<"this node lost the majority of the cluster">>,
+                           Data#data{role = fenced}),
+    Data2 = case evatar_cluster:majority_now() of
+                true -> start_election(fenced, false, Data1);
                 false -> Data1
             end,
-    next(publish(Data2), []).
+    {next_state, fenced, publish(Data2), Actions}.
+
+stalled_active(State, #data{gen = Gen}) when State =:= waiting; State =:= bound ->
+    not evatar_cluster:unstalled(Gen);
+stalled_active(_State, _Data) ->
+    false.
+
+%% ---------------------------------------------------------------------------
+%% Resumes held by a standby
+%% ---------------------------------------------------------------------------
+
+arm_held(#data{held_armed = true} = Data) ->
+    Data;
+arm_held(Data) ->
+    _ = erlang:send_after(max(5, evatar_cluster:opt(heartbeat_ms) div 2), self(),
+                          evatar_held_check),
+    Data#data{held_armed = true}.
+
+%% A held resume is answered NotActive once the active was heard after it
+%% came (the active is alive: the client had another reason to leave it),
+%% or after suspect_ms + 2 heartbeats (at most 800 ms) without a decision.
+check_held(#data{held = Held, active = Active} = Data) ->
+    Now = erlang:monotonic_time(millisecond),
+    Max = min(800, evatar_cluster:opt(suspect_ms) + 2 * evatar_cluster:opt(heartbeat_ms)),
+    Electing = Data#data.election =/= undefined orelse Data#data.active_lost,
+    {Go, Keep} = lists:partition(
+                   fun({_, _, Since}) ->
+                           Now - Since > Max orelse
+                               (not Electing andalso is_pid(Active)
+                                andalso evatar_cluster:heard_after(node(Active), Since))
+                   end, Held),
+    _ = [gen_statem:reply(From, {error, {not_active, node_of(Active)}}) || {From, _, _} <- Go],
+    Data1 = Data#data{held = Keep},
+    case Keep of
+        [] -> Data1;
+        _ -> arm_held(Data1)
+    end.
+
+reply_held(#data{held = Held, active = Active} = Data) ->
+    _ = [gen_statem:reply(From, {error, {not_active, node_of(Active)}}) || {From, _, _} <- Held],
+    Data#data{held = []}.
 
 %% ---------------------------------------------------------------------------
 %% Silent client links

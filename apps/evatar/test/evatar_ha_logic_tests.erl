@@ -228,15 +228,58 @@ majority_test_() ->
      ?_assertNot(evatar_ha_rules:majority([a, b, c, d], [a, b])),
      ?_assertNot(evatar_ha_rules:majority([a, b, c], [a, x, y]))].
 
-take_over_and_fence_test_() ->
-    [?_assert(evatar_ha_rules:may_take_over(2, false, false)),
-     ?_assertNot(evatar_ha_rules:may_take_over(2, true, true)),
-     ?_assertNot(evatar_ha_rules:may_take_over(3, false, false)),
-     ?_assert(evatar_ha_rules:may_take_over(3, true, false)),
-     ?_assertNot(evatar_ha_rules:must_fence(2, false, false)),
+fence_test_() ->
+    [?_assertNot(evatar_ha_rules:must_fence(2, false, false)),
      ?_assert(evatar_ha_rules:must_fence(3, false, false)),
      ?_assertNot(evatar_ha_rules:must_fence(3, false, true)),
      ?_assertNot(evatar_ha_rules:must_fence(3, true, false))].
+
+quorum_size_test_() ->
+    [?_assertEqual(1, evatar_ha_rules:quorum_size(1)),
+     ?_assertEqual(1, evatar_ha_rules:quorum_size(2)),
+     ?_assertEqual(2, evatar_ha_rules:quorum_size(3)),
+     ?_assertEqual(3, evatar_ha_rules:quorum_size(4)),
+     ?_assertEqual(3, evatar_ha_rules:quorum_size(5))].
+
+%% Votes: the pids only name instances here.
+votes_test_() ->
+    A = list_to_pid("<0.101.0>"),
+    B = list_to_pid("<0.102.0>"),
+    S2 = list_to_pid("<0.103.0>"),
+    New = evatar_ha_rules:new_record(),
+    {ok, HeldByA} = evatar_ha_rules:register(New, 1, 1, A),
+    {granted, ToB} = evatar_ha_rules:vote(HeldByA, 2, B, {1, 1}, false),
+    [%% While the holder is heard, nobody else gets the pairing.
+     ?_assertEqual({refused, holder_live}, evatar_ha_rules:vote(HeldByA, 2, B, {1, 1}, true)),
+     %% One promise per epoch: epoch 2 went to B; C needs epoch 3.
+     ?_assertEqual({refused, {promised, 2}}, evatar_ha_rules:vote(ToB, 2, S2, {1, 1}, false)),
+     ?_assertMatch({granted, _}, evatar_ha_rules:vote(ToB, 2, B, {1, 1}, false)),
+     ?_assertMatch({granted, #{promised := 3, holder := S2}},
+                   evatar_ha_rules:vote(ToB, 3, S2, {1, 1}, false)),
+     %% A configuration made without B (A dropped it) makes B's claim stale
+     %% for good, and one promised to B's epoch refuses A's registration.
+     ?_assertEqual({refused, stale_claim},
+                   evatar_ha_rules:vote(element(2, evatar_ha_rules:register(HeldByA, 1, 2, A)),
+                                        2, B, {1, 1}, false)),
+     ?_assertEqual({refused, {promised, 2}}, evatar_ha_rules:register(ToB, 1, 2, A)),
+     %% The winner's own configuration is accepted.
+     ?_assertMatch({ok, #{promised := 2, holder := B, conf := {2, 1}}},
+                   evatar_ha_rules:register(ToB, 2, 1, B))].
+
+%% A partial partition (A active, its standby B cut from A, C hearing both):
+%% B's own node grants, C refuses while it hears A: one vote of three, so B
+%% cannot win, and A's configuration without B is accepted by A and C.
+partial_partition_votes_test() ->
+    A = list_to_pid("<0.101.0>"),
+    B = list_to_pid("<0.102.0>"),
+    {ok, Rec} = evatar_ha_rules:register(evatar_ha_rules:new_record(), 1, 1, A),
+    OnB = evatar_ha_rules:vote(Rec, 2, B, {1, 1}, false),
+    OnC = evatar_ha_rules:vote(Rec, 2, B, {1, 1}, true),
+    Granted = length([G || {granted, _} = G <- [OnB, OnC]]),
+    ?assert(Granted < evatar_ha_rules:quorum_size(3)),
+    ?assertMatch({ok, _}, evatar_ha_rules:register(Rec, 1, 2, A)),
+    {granted, RecB} = OnB,
+    ?assertMatch({refused, _}, evatar_ha_rules:register(RecB, 1, 2, A)).
 
 reconcile_test_() ->
     P1 = list_to_pid("<0.1.0>"),
