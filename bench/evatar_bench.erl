@@ -248,6 +248,7 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
                 split -> evatar_bench_gen:setup(N, raw, Addr, maps:get(node, Gen));
                 floor -> evatar_bench_gen:setup(N, floor, Floor);
                 codec -> evatar_bench_gen:setup(N, codec, Floor);
+                floor_direct -> evatar_bench_gen:setup(N, floor_direct, Floor);
                 _ -> evatar_bench_gen:setup(N, Mode, Addr)
             end,
     SetupMs = erlang:monotonic_time(millisecond) - T0,
@@ -264,6 +265,7 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
     Stats = case Mode of
                 floor -> #{};
                 codec -> #{};
+                floor_direct -> #{};
                 _ -> pairing_stats(Pairs)
             end,
     ok = teardown(Pairs, ConnSup),

@@ -6,7 +6,10 @@
 %% EVATAR's figures can be read against it. In `codec' mode the relays also
 %% parse each frame (bil_control:parse_frame/2) and encode what they write
 %% (bil:encode_signal/1), as agent_bridge_conn does, so the codec's share
-%% can be isolated.
+%% can be isolated. In `floor_direct' mode the middle process writes to the
+%% destination socket itself instead of handing the frame to that socket's
+%% relay: one process hop less per frame, the shape EVATAR would have if
+%% the pairing wrote to its entities' sockets (bench/EVATAR_BENCH.md).
 -module(evatar_bench_floor).
 
 -export([listen/0, relay_pair/3, relay/3, middle/0]).
@@ -21,7 +24,7 @@ listen() ->
 
 %% @doc Relays between the VA's and the Avatar's accepted sockets through a
 %% middle process; returns the three processes.
--spec relay_pair(gen_tcp:socket(), gen_tcp:socket(), floor | codec) -> [pid()].
+-spec relay_pair(gen_tcp:socket(), gen_tcp:socket(), floor | codec | floor_direct) -> [pid()].
 relay_pair(VaSock, AvSock, Kind) ->
     Mid = proc_lib:spawn(?MODULE, middle, []),
     Va = proc_lib:spawn(?MODULE, relay, [Mid, va, Kind]),
@@ -30,12 +33,15 @@ relay_pair(VaSock, AvSock, Kind) ->
     ok = gen_tcp:controlling_process(AvSock, Av),
     Va ! {socket, VaSock},
     Av ! {socket, AvSock},
-    Mid ! {peers, Va, Av},
+    Mid ! case Kind of
+              floor_direct -> {peers, Va, Av, VaSock, AvSock};
+              _ -> {peers, Va, Av}
+          end,
     [Va, Mid, Av].
 
 %% @private
 %% Like agent_bridge_conn: {active, 32} frames in, nosuspend writes out.
--spec relay(pid(), va | av, floor | codec) -> ok.
+-spec relay(pid(), va | av, floor | codec | floor_direct) -> ok.
 relay(Mid, Tag, Kind) ->
     receive {socket, S} -> ok end,
     ok = inet:setopts(S, [{active, 32}]),
@@ -65,19 +71,41 @@ relay_loop(S, Mid, Tag, Kind) ->
 
 decode(floor, Frame) ->
     Frame;
+decode(floor_direct, Frame) ->
+    Frame;
 decode(codec, Frame) ->
     {ok, {signal, Signal}} = bil_control:parse_frame(Frame, #{}),
     %% What the pairing stamps before delivering.
     Signal#{seq := 1, epoch := 1}.
 
 encode(floor, Frame) -> Frame;
+encode(floor_direct, Frame) -> Frame;
 encode(codec, Signal) -> bil:encode_signal(Signal).
 
 %% @private
 %% Stands for the pairing process: one more message hop each way.
 -spec middle() -> ok.
 middle() ->
-    receive {peers, Va, Av} -> middle(Va, Av) end.
+    receive
+        {peers, Va, Av} -> middle(Va, Av);
+        {peers, Va, Av, VaSock, AvSock} -> direct(Va, Av, VaSock, AvSock)
+    end.
+
+%% Writes straight to the other side's socket; a busy socket gets the frame
+%% through its relay, which then waits for room.
+direct(Va, Av, VaSock, AvSock) ->
+    receive
+        {va, Frame} -> ok = write(AvSock, Av, Frame), direct(Va, Av, VaSock, AvSock);
+        {av, Frame} -> ok = write(VaSock, Va, Frame), direct(Va, Av, VaSock, AvSock);
+        {inet_reply, _, _} -> direct(Va, Av, VaSock, AvSock);
+        stop -> ok
+    end.
+
+write(Sock, Relay, Frame) ->
+    case erlang:port_command(Sock, Frame, [nosuspend]) of
+        true -> ok;
+        false -> Relay ! {out, Frame}, ok
+    end.
 
 middle(Va, Av) ->
     receive
