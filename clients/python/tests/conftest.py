@@ -49,6 +49,19 @@ class Node:
         self.proc.stdin.write(text + "\n")
         self.proc.stdin.flush()
 
+    def ask(self, text: str) -> List[str]:
+        """Sends a command to a test-node-ctl node and returns the lines it
+        answers before its ``OK``; raises on ``ERROR`` or end of output."""
+        self.command(text)
+        lines = []
+        while True:
+            line = self.readline().rstrip("\n")
+            if line == "OK":
+                return lines
+            if line.startswith("ERROR") or line == "":
+                raise RuntimeError("node: %s: %s" % (text, line))
+            lines.append(line)
+
     def stop(self) -> None:
         if self.proc.poll() is None:
             try:

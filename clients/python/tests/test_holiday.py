@@ -33,16 +33,6 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None) -> D
     node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
                                      "--home", "home:home-gateway-secret:%s" % spool] + extra)
 
-    def command(text: str) -> List[str]:
-        node.command(text)
-        lines = []
-        while True:
-            line = node.readline().rstrip("\n")
-            if line == "OK":
-                return lines
-            if line.startswith("ERROR") or line == "":
-                raise RuntimeError("node: %s %s" % (text, line))
-            lines.append(line)
 
     async def main() -> Tuple[List[str], List[str]]:
         loop = asyncio.get_running_loop()
@@ -50,10 +40,10 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None) -> D
         stop = asyncio.Event()
         runner = asyncio.ensure_future(va.run(stop))
         await va.client.wait_binding(lambda b: holiday_va.all_bound(va), timeout=30)
-        await loop.run_in_executor(None, command, "speed %d" % SPEED)
-        await loop.run_in_executor(None, command, "run_until " + until)
+        await loop.run_in_executor(None, node.ask, "speed %d" % SPEED)
+        await loop.run_in_executor(None, node.ask, "run_until " + until)
         await asyncio.sleep(0.2)  # the last answers reach the house
-        lines = await loop.run_in_executor(None, command, "outcome")
+        lines = await loop.run_in_executor(None, node.ask, "outcome")
         stop.set()
         await runner
         await va.client.close()

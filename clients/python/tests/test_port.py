@@ -26,17 +26,6 @@ def ctl() -> Iterator[Node]:
     n.stop()
 
 
-def command(node: Node, text: str) -> List[str]:
-    node.command(text)
-    lines = []
-    while True:
-        line = node.readline().rstrip("\n")
-        if line == "OK":
-            return lines
-        if line.startswith("ERROR") or line == "":
-            raise RuntimeError("node: %s: %s" % (text, line))
-        lines.append(line)
-
 
 def alive(pid: int) -> bool:
     try:
@@ -68,7 +57,7 @@ def test_port_program_is_an_agent(ctl: Node, tmp_path: Path) -> None:
         sensor = Sensor(av, "PorchMotion", "MotionDetected")
         await av.connect()
         await describe(av, [lamp, sensor])
-        await loop.run_in_executor(None, command, ctl,
+        await loop.run_in_executor(None, ctl.ask,
                                    "port porch-va %s %s porch porch-va porch-va-1 %s"
                                    % (sys.executable, PROGRAM, pid_file))
 
@@ -88,12 +77,12 @@ def test_port_program_is_an_agent(ctl: Node, tmp_path: Path) -> None:
                 # The program exits; EVATAR unbinds it, then starts it again.
                 await sensor.emit({"Exit": "yes"})
                 await av.wait_binding(lambda b: "porch-va-1" not in b.entities, timeout=10)
-        [runs] = await loop.run_in_executor(None, command, ctl, "runs porch-va")
+        [runs] = await loop.run_in_executor(None, ctl.ask, "runs porch-va")
         assert runs == "RUNS 2"
         pid = int(pid_file.read_text())
         assert alive(pid)
         # Stopped by EVATAR: the program sees end-of-file on stdin and exits.
-        await loop.run_in_executor(None, command, ctl, "stop_port porch-va")
+        await loop.run_in_executor(None, ctl.ask, "stop_port porch-va")
         await av.wait_binding(lambda b: "porch-va-1" not in b.entities, timeout=10)
         for _ in range(100):
             if not alive(pid):

@@ -25,17 +25,6 @@ def cluster() -> Iterator[Node]:
     n.stop()
 
 
-def command(node: Node, text: str) -> List[str]:
-    node.command(text)
-    lines = []
-    while True:
-        line = node.readline().rstrip("\n")
-        if line == "OK":
-            return lines
-        if line.startswith("ERROR") or line == "":
-            raise RuntimeError("node: %s: %s" % (text, line))
-        lines.append(line)
-
 
 async def reconnected(c: Client) -> Reconnected:
     while True:
@@ -88,7 +77,7 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         # Node 1 dies with requests open and readings on their way.
         requests = [asyncio.ensure_future(light.act("TurnLightOn", {"N": str(i)}, timeout=60))
                     for i in range(5)]
-        await loop.run_in_executor(None, command, cluster, "%s 1" % failure)
+        await loop.run_in_executor(None, cluster.ask, "%s 1" % failure)
         for i in range(20, 60):
             await sensor.emit({"N": str(i)})
         ev = await reconnected(va)
@@ -110,8 +99,8 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         await va.await_acks(10)
         await av.await_acks(10)
         if failure == "freeze":
-            await loop.run_in_executor(None, command, cluster, "kill 1")
-        ha = await loop.run_in_executor(None, command, cluster, "ha home")
+            await loop.run_in_executor(None, cluster.ask, "kill 1")
+        ha = await loop.run_in_executor(None, cluster.ask, "ha home")
         assert "HA 2 active 2" in ha
         await va.close()
         await av.close()
