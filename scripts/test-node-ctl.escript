@@ -37,6 +37,11 @@
 -mode(compile).
 
 main(Args0) ->
+    %% Stdout carries the command protocol (lines up to OK or ERROR); log
+    %% reports, such as a killed peer's, go to stderr so a reader never
+    %% takes them for answers.
+    ok = logger:remove_handler(default),
+    ok = logger:add_handler(default, logger_std_h, #{config => #{type => standard_error}}),
     case lists:splitwith(fun(A) -> A =/= "--cluster" end, Args0) of
         {Args, ["--cluster", N | More]} -> cluster(list_to_integer(N), Args ++ More);
         {Args, []} -> single(Args)

@@ -55,10 +55,13 @@ class Node:
         self.command(text)
         lines = []
         while True:
-            line = self.readline().rstrip("\n")
+            raw = self.readline()
+            if raw == "":
+                raise RuntimeError("node: %s: the node's output ended" % text)
+            line = raw.rstrip("\n")
             if line == "OK":
                 return lines
-            if line.startswith("ERROR") or line == "":
+            if line.startswith("ERROR"):
                 raise RuntimeError("node: %s: %s" % (text, line))
             lines.append(line)
 
