@@ -14,6 +14,8 @@
 
 -export([listen/0, relay_pair/3, relay/3, middle/0]).
 
+-define(ACTIVE_N, 32).
+
 %% @doc A listening socket for the floor on a free loopback port.
 -spec listen() -> {{inet:ip_address(), inet:port_number()}, gen_tcp:socket()}.
 listen() ->
@@ -40,16 +42,19 @@ relay_pair(VaSock, AvSock, Kind) ->
     [Va, Mid, Av].
 
 %% @private
-%% Like agent_bridge_conn: {active, 32} frames in, nosuspend writes out.
+%% Like agent_bridge_conn: {active, 32} frames in, topped up at half the
+%% batch so the socket never goes passive; nosuspend writes out.
 -spec relay(pid(), va | av, floor | codec | floor_direct) -> ok.
 relay(Mid, Tag, Kind) ->
     receive {socket, S} -> ok end,
-    ok = inet:setopts(S, [{active, 32}]),
+    ok = inet:setopts(S, [{active, ?ACTIVE_N}]),
+    put(credit, ?ACTIVE_N div 2),
     relay_loop(S, Mid, Tag, Kind).
 
 relay_loop(S, Mid, Tag, Kind) ->
     receive
         {tcp, S, Frame} ->
+            ok = evatar_bench_gen:read_on(S, ?ACTIVE_N),
             Mid ! {Tag, decode(Kind, Frame)},
             relay_loop(S, Mid, Tag, Kind);
         {out, Msg} ->
@@ -60,7 +65,7 @@ relay_loop(S, Mid, Tag, Kind) ->
             end,
             relay_loop(S, Mid, Tag, Kind);
         {tcp_passive, S} ->
-            ok = inet:setopts(S, [{active, 32}]),
+            ok = evatar_bench_gen:reactivate(S, ?ACTIVE_N),
             relay_loop(S, Mid, Tag, Kind);
         {tcp_closed, S} ->
             Mid ! stop,

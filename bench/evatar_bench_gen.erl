@@ -7,7 +7,7 @@
 
 -export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
          descriptions/2, credentials/0, idle_join/4, answer_kind/1]).
--export([va_init/6, avatar_init/5, sink/0]).
+-export([va_init/6, avatar_init/5, sink/0, read_on/2, reactivate/2]).
 
 -export_type([mode/0, pair/0]).
 
@@ -29,6 +29,7 @@
 -define(AGENT_CRED, <<"bench-agent-credential">>).
 -define(AVATAR_CRED, <<"bench-avatar-credential">>).
 -define(SETUP_TIMEOUT, 60000).
+-define(ACTIVE_N, 32).
 
 %% ---------------------------------------------------------------------------
 %% Documents
@@ -237,7 +238,38 @@ bound(#{bound := Bound}) ->
 
 activate({client, _}) -> ok;
 activate({direct, _}) -> ok;
-activate({raw, S}) -> ok = inet:setopts(S, [{active, 32}]).
+activate({raw, S}) ->
+    put(credit, ?ACTIVE_N div 2),
+    ok = inet:setopts(S, [{active, ?ACTIVE_N}]).
+
+%% @doc Counts a frame read from S in `{active, N}' mode (the count in the
+%% process dictionary of the socket's only reader) and every half batch
+%% tops the socket's count up to N, as agent_bridge_conn does: a socket
+%% that never goes passive is polled by the runtime's schedulers rather
+%% than its poll thread.
+-spec read_on(gen_tcp:socket(), pos_integer()) -> ok.
+read_on(S, N) ->
+    case get(credit) of
+        C when C > 1 ->
+            put(credit, C - 1),
+            ok;
+        _ ->
+            put(credit, N div 2),
+            case inet:getopts(S, [active]) of
+                {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
+                    ok = inet:setopts(S, [{active, N - Left}]);
+                _ ->
+                    ok
+            end
+    end.
+
+%% @doc After a passive notice: reads on unless a top-up came first.
+-spec reactivate(gen_tcp:socket(), pos_integer()) -> ok.
+reactivate(S, N) ->
+    case inet:getopts(S, [active]) of
+        {ok, [{active, false}]} -> put(credit, N div 2), ok = inet:setopts(S, [{active, N}]);
+        _ -> ok
+    end.
 
 %% ---------------------------------------------------------------------------
 %% The Avatar: answers every request with a feedback, in its own process
@@ -286,6 +318,7 @@ avatar_loop({direct, Session} = Conn, T) ->
 avatar_loop({raw, S} = Conn, {P1, P2, P3} = T) ->
     receive
         {tcp, S, Frame} ->
+            ok = read_on(S, ?ACTIVE_N),
             case binary:match(Frame, <<"<Context>RequestAwaitingFeedback</Context>">>) of
                 nomatch ->
                     ok;
@@ -295,7 +328,7 @@ avatar_loop({raw, S} = Conn, {P1, P2, P3} = T) ->
             end,
             avatar_loop(Conn, T);
         {tcp_passive, S} ->
-            ok = inet:setopts(S, [{active, 32}]),
+            ok = reactivate(S, ?ACTIVE_N),
             avatar_loop(Conn, T);
         {tcp_closed, S} ->
             exit(normal);
@@ -377,6 +410,7 @@ answer({evatar, _, {signal, Signal}}, {direct, _}) ->
 answer({agent_bridge, C, {closed, Why}}, {client, C}) ->
     exit({va_closed, Why});
 answer({tcp, S, Frame}, {raw, S}) ->
+    ok = read_on(S, ?ACTIVE_N),
     case binary:match(Frame, <<"<InReplyTo>q">>) of
         nomatch ->
             ignore;
@@ -395,7 +429,7 @@ answer({tcp, S, Frame}, {raw, S}) ->
             {N, Kind}
     end;
 answer({tcp_passive, S}, {raw, S}) ->
-    ok = inet:setopts(S, [{active, 32}]),
+    ok = reactivate(S, ?ACTIVE_N),
     ignore;
 answer({tcp_closed, S}, {raw, S}) ->
     exit(va_closed);

@@ -3,7 +3,7 @@
 %% Both carry `{packet, 4}' frames; writes never suspend the caller.
 -module(agent_bridge_transport).
 
--export([send_fun/1, activate/2, set_max_frame/2, drain/1, shutdown/1, close/1,
+-export([send_fun/1, activate/2, top_up/2, is_passive/1, set_max_frame/2, drain/1, shutdown/1, close/1,
          peer/1]).
 
 -export_type([t/0]).
@@ -26,6 +26,30 @@ send_fun({_, Port}) ->
 -spec activate(t(), once | pos_integer()) -> ok.
 activate({tcp, S}, N) -> ok_or_closed(inet:setopts(S, [{active, N}]));
 activate({port, _}, _) -> ok.
+
+%% @doc Raises a socket's `{active, N}' count to `Target' frames still to
+%% deliver; a passive socket is left alone (its passive notice is on its
+%% way, and the owner decides then).
+-spec top_up(t(), integer()) -> ok.
+top_up({tcp, S}, Target) ->
+    case inet:getopts(S, [active]) of
+        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Target > Left ->
+            ok_or_closed(inet:setopts(S, [{active, Target - Left}]));
+        _ ->
+            ok
+    end;
+top_up({port, _}, _) -> ok.
+
+%% @doc Whether a socket has stopped delivering frames (`{active, false}');
+%% a closed one counts as passive.
+-spec is_passive(t()) -> boolean().
+is_passive({tcp, S}) ->
+    case inet:getopts(S, [active]) of
+        {ok, [{active, false}]} -> true;
+        {ok, [{active, _}]} -> false;
+        {error, _} -> true
+    end;
+is_passive({port, _}) -> false.
 
 -spec set_max_frame(t(), pos_integer()) -> ok.
 set_max_frame({tcp, S}, Max) -> ok_or_closed(inet:setopts(S, [{packet_size, Max}]));
