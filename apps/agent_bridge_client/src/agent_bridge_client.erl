@@ -105,7 +105,9 @@
             heartbeat = 0 :: non_neg_integer(),
             last_rx = 0 :: integer(),
             window = 1024 :: pos_integer(),
-            ever_connected = false :: boolean()}).
+            ever_connected = false :: boolean(),
+            %% Frames to read before the socket's count is topped up.
+            reads = 1 :: pos_integer()}).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -220,9 +222,10 @@ handle_event(state_timeout, E, handshaking, D) ->
 handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock} = D) ->
     case bil_control:parse_frame(Frame, #{}) of
         {ok, {control, {welcome, Welcome}}} ->
-            ok = inet:setopts(Sock, [{active, maps:get(active_n, D#d.opts, 32)}]),
+            ok = inet:setopts(Sock, [{active, active_n(D)}]),
             reply_waiter({ok, self()}, D),
-            welcomed(Welcome, D#d{welcome = Welcome, waiter = undefined});
+            welcomed(Welcome, D#d{welcome = Welcome, waiter = undefined,
+                                  reads = max(1, active_n(D) div 2)});
         {ok, {control, {refused, #{code := Code, message := Message}}}} ->
             refused_in_handshake(Code, Message, D);
         {ok, Other} ->
@@ -238,12 +241,18 @@ handle_event(info, {tcp_error, Sock, Why}, handshaking, #d{sock = Sock} = D) ->
 
 %% Connected.
 handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock, ha = false} = D) ->
-    incoming(bil_control:parse_frame(Frame, #{}), D);
+    incoming(bil_control:parse_frame(Frame, #{}), read_on(D));
 handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock} = D) ->
-    incoming(bil_control:parse_frame(Frame, #{}), D#d{last_rx = now_ms()});
+    incoming(bil_control:parse_frame(Frame, #{}), read_on(D#d{last_rx = now_ms()}));
 handle_event(info, {tcp_passive, Sock}, connected, #d{sock = Sock} = D) ->
-    ok = inet:setopts(Sock, [{active, maps:get(active_n, D#d.opts, 32)}]),
-    keep_state_and_data;
+    %% A top-up made just as the socket went passive makes this notice stale.
+    case inet:getopts(Sock, [active]) of
+        {ok, [{active, false}]} ->
+            ok = inet:setopts(Sock, [{active, active_n(D)}]),
+            {keep_state, D#d{reads = max(1, active_n(D) div 2)}};
+        _ ->
+            keep_state_and_data
+    end;
 handle_event(info, {tcp_closed, Sock}, connected, #d{sock = Sock} = D) ->
     disconnected(closed, D);
 handle_event(info, {tcp_error, Sock, Why}, connected, #d{sock = Sock} = D) ->
@@ -430,6 +439,25 @@ welcomed(#{session_id := Sid, ha := Ha}, #d{ever_connected = Again} = D) ->
 %% ---------------------------------------------------------------------------
 %% Traffic
 %% ---------------------------------------------------------------------------
+
+active_n(#d{opts = Opts}) -> maps:get(active_n, Opts, 32).
+
+%% Every half batch the socket's `{active, N}' count is topped up to N, so
+%% a busy connection never goes passive and the runtime polls its socket
+%% from the schedulers instead of waking its poll thread for each frame
+%% (bench/EVATAR_BENCH.md).
+read_on(#d{reads = R} = D) when R > 1 ->
+    D#d{reads = R - 1};
+read_on(#d{sock = Sock} = D) ->
+    N = active_n(D),
+    case inet:getopts(Sock, [active]) of
+        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
+            _ = inet:setopts(Sock, [{active, N - Left}]),
+            ok;
+        _ ->
+            ok
+    end,
+    D#d{reads = max(1, N div 2)}.
 
 incoming({ok, {signal, S}}, #d{ha = true} = D) ->
     ha_signal(S, D);

@@ -97,7 +97,9 @@
             last_topic :: binary() | undefined,
             sent = false :: boolean(),
             received = false :: boolean(),
-            ping_pending = false :: boolean()}).
+            ping_pending = false :: boolean(),
+            %% Reads before the socket's count is topped up again.
+            reads = ?ACTIVE_N div 2 :: pos_integer()}).
 
 %%====================================================================
 %% API
@@ -433,14 +435,19 @@ handle_event(info, Msg, State, #d{sock = Sock} = D) when Sock =/= undefined,
         {data, Bin} ->
             case mqtt_client_codec:parse(Bin, D#d.parser) of
                 {ok, Packets, Parser} ->
-                    packets(State, Packets, D#d{parser = Parser, received = true});
+                    packets(State, Packets, read_on(D#d{parser = Parser, received = true}));
                 {error, R} ->
                     protocol_error(State, {malformed_packet, R}, D)
             end;
         passive ->
-            case mqtt_client_sock:activate(Sock, ?ACTIVE_N) of
-                ok -> keep_state_and_data;
-                {error, R} -> lost(State, R, D)
+            case mqtt_client_sock:is_passive(Sock) of
+                true ->
+                    case mqtt_client_sock:activate(Sock, ?ACTIVE_N) of
+                        ok -> {keep_state, D#d{reads = ?ACTIVE_N div 2}};
+                        {error, R} -> lost(State, R, D)
+                    end;
+                false ->
+                    keep_state_and_data
             end;
         {closed, R} ->
             lost(State, R, D);
@@ -547,6 +554,14 @@ subscribe_packet(Id, Topics, D) ->
 %%====================================================================
 %% Incoming packets
 %%====================================================================
+
+%% Every half batch of reads the socket's count is topped up
+%% (mqtt_client_sock:top_up/2).
+read_on(#d{reads = R} = D) when R > 1 ->
+    D#d{reads = R - 1};
+read_on(#d{sock = Sock} = D) ->
+    ok = mqtt_client_sock:top_up(Sock, ?ACTIVE_N),
+    D#d{reads = ?ACTIVE_N div 2}.
 
 packets(connecting, [#{type := connack} = Ack | Rest], D) ->
     connack(Ack, Rest, D);

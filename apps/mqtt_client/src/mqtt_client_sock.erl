@@ -3,7 +3,7 @@
 %% data as messages with flow control.
 -module(mqtt_client_sock).
 
--export([connect/4, send/2, activate/2, close/1, classify/2]).
+-export([connect/4, send/2, activate/2, top_up/2, is_passive/1, close/1, classify/2]).
 
 -export_type([sock/0, event/0]).
 
@@ -39,6 +39,34 @@ send({ssl, S}, Data) -> ssl:send(S, Data).
 -spec activate(sock(), pos_integer()) -> ok | {error, term()}.
 activate({tcp, S}, N) -> inet:setopts(S, [{active, N}]);
 activate({ssl, S}, N) -> ssl:setopts(S, [{active, N}]).
+
+%% @doc Raises a reading socket's `{active, N}' count back to N, so that a
+%% busy connection never goes passive: the runtime then polls its socket
+%% from the schedulers instead of waking its poll thread for each read.
+%% TLS sockets and passive ones are left alone.
+-spec top_up(sock(), pos_integer()) -> ok.
+top_up({tcp, S}, N) ->
+    case inet:getopts(S, [active]) of
+        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
+            _ = inet:setopts(S, [{active, N - Left}]),
+            ok;
+        _ ->
+            ok
+    end;
+top_up({ssl, _}, _) ->
+    ok.
+
+%% @doc Whether the socket has stopped delivering data: a passive notice
+%% that a top-up overtook is stale.
+-spec is_passive(sock()) -> boolean().
+is_passive({tcp, S}) ->
+    case inet:getopts(S, [active]) of
+        {ok, [{active, false}]} -> true;
+        {ok, [{active, _}]} -> false;
+        {error, _} -> true
+    end;
+is_passive({ssl, _}) ->
+    true.
 
 %% @doc Closes the connection.
 -spec close(sock() | undefined) -> ok.
