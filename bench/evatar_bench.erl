@@ -43,7 +43,7 @@ main() -> main([]).
 main(Options) ->
     ok = io:setopts([{encoding, unicode}]),
     Cfg = config(Options),
-    Ctx0 = start(),
+    Ctx0 = start(Cfg),
     %% The second node also holds the idle clients' sockets: with both ends
     %% in one OS process, its file-descriptor limit halves what fits.
     {Ctx, Cfg1} = case lists:member(split, maps:get(modes, Cfg))
@@ -104,7 +104,7 @@ config(Options) ->
 %% The system under test
 %% ---------------------------------------------------------------------------
 
-start() ->
+start(Cfg) ->
     %% Logging at info for 10,000 joins would measure the logger.
     ok = logger:set_primary_config(level, warning),
     ok = application:set_env(agent_bridge, listeners, []),
@@ -112,7 +112,8 @@ start() ->
     {ok, _} = application:ensure_all_started(runtime_tools),
     {ok, LSup} = agent_bridge:start_listener(evatar_bench,
                                              #{ip => {127, 0, 0, 1}, port => 0,
-                                               acceptors => 8, backlog => 4096}),
+                                               acceptors => 8, backlog => 4096,
+                                               conn => maps:get(conn, Cfg, #{})}),
     {ok, Addr} = agent_bridge:address(evatar_bench),
     _ = erlang:system_flag(scheduler_wall_time, true),
     #{addr => Addr, conn_sup => agent_bridge_listener_sup:conn_sup(LSup),
