@@ -28,7 +28,7 @@ groups() ->
      {traffic, [], [request_feedback, sent_request_feedback_to_owner,
                     sent_request_feedback_to_owner_ha, binding_report, sensor_stream, feedback_timeout,
                     not_bound_error, re_register, pairing_deleted]},
-     {backpressure, [], [never_reading_client, flooding_client]},
+     {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
      {port, [], [port_round_trip]}].
 
 %% ---------------------------------------------------------------------------
@@ -364,6 +364,48 @@ flooding_client(Config) ->
     unlink(Flooder),
     ok = agent_bridge_client:close(Va),
     ok = agent_bridge_client:close(Av).
+
+%% A connection that keeps up (nothing waiting in its mailbox, its pairing
+%% below the watermark) never lets its socket go passive: it tops the
+%% socket's count up as it reads, so the runtime keeps polling the socket
+%% from its schedulers (docs/protocol.md, "Backpressure"). Re-arming after
+%% a passive notice, as before, shows a notice every 32 frames here.
+keeping_up_never_passive(Config) ->
+    S = joined_raw(Config, avatar, <<"av">>, ?AV_CRED),
+    ok = gen_tcp:send(S, bil:encode_description(avatar_description(<<"av">>, false))),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    {ok, Local} = inet:port(S),
+    [Conn] = [Owner || P <- erlang:ports(), erlang:port_info(P, name) =:= {name, "tcp_inet"},
+                       inet:peername(P) =:= {ok, {{127, 0, 0, 1}, Local}},
+                       {connected, Owner} <- [erlang:port_info(P, connected)]],
+    N = 300,
+    1 = erlang:trace(Conn, true, ['receive']),
+    Frame = fun(I) ->
+                    bil:encode_signal((sensor(I, <<"20">>))#{id => integer_to_binary(I),
+                                                             in_reply_to => undefined,
+                                                             timestamp => 0, seq => undefined,
+                                                             epoch => undefined})
+            end,
+    %% One frame at a time, each delivered before the next is sent.
+    _ = [begin
+             ok = gen_tcp:send(S, Frame(I)),
+             [_] = collect_sensor(Va, 1, [])
+         end || I <- lists:seq(1, N)],
+    1 = erlang:trace(Conn, false, ['receive']),
+    Passive = count_passive(0),
+    ct:log("passive notices while ~b frames were read: ~b", [N, Passive]),
+    0 = Passive,
+    ok = agent_bridge_client:close(Va),
+    ok = gen_tcp:close(S).
+
+count_passive(K) ->
+    receive
+        {trace, _, 'receive', {tcp_passive, _}} -> count_passive(K + 1);
+        {trace, _, 'receive', _} -> count_passive(K)
+    after 500 -> K
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Port connector
