@@ -34,7 +34,7 @@
 %% @doc Starts System with its files under RunDir. Crashes when the system
 %% cannot be started: a comparison without it would mislead.
 -spec start(system(), file:filename(), map()) -> sut().
-start(evatar, RunDir, _Cfg) ->
+start(evatar, RunDir, Cfg) ->
     OtpLib = code:lib_dir(),
     Paths = [P || P <- code:get_path(), not lists:prefix(OtpLib, P)],
     %% config/vm.args (+K true +A 8) and RabbitMQ's default of no busy
@@ -43,6 +43,7 @@ start(evatar, RunDir, _Cfg) ->
             "+P", "2000000", "+Q", "1000000", "-kernel", "logger_level", "warning",
             %% No default listener: the benchmark's own, on a free port.
             "-agent_bridge", "listeners", "[]"]
+        ++ maps:get(evatar_args, Cfg, [])
         ++ lists:append([["-pa", P] || P <- Paths]),
     {ok, Peer, Node} = peer:start_link(#{name => peer:random_name(broker_bench_evatar),
                                          args => Args, wait_boot => 60000}),
