@@ -390,7 +390,6 @@ read_on(#d{pairing_pid = Pid, transport = T} = D) ->
 
 %% A result that keeps the data keeps the read count updated before it.
 with_data(D, keep_state_and_data) -> {keep_state, D};
-with_data(D, {keep_state_and_data, Actions}) -> {keep_state, D, Actions};
 with_data(_D, Result) -> Result.
 
 %% Stops reading while the pairing has more than the watermark waiting, so
