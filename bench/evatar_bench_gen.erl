@@ -244,9 +244,9 @@ activate({raw, S}) ->
 
 %% @doc Counts a frame read from S in `{active, N}' mode (the count in the
 %% process dictionary of the socket's only reader) and every half batch
-%% tops the socket's count up to N, as agent_bridge_conn does: a socket
-%% that never goes passive is polled by the runtime's schedulers rather
-%% than its poll thread.
+%% tops the socket's count up to N with agent_bridge_conn's transport
+%% function: a socket that never goes passive is polled by the runtime's
+%% schedulers rather than its poll thread.
 -spec read_on(gen_tcp:socket(), pos_integer()) -> ok.
 read_on(S, N) ->
     case get(credit) of
@@ -255,20 +255,15 @@ read_on(S, N) ->
             ok;
         _ ->
             put(credit, N div 2),
-            case inet:getopts(S, [active]) of
-                {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
-                    ok = inet:setopts(S, [{active, N - Left}]);
-                _ ->
-                    ok
-            end
+            agent_bridge_transport:top_up({tcp, S}, N)
     end.
 
 %% @doc After a passive notice: reads on unless a top-up came first.
 -spec reactivate(gen_tcp:socket(), pos_integer()) -> ok.
 reactivate(S, N) ->
-    case inet:getopts(S, [active]) of
-        {ok, [{active, false}]} -> put(credit, N div 2), ok = inet:setopts(S, [{active, N}]);
-        _ -> ok
+    case agent_bridge_transport:is_passive({tcp, S}) of
+        true -> put(credit, N div 2), ok = inet:setopts(S, [{active, N}]);
+        false -> ok
     end.
 
 %% ---------------------------------------------------------------------------
