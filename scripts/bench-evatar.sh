@@ -2,7 +2,7 @@
 # Runs the mediator benchmark (bench/evatar_bench.erl; how to read it:
 # bench/README.md). One node, real loopback TCP through agent_bridge.
 # Usage: scripts/bench-evatar.sh [ERLANG_OPTION_LIST]
-#   scripts/bench-evatar.sh                      # the full run (about 5 minutes)
+#   scripts/bench-evatar.sh                      # the full run (about 11 minutes)
 #   scripts/bench-evatar.sh '[quick]'            # smoke run
 #   scripts/bench-evatar.sh '[{sizes, [1000]}, {modes, [raw]}, no_idle]'
 # Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
