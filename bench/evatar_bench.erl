@@ -798,10 +798,7 @@ targets(Loaded) ->
 
 round_figures(#{closed := #{rate := Rate} = C, open := #{p99 := P99, offered := Offered} = O} = R) ->
     #{round => maps:get(round, R, 1), rate => Rate, p99_us => P99, p99_at_rate => Offered,
-      us_per_rt => case C of
-                       #{cpu := #{node_cores := Cores}} -> Cores * 1.0e6 / max(1, Rate);
-                       _ -> undefined
-                   end,
+      us_per_rt => us_per_rt(C),
       sched_waits => case C of
                          #{cpu := #{sched_waits := W}} -> W;
                          _ -> undefined
@@ -993,7 +990,7 @@ targets_table(Targets) ->
     Estimate = [["   The split estimate divides the cores by EVATAR's own CPU per round trip, its\n"
                  "   clients running elsewhere; it is not a measured rate.\n"]
                 || #{us_per_rt := _} <- Targets],
-    RoundRows = [[atom_to_list(Mode), fmt("~b", [K]), int(Rate), us(Us), waits(W),
+    RoundRows = [[atom_to_list(Mode), fmt("~b", [K]), int(Rate), int(Us), int(W),
                   ms(P99) ++ " at " ++ int(At), fmt_cores(Oc), fmt_cores(Oo)]
                  || #{mode := Mode, rounds := Runs} <- Targets,
                     #{round := K, rate := Rate, us_per_rt := Us, sched_waits := W, p99_us := P99,
@@ -1010,12 +1007,6 @@ targets_table(Targets) ->
      "\n   Machine load during the N = 1,000 measurements (of ",
      fmt("~p", [erlang:system_info(logical_processors_available)]), " cores):\n",
      [["   ", B, "\n"] || B <- Busy]].
-
-us(undefined) -> "-";
-us(X) -> fmt("~b", [round(X)]).
-
-waits(undefined) -> "-";
-waits(X) -> fmt("~b", [round(X)]).
 
 cpu_count() ->
     case erlang:system_info(logical_processors_available) of
@@ -1040,8 +1031,11 @@ msacc_cells(M) -> [pct(maps:get(K, M, 0)) || K <- [emulator, port, check_io, gc,
 pct(undefined) -> "-";
 pct(F) -> fmt("~b%", [round(100 * F)]).
 
-cpu_per_rt(#{cpu := #{node_cores := C}, rate := R}) when R > 0 -> fmt("~b", [round(C * 1.0e6 / R)]);
-cpu_per_rt(_) -> "-".
+cpu_per_rt(Closed) -> int(us_per_rt(Closed)).
+
+%% The node's CPU per round trip of a closed loop, in µs.
+us_per_rt(#{cpu := #{node_cores := C}, rate := R}) when R > 0 -> C * 1.0e6 / R;
+us_per_rt(_) -> undefined.
 
 sys_share(#{cpu := #{node_sys_share := S}}) -> pct(S);
 sys_share(_) -> "-".
