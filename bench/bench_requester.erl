@@ -15,7 +15,9 @@
 %%   milliseconds (Erlang timers' resolution), latency counted from the due
 %%   time (no coordinated omission); at the end the controller gets
 %%   `{self(), samples, #{latencies, send_lags, errors, timeouts,
-%%   unanswered}}' for the requests due inside the window. Plan:
+%%   unanswered}}' for the requests due inside the window, each latency as
+%%   `{DueUs, LatencyUs}' so that a stall can be told from a spread tail.
+%%   Plan:
 %%   `#{start := Ms, interval := Us, phase := Us, until := Ms, window :=
 %%   {FromUs, ToUs}}';
 %% - `stop', or the controller going down: exits.
@@ -135,7 +137,7 @@ open_wait(#{window := {From, To}} = Plan, DueUs, TRef, R, Lat, Lag) ->
         Msg ->
             case answer(Msg, R) of
                 {_, S, R1} when S >= From, S < To ->
-                    open_wait(Plan, DueUs, TRef, R1, [now_us() - S | Lat], Lag);
+                    open_wait(Plan, DueUs, TRef, R1, [{S, now_us() - S} | Lat], Lag);
                 {_, _, R1} ->
                     open_wait(Plan, DueUs, TRef, R1, Lat, Lag);
                 ignore ->
@@ -169,7 +171,7 @@ open_drain(#{window := {From, To}} = Plan, R, Lat, Lag, Deadline) ->
         Msg ->
             case answer(Msg, R) of
                 {_, S, R1} when S >= From, S < To ->
-                    open_drain(Plan, R1, [now_us() - S | Lat], Lag, Deadline);
+                    open_drain(Plan, R1, [{S, now_us() - S} | Lat], Lag, Deadline);
                 {_, _, R1} ->
                     open_drain(Plan, R1, Lat, Lag, Deadline);
                 ignore ->

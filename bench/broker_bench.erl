@@ -206,9 +206,11 @@ run_size(N, [], Cfg, Loads, Started) ->
 
 open_at(Sys, Pairs, Max, L, Cfg, OsPid) ->
     O = open_loop(Pairs, max(1.0, Max * L), Cfg, OsPid),
-    io:format("   ~s open ~b%: ~s/s offered, p50 ~s ms, p99 ~s ms, p99.9 ~s ms~n",
+    io:format("   ~s open ~b%: ~s/s offered, p50 ~s ms, p99 ~s ms, p99.9 ~s ms "
+              "(slowest 0.1 % due within ~s ms; generator's send lag max ~s ms)~n",
               [Sys, round(L * 100), int(maps:get(offered, O)), ms(maps:get(p50, O)),
-               ms(maps:get(p99, O)), ms(maps:get(p999, O))]),
+               ms(maps:get(p99, O)), ms(maps:get(p999, O)), f1(maps:get(slow_span_ms, O)),
+               ms(maps:get(send_lag_max, O))]),
     O#{load => L}.
 
 rates(#{round_rates := Rs}) -> string:join([int(R) || R <- Rs], " / ").
@@ -258,14 +260,16 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, OsPid) ->
     sleep_until(To),
     S2 = snapshot(0, OsPid),
     Samples = collect(Pairs, samples),
-    Lat = lists:append([L || #{latencies := L} <- Samples]),
+    Timed = lists:append([L || #{latencies := L} <- Samples]),
+    Lat = [L || {_, L} <- Timed],
     Lag = lists:append([L || #{send_lags := L} <- Samples]),
     [P50, P99, P999, Max] = evatar_bench_report:percentiles(Lat, [0.5, 0.99, 0.999, 1.0]),
-    [Lag99] = evatar_bench_report:percentiles(Lag, [0.99]),
+    [Lag99, LagMax] = evatar_bench_report:percentiles(Lag, [0.99, 1.0]),
     (usage(S1, S2, length(Lat)))#{offered => Rate, interval_us => Interval,
                                   achieved => length(Lat) / Secs, samples => length(Lat),
                                   p50 => P50, p99 => P99, p999 => P999, max => Max,
-                                  send_lag_p99 => Lag99,
+                                  send_lag_p99 => Lag99, send_lag_max => LagMax,
+                                  slow_span_ms => evatar_bench_report:slow_span(Timed, 0.999),
                                   errors => sum(errors, Samples) + sum(timeouts, Samples),
                                   unanswered => sum(unanswered, Samples)}.
 
@@ -369,7 +373,9 @@ figures(#{closed := C, open := Open, memory_kib := M}) ->
                         {open_key(L, p99_ms), ms_or_undef(maps:get(p99, O))},
                         {open_key(L, p999_ms), ms_or_undef(maps:get(p999, O))},
                         {open_key(L, cpu_s_per_100k), maps:get(cpu_s_per_100k, O)},
-                        {open_key(L, other_cores), maps:get(other_cores, O)}]
+                        {open_key(L, other_cores), maps:get(other_cores, O)},
+                        {open_key(L, slow_span_ms), maps:get(slow_span_ms, O)},
+                        {open_key(L, send_lag_max_ms), ms_or_undef(maps:get(send_lag_max, O))}]
                        || #{load := L} = O <- Open])).
 
 open_key(L, What) ->
@@ -491,13 +497,20 @@ size_table(N, Systems, Runs, Ratios) ->
                {open_key(L, cpu_s_per_100k), fmt("open ~b%: CPU s per 100k round trips", [P]),
                 fun f2/1},
                {open_key(L, other_cores), fmt("open ~b%: cores used by other processes", [P]),
-                fun f2/1}]
+                fun f2/1},
+               {open_key(L, slow_span_ms),
+                fmt("open ~b%: slowest 0.1 %, span of their due times, ms", [P]), fun f1/1},
+               {open_key(L, send_lag_max_ms),
+                fmt("open ~b%: generator's send lag, max ms", [P]), fun f3/1}]
               || #{open := Open} <- [hd([R || R <- Rs, R =/= undefined])],
                  #{load := L} <- Open, P <- [round(L * 100)]]),
     Fig = [case R of undefined -> #{}; _ -> figures(R) end || R <- Rs],
-    %% Other processes' load is context, not a figure of the system.
+    %% Other processes' load and where the slowest requests fell are
+    %% context, not figures of the system.
     Ratio = fun(M, K) ->
-                    case lists:suffix("other_cores", atom_to_list(K)) of
+                    Name = atom_to_list(K),
+                    case lists:any(fun(Suffix) -> lists:suffix(Suffix, Name) end,
+                                   ["other_cores", "slow_span_ms", "send_lag_max_ms"]) of
                         true -> "";
                         false -> f2(rget(M, K))
                     end

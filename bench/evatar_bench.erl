@@ -345,7 +345,8 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, Gen) ->
     sleep_until(To),
     S2 = snapshot(fun() -> 0 end, Classes, Gen),
     Samples = collect(Pairs, samples),
-    Lat = lists:append([L || #{latencies := L} <- Samples]),
+    Timed = lists:append([L || #{latencies := L} <- Samples]),
+    Lat = [L || {_, L} <- Timed],
     Lag = lists:append([L || #{send_lags := L} <- Samples]),
     [P50, P99, P999, Max] = evatar_bench_report:percentiles(Lat, [0.5, 0.99, 0.999, 1.0]),
     [Lag50, Lag99, LagMax] = evatar_bench_report:percentiles(Lag, [0.5, 0.99, 1.0]),
@@ -353,6 +354,7 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, Gen) ->
                      achieved => length(Lat) / Secs, samples => length(Lat),
                      p50 => P50, p99 => P99, p999 => P999, max => Max,
                      send_lag_p50 => Lag50, send_lag_p99 => Lag99, send_lag_max => LagMax,
+                     slow_span_ms => evatar_bench_report:slow_span(Timed, 0.999),
                      errors => sum(errors, Samples), timeouts => sum(timeouts, Samples),
                      unanswered => sum(unanswered, Samples)}.
 
@@ -893,7 +895,8 @@ loaded_tables(Cfg, Loaded) ->
               || #{mode := Mode, n := N, closed := C} <- Loaded],
     Open = [[atom_to_list(Mode), int(N), int(maps:get(offered, O)), int(maps:get(achieved, O)),
              ms(maps:get(p50, O)), ms(maps:get(p99, O)), ms(maps:get(p999, O)), ms(maps:get(max, O)),
-             ms(maps:get(send_lag_p99, O)), pct(maps:get(scheduler_utilisation, O)),
+             ms(maps:get(send_lag_p99, O)), ms(maps:get(send_lag_max, O)),
+             slow_span(maps:get(slow_span_ms, O)), pct(maps:get(scheduler_utilisation, O)),
              cores(O, other_cores),
              int(maps:get(errors, O) + maps:get(timeouts, O) + maps:get(unanswered, O))]
             || #{mode := Mode, n := N, open := O} <- Loaded],
@@ -929,11 +932,14 @@ loaded_tables(Cfg, Loaded) ->
      "   Each VA sends on a fixed schedule (whole milliseconds, spread over the pairings) and\n"
      "   latency is measured from the SCHEDULED send time, not the actual one, so a slow answer\n"
      "   cannot hide the requests it delayed (no coordinated omission). lag p99 = the\n"
-     "   generator's own delay between scheduled and actual send, included in the latency.\n"
+     "   generator's own delay between scheduled and actual send, included in the latency,\n"
+     "   lag max its largest; slow span = how many ms apart the slowest 0.1 % of requests were\n"
+     "   due (a few tens of ms: one stall; most of the window: a spread tail).\n"
      "   When other processes take CPU (others), the rate measured as the maximum may no longer\n"
      "   be sustainable and queues, hence latencies, grow: such rows say little about EVATAR.\n\n",
      evatar_bench_report:table(["gen", "N", "offered/s", "done/s", "p50 ms", "p99 ms",
-                                "p99.9 ms", "max ms", "lag p99", "sched", "others", "errors"],
+                                "p99.9 ms", "max ms", "lag p99", "lag max", "slow span",
+                                "sched", "others", "errors"],
                                Open),
      "\n-- Memory per pairing, KiB: node = erlang:memory(total) delta / N after setup (every process\n"
      "   garbage-collected) and after the load (as is; '-' below N = 100, where it is noise);\n"
@@ -1050,3 +1056,6 @@ markdown(Env, Text) ->
     ["# EVATAR mediator benchmark, ", maps:get(date, Env), "\n\n",
      "Produced by `make bench-evatar` (scripts/bench-evatar.sh). Plain-text tables as printed.\n\n",
      "```\n", Text, "```\n"].
+
+slow_span(undefined) -> "-";
+slow_span(Ms) -> evatar_bench_report:fmt("~b ms", [round(Ms)]).

@@ -4,7 +4,7 @@
 %% and binaries is here).
 -module(evatar_bench_report).
 
--export([percentiles/2, json/1, fmt/2, int/1, kib/1, ms/1, table/2, md_table/2,
+-export([percentiles/2, slow_span/2, json/1, fmt/2, int/1, kib/1, ms/1, table/2, md_table/2,
          write/3, write/4]).
 
 %% @doc The values at the given fractions (0 < Q =< 1) of a list of
@@ -16,6 +16,18 @@ percentiles(Samples, Qs) ->
     T = list_to_tuple(lists:sort(Samples)),
     N = tuple_size(T),
     [element(max(1, min(N, ceil(Q * N))), T) || Q <- Qs].
+
+%% @doc Where the slowest requests of an open-loop window fell: the time in
+%% ms between the earliest and the latest due time of the requests whose
+%% latency is at or above the Q quantile. A single stall packs them into a
+%% few tens of ms; a tail spread over the window spans most of it.
+-spec slow_span([{integer(), number()}], float()) -> float() | undefined.
+slow_span([], _Q) ->
+    undefined;
+slow_span(Timed, Q) ->
+    [Limit] = percentiles([L || {_, L} <- Timed], [Q]),
+    Dues = [S || {S, L} <- Timed, L >= Limit],
+    (lists:max(Dues) - lists:min(Dues)) / 1000.
 
 %% @doc One JSON document.
 -spec json(term()) -> iodata().
