@@ -260,18 +260,11 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, OsPid) ->
     sleep_until(To),
     S2 = snapshot(0, OsPid),
     Samples = collect(Pairs, samples),
-    Timed = lists:append([L || #{latencies := L} <- Samples]),
-    Lat = [L || {_, L} <- Timed],
-    Lag = lists:append([L || #{send_lags := L} <- Samples]),
-    [P50, P99, P999, Max] = evatar_bench_report:percentiles(Lat, [0.5, 0.99, 0.999, 1.0]),
-    [Lag99, LagMax] = evatar_bench_report:percentiles(Lag, [0.99, 1.0]),
-    (usage(S1, S2, length(Lat)))#{offered => Rate, interval_us => Interval,
-                                  achieved => length(Lat) / Secs, samples => length(Lat),
-                                  p50 => P50, p99 => P99, p999 => P999, max => Max,
-                                  send_lag_p99 => Lag99, send_lag_max => LagMax,
-                                  slow_span_ms => evatar_bench_report:slow_span(Timed, 0.999),
-                                  errors => sum(errors, Samples) + sum(timeouts, Samples),
-                                  unanswered => sum(unanswered, Samples)}.
+    #{samples := Count} = Figures = evatar_bench_report:latency_figures(Samples, Secs),
+    maps:merge(usage(S1, S2, Count),
+               Figures#{offered => Rate, interval_us => Interval,
+                        errors => sum(errors, Samples) + sum(timeouts, Samples),
+                        unanswered => sum(unanswered, Samples)}).
 
 sleep_until(Ms) ->
     timer:sleep(max(0, Ms - erlang:monotonic_time(millisecond))).

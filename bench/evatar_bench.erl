@@ -345,18 +345,11 @@ open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, Gen) ->
     sleep_until(To),
     S2 = snapshot(fun() -> 0 end, Classes, Gen),
     Samples = collect(Pairs, samples),
-    Timed = lists:append([L || #{latencies := L} <- Samples]),
-    Lat = [L || {_, L} <- Timed],
-    Lag = lists:append([L || #{send_lags := L} <- Samples]),
-    [P50, P99, P999, Max] = evatar_bench_report:percentiles(Lat, [0.5, 0.99, 0.999, 1.0]),
-    [Lag50, Lag99, LagMax] = evatar_bench_report:percentiles(Lag, [0.5, 0.99, 1.0]),
-    (usage(S1, S2))#{offered => Rate, interval_us => Interval, seconds => Secs,
-                     achieved => length(Lat) / Secs, samples => length(Lat),
-                     p50 => P50, p99 => P99, p999 => P999, max => Max,
-                     send_lag_p50 => Lag50, send_lag_p99 => Lag99, send_lag_max => LagMax,
-                     slow_span_ms => evatar_bench_report:slow_span(Timed, 0.999),
-                     errors => sum(errors, Samples), timeouts => sum(timeouts, Samples),
-                     unanswered => sum(unanswered, Samples)}.
+    Figures = evatar_bench_report:latency_figures(Samples, Secs),
+    maps:merge(usage(S1, S2),
+               Figures#{offered => Rate, interval_us => Interval, seconds => Secs,
+                        errors => sum(errors, Samples), timeouts => sum(timeouts, Samples),
+                        unanswered => sum(unanswered, Samples)}).
 
 sleep_until(Ms) ->
     timer:sleep(max(0, Ms - erlang:monotonic_time(millisecond))).
@@ -896,7 +889,7 @@ loaded_tables(Cfg, Loaded) ->
     Open = [[atom_to_list(Mode), int(N), int(maps:get(offered, O)), int(maps:get(achieved, O)),
              ms(maps:get(p50, O)), ms(maps:get(p99, O)), ms(maps:get(p999, O)), ms(maps:get(max, O)),
              ms(maps:get(send_lag_p99, O)), ms(maps:get(send_lag_max, O)),
-             slow_span(maps:get(slow_span_ms, O)), pct(maps:get(scheduler_utilisation, O)),
+             span(maps:get(slow_span_ms, O)), pct(maps:get(scheduler_utilisation, O)),
              cores(O, other_cores),
              int(maps:get(errors, O) + maps:get(timeouts, O) + maps:get(unanswered, O))]
             || #{mode := Mode, n := N, open := O} <- Loaded],
@@ -1057,5 +1050,5 @@ markdown(Env, Text) ->
      "Produced by `make bench-evatar` (scripts/bench-evatar.sh). Plain-text tables as printed.\n\n",
      "```\n", Text, "```\n"].
 
-slow_span(undefined) -> "-";
-slow_span(Ms) -> evatar_bench_report:fmt("~b ms", [round(Ms)]).
+span(undefined) -> "-";
+span(Ms) -> evatar_bench_report:fmt("~b ms", [round(Ms)]).

@@ -4,7 +4,7 @@
 %% and binaries is here).
 -module(evatar_bench_report).
 
--export([percentiles/2, slow_span/2, json/1, fmt/2, int/1, kib/1, ms/1, table/2, md_table/2,
+-export([percentiles/2, latency_figures/2, json/1, fmt/2, int/1, kib/1, ms/1, table/2, md_table/2,
          write/3, write/4]).
 
 %% @doc The values at the given fractions (0 < Q =< 1) of a list of
@@ -17,17 +17,26 @@ percentiles(Samples, Qs) ->
     N = tuple_size(T),
     [element(max(1, min(N, ceil(Q * N))), T) || Q <- Qs].
 
-%% @doc Where the slowest requests of an open-loop window fell: the time in
-%% ms between the earliest and the latest due time of the requests whose
-%% latency is at or above the Q quantile. A single stall packs them into a
-%% few tens of ms; a tail spread over the window spans most of it.
--spec slow_span([{integer(), number()}], float()) -> float() | undefined.
-slow_span([], _Q) ->
-    undefined;
-slow_span(Timed, Q) ->
-    [Limit] = percentiles([L || {_, L} <- Timed], [Q]),
-    Dues = [S || {S, L} <- Timed, L >= Limit],
-    (lists:max(Dues) - lists:min(Dues)) / 1000.
+%% @doc The figures of an open-loop window of `Secs' seconds from its
+%% agents' samples (bench_requester): latency percentiles and the send
+%% lag's, in µs, and `slow_span_ms', the ms between the earliest and the
+%% latest due time of the requests at or above p99.9. A single stall packs
+%% those into a few tens of ms; a tail spread over the window spans most
+%% of it.
+-spec latency_figures([map()], number()) -> map().
+latency_figures(Samples, Secs) ->
+    Timed = lists:append([L || #{latencies := L} <- Samples]),
+    Lat = [L || {_, L} <- Timed],
+    Lag = lists:append([L || #{send_lags := L} <- Samples]),
+    [P50, P99, P999, Max] = percentiles(Lat, [0.5, 0.99, 0.999, 1.0]),
+    [Lag50, Lag99, LagMax] = percentiles(Lag, [0.5, 0.99, 1.0]),
+    #{samples => length(Lat), achieved => length(Lat) / Secs,
+      p50 => P50, p99 => P99, p999 => P999, max => Max,
+      send_lag_p50 => Lag50, send_lag_p99 => Lag99, send_lag_max => LagMax,
+      slow_span_ms => span_ms([S || {S, L} <- Timed, L >= P999])}.
+
+span_ms([]) -> undefined;
+span_ms(Dues) -> (lists:max(Dues) - lists:min(Dues)) / 1000.
 
 %% @doc One JSON document.
 -spec json(term()) -> iodata().
