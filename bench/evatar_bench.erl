@@ -262,6 +262,8 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
                 floor -> evatar_bench_gen:setup(N, floor, Floor);
                 codec -> evatar_bench_gen:setup(N, codec, Floor);
                 floor_direct -> evatar_bench_gen:setup(N, floor_direct, Floor);
+                floor_owner -> evatar_bench_gen:setup(N, floor_owner, Floor);
+                codec_owner -> evatar_bench_gen:setup(N, codec_owner, Floor);
                 _ -> evatar_bench_gen:setup(N, Mode, Addr)
             end,
     SetupMs = erlang:monotonic_time(millisecond) - T0,
@@ -279,6 +281,8 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
                 floor -> #{};
                 codec -> #{};
                 floor_direct -> #{};
+                floor_owner -> #{};
+                codec_owner -> #{};
                 _ -> pairing_stats(Pairs)
             end,
     ok = teardown(Pairs, ConnSup),

@@ -9,10 +9,15 @@
 %% can be isolated. In `floor_direct' mode the middle process writes to the
 %% destination socket itself instead of handing the frame to that socket's
 %% relay: one process hop less per frame, the shape EVATAR would have if
-%% the pairing wrote to its entities' sockets (bench/EVATAR_BENCH.md).
+%% the pairing wrote to its entities' sockets (bench/EVATAR_BENCH.md). In
+%% `floor_owner' mode one process per pairing owns both sockets, reads
+%% them and writes each frame to the other: no hop at all between the
+%% sockets, the shape EVATAR would have if the pairing owned its entities'
+%% connections; `codec_owner' adds the codec's work (parse, stamp, encode)
+%% in that process, an estimate of what such a pairing could reach.
 -module(evatar_bench_floor).
 
--export([listen/0, relay_pair/3, relay/3, middle/0]).
+-export([listen/0, relay_pair/3, relay/3, middle/0, owner/1]).
 
 -define(ACTIVE_N, 32).
 
@@ -26,7 +31,14 @@ listen() ->
 
 %% @doc Relays between the VA's and the Avatar's accepted sockets through a
 %% middle process; returns the three processes.
--spec relay_pair(gen_tcp:socket(), gen_tcp:socket(), floor | codec | floor_direct) -> [pid()].
+-spec relay_pair(gen_tcp:socket(), gen_tcp:socket(),
+                 floor | codec | floor_direct | floor_owner | codec_owner) -> [pid()].
+relay_pair(VaSock, AvSock, Kind) when Kind =:= floor_owner; Kind =:= codec_owner ->
+    Owner = proc_lib:spawn(?MODULE, owner, [Kind]),
+    ok = gen_tcp:controlling_process(VaSock, Owner),
+    ok = gen_tcp:controlling_process(AvSock, Owner),
+    Owner ! {sockets, VaSock, AvSock},
+    [Owner];
 relay_pair(VaSock, AvSock, Kind) ->
     Mid = proc_lib:spawn(?MODULE, middle, []),
     Va = proc_lib:spawn(?MODULE, relay, [Mid, va, Kind]),
@@ -117,4 +129,59 @@ middle(Va, Av) ->
         {va, Frame} -> Av ! {out, Frame}, middle(Va, Av);
         {av, Frame} -> Va ! {out, Frame}, middle(Va, Av);
         stop -> ok
+    end.
+
+%% @private
+%% Owns both sockets of a pairing: a frame read from one is written to the
+%% other by this process, with no process hop in between. Each socket is
+%% topped up as agent_bridge_conn does, with its own count.
+-spec owner(floor_owner | codec_owner) -> ok.
+owner(Kind) ->
+    receive {sockets, Va, Av} -> ok end,
+    _ = [begin
+             ok = inet:setopts(S, [{active, ?ACTIVE_N}]),
+             put({credit, S}, ?ACTIVE_N div 2)
+         end || S <- [Va, Av]],
+    owner_loop(Kind, Va, Av).
+
+owner_loop(Kind, Va, Av) ->
+    receive
+        {tcp, From, Frame} ->
+            ok = owner_read_on(From),
+            To = case From of
+                     Va -> Av;
+                     Av -> Va
+                 end,
+            Out = case Kind of
+                      floor_owner -> Frame;
+                      codec_owner -> encode(codec, decode(codec, Frame))
+                  end,
+            case erlang:port_command(To, Out, [nosuspend]) of
+                true -> ok;
+                false -> ok = gen_tcp:send(To, Out)
+            end,
+            owner_loop(Kind, Va, Av);
+        {tcp_passive, S} ->
+            case agent_bridge_transport:is_passive({tcp, S}) of
+                true ->
+                    put({credit, S}, ?ACTIVE_N div 2),
+                    ok = inet:setopts(S, [{active, ?ACTIVE_N}]);
+                false ->
+                    ok
+            end,
+            owner_loop(Kind, Va, Av);
+        {inet_reply, _, _} ->
+            owner_loop(Kind, Va, Av);
+        {tcp_closed, _} ->
+            ok
+    end.
+
+owner_read_on(S) ->
+    case get({credit, S}) of
+        C when C > 1 ->
+            put({credit, S}, C - 1),
+            ok;
+        _ ->
+            put({credit, S}, ?ACTIVE_N div 2),
+            agent_bridge_transport:top_up({tcp, S}, ?ACTIVE_N)
     end.

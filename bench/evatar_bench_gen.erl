@@ -17,7 +17,8 @@
 %% processes: the pairing's own cost, without TCP, XML or the bridge.
 %% (`codec' is `floor' with relays that parse and encode; the controller's
 %% `split' is `raw' with these processes on another node, see setup/4.)
--type mode() :: client | raw | floor | codec | floor_direct | direct.
+-type mode() :: client | raw | floor | codec | floor_direct | floor_owner | codec_owner
+              | direct.
 %% One pairing of the benchmark: its id, the VA process (which the
 %% controller drives) and the Avatar process.
 -type pair() :: #{id := binary(), index := pos_integer(), va := pid(), avatar := pid(),
@@ -123,7 +124,8 @@ count(Key) ->
     lists:sum([counters:get(C, I) || I <- lists:seq(1, maps:get(size, counters:info(C)))]).
 
 start_pair(I, Kind, {Addr, Listen}, _Node) when Kind =:= floor; Kind =:= codec;
-                                                 Kind =:= floor_direct ->
+                                                 Kind =:= floor_direct; Kind =:= floor_owner;
+                                                 Kind =:= codec_owner ->
     Id = <<"floor-", (integer_to_binary(I))/binary>>,
     {VaDesc, AvDesc} = descriptions(I, <<"floor">>),
     Self = self(),
