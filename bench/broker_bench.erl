@@ -489,30 +489,23 @@ size_table(N, Systems, Runs, Ratios) ->
                {open_key(L, p999_ms), fmt("open ~b%: p99.9 ms", [P]), fun f3/1},
                {open_key(L, cpu_s_per_100k), fmt("open ~b%: CPU s per 100k round trips", [P]),
                 fun f2/1},
+               %% Other processes' load and where the slowest requests
+               %% fell are context, not figures of the system: no ratio.
                {open_key(L, other_cores), fmt("open ~b%: cores used by other processes", [P]),
-                fun f2/1},
+                fun f2/1, no_ratio},
                {open_key(L, slow_span_ms),
-                fmt("open ~b%: slowest 0.1 %, span of their due times, ms", [P]), fun f1/1},
+                fmt("open ~b%: slowest 0.1 %, span of their due times, ms", [P]), fun f1/1,
+                no_ratio},
                {open_key(L, send_lag_max_ms),
-                fmt("open ~b%: generator's send lag, max ms", [P]), fun f3/1}]
+                fmt("open ~b%: generator's send lag, max ms", [P]), fun f3/1, no_ratio}]
               || #{open := Open} <- [hd([R || R <- Rs, R =/= undefined])],
                  #{load := L} <- Open, P <- [round(L * 100)]]),
     Fig = [case R of undefined -> #{}; _ -> figures(R) end || R <- Rs],
-    %% Other processes' load and where the slowest requests fell are
-    %% context, not figures of the system.
-    Ratio = fun(M, K) ->
-                    Name = atom_to_list(K),
-                    case lists:any(fun(Suffix) -> lists:suffix(Suffix, Name) end,
-                                   ["other_cores", "slow_span_ms", "send_lag_max_ms"]) of
-                        true -> "";
-                        false -> f2(rget(M, K))
-                    end
-            end,
     Rows = [[Label | [Fmt(maps:get(K, F, undefined)) || F <- Fig]]
-            ++ [Ratio(EM, K) || has_both(Systems, mosquitto)]
-            ++ [Ratio(ER, K) || has_both(Systems, rabbitmq)]
-            || {K, Label, Fmt} <- Keys],
-    Blank = ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)],
+            ++ [ratio(Kind, EM, K) || has_both(Systems, mosquitto)]
+            ++ [ratio(Kind, ER, K) || has_both(Systems, rabbitmq)]
+            || Key <- Keys, {K, Label, Fmt, Kind} <- [with_ratio(Key)]],
+    Blank = blank(Systems),
     Context = [[["closed loop: round trips/s in each round" | [case R of
                                                                    undefined -> "-";
                                                                    #{closed := C} -> rates(C)
@@ -522,17 +515,27 @@ size_table(N, Systems, Runs, Ratios) ->
                context_row("closed loop: cores used by other processes", Rs, other_cores, Systems),
                [["setup of N pairs, ms" | [case R of undefined -> "-";
                                                _ -> int(maps:get(setup_ms, R)) end || R <- Rs]]
-                ++ ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)]],
-               [["errors + unanswered (all loops)" | [errors(R) || R <- Rs]]
-                ++ ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)]]],
+                ++ Blank],
+               [["errors + unanswered (all loops)" | [errors(R) || R <- Rs]] ++ Blank]],
     ["\n", evatar_bench_report:md_table(Header, Rows ++ lists:append(Context))].
+
+%% A row of the size table is a figure with ratios unless marked no_ratio.
+with_ratio({K, Label, Fmt}) -> {K, Label, Fmt, ratio};
+with_ratio({_, _, _, no_ratio} = Row) -> Row.
+
+ratio(ratio, M, K) -> f2(rget(M, K));
+ratio(no_ratio, _M, _K) -> "".
+
+%% The empty ratio cells of a context row.
+blank(Systems) ->
+    ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)].
 
 context_row(Label, Rs, Key, Systems) ->
     [[Label | [case R of
                    undefined -> "-";
                    #{closed := C} -> f2(maps:get(Key, C))
                end || R <- Rs]]
-     ++ ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)]].
+     ++ blank(Systems)].
 
 errors(undefined) -> "-";
 errors(#{closed := C, open := Open}) ->

@@ -257,14 +257,11 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
     gc_all(),
     M0 = erlang:memory(total),
     T0 = erlang:monotonic_time(millisecond),
-    Pairs = case Mode of
-                split -> evatar_bench_gen:setup(N, raw, Addr, maps:get(node, Gen));
-                floor -> evatar_bench_gen:setup(N, floor, Floor);
-                codec -> evatar_bench_gen:setup(N, codec, Floor);
-                floor_direct -> evatar_bench_gen:setup(N, floor_direct, Floor);
-                floor_owner -> evatar_bench_gen:setup(N, floor_owner, Floor);
-                codec_owner -> evatar_bench_gen:setup(N, codec_owner, Floor);
-                _ -> evatar_bench_gen:setup(N, Mode, Addr)
+    IsFloor = lists:member(Mode, evatar_bench_floor:kinds()),
+    Pairs = if
+                Mode =:= split -> evatar_bench_gen:setup(N, raw, Addr, maps:get(node, Gen));
+                IsFloor -> evatar_bench_gen:setup(N, Mode, Floor);
+                true -> evatar_bench_gen:setup(N, Mode, Addr)
             end,
     SetupMs = erlang:monotonic_time(millisecond) - T0,
     gc_all(),
@@ -277,13 +274,9 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
     Rate = maps:get(rate, Closed),
     io:format("   ~s round trips/s; open loop at ~s/s...~n", [int(Rate), int(Rate / 2)]),
     Open = open_loop(Pairs, max(1.0, Rate / 2), Cfg, Gen),
-    Stats = case Mode of
-                floor -> #{};
-                codec -> #{};
-                floor_direct -> #{};
-                floor_owner -> #{};
-                codec_owner -> #{};
-                _ -> pairing_stats(Pairs)
+    Stats = case IsFloor of
+                true -> #{};
+                false -> pairing_stats(Pairs)
             end,
     ok = teardown(Pairs, ConnSup),
     io:format("   p50 ~s ms, p99 ~s ms, p99.9 ~s ms~n",

@@ -17,9 +17,17 @@
 %% in that process, an estimate of what such a pairing could reach.
 -module(evatar_bench_floor).
 
--export([listen/0, relay_pair/3, relay/3, middle/0, owner/1]).
+-export([kinds/0, listen/0, relay_pair/3, relay/3, middle/0, owner/1]).
+
+-export_type([kind/0]).
+
+-type kind() :: floor | codec | floor_direct | floor_owner | codec_owner.
 
 -define(ACTIVE_N, 32).
+
+%% @doc The generators that run against this module's relays, not EVATAR.
+-spec kinds() -> [kind()].
+kinds() -> [floor, codec, floor_direct, floor_owner, codec_owner].
 
 %% @doc A listening socket for the floor on a free loopback port.
 -spec listen() -> {{inet:ip_address(), inet:port_number()}, gen_tcp:socket()}.
@@ -31,8 +39,7 @@ listen() ->
 
 %% @doc Relays between the VA's and the Avatar's accepted sockets through a
 %% middle process; returns the three processes.
--spec relay_pair(gen_tcp:socket(), gen_tcp:socket(),
-                 floor | codec | floor_direct | floor_owner | codec_owner) -> [pid()].
+-spec relay_pair(gen_tcp:socket(), gen_tcp:socket(), kind()) -> [pid()].
 relay_pair(VaSock, AvSock, Kind) when Kind =:= floor_owner; Kind =:= codec_owner ->
     Owner = proc_lib:spawn(?MODULE, owner, [Kind]),
     ok = gen_tcp:controlling_process(VaSock, Owner),
@@ -59,8 +66,7 @@ relay_pair(VaSock, AvSock, Kind) ->
 -spec relay(pid(), va | av, floor | codec | floor_direct) -> ok.
 relay(Mid, Tag, Kind) ->
     receive {socket, S} -> ok end,
-    ok = inet:setopts(S, [{active, ?ACTIVE_N}]),
-    put(credit, ?ACTIVE_N div 2),
+    ok = evatar_bench_gen:start_reading(S, ?ACTIVE_N),
     relay_loop(S, Mid, Tag, Kind).
 
 relay_loop(S, Mid, Tag, Kind) ->
@@ -70,11 +76,7 @@ relay_loop(S, Mid, Tag, Kind) ->
             Mid ! {Tag, decode(Kind, Frame)},
             relay_loop(S, Mid, Tag, Kind);
         {out, Msg} ->
-            Frame = encode(Kind, Msg),
-            case erlang:port_command(S, Frame, [nosuspend]) of
-                true -> ok;
-                false -> ok = gen_tcp:send(S, Frame)
-            end,
+            ok = send_frame(S, encode(Kind, Msg)),
             relay_loop(S, Mid, Tag, Kind);
         {tcp_passive, S} ->
             ok = evatar_bench_gen:reactivate(S, ?ACTIVE_N),
@@ -84,6 +86,14 @@ relay_loop(S, Mid, Tag, Kind) ->
             ok;
         {inet_reply, _, _} ->
             relay_loop(S, Mid, Tag, Kind)
+    end.
+
+%% A write that does not wait while the socket takes it, and waits for room
+%% when it does not.
+send_frame(S, Frame) ->
+    case erlang:port_command(S, Frame, [nosuspend]) of
+        true -> ok;
+        false -> gen_tcp:send(S, Frame)
     end.
 
 decode(floor, Frame) ->
@@ -134,20 +144,17 @@ middle(Va, Av) ->
 %% @private
 %% Owns both sockets of a pairing: a frame read from one is written to the
 %% other by this process, with no process hop in between. Each socket is
-%% topped up as agent_bridge_conn does, with its own count.
+%% topped up as agent_bridge_conn does.
 -spec owner(floor_owner | codec_owner) -> ok.
 owner(Kind) ->
     receive {sockets, Va, Av} -> ok end,
-    _ = [begin
-             ok = inet:setopts(S, [{active, ?ACTIVE_N}]),
-             put({credit, S}, ?ACTIVE_N div 2)
-         end || S <- [Va, Av]],
+    _ = [ok = evatar_bench_gen:start_reading(S, ?ACTIVE_N) || S <- [Va, Av]],
     owner_loop(Kind, Va, Av).
 
 owner_loop(Kind, Va, Av) ->
     receive
         {tcp, From, Frame} ->
-            ok = owner_read_on(From),
+            ok = evatar_bench_gen:read_on(From, ?ACTIVE_N),
             To = case From of
                      Va -> Av;
                      Av -> Va
@@ -156,32 +163,13 @@ owner_loop(Kind, Va, Av) ->
                       floor_owner -> Frame;
                       codec_owner -> encode(codec, decode(codec, Frame))
                   end,
-            case erlang:port_command(To, Out, [nosuspend]) of
-                true -> ok;
-                false -> ok = gen_tcp:send(To, Out)
-            end,
+            ok = send_frame(To, Out),
             owner_loop(Kind, Va, Av);
         {tcp_passive, S} ->
-            case agent_bridge_transport:is_passive({tcp, S}) of
-                true ->
-                    put({credit, S}, ?ACTIVE_N div 2),
-                    ok = inet:setopts(S, [{active, ?ACTIVE_N}]);
-                false ->
-                    ok
-            end,
+            ok = evatar_bench_gen:reactivate(S, ?ACTIVE_N),
             owner_loop(Kind, Va, Av);
         {inet_reply, _, _} ->
             owner_loop(Kind, Va, Av);
         {tcp_closed, _} ->
             ok
-    end.
-
-owner_read_on(S) ->
-    case get({credit, S}) of
-        C when C > 1 ->
-            put({credit, S}, C - 1),
-            ok;
-        _ ->
-            put({credit, S}, ?ACTIVE_N div 2),
-            agent_bridge_transport:top_up({tcp, S}, ?ACTIVE_N)
     end.

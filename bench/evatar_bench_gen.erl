@@ -7,7 +7,7 @@
 
 -export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
          descriptions/2, credentials/0, idle_join/4, answer_kind/1]).
--export([va_init/6, avatar_init/5, sink/0, read_on/2, reactivate/2]).
+-export([va_init/6, avatar_init/5, sink/0, start_reading/2, read_on/2, reactivate/2]).
 
 -export_type([mode/0, pair/0]).
 
@@ -17,8 +17,7 @@
 %% processes: the pairing's own cost, without TCP, XML or the bridge.
 %% (`codec' is `floor' with relays that parse and encode; the controller's
 %% `split' is `raw' with these processes on another node, see setup/4.)
--type mode() :: client | raw | floor | codec | floor_direct | floor_owner | codec_owner
-              | direct.
+-type mode() :: client | raw | direct | evatar_bench_floor:kind().
 %% One pairing of the benchmark: its id, the VA process (which the
 %% controller drives) and the Avatar process.
 -type pair() :: #{id := binary(), index := pos_integer(), va := pid(), avatar := pid(),
@@ -123,9 +122,13 @@ count(Key) ->
     C = persistent_term:get(Key),
     lists:sum([counters:get(C, I) || I <- lists:seq(1, maps:get(size, counters:info(C)))]).
 
-start_pair(I, Kind, {Addr, Listen}, _Node) when Kind =:= floor; Kind =:= codec;
-                                                 Kind =:= floor_direct; Kind =:= floor_owner;
-                                                 Kind =:= codec_owner ->
+start_pair(I, Mode, Addr, Node) ->
+    case lists:member(Mode, evatar_bench_floor:kinds()) of
+        true -> start_floor_pair(I, Mode, Addr);
+        false -> start_evatar_pair(I, Mode, Addr, Node)
+    end.
+
+start_floor_pair(I, Kind, {Addr, Listen}) ->
     Id = <<"floor-", (integer_to_binary(I))/binary>>,
     {VaDesc, AvDesc} = descriptions(I, <<"floor">>),
     Self = self(),
@@ -135,8 +138,9 @@ start_pair(I, Kind, {Addr, Listen}, _Node) when Kind =:= floor; Kind =:= codec;
     {ok, VaSock} = gen_tcp:accept(Listen, ?SETUP_TIMEOUT),
     Relays = evatar_bench_floor:relay_pair(VaSock, AvSock, Kind),
     _ = [P ! floor_ready || P <- [Va, Av]],
-    #{id => Id, index => I, va => Va, avatar => Av, relays => Relays};
-start_pair(I, Mode, Addr, Node) ->
+    #{id => Id, index => I, va => Va, avatar => Av, relays => Relays}.
+
+start_evatar_pair(I, Mode, Addr, Node) ->
     Id = <<"load-", (integer_to_binary(I))/binary>>,
     {ok, _} = evatar:create_pairing(Id, (credentials())#{join_timeout => ?SETUP_TIMEOUT,
                                                           feedback_timeout => 10000}),
@@ -241,22 +245,28 @@ bound(#{bound := Bound}) ->
 activate({client, _}) -> ok;
 activate({direct, _}) -> ok;
 activate({raw, S}) ->
-    put(credit, ?ACTIVE_N div 2),
-    ok = inet:setopts(S, [{active, ?ACTIVE_N}]).
+    start_reading(S, ?ACTIVE_N).
 
-%% @doc Counts a frame read from S in `{active, N}' mode (the count in the
-%% process dictionary of the socket's only reader) and every half batch
+%% @doc Puts S in `{active, N}' mode, with the count read_on/2 keeps for it.
+-spec start_reading(gen_tcp:socket(), pos_integer()) -> ok.
+start_reading(S, N) ->
+    put({credit, S}, N div 2),
+    ok = inet:setopts(S, [{active, N}]).
+
+%% @doc Counts a frame read from S in `{active, N}' mode (the count, one
+%% per socket, in the process dictionary of the socket's reader, which may
+%% read several sockets) and every half batch
 %% tops the socket's count up to N with agent_bridge_conn's transport
 %% function: a socket that never goes passive is polled by the runtime's
 %% schedulers rather than its poll thread.
 -spec read_on(gen_tcp:socket(), pos_integer()) -> ok.
 read_on(S, N) ->
-    case get(credit) of
+    case get({credit, S}) of
         C when C > 1 ->
-            put(credit, C - 1),
+            put({credit, S}, C - 1),
             ok;
         _ ->
-            put(credit, N div 2),
+            put({credit, S}, N div 2),
             agent_bridge_transport:top_up({tcp, S}, N)
     end.
 
@@ -264,7 +274,7 @@ read_on(S, N) ->
 -spec reactivate(gen_tcp:socket(), pos_integer()) -> ok.
 reactivate(S, N) ->
     case agent_bridge_transport:is_passive({tcp, S}) of
-        true -> put(credit, N div 2), ok = inet:setopts(S, [{active, N}]);
+        true -> start_reading(S, N);
         false -> ok
     end.
 
