@@ -17,7 +17,12 @@
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
               pairing_summary/0, drop_code/0, session_info/0, join_error/0,
-              resume_opts/0, ha_status/0]).
+              resume_opts/0, ha_status/0, auth/0, peer_cert/0]).
+
+%% A credential as join/4,5 and resume/5 take it: a bare binary, or a map
+%% with the client certificate the bridge verified (docs/protocol.md,
+%% "TLS"): undefined over plain TCP or when the client presented none.
+-define(IS_AUTH(C), (is_binary(C) orelse (is_map(C) andalso is_binary(map_get(credential, C))))).
 
 -record(session, {pairing :: pairing_id(),
                   pid :: pid(),
@@ -31,6 +36,10 @@
 
 -type pairing_id() :: binary().
 -type role() :: agent | avatar.
+%% A verified client certificate: the SHA-256 of its DER as lowercase hex,
+%% and its subject's CommonName (undefined when it has none).
+-type peer_cert() :: #{sha256 := binary(), cn := binary() | undefined}.
+-type auth() :: binary() | #{credential := binary(), peer_cert := peer_cert() | undefined}.
 -opaque session() :: #session{}.
 %% Timeouts in milliseconds; `join_timeout' and `feedback_timeout' default
 %% to 5000, `max_avatars' to 64.
@@ -174,10 +183,10 @@ delete_pairing(PairingId) ->
 %% pairing's join timeout ({@link session_info/1}) or be dropped.
 %% On a node holding only the standby the answer is `{not_active, Node}'
 %% (Node runs the active); on a fenced one, `fenced'.
--spec join(pairing_id(), role(), binary(), binary()) -> {ok, session()} | {error, join_error()}.
+-spec join(pairing_id(), role(), binary(), auth()) -> {ok, session()} | {error, join_error()}.
 join(PairingId, Role, EntityId, Credential)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), is_binary(Credential) ->
+       is_binary(EntityId), ?IS_AUTH(Credential) ->
     join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self()});
 join(_PairingId, _Role, _EntityId, _Credential) ->
     {error, bad_credential}.
@@ -187,11 +196,11 @@ join(_PairingId, _Role, _EntityId, _Credential) ->
 %% de-duplicates its signals by SignalID, acknowledges each accepted signal
 %% with `{evatar, PairingId, {ack, SignalId}}' (after its standby has it)
 %% and keeps what it delivers until {@link ack/2}.
--spec join(pairing_id(), role(), binary(), binary(), #{session := binary()}) ->
+-spec join(pairing_id(), role(), binary(), auth(), #{session := binary()}) ->
           {ok, session()} | {error, join_error()}.
 join(PairingId, Role, EntityId, Credential, #{session := S} = Opts)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), is_binary(Credential), is_binary(S) ->
+       is_binary(EntityId), ?IS_AUTH(Credential), is_binary(S) ->
     join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self(), Opts});
 join(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
     {error, bad_credential}.
@@ -201,12 +210,12 @@ join(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
 %% `received' is delivered again. An unknown session is a fresh join
 %% (`resumed' false in {@link session_info/1}). `stale_epoch' when the
 %% caller has seen a newer epoch than this instance's.
--spec resume(pairing_id(), role(), binary(), binary(), resume_opts()) ->
+-spec resume(pairing_id(), role(), binary(), auth(), resume_opts()) ->
           {ok, session()} | {error, join_error()}.
 resume(PairingId, Role, EntityId, Credential,
        #{session := S, received := R, epoch := E} = Opts)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), is_binary(Credential), is_binary(S), is_integer(R), R >= 0,
+       is_binary(EntityId), ?IS_AUTH(Credential), is_binary(S), is_integer(R), R >= 0,
        is_integer(E), E >= 0 ->
     join_call(PairingId, EntityId, Role, {resume, Role, EntityId, Credential, self(), Opts});
 resume(_PairingId, _Role, _EntityId, _Credential, _Opts) ->

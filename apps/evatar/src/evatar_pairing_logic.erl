@@ -88,10 +88,10 @@
 -type timer_key() :: {join, EntityId :: binary()}
                    | {feedback, RequesterComponent :: binary(), SignalId :: binary()}
                    | {resume, EntityId :: binary()}.
--type event() :: {join, evatar:role(), EntityId :: binary(), Credential :: binary()}
-               | {join, evatar:role(), EntityId :: binary(), Credential :: binary(),
+-type event() :: {join, evatar:role(), EntityId :: binary(), Credential :: evatar:auth()}
+               | {join, evatar:role(), EntityId :: binary(), Credential :: evatar:auth(),
                   SessionId :: binary()}
-               | {resume, evatar:role(), EntityId :: binary(), Credential :: binary(),
+               | {resume, evatar:role(), EntityId :: binary(), Credential :: evatar:auth(),
                   SessionId :: binary(), Received :: non_neg_integer(),
                   ClientEpoch :: non_neg_integer()}
                | {describe, EntityId :: binary(), bil:description()}
@@ -248,6 +248,8 @@ join1(Role, EntityId, Credential, Session, Now,
 
 %% Hashing first gives equal-length inputs, as crypto:hash_equals/2 needs,
 %% so the comparison time does not depend on where the inputs differ.
+credential_ok(Role, #{credential := Given}, Config) ->
+    credential_ok(Role, Given, Config);
 credential_ok(Role, Given, Config) when is_binary(Given) ->
     Expected = case Role of
                    agent -> maps:get(agent_credential, Config);

@@ -118,6 +118,18 @@ join_starts_the_join_timer_test() ->
     ?assertEqual([?VA], evatar_pairing_logic:entity_ids(St)),
     ?assertEqual(waiting, evatar_pairing_logic:phase(St)).
 
+%% The bridge passes the credential in a map with the client certificate it
+%% verified; the role credential is checked the same way.
+join_with_auth_map_test_() ->
+    Cert = #{sha256 => <<"00ff">>, cn => <<"lamp">>},
+    [?_assertEqual(ok, reply(element(2, h({join, agent, ?VA, #{credential => <<"agent-secret">>,
+                                                               peer_cert => Cert}}, new())))),
+     ?_assertEqual(ok, reply(element(2, h({join, agent, ?VA, #{credential => <<"agent-secret">>,
+                                                               peer_cert => undefined}}, new())))),
+     ?_assertEqual({error, bad_credential},
+                   reply(element(2, h({join, agent, ?VA, #{credential => <<"avatar-secret">>,
+                                                           peer_cert => Cert}}, new()))))].
+
 join_refusals_test_() ->
     {ok, OneAvatar} = evatar_pairing_logic:config(#{agent_credential => <<"a">>,
                                                     avatar_credential => <<"v">>,
