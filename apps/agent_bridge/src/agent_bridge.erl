@@ -5,7 +5,7 @@
 -module(agent_bridge).
 
 -export([start_listener/2, stop_listener/1, address/1, listeners/0,
-         start_port/2, stop_port/1, publish/2]).
+         start_port/2, stop_port/1, publish/2, check_listener/1]).
 
 -export_type([listener_opts/0, port_opts/0]).
 
@@ -19,11 +19,64 @@
 -type port_opts() :: agent_bridge_port:opts().
 
 %% @doc Starts a listener; port 0 picks a free port (see address/1).
+%% Options that check_listener/1 refuses give `{error, {bad_listener,
+%% Message}}'.
 -spec start_listener(term(), listener_opts()) -> {ok, pid()} | {error, term()}.
 start_listener(Name, Opts) ->
-    case supervisor:start_child(agent_bridge_sup, agent_bridge_sup:listener_spec(Name, Opts)) of
-        {ok, Pid} -> {ok, Pid};
-        {error, _} = Error -> Error
+    case check_listener(Opts) of
+        ok ->
+            case supervisor:start_child(agent_bridge_sup, agent_bridge_sup:listener_spec(Name, Opts)) of
+                {ok, Pid} -> {ok, Pid};
+                {error, _} = Error -> Error
+            end;
+        {error, Message} ->
+            {error, {bad_listener, Message}}
+    end.
+
+%% @doc Pure: checks a listener's options (the keys of listener_opts/0,
+%% and `conn' keys those of agent_bridge_conn:default_opts/0), so a
+%% mistake in a configuration file is found before anything listens. The
+%% message names the option and what is wrong with it.
+-spec check_listener(term()) -> ok | {error, binary()}.
+check_listener(Opts) when is_map(Opts) ->
+    first_error([check_listener_opt(K, V) || {K, V} <- maps:to_list(Opts)]);
+check_listener(_Opts) ->
+    {error, <<"a listener is a map of options">>}.
+
+check_listener_opt(ip, Ip) ->
+    expect(ip, inet:is_ip_address(Ip),
+           "an IP address tuple, for example {127,0,0,1}");
+check_listener_opt(port, Port) ->
+    expect(port, is_integer(Port) andalso Port >= 0 andalso Port =< 65535,
+           "an integer from 0 to 65535 (0 picks a free port)");
+check_listener_opt(acceptors, N) ->
+    expect(acceptors, is_integer(N) andalso N > 0, "a positive integer");
+check_listener_opt(backlog, N) ->
+    expect(backlog, is_integer(N) andalso N > 0, "a positive integer");
+check_listener_opt(name, _) ->
+    ok;
+check_listener_opt(conn, Conn) when is_map(Conn) ->
+    Defaults = agent_bridge_conn:default_opts(),
+    first_error([check_conn_opt(K, V, Defaults) || {K, V} <- maps:to_list(Conn)]);
+check_listener_opt(conn, _) ->
+    {error, <<"conn must be a map of connection options">>};
+check_listener_opt(Key, _) ->
+    {error, iolist_to_binary(io_lib:format("unknown listener option ~0tp", [Key]))}.
+
+check_conn_opt(hibernate_after, infinity, _Defaults) ->
+    ok;
+check_conn_opt(Key, Value, Defaults) when is_map_key(Key, Defaults) ->
+    expect(Key, is_integer(Value) andalso Value >= 0, "a non-negative integer");
+check_conn_opt(Key, _Value, _Defaults) ->
+    {error, iolist_to_binary(io_lib:format("unknown connection option ~0tp", [Key]))}.
+
+expect(_Key, true, _What) -> ok;
+expect(Key, false, What) -> {error, iolist_to_binary(io_lib:format("~0tp must be ~ts", [Key, What]))}.
+
+first_error(Results) ->
+    case [E || {error, _} = E <- Results] of
+        [] -> ok;
+        [First | _] -> First
     end.
 
 %% @doc Stops a listener and closes its connections.
