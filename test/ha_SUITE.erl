@@ -96,14 +96,7 @@ init_per_testcase(Case, Config) ->
 %% Puts the cluster back as it was for the next case: every node up, no
 %% link cut, formed, the case's pairing deleted.
 end_per_testcase(_Case, Config) ->
-    C = ?config(cluster, Config),
-    ok = ha_cluster:heal(C, reset),
-    _ = [ok = ha_cluster:resume(C, I) || #{i := I, status := stalled} <- ha_cluster:info(C)],
-    _ = [ok = ha_cluster:restart(C, I) || #{i := I, status := down} <- ha_cluster:info(C)],
-    ok = ha_cluster:await_formed(C, ?HEAL_TIMEOUT),
-    Id = ?config(pairing, Config),
-    _ = [ha_pairing:delete(C, I, Id) || {active, _, I} <- ha_pairing:roles(C, Id)],
-    ok.
+    ha_pairing:reset(?config(cluster, Config), ?config(pairing, Config), ?HEAL_TIMEOUT).
 
 %% ---------------------------------------------------------------------------
 %% Cases

@@ -35,9 +35,12 @@
 %% conn: the bridge listener's connection options; control: how the
 %% controller reaches the nodes, dist (default) or stdio (OTP peer's
 %% alternative connection over standard I/O, backend peer only: for nodes
-%% whose distribution the controller cannot speak, inet_tls).
+%% whose distribution the controller cannot speak, inet_tls); config: a
+%% sys.config file for the nodes (-config), whose logger settings they then
+%% keep (by default each node logs to a file of its own at level info).
 -type opts() :: #{n => pos_integer(), prefix => string(), dir := file:filename(),
                   backend => os | peer, control => dist | stdio, links => boolean(),
+                  config => file:filename(),
                   dist => inet_tcp | inet_tls, ssl_optfile => file:filename(),
                   evatar => [{atom(), term()}], conn => map(),
                   boot_timeout => pos_integer(), await_formed => boolean()}.
@@ -255,16 +258,21 @@ repo_root() ->
 
 %% @private Starts evatar and the bridge on a fresh node.
 -spec node_setup(map()) -> ok.
-node_setup(#{log := Log, env := Env, bridge_port := Port, conn := Conn}) ->
+node_setup(#{log := Log, env := Env, bridge_port := Port, conn := Conn} = Setup) ->
     ok = logger:add_handler(ha_file, logger_std_h,
                             #{config => #{file => Log},
                               formatter => {logger_formatter,
                                             #{single_line => true,
                                               template => [time, " ", level, " ", pid, " ",
                                                            msg, "\n"]}}}),
-    _ = logger:remove_handler(default),
-    ok = logger:add_primary_filter(no_progress, {fun logger_filters:progress/2, stop}),
-    ok = logger:set_primary_config(level, info),
+    case Setup of
+        #{configured := true} ->
+            ok;
+        #{} ->
+            _ = logger:remove_handler(default),
+            ok = logger:add_primary_filter(no_progress, {fun logger_filters:progress/2, stop}),
+            ok = logger:set_primary_config(level, info)
+    end,
     ok = application:set_env(Env, [{persistent, true}]),
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = agent_bridge:start_listener(ha, #{ip => {127, 0, 0, 1}, port => Port,
@@ -466,6 +474,11 @@ args(#nd{dist_port = DP, links = Links}, #s{opts = Opts, nodes = Nodes}) ->
                 dist -> ["-noinput"];
                 stdio -> []
             end,
+    Config = case Opts of
+                 #{config := File} -> ["-config", File];
+                 #{} -> []
+             end,
+    Config ++
     ["-setcookie", atom_to_list(erlang:get_cookie()),
      "-kernel", "inet_dist_listen_min", integer_to_list(DP),
      "-kernel", "inet_dist_listen_max", integer_to_list(DP),
@@ -545,7 +558,7 @@ setup(#nd{name = Node} = Nd, #s{opts = Opts, nodes = All} = S) ->
     Info = #{name => Node, peer => Nd#nd.peer, control => maps:get(control, Opts)},
     ok = rpc(Info, ?MODULE, node_setup,
              [#{log => log_file(Nd, S), env => Env, bridge_port => Nd#nd.bridge_port,
-                conn => maps:get(conn, Opts)}], 60000),
+                conn => maps:get(conn, Opts), configured => maps:is_key(config, Opts)}], 60000),
     OsPid = rpc(Info, os, getpid, [], 60000),
     Nd#nd{os_pid = OsPid, status = up}.
 

@@ -6,7 +6,7 @@
 -module(ha_pairing).
 
 -export([create/3, create/4, statuses/2, active/2, await_active/4, await_healthy/3,
-         healthy/2, roles/2, delete/3]).
+         healthy/2, roles/2, delete/3, reset/3]).
 
 -type status() :: #{role := atom(), epoch := non_neg_integer(), atom() => term()}.
 
@@ -30,6 +30,18 @@ create(C, I, Id, Extra) ->
 -spec delete(ha_cluster:cluster(), pos_integer(), binary()) -> term().
 delete(C, I, Id) ->
     ha_cluster:call(C, I, evatar, delete_pairing, [Id]).
+
+%% @doc Puts the cluster back as it was for the next test case: every node
+%% up (stalled ones resumed, killed ones restarted), no link cut, formed
+%% within Timeout ms, and pairing Id deleted.
+-spec reset(ha_cluster:cluster(), binary(), pos_integer()) -> ok.
+reset(C, Id, Timeout) ->
+    ok = ha_cluster:heal(C, reset),
+    _ = [ok = ha_cluster:resume(C, I) || #{i := I, status := stalled} <- ha_cluster:info(C)],
+    _ = [ok = ha_cluster:restart(C, I) || #{i := I, status := down} <- ha_cluster:info(C)],
+    ok = ha_cluster:await_formed(C, Timeout),
+    _ = [delete(C, I, Id) || {active, _, I} <- roles(C, Id)],
+    ok.
 
 %% @doc The status of every instance of Id on the nodes that are up (a node
 %% that does not answer is left out), as {NodeIndex, Status}.

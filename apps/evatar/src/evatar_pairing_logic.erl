@@ -227,10 +227,10 @@ join1(Role, EntityId, Credential, Session, Now,
                 true -> ok
             end,
     case Check of
-        {error, Reason} = Error ->
-            {St, [{reply, Error},
-                  {log, notice, #{what => join_refused, entity => EntityId,
-                                  role => Role, reason => Reason}}]};
+        {error, _} = Error ->
+            %% Logged once, by the bridge connection that asked, which
+            %% knows the client's address (agent_bridge_conn).
+            {St, [{reply, Error}]};
         ok ->
             Timeout = maps:get(join_timeout, Config),
             Entity = #entity{id = EntityId, role = Role, joined_at = Now,

@@ -150,7 +150,10 @@ join_refusals_test_() ->
                    Refused({join, avatar, ?VA, <<"avatar-secret">>}, joined())),
      ?_assertEqual({error, too_many_entities}, Refused({join, avatar, <<"y">>, <<"v">>}, Small)),
      %% A wrong credential is reported before anything about the pairing.
-     ?_assertEqual({error, bad_credential}, Refused({join, agent, ?VA, <<"x">>}, joined()))].
+     ?_assertEqual({error, bad_credential}, Refused({join, agent, ?VA, <<"x">>}, joined())),
+     %% The answer is the only effect: the bridge, which asked, logs it.
+     ?_assertMatch({_, [{reply, {error, bad_credential}}]},
+                   h({join, agent, ?VA, <<"x">>}, new()))].
 
 join_timeout_drops_with_an_error_signal_first_test() ->
     {St, Effects} = h({timeout, {join, ?AV}}, joined()),
