@@ -2,6 +2,14 @@
 %% every `Consumes' entry to at most one `Service' of an entity of the other
 %% type, exactly as docs/bil.md section 4 says. Pure; also exports the
 %% keyword normalisation that the rules compare with.
+%%
+%% Cost: providers are indexed by (category, type) and, inside, by
+%% (parameter, value); a consumer examines only the providers that offer
+%% its most selective required value (or, when it requires none, only
+%% those that could score), and consumers with equal wants share one
+%% result. Binding P services against C consumers costs O((P + C) log P)
+%% plus the candidates examined, which the tests and bench/COMPLEXITY.md
+%% bound on the shapes homes produce (the old nested loops were P x C).
 -module(bil_binding).
 
 -export([bind/1, keyword/1]).
@@ -11,12 +19,25 @@
 -record(provider, {endpoint :: bil:endpoint(),
                    params :: #{binary() => [binary()]}}).
 
--type bucket_key() :: {bil:entity_type(), Category :: binary(), Type :: binary()}.
--type index() :: #{bucket_key() => [#provider{}]}.
+%% The providers of one (entity type, category, type), numbered in
+%% tie-break order (registration, then document order), with an inverted
+%% index: for each {name keyword, value keyword}, the positions of the
+%% providers offering it, ascending, and how many there are.
+-record(bucket, {providers :: tuple(),
+                 size :: pos_integer(),
+                 postings :: #{{binary(), binary()} => {pos_integer(), [pos_integer()]}}}).
 
-%% A consumer's parameters grouped by name keyword, in first-seen order; a
-%% name keyword can repeat when names differ only in case or punctuation.
+-type bucket_key() :: {bil:entity_type(), Category :: binary(), Type :: binary()}.
+-type index() :: #{bucket_key() => #bucket{}}.
+
+%% A consumer's parameters as sets: name keywords in ascending order, each
+%% with its value keywords, ascending and without repeats. The rules only
+%% ask whether a value is present, so this canonical form binds exactly as
+%% the parameters do, and equal wants can share one result.
 -type wants() :: [{Name :: binary(), Values :: [binary()]}].
+
+-type choice() :: {bound, #provider{}, Score :: non_neg_integer(), Count :: pos_integer()}
+                | {unbound, no_provider | parameters_mismatch}.
 
 -define(YES, <<"yes">>).
 -define(NO, <<"no">>).
@@ -28,7 +49,7 @@
 -spec bind([bil:description()]) -> bil:bind_result().
 bind(Descriptions) ->
     Index = index(Descriptions),
-    {Bound, Unbound} = bind_entities(Descriptions, Index, [], []),
+    {Bound, Unbound, _Memo} = bind_entities(Descriptions, Index, [], [], #{}),
     #{bound => lists:reverse(Bound), unbound => lists:reverse(Unbound)}.
 
 %% @doc The keyword of a category, type, parameter name or parameter value:
@@ -89,11 +110,11 @@ unicode_keyword(Bin) ->
 %% ---------------------------------------------------------------------------
 
 %% Folding from the right and prepending leaves each bucket in registration
-%% then document order, so ties are decided by keeping the first best
-%% candidate met, and no bucket needs reversing afterwards.
+%% then document order; positions are then given in that order.
 -spec index([bil:description()]) -> index().
 index(Descriptions) ->
-    lists:foldr(fun index_entity/2, #{}, Descriptions).
+    maps:map(fun(_Key, Providers) -> bucket(Providers) end,
+             lists:foldr(fun index_entity/2, #{}, Descriptions)).
 
 index_entity(#{entity_id := EntityId, entity_type := EntityType,
                components := Components}, Acc) ->
@@ -119,74 +140,136 @@ provider_params(#{parameters := Params}) ->
                                          [V], Map)
                 end, #{}, Params).
 
+%% Positions are visited in descending order and prepended, so every
+%% posting list comes out ascending.
+bucket(Providers) ->
+    Tuple = list_to_tuple(Providers),
+    Size = tuple_size(Tuple),
+    Postings = lists:foldl(
+                 fun(Pos, Acc) ->
+                         #provider{params = Params} = element(Pos, Tuple),
+                         maps:fold(fun(Name, Values, Acc1) ->
+                                           lists:foldl(fun(V, Acc2) -> post({Name, V}, Pos, Acc2) end,
+                                                       Acc1, lists:usort(Values))
+                                   end, Acc, Params)
+                 end, #{}, lists:seq(Size, 1, -1)),
+    #bucket{providers = Tuple, size = Size, postings = Postings}.
+
+post(Key, Pos, Postings) ->
+    case Postings of
+        #{Key := {N, Ps}} -> Postings#{Key := {N + 1, [Pos | Ps]}};
+        #{} -> Postings#{Key => {1, [Pos]}}
+    end.
+
 %% ---------------------------------------------------------------------------
 %% Binding
 %% ---------------------------------------------------------------------------
 
 bind_entities([#{entity_id := EntityId, entity_type := EntityType,
-                 components := Components} | Rest], Index, Bound, Unbound) ->
+                 components := Components} | Rest], Index, Bound, Unbound, Memo) ->
     Wanted = {other(EntityType), EntityId},
-    {Bound1, Unbound1} =
+    {Bound1, Unbound1, Memo1} =
         lists:foldl(fun(Component, Acc) ->
                             bind_component(Component, Wanted, Index, Acc)
-                    end, {Bound, Unbound}, Components),
-    bind_entities(Rest, Index, Bound1, Unbound1);
-bind_entities([], _Index, Bound, Unbound) ->
-    {Bound, Unbound}.
+                    end, {Bound, Unbound, Memo}, Components),
+    bind_entities(Rest, Index, Bound1, Unbound1, Memo1);
+bind_entities([], _Index, Bound, Unbound, Memo) ->
+    {Bound, Unbound, Memo}.
 
 bind_component(#{id := ComponentId, consumes := Consumes},
                {OtherType, EntityId}, Index, Acc) ->
     Consumer = #{entity => EntityId, component => ComponentId},
-    lists:foldl(fun(Entry, {Bound, Unbound}) ->
-                        case bind_entry(Entry, OtherType, Index) of
-                            {bound, Provider, Score, Count} ->
+    lists:foldl(fun(Entry, {Bound, Unbound, Memo}) ->
+                        case bind_entry(Entry, OtherType, Index, Memo) of
+                            {{bound, Provider, Score, Count}, Memo1} ->
                                 {[binding(Consumer, Entry, Provider, Score, Count)
-                                  | Bound], Unbound};
-                            {unbound, Reason} ->
-                                {Bound, [unbound(Consumer, Entry, Reason) | Unbound]}
+                                  | Bound], Unbound, Memo1};
+                            {{unbound, Reason}, Memo1} ->
+                                {Bound, [unbound(Consumer, Entry, Reason) | Unbound], Memo1}
                         end
                 end, Acc, Consumes).
 
-bind_entry(#{category := Category, type := Type} = Entry, OtherType, Index) ->
-    case maps:get({OtherType, keyword(Category), keyword(Type)}, Index, []) of
+bind_entry(#{category := Category, type := Type} = Entry, OtherType, Index, Memo) ->
+    Key = {OtherType, keyword(Category), keyword(Type)},
+    case Index of
+        #{Key := Bucket} ->
+            Wants = wants(Entry),
+            case Memo of
+                #{{Key, Wants} := Choice} ->
+                    {Choice, Memo};
+                #{} ->
+                    Choice = choose(Wants, Bucket),
+                    {Choice, Memo#{{Key, Wants} => Choice}}
+            end;
+        #{} ->
+            {{unbound, no_provider}, Memo}
+    end.
+
+%% Every compatible provider offers, for each required value, that value
+%% (or `any', unless the value is `yes'): the compatible ones are among the
+%% providers of the required value with the fewest. With no required value
+%% every provider is compatible, and only those offering `no' for a wanted
+%% name can score above zero.
+-spec choose(wants(), #bucket{}) -> choice().
+choose(Wants, #bucket{size = Size, providers = Providers} = Bucket) ->
+    case [candidates(Name, V, Bucket) || {Name, Values} <- Wants, V <- Values, V =/= ?NO] of
         [] ->
-            {unbound, no_provider};
-        Candidates ->
-            case choose(wants(Entry), Candidates, none, 0) of
+            Scoring = lists:umerge([positions({Name, ?NO}, Bucket) || {Name, _} <- Wants]),
+            case best(Wants, Scoring, Providers, none, 0) of
+                {{Provider, Score}, _} when Score > 0 -> {bound, Provider, Score, Size};
+                _ -> {bound, element(1, Providers), 0, Size}
+            end;
+        [First | Sets] ->
+            {_, Fewest} = lists:foldl(fun({N, _} = Set, {Min, _}) when N < Min -> Set;
+                                         (_, Acc) -> Acc
+                                      end, First, Sets),
+            case best(Wants, Fewest, Providers, none, 0) of
                 {_, 0} -> {unbound, parameters_mismatch};
                 {{Provider, Score}, Count} -> {bound, Provider, Score, Count}
             end
     end.
 
-%% Strictly greater replaces the best so far: the bucket is in tie-break
-%% order, so among equal scores the first compatible candidate stays.
-choose(Wants, [Candidate | Rest], Best, Count) ->
-    case compatible(Wants, Candidate#provider.params) of
+candidates(Name, ?YES, Bucket) ->
+    posting({Name, ?YES}, Bucket);
+candidates(Name, V, Bucket) ->
+    {N1, P1} = posting({Name, V}, Bucket),
+    {N2, P2} = posting({Name, ?ANY}, Bucket),
+    {N1 + N2, fun() -> lists:umerge(P1, P2) end}.
+
+posting(Key, #bucket{postings = Postings}) ->
+    maps:get(Key, Postings, {0, []}).
+
+positions(Key, Bucket) ->
+    element(2, posting(Key, Bucket)).
+
+%% Candidates in ascending position, that is tie-break order: strictly
+%% greater replaces the best so far, so among equal scores the first stays.
+best(Wants, Merge, Providers, Best, Count) when is_function(Merge, 0) ->
+    best(Wants, Merge(), Providers, Best, Count);
+best(Wants, [Pos | Rest], Providers, Best, Count) ->
+    #provider{params = Params} = Candidate = element(Pos, Providers),
+    case compatible(Wants, Params) of
         false ->
-            choose(Wants, Rest, Best, Count);
+            best(Wants, Rest, Providers, Best, Count);
         true ->
-            Score = score(Wants, Candidate#provider.params),
+            Score = score(Wants, Params),
             Best1 = case Best of
                         {_, BestScore} when BestScore >= Score -> Best;
                         _ -> {Candidate, Score}
                     end,
-            choose(Wants, Rest, Best1, Count + 1)
+            best(Wants, Rest, Providers, Best1, Count + 1)
     end;
-choose(_Wants, [], Best, Count) ->
+best(_Wants, [], _Providers, Best, Count) ->
     {Best, Count}.
 
 -spec wants(bil:entry()) -> wants().
 wants(#{parameters := Params}) ->
-    Grouped = lists:foldl(
-                fun({Name, Value}, Acc) ->
-                        N = keyword(Name),
-                        V = keyword(Value),
-                        case lists:keyfind(N, 1, Acc) of
-                            {N, Vs} -> lists:keyreplace(N, 1, Acc, {N, [V | Vs]});
-                            false -> [{N, [V]} | Acc]
-                        end
-                end, [], Params),
-    lists:reverse(Grouped).
+    Grouped = lists:foldl(fun({Name, Value}, Acc) ->
+                                  V = keyword(Value),
+                                  maps:update_with(keyword(Name), fun(Vs) -> [V | Vs] end,
+                                                   [V], Acc)
+                          end, #{}, Params),
+    [{N, lists:usort(Vs)} || {N, Vs} <- lists:sort(maps:to_list(Grouped))].
 
 compatible(Wants, Offered) ->
     lists:all(fun({Name, Values}) ->

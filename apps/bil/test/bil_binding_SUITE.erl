@@ -15,7 +15,8 @@
          unbound_parameters_mismatch/1, several_consumers_one_provider/1,
          result_order/1, keeps_consumer_spelling/1, empty_input/1,
          prop_matches_reference/1, prop_each_consumer_once/1,
-         prop_provider_other_type/1]).
+         prop_provider_other_type/1, prop_matches_old/1, prop_matches_old_shared/1,
+         old_matches_at_scale/1]).
 
 -define(NUMTESTS_REFERENCE, 600).
 -define(NUMTESTS, 300).
@@ -41,7 +42,8 @@ groups() ->
        unbound_parameters_mismatch, several_consumers_one_provider,
        result_order, keeps_consumer_spelling, empty_input]},
      {properties, [],
-      [prop_matches_reference, prop_each_consumer_once, prop_provider_other_type]}].
+      [prop_matches_reference, prop_each_consumer_once, prop_provider_other_type,
+       prop_matches_old, prop_matches_old_shared, old_matches_at_scale]}].
 
 %% ---------------------------------------------------------------------------
 %% Keywords (rule 1)
@@ -334,6 +336,34 @@ prop_provider_other_type(_Config) ->
                   end),
           ?NUMTESTS).
 
+%% @doc The indexed binding gives exactly what the quadratic algorithm it
+%% replaced gives (bil_binding_old, kept here as the oracle).
+prop_matches_old(_Config) ->
+    check(?FORALL(Ds, descriptions(),
+                  ?WHENFAIL(ct:pal("got ~p~nold ~p", [bil:bind(Ds), bil_binding_old:bind(Ds)]),
+                            bil:bind(Ds) =:= bil_binding_old:bind(Ds))),
+          ?NUMTESTS_REFERENCE).
+
+%% @doc Same, on pairings where many providers share one (category, type)
+%% and parameters decide: the case the index is for (several required
+%% values, `any', `yes' and `no' mixed, many equal consumers).
+prop_matches_old_shared(_Config) ->
+    check(?FORALL(Ds, shared_descriptions(),
+                  ?WHENFAIL(ct:pal("got ~p~nold ~p", [bil:bind(Ds), bil_binding_old:bind(Ds)]),
+                            collect(shape(bil_binding_old:bind(Ds)),
+                                    bil:bind(Ds) =:= bil_binding_old:bind(Ds)))),
+          ?NUMTESTS).
+
+%% @doc Old and new agree on a generated pairing of 2,000 components a
+%% side, all in two buckets.
+old_matches_at_scale(_Config) ->
+    {ok, Pairing} = proper_gen:pick(shared_pairing(2000, 2000), 10, {7, 8, 9}),
+    Result = bil:bind(Pairing),
+    Result = bil_binding_old:bind(Pairing),
+    #{bound := Bound, unbound := Unbound} = Result,
+    true = length(Bound) > 500 andalso length(Unbound) > 100,
+    ok.
+
 check(Prop, NumTests) ->
     case proper:quickcheck(Prop, [{numtests, NumTests}, {to_file, user}, long_result]) of
         true -> ok;
@@ -429,6 +459,37 @@ param_names() ->
 param_values() ->
     [<<"yes">>, <<"YES">>, <<"no">>, <<"No">>, <<"any">>, <<"Any">>, <<"kitchen">>,
      <<"Kit chen">>, <<"hall">>].
+
+%% Two entities, one of each type, with up to 40 components each offering
+%% and consuming one (category, type): parameters decide everything.
+shared_descriptions() ->
+    shared_descriptions(40).
+
+shared_descriptions(Max) ->
+    ?LET({NA, NV}, {choose(0, Max), choose(0, Max)}, shared_pairing(NA, NV)).
+
+shared_pairing(NA, NV) ->
+    ?LET({As, Vs}, {vector(NA, shared_component()), vector(NV, shared_component())},
+         [shared_entity(<<"av">>, avatar, As), shared_entity(<<"va">>, agent, Vs)]).
+
+shared_entity(Id, Type, Cs) ->
+    #{entity_id => Id, api_name => <<"API">>, entity_type => Type, context => <<"Shared">>,
+      components => [C#{id => <<Id/binary, (integer_to_binary(I))/binary>>}
+                     || {I, C} <- lists:zip(lists:seq(1, length(Cs)), Cs)]}.
+
+shared_component() ->
+    ?LET({NS, NC}, {choose(0, 2), choose(0, 3)},
+         ?LET({Ss, Cs}, {vector(NS, shared_entry()), vector(NC, shared_entry())},
+              #{id => <<>>, services => Ss, consumes => Cs})).
+
+shared_entry() ->
+    ?LET({T, Ps}, {frequency([{5, <<"Switch">>}, {1, <<"Dimmer">>}]),
+                   list(frequency([{3, {elements([<<"Room">>, <<"room">>, <<"Unit">>, <<"Light">>]),
+                                        elements([<<"yes">>, <<"no">>, <<"any">>,
+                                                  <<"kitchen">>, <<"hall">>, <<"u1">>,
+                                                  <<"u2">>, <<"u3">>])}},
+                                   {1, {<<"Email">>, <<"no">>}}]))},
+         #{category => <<"Actuator">>, type => T, parameters => lists:sublist(Ps, 4)}).
 
 %% ---------------------------------------------------------------------------
 %% Naive reference: nested loops over every pair, straight from the rules.

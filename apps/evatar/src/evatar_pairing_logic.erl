@@ -165,7 +165,7 @@ handle(Event, Now, St) ->
         {#st{overflow = []}, _} = Result ->
             Result;
         {#st{overflow = Ids} = St1, Effects} ->
-            drop_overflow(lists:usort(Ids), Now, St1#st{overflow = []}, Effects)
+            drop_overflow(lists:usort(Ids), Now, St1#st{overflow = []}, [Effects])
     end.
 
 handle1({signal, EntityId, Signal}, Now, St) ->
@@ -391,23 +391,30 @@ routes(Bound) ->
                         Acc#{{C, P} => forward}
                 end, Reverse, Bound).
 
+%% Voids, in key order, every open request whose provider is no longer
+%% bound to its requester. Effects are gathered in reverse and turned once:
+%% appending per request made voiding 15,000 requests take seconds.
 close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
-    Gone = [{Key, P} || {{Req, _} = Key, #pending{provider = Prov} = P} <- maps:to_list(Pending),
+    Gone = [{Key, P} || {{Req, _} = Key, #pending{provider = Prov} = P}
+                            <- lists:sort(maps:to_list(Pending)),
                         not is_map_key({Req, Prov}, Routes)],
-    lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov}},
-                    {StAcc, Acc}) ->
-                        StAcc1 = StAcc#st{pending = maps:remove(Key, StAcc#st.pending)},
-                        {Sig, StAcc2} = mediator_signal(
-                                          feedback, Req, SigId, <<"EVATAR">>, <<"ProviderGone">>,
-                                          <<"the provider component '", Prov/binary,
-                                            "' is no longer bound; the request is void">>,
-                                          Now, StAcc1),
-                        {StAcc3, Deliver} = stamp(Entity, Sig, Now, StAcc2),
-                        {count(provider_gone, StAcc3),
-                         Acc ++ [{cancel_timer, {feedback, Req, SigId}}, Deliver,
-                                 {log, notice, #{what => provider_gone, entity => Entity,
-                                                 signal => SigId, provider => Prov}}]}
-                end, {St, []}, Gone).
+    {St1, RevEffects} =
+        lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov}},
+                        {StAcc, Acc}) ->
+                            StAcc1 = StAcc#st{pending = maps:remove(Key, StAcc#st.pending)},
+                            {Sig, StAcc2} = mediator_signal(
+                                              feedback, Req, SigId, <<"EVATAR">>,
+                                              <<"ProviderGone">>,
+                                              <<"the provider component '", Prov/binary,
+                                                "' is no longer bound; the request is void">>,
+                                              Now, StAcc1),
+                            {StAcc3, Deliver} = stamp(Entity, Sig, Now, StAcc2),
+                            {count(provider_gone, StAcc3),
+                             [{log, notice, #{what => provider_gone, entity => Entity,
+                                              signal => SigId, provider => Prov}},
+                              Deliver, {cancel_timer, {feedback, Req, SigId}} | Acc]}
+                    end, {St, []}, Gone),
+    {St1, lists:reverse(RevEffects)}.
 
 %% --- leave -----------------------------------------------------------------
 
@@ -768,12 +775,12 @@ drop_overflow([Id | Ids], Now, St, Effects) ->
             {St1, LeaveEffects} = leave(Id, slow_consumer, Now, St),
             Message = <<"too many delivered signals not acknowledged">>,
             drop_overflow(Ids, Now, count(dropped, St1),
-                          Effects ++ [{drop, Id, slow_consumer, Message} | LeaveEffects]);
+                          [[{drop, Id, slow_consumer, Message} | LeaveEffects] | Effects]);
         #{} ->
             drop_overflow(Ids, Now, St, Effects)
     end;
 drop_overflow([], _Now, St, Effects) ->
-    {St, Effects}.
+    {St, lists:append(lists:reverse(Effects))}.
 
 count(Key, #st{counters = Counters} = St) ->
     St#st{counters = maps:update_with(Key, fun(N) -> N + 1 end, 1, Counters)}.

@@ -354,6 +354,23 @@ redescription_rebinds_and_voids_requests_test() ->
     {_, E3} = h({signal, ?VA, signal(<<"r2">>, request, ?EMU, ?LIGHT)}, St2),
     ?assertMatch([{deliver, ?VA, #{body := #{type := <<"UnknownReceiver">>}}}], no_logs(E3)).
 
+%% Voiding many open requests: each gets its cancel_timer, its ProviderGone
+%% and its log, in request key order, exactly once (it used to append per
+%% request, quadratic).
+voiding_many_requests_test() ->
+    Ids = [<<"r", (integer_to_binary(I))/binary>> || I <- lists:seq(1, 3000)],
+    St1 = lists:foldl(fun(Id, St) ->
+                              {St1, _} = h({signal, ?VA, signal(Id, request, ?EMU, ?LIGHT)}, St),
+                              St1
+                      end, bound(), Ids),
+    ?assertMatch(#{pending := 3000}, evatar_pairing_logic:stats(St1)),
+    {St2, E2} = h({describe, ?AV, avatar_description([thermo])}, St1),
+    Sorted = lists:sort(Ids),
+    ?assertEqual(Sorted, [R || {?VA, #{in_reply_to := R,
+                                       body := #{type := <<"ProviderGone">>}}} <- delivered(E2)]),
+    ?assertEqual(Sorted, [R || {cancel_timer, {feedback, ?EMU, R}} <- E2]),
+    ?assertMatch(#{pending := 0, provider_gone := 3000}, evatar_pairing_logic:stats(St2)).
+
 redescription_keeps_surviving_requests_test() ->
     {St1, _} = h({signal, ?VA, signal(<<"r1">>, request, ?EMU, ?LIGHT)}, bound()),
     {St2, E2} = h({describe, ?AV, avatar_description([light])}, St1),
