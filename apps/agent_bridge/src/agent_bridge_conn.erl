@@ -335,6 +335,9 @@ join_refusal(too_many_entities) ->
 join_refusal(stale_epoch) ->
     refused(<<"StaleEpoch">>, <<"this node's instance of the pairing is older than one "
                                 "you have seen; try another endpoint">>);
+join_refusal(busy) ->
+    refused(<<"Busy">>, <<"the pairing did not answer in time (busy with a large operation); "
+                          "try again">>);
 join_refusal(fenced) ->
     refused(<<"Fenced">>, <<"this node lost the majority of the cluster; try another "
                             "endpoint">>);
@@ -491,7 +494,9 @@ maybe_done(D) ->
     {keep_state, D}.
 
 leave(#d{session = undefined}) -> ok;
-leave(#d{session = Session}) -> evatar:leave(Session).
+%% Without waiting: the connection is ending, and a busy pairing must not
+%% hold it (the Leave reaches the pairing before this process's exit).
+leave(#d{session = Session}) -> evatar:leave_async(Session).
 
 forget_session(#d{monitor = undefined} = D) ->
     D#d{session = undefined};

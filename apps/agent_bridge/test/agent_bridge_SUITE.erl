@@ -17,7 +17,7 @@ suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
     [{group, handshake}, {group, bad_input}, {group, traffic}, {group, backpressure},
-     {group, port}].
+     {group, busy}, {group, port}].
 
 groups() ->
     [{handshake, [], [handshake_ok, client_connects, endpoints_in_order, bye_leaves]},
@@ -29,6 +29,8 @@ groups() ->
                     sent_request_feedback_to_owner_ha, binding_report, sensor_stream, feedback_timeout,
                     not_bound_error, re_register, pairing_deleted]},
      {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
+     {busy, [], [busy_pairing_refuses_hello, busy_pairing_description,
+                  busy_pairing_bye, busy_pairing_operator]},
      {port, [], [port_round_trip]}].
 
 %% ---------------------------------------------------------------------------
@@ -61,6 +63,10 @@ init_per_testcase(Case, Config) ->
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
+    %% A busy case may end with its pairing still suspended.
+    _ = [sys:resume(Pid) || Pid <- [evatar_registry:whereis_name(?config(pairing, Config))],
+                            is_pid(Pid), suspended(Pid)],
+    ok = application:unset_env(evatar, call_timeout),
     _ = evatar:delete_pairing(?config(pairing, Config)),
     %% Every refusal case must leave the node and other pairings working.
     ok = bystander_round_trip(Config).
@@ -450,6 +456,82 @@ log(#{msg := {report, #{what := program_stderr, line := Line}}}, #{config := #{p
     Pid ! {stderr_line, Line};
 log(_, _) ->
     ok.
+
+%% ---------------------------------------------------------------------------
+%% A busy pairing (made busy for real: its process suspended)
+%% ---------------------------------------------------------------------------
+
+%% A Hello to a pairing that does not answer within the call timeout gets
+%% Refused Busy (the connection process does not crash on the timeout);
+%% the join the pairing gets to later ends with that connection.
+busy_pairing_refuses_hello(Config) ->
+    Pid = suspend_pairing(Config, 300),
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
+    ok = expect_refused(S, <<"Busy">>),
+    ok = sys:resume(Pid),
+    ok = wait_until(fun() -> registered_entities(Config) =:= [] end),
+    {ok, C} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:close(C).
+
+%% A description sent while the pairing is busy gets an Error signal
+%% saying so, on a connection that stays up; the description, still
+%% queued, is applied when the pairing goes on, and the report follows.
+busy_pairing_description(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    Pid = suspend_pairing(Config, 300),
+    ok = gen_tcp:send(S, bil:encode_description(va_description(<<"va">>))),
+    {signal, #{context := error, body := #{type := <<"DescriptionRefused">>,
+                                           parameters := [{<<"Message">>, Message}]}}} =
+        recv_doc(S),
+    {match, _} = re:run(Message, "busy"),
+    ok = sys:resume(Pid),
+    {control, {binding, #{entities := [<<"va">>]}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
+    {control, {bye, _}} = recv_doc(S),
+    {error, closed} = gen_tcp:recv(S, 0, 5000).
+
+%% A Bye is answered while the pairing cannot answer anything (the call
+%% timeout here is ten minutes: a connection waiting for the pairing would
+%% not answer); the entity leaves once the pairing goes on.
+busy_pairing_bye(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    Pid = suspend_pairing(Config, 600000),
+    ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
+    {control, {bye, _}} = recv_doc(S),
+    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    true = suspended(Pid),
+    ok = sys:resume(Pid),
+    ok = wait_until(fun() -> registered_entities(Config) =:= [] end).
+
+%% Operator calls to a busy pairing return `{error, busy}' (or show it
+%% unavailable) instead of raising; a delete goes through once it can.
+busy_pairing_operator(Config) ->
+    P = ?config(pairing, Config),
+    Pid = suspend_pairing(Config, 300),
+    {error, busy} = evatar:stats(P),
+    {error, busy} = evatar:bindings(P),
+    {error, busy} = evatar:print_registry(P),
+    [#{state := unavailable}] = [S || #{id := Id} = S <- evatar:pairings(), Id =:= P],
+    {error, busy} = evatar:delete_pairing(P),
+    Ref = monitor(process, Pid),
+    ok = sys:resume(Pid),
+    receive {'DOWN', Ref, process, Pid, normal} -> ok after 10000 -> ct:fail(not_deleted) end.
+
+suspend_pairing(Config, CallTimeout) ->
+    ok = application:set_env(evatar, call_timeout, CallTimeout),
+    Pid = evatar_registry:whereis_name(?config(pairing, Config)),
+    ok = sys:suspend(Pid),
+    Pid.
+
+%% A suspended process still answers system messages.
+suspended(Pid) ->
+    {status, Pid, _, [_PDict, SysState | _]} = sys:get_status(Pid),
+    SysState =:= suspended.
+
+registered_entities(Config) ->
+    {ok, Registry} = evatar:registry(?config(pairing, Config)),
+    Registry.
 
 %% ---------------------------------------------------------------------------
 %% Helpers

@@ -10,6 +10,7 @@
 -module(evatar).
 
 -export([create_pairing/2, delete_pairing/1, join/4, join/5, resume/5, describe/2,
+         leave_async/1,
          send/2, ack/2, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
@@ -61,7 +62,8 @@
                          received := non_neg_integer(),
                          epoch := non_neg_integer()}.
 -type join_error() :: unknown_pairing | bad_credential | occupied | entity_exists
-                    | too_many_entities | stale_epoch | fenced | {not_active, node()}.
+                    | too_many_entities | stale_epoch | fenced | {not_active, node()}
+                    | busy.
 -type ha_status() :: #{role := starting | active | standby | fenced,
                        epoch := non_neg_integer(),
                        node := node(),
@@ -102,6 +104,7 @@
                                     | starting | handing_over | unavailable,
                              atom() => term()}.
 
+%% How long a call waits for a pairing (application env `call_timeout').
 -define(CALL_TIMEOUT, 15000).
 -define(INSPECT_TIMEOUT, 2000).
 
@@ -153,7 +156,11 @@ start_pairing(PairingId, Config) ->
 %% @doc Stops a pairing and its whole tree. The entities' processes receive
 %% `{evatar, PairingId, {dropped, pairing_deleted, Reason}}'. Returns once
 %% the pairing process is gone.
--spec delete_pairing(pairing_id()) -> ok | {error, not_found}.
+%% `{error, busy}' when the pairing did not answer within the call timeout
+%% (application env `call_timeout', default 15 s: it is working through a
+%% large operation); the request stays queued, so the pairing goes once it
+%% gets to it.
+-spec delete_pairing(pairing_id()) -> ok | {error, not_found | busy}.
 delete_pairing(PairingId) ->
     Target = case evatar_registry:role(PairingId) of
                  %% Deleting through the standby's node deletes at the active.
@@ -165,11 +172,15 @@ delete_pairing(PairingId) ->
             {error, not_found};
         Pid ->
             Ref = erlang:monitor(process, Pid),
-            Result = case call(Pid, delete) of
-                         ok -> ok;
-                         {error, gone} -> {error, not_found}
-                     end,
-            receive {'DOWN', Ref, process, Pid, _} -> Result end
+            case call(Pid, delete) of
+                ok ->
+                    receive {'DOWN', Ref, process, Pid, _} -> ok end;
+                {error, gone} ->
+                    receive {'DOWN', Ref, process, Pid, _} -> {error, not_found} end;
+                {error, busy} ->
+                    true = erlang:demonitor(Ref, [flush]),
+                    {error, busy}
+            end
     end.
 
 %% ---------------------------------------------------------------------------
@@ -182,7 +193,9 @@ delete_pairing(PairingId) ->
 %% {@link session_pid/1}. The entity must describe itself within the
 %% pairing's join timeout ({@link session_info/1}) or be dropped.
 %% On a node holding only the standby the answer is `{not_active, Node}'
-%% (Node runs the active); on a fenced one, `fenced'.
+%% (Node runs the active); on a fenced one, `fenced'; `busy' when the
+%% pairing did not answer within the call timeout (the caller is not held longer, and
+%% a join the pairing gets to later ends when the caller's process does).
 -spec join(pairing_id(), role(), binary(), auth()) -> {ok, session()} | {error, join_error()}.
 join(PairingId, Role, EntityId, Credential)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
@@ -243,10 +256,18 @@ join_call(PairingId, EntityId, Role, Request) ->
 %% binds again and reports to every registered entity. Refused with a
 %% readable reason when the EntityID is not the joined one, the EntityType
 %% does not match the role, or a ComponentID belongs to another entity.
+%% A pairing that does not answer within the call timeout gives a reason saying so:
+%% the description stays queued, and the binding report follows when the
+%% pairing applies it.
 -spec describe(session(), bil:description()) -> ok | {error, binary()}.
 describe(#session{pid = Pid, entity = EntityId}, Description) ->
     case call(Pid, {describe, EntityId, Description}) of
         {error, gone} -> {error, <<"the pairing is gone">>};
+        {error, busy} ->
+            {error, iolist_to_binary(
+                      io_lib:format("the pairing did not answer within ~b ms (busy); the "
+                                    "description stays queued and a binding report follows "
+                                    "when it is applied", [call_timeout()]))};
         Reply -> Reply
     end.
 
@@ -264,12 +285,23 @@ ack(#session{pid = Pid, entity = EntityId}, Seq) when is_integer(Seq), Seq >= 0 
 
 %% @doc Leaves the pairing: the entity is unregistered and the pairing binds
 %% again. An agent leaving keeps the pairing waiting for a new agent.
+%% Returns once the pairing has done it, or after the call timeout if it is busy: the
+%% Leave is then queued and done when the pairing gets to it.
 -spec leave(session()) -> ok.
 leave(#session{pid = Pid, entity = EntityId}) ->
     case call(Pid, {leave, EntityId}) of
         ok -> ok;
-        {error, gone} -> ok
+        {error, gone} -> ok;
+        {error, busy} -> ok
     end.
+
+%% @doc Leaves the pairing without waiting: for a process about to end
+%% (a connection closing on a Bye), which needs no answer and must not be
+%% held by a busy pairing. Sent before the process exits, the Leave
+%% reaches the pairing before the exit does.
+-spec leave_async(session()) -> ok.
+leave_async(#session{pid = Pid, entity = EntityId}) ->
+    gen_statem:cast(Pid, {leave, EntityId}).
 
 %% @doc The pid of the pairing process the session belongs to.
 -spec session_pid(session()) -> pid().
@@ -303,18 +335,20 @@ summary(Id, Pid) ->
     end.
 
 %% @doc The Body Mapping Registry of a pairing: bound and unbound entries.
--spec bindings(pairing_id()) -> {ok, binding_report()} | {error, not_found}.
+-spec bindings(pairing_id()) -> {ok, binding_report()} | {error, not_found | busy}.
 bindings(PairingId) -> inspect(PairingId, bindings).
 
 %% @doc The Service Registration List of a pairing: each joined entity
 %% with its role, join time, whether it registered, and its description.
--spec registry(pairing_id()) -> {ok, [map()]} | {error, not_found}.
+-spec registry(pairing_id()) -> {ok, [map()]} | {error, not_found | busy}.
 registry(PairingId) -> inspect(PairingId, registry).
 
 %% @doc Counters of a pairing: signals routed per context, refusals per
 %% error code, feedback timeouts, late feedback, requests voided because
 %% their provider went, entities dropped, rebinds, pending requests.
--spec stats(pairing_id()) -> {ok, map()} | {error, not_found}.
+%% Like every inspection, `{error, busy}' when the pairing did not answer
+%% within the call timeout.
+-spec stats(pairing_id()) -> {ok, map()} | {error, not_found | busy}.
 stats(PairingId) -> inspect(PairingId, stats).
 
 inspect(PairingId, What) ->
@@ -324,6 +358,7 @@ inspect(PairingId, What) ->
         Pid ->
             case call(Pid, {inspect, What}) of
                 {error, gone} -> {error, not_found};
+                {error, busy} -> {error, busy};
                 Reply -> {ok, Reply}
             end
     end.
@@ -336,7 +371,7 @@ inspect(PairingId, What) ->
 %% standby, and `synced' once the standby confirmed the state), `standby'
 %% (with its active), `fenced', or `starting'; its epoch and the number of
 %% replicated events applied (`version').
--spec ha_status(pairing_id()) -> {ok, ha_status()} | {error, not_found}.
+-spec ha_status(pairing_id()) -> {ok, ha_status()} | {error, not_found | busy}.
 ha_status(PairingId) -> inspect(PairingId, ha).
 
 %% @doc Every instance of a pairing on the cluster's alive nodes.
@@ -359,31 +394,38 @@ print_pairings() ->
     evatar_print:pairings(pairings()).
 
 %% @doc Prints {@link bindings/1} as a table.
--spec print_bindings(pairing_id()) -> ok | {error, not_found}.
+-spec print_bindings(pairing_id()) -> ok | {error, not_found | busy}.
 print_bindings(PairingId) ->
     print(bindings(PairingId), fun evatar_print:bindings/1).
 
 %% @doc Prints {@link registry/1} as a table.
--spec print_registry(pairing_id()) -> ok | {error, not_found}.
+-spec print_registry(pairing_id()) -> ok | {error, not_found | busy}.
 print_registry(PairingId) ->
     print(registry(PairingId), fun evatar_print:registry/1).
 
 %% @doc Prints {@link stats/1}.
--spec print_stats(pairing_id()) -> ok | {error, not_found}.
+-spec print_stats(pairing_id()) -> ok | {error, not_found | busy}.
 print_stats(PairingId) ->
     print(stats(PairingId), fun evatar_print:stats/1).
 
 print({ok, Value}, Printer) -> Printer(Value);
 print({error, _} = Error, _Printer) -> Error.
 
+call_timeout() ->
+    application:get_env(evatar, call_timeout, ?CALL_TIMEOUT).
+
 %% A pairing that died between the lookup and the call is a normal race
 %% (deleted, or crashed and being restarted), not an error of the caller.
+%% One alive but not answering within the call timeout (a large operation,
+%% a stalled node) is `busy': the caller, often a connection process, goes
+%% on with an answer it can pass on instead of crashing. The request stays
+%% in the pairing's queue; its late reply is dropped (gen_statem aliases).
 call(Pid, Request) ->
     try
-        gen_statem:call(Pid, Request, ?CALL_TIMEOUT)
+        gen_statem:call(Pid, Request, call_timeout())
     catch
-        %% The pairing exited before answering (noproc, normal, killed, or
-        %% a crash); only a timeout, a pairing alive but stuck, goes on.
-        exit:{Reason, {gen_statem, call, _}} when Reason =/= timeout ->
+        exit:{timeout, {gen_statem, call, _}} ->
+            {error, busy};
+        exit:{_Reason, {gen_statem, call, _}} ->
             {error, gone}
     end.

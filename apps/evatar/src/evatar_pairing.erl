@@ -285,6 +285,10 @@ handle_event({call, From}, {describe, EntityId, Description}, _State, Data) ->
 handle_event({call, From}, {leave, EntityId}, _State, Data) ->
     {ok, Data1} = step({leave, EntityId, left}, Data),
     next(flush_maybe(reply(From, ok, forget(EntityId, Data1))), []);
+handle_event(cast, {leave, EntityId}, _State, Data) when is_binary(EntityId) ->
+    %% evatar:leave_async/1: a closing connection that needs no answer.
+    {ok, Data1} = step({leave, EntityId, left}, Data),
+    next(flush_maybe(forget(EntityId, Data1)), []);
 handle_event(info, {'DOWN', Ref, process, _Pid, _Reason}, _State, #data{refs = Refs} = Data) ->
     case Refs of
         #{Ref := EntityId} ->
@@ -324,7 +328,10 @@ inspect(From, What, State, #data{logic = Logic} = Data) ->
                 bindings -> evatar_pairing_logic:bindings(Logic);
                 registry -> evatar_pairing_logic:registration_list(Logic);
                 stats -> evatar_pairing_logic:stats(Logic);
-                state -> Logic
+                state -> Logic;
+                %% One read of both: a state compared with another
+                %% instance's only at the same version (tests).
+                versioned_state -> {Data#data.version, Logic}
             end,
     {keep_state, Data, [{reply, From, Reply}]}.
 

@@ -91,7 +91,8 @@ public final class EvatarClient implements AutoCloseable {
 
     /** Refused codes after which a version 2 client tries its next endpoint (section 11.3). */
     private static final List<String> RETRY_CODES = List.of("NotActive", "Fenced", "StaleEpoch",
-            "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink", "SessionResumed");
+            "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink", "SessionResumed",
+            "Busy");
     private static final int ACK_EVERY = 32;
     private static final long ACK_DELAY_MS = 5;
 
