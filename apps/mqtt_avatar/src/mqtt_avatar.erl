@@ -6,7 +6,7 @@
 %% other mqtt_avatar_* module is internal.
 -module(mqtt_avatar).
 
--export([start/1, start_link/1, stop/1, await_ready/2]).
+-export([start/1, start_link/1, stop/1, await_ready/2, keep/1, unkeep/1, kept/0, check_opts/1]).
 -export([description/1, public_description/1, description_xml/1, print_description/1,
          problems/1, print_problems/1, status/1]).
 -export([discover/2, generate/2, read_description/1, check/1]).
@@ -38,6 +38,7 @@
                   echo_timeout => non_neg_integer(),
                   retry => pos_integer(),
                   timestamp_field => binary(),
+                  restart => mqtt_avatar_backoff:opts(),
                   static_components => [bil:component()]}.
 %% Every problem has `what' (an atom from a fixed set) and `message' (a
 %% sentence); most have `topic' or `component'.
@@ -57,6 +58,41 @@
 start(Opts) ->
     case prepare(Opts) of
         {ok, Opts1} -> mqtt_avatar_sup:start_child(Opts1);
+        {error, _} = Error -> Error
+    end.
+
+%% @doc Keeps an MQTT Avatar running under the application's supervisor:
+%% when it exits it is started again after a delay that doubles from 1 s
+%% to 60 s (`restart' => #{min_ms, max_ms, stable_after_ms, loop_after}
+%% changes the policy, mqtt_avatar_backoff), and a crash loop is logged
+%% (`what => crash_loop'). Stopping the Avatar with `stop/1', or
+%% `unkeep/1', ends it for good. One kept Avatar per entity id. Returns the
+%% keeper; `kept/0' tells the Avatar's own pid.
+-spec keep(opts()) -> {ok, pid()} | {error, already_kept | [problem()] | term()}.
+keep(Opts) ->
+    case prepare(Opts) of
+        {ok, _} -> mqtt_avatar_sup:keep(Opts);
+        {error, _} = Error -> Error
+    end.
+
+%% @doc Stops a kept Avatar (Bye, DISCONNECT) and forgets it.
+-spec unkeep(binary()) -> ok | {error, not_found}.
+unkeep(EntityId) ->
+    mqtt_avatar_sup:unkeep(EntityId).
+
+%% @doc The kept Avatars: entity id, `running' or `waiting' (to start
+%% again), the Avatar's pid while running, how many times it was started,
+%% short runs in a row (`crashes'), and the delay the next one would get.
+-spec kept() -> [mqtt_avatar_keeper:status()].
+kept() ->
+    [mqtt_avatar_keeper:status(K) || {_, K} <- mqtt_avatar_sup:keepers()].
+
+%% @doc Checks options as `start/1' would (the required keys, a
+%% hand-written description and its file) without starting anything.
+-spec check_opts(opts()) -> ok | {error, [problem()]}.
+check_opts(Opts) ->
+    case prepare(Opts) of
+        {ok, _} -> ok;
         {error, _} = Error -> Error
     end.
 
