@@ -9,7 +9,7 @@
 %% is internal.
 -module(evatar).
 
--export([create_pairing/2, delete_pairing/1, join/4, join/5, resume/5, describe/2,
+-export([check_pairing_opts/1, create_pairing/2, delete_pairing/1, join/4, join/5, resume/5, describe/2,
          leave_async/1,
          send/2, ack/2, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
@@ -131,6 +131,15 @@ create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     end;
 create_pairing(PairingId, _Opts) ->
     {error, {bad_option, {id, PairingId}}}.
+
+%% @doc Pure: checks a pairing's options as create_pairing/2 would, so a
+%% configuration file's mistakes are found before the node starts.
+-spec check_pairing_opts(term()) -> ok | {error, {bad_option, term()}}.
+check_pairing_opts(Opts) ->
+    case evatar_pairing_logic:config(Opts) of
+        {ok, _} -> ok;
+        {error, _} = Error -> Error
+    end.
 
 %% With a cluster, a pairing id is unique across the nodes alive.
 exists_elsewhere(PairingId) ->

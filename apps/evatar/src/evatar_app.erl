@@ -27,6 +27,8 @@ start_configured([#{id := Id} = Spec | Rest]) ->
     Opts = maps:remove(id, Spec),
     case evatar:create_pairing(Id, Opts) of
         {ok, _} -> start_configured(Rest);
+        %% Created when absent: another node of the cluster runs it already.
+        {error, already_exists} -> start_configured(Rest);
         {error, Reason} -> {error, {bad_pairing_config, Id, Reason}}
     end;
 start_configured([Other | _]) ->

@@ -1,0 +1,84 @@
+%% @doc Public API of the node configuration file: one file of Erlang terms
+%% (README.md, "Configuration"; the release ships a commented example as
+%% etc/evatar.config) declaring the node's listeners, the pairings to
+%% create when absent and the MQTT Avatars to keep running. The
+%% `node_config' application reads it at boot, before evatar, agent_bridge
+%% and mqtt_avatar start, and fills their environment; a file with mistakes
+%% stops the start with every mistake named. Other node_config_* modules
+%% are internal.
+-module(node_config).
+
+-export([file/0, load/1, apply_env/1, format_error/1]).
+
+-export_type([config/0]).
+
+-type config() :: node_config_check:config().
+
+%% @doc The file this node reads: `$EVATAR_CONFIG' when set, else the
+%% application environment's `file', else etc/evatar.config in the release
+%% (only if it exists); `none' when there is no file.
+-spec file() -> {explicit | default, file:filename()} | none.
+file() ->
+    case os:getenv("EVATAR_CONFIG") of
+        Path when is_list(Path), Path =/= "" ->
+            {explicit, Path};
+        _ ->
+            case application:get_env(node_config, file) of
+                {ok, Path} -> {explicit, Path};
+                undefined ->
+                    Default = filename:join([release_root(), "etc", "evatar.config"]),
+                    case filelib:is_regular(Default) of
+                        true -> {default, Default};
+                        false -> none
+                    end
+            end
+    end.
+
+%% In a release, this application's directory is ROOT/lib/node_config-VSN.
+release_root() ->
+    filename:dirname(filename:dirname(code:lib_dir(node_config))).
+
+%% @doc Reads and checks a configuration file. The agent_bridge
+%% environment's listeners (loaded, not necessarily running) are the
+%% default an MQTT Avatar joins when the file declares no listeners.
+-spec load(file:filename()) -> {ok, config()} | {error, {bad_config, file:filename(), [binary()]}}.
+load(File) ->
+    _ = [application:load(A) || A <- [agent_bridge, evatar, mqtt_avatar]],
+    %% Their checks run before they start; the atoms they know exist once
+    %% their code is loaded (a TLS option such as verify_peer, too).
+    _ = [code:ensure_loaded(M) || M <- [agent_bridge, agent_bridge_conn, evatar, mqtt_avatar,
+                                        mqtt_client, ssl]],
+    case node_config_file:read(File, node_config_check:known_words()) of
+        {ok, Sections} ->
+            Defaults = #{listeners => application:get_env(agent_bridge, listeners, []),
+                         dir => filename:dirname(filename:absname(File))},
+            case node_config_check:check(Sections, Defaults) of
+                {ok, Config} -> {ok, Config};
+                {error, Problems} -> {error, {bad_config, File, Problems}}
+            end;
+        {error, Problem} ->
+            {error, {bad_config, File, [Problem]}}
+    end.
+
+%% @doc Fills the environment of the applications that run what the file
+%% declares: agent_bridge's `listeners' (when the file has a listeners
+%% section: they replace the release's EVATAR_IP/EVATAR_PORT listener),
+%% evatar's `pairings' (added to any already there; the file's win on the
+%% same id) and mqtt_avatar's `avatars'.
+-spec apply_env(config()) -> ok.
+apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatars}) ->
+    case Listeners of
+        undefined -> ok;
+        _ -> ok = application:set_env(agent_bridge, listeners, Listeners, [{persistent, true}])
+    end,
+    Ids = [Id || #{id := Id} <- Pairings],
+    Kept = [P || P <- application:get_env(evatar, pairings, []),
+                 not (is_map(P) andalso lists:member(maps:get(id, P, undefined), Ids))],
+    ok = application:set_env(evatar, pairings, Kept ++ Pairings, [{persistent, true}]),
+    ok = application:set_env(mqtt_avatar, avatars, Avatars, [{persistent, true}]).
+
+%% @doc A readable text of load/1's error: the file, then one line per
+%% mistake.
+-spec format_error({bad_config, file:filename(), [binary()]}) -> binary().
+format_error({bad_config, File, Problems}) ->
+    iolist_to_binary([io_lib:format("~ts: ~ts~n", [File, P]) || P <- Problems]).

@@ -1,0 +1,482 @@
+%% @doc Internal. Pure: checks the sections of a node configuration file
+%% (node_config_file) and turns them into what the applications take:
+%% agent_bridge listeners, evatar pairings, mqtt_avatar options. Every
+%% problem names the section, the entry (its line, its number and its id)
+%% and what is wrong; text written as "..." becomes a binary, never an atom.
+-module(node_config_check).
+
+-export([check/2, known_words/0]).
+
+-export_type([config/0]).
+
+-type config() :: #{listeners := [agent_bridge:listener_opts()] | undefined,
+                    pairings := [#{id := binary(), atom() => term()}],
+                    mqtt_avatars := [mqtt_avatar:opts()]}.
+%% `listeners' is `undefined' when the file has no listeners section: the
+%% agent_bridge environment's listeners then stay.
+
+-define(SECTIONS, [listeners, pairings, mqtt_avatars]).
+-define(PAIRING_TEXT, [id, agent_credential, avatar_credential]).
+-define(PAIRING_INT, [join_timeout, feedback_timeout, max_avatars, resume_timeout, dedup_window,
+                      max_unacked_out]).
+-define(AVATAR_KEYS, [entity_id, pairing, endpoints, credential, mqtt, discovery, description,
+                      overrides, api_name, settle, discovery_wait, echo_timeout, retry,
+                      timestamp_field, restart]).
+-define(MQTT_TEXT, [client_id, username, password]).
+-define(MQTT_OTHER, [host, port, protocol, clean_start, session_expiry, keepalive, tls, reconnect,
+                     inflight_window, retry_interval, connect_timeout, max_packet_size]).
+-define(OVERRIDE_KEYS, [component, room, skip, parameters, services, consumes, feedback]).
+-define(RESTART_KEYS, [min_ms, max_ms, stable_after_ms, loop_after]).
+
+%% @doc The words a file may use (its sections and keys, and the values
+%% that are words), for node_config_file's atom check.
+-spec known_words() -> [atom()].
+known_words() ->
+    ?SECTIONS ++ ?PAIRING_TEXT ++ ?PAIRING_INT ++ ?AVATAR_KEYS ++ ?MQTT_TEXT ++ ?MQTT_OTHER
+        ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS
+        ++ [name, ip, acceptors, backlog, conn, homeassistant, zigbee2mqtt, v311, v5, min_ms,
+            max_ms, true, false, none, infinity].
+
+%% @doc Checks the sections; `Defaults' gives `listeners', the agent_bridge
+%% environment's listeners, which an MQTT Avatar without `endpoints' joins
+%% when the file declares none, and `dir', where relative description
+%% files are.
+-spec check([node_config_file:section()], #{listeners := list(), dir => file:filename()}) ->
+          {ok, config()} | {error, [binary()]}.
+check(Sections, Defaults) ->
+    Problems0 = [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars)",
+                     [Name])
+                 || {Name, L, _} <- Sections, not lists:member(Name, ?SECTIONS)]
+        ++ [msg(L, "~ts: the section appears a second time (write all its entries in one list)", [Name])
+            || {Name, L, _} <- Sections -- lists:ukeysort(1, Sections)],
+    {Listeners, P1} = section(listeners, Sections, fun listener/1),
+    {Pairings, P2} = section(pairings, Sections, fun pairing/1),
+    ListenerList = case lists:keymember(listeners, 1, Sections) of
+                       true -> Listeners;
+                       false -> maps:get(listeners, Defaults)
+                   end,
+    {Avatars, P3} = section(mqtt_avatars, Sections,
+                            fun(E) -> avatar(E, declared_ids(Sections), Pairings,
+                                             Defaults#{listeners => ListenerList})
+                            end),
+    P4 = duplicates(listeners, Sections, Listeners, fun listener_key/1)
+        ++ duplicates(listeners, Sections, Listeners, fun(#{name := N}) -> {name, N};
+                                                         (_) -> none
+                                                      end)
+        ++ duplicates(pairings, Sections, Pairings, fun(#{id := Id}) -> {id, Id} end)
+        ++ duplicates(mqtt_avatars, Sections, Avatars, fun(#{entity_id := Id}) -> {entity_id, Id} end),
+    case Problems0 ++ P1 ++ P2 ++ P3 ++ P4 of
+        [] ->
+            {ok, #{listeners => case lists:keymember(listeners, 1, Sections) of
+                                    true -> Listeners;
+                                    false -> undefined
+                                end,
+                   pairings => Pairings,
+                   mqtt_avatars => Avatars}};
+        Problems ->
+            {error, [M || {_, M} <- lists:keysort(1, Problems)]}
+    end.
+
+%% Every id the pairings section spells, good entry or not: an MQTT Avatar
+%% naming a pairing with a mistake of its own is not "not declared".
+declared_ids(Sections) ->
+    case lists:keyfind(pairings, 1, Sections) of
+        {_, _, Entries} when is_list(Entries) ->
+            [B || {_, #{id := Id}} <- Entries, {ok, B} <- [text(Id)]];
+        _ ->
+            []
+    end.
+
+%% Every entry of a section goes through `Check'; the good ones are kept
+%% (each with its line, for the duplicate check), the bad ones explained.
+section(Name, Sections, Check) ->
+    case lists:keyfind(Name, 1, Sections) of
+        false ->
+            {[], []};
+        {_, L, {not_a_list, _}} ->
+            {[], [msg(L, "~ts: the value must be a list [...] of entries", [Name])]};
+        {_, _, Entries} ->
+            Results = [{Line, N, E, Check(E)}
+                       || {N, {Line, E}} <- lists:zip(lists:seq(1, length(Entries)), Entries)],
+            {[V || {_, _, _, {ok, V}} <- Results],
+             [msg(Line, "~ts entry ~b~ts: ~ts", [Name, N, label(E), Why])
+              || {Line, N, E, {error, Why}} <- Results]}
+    end.
+
+label(#{id := Id}) -> label_text(Id);
+label(#{entity_id := Id}) -> label_text(Id);
+label(#{name := Id}) -> label_text(Id);
+label(_) -> "".
+
+label_text(T) ->
+    case text(T) of
+        {ok, B} -> io_lib:format(" (~ts)", [B]);
+        error -> ""
+    end.
+
+duplicates(Name, Sections, Values, Key) ->
+    Keys = [Key(V) || V <- Values],
+    Dups = lists:usort([K || K <- Keys, K =/= none, length([K1 || K1 <- Keys, K1 =:= K]) > 1]),
+    L = case lists:keyfind(Name, 1, Sections) of
+            {_, Line, _} -> Line;
+            false -> 1
+        end,
+    [msg(L, "~ts: ~ts appears more than once", [Name, describe_key(K)]) || K <- Dups].
+
+describe_key({id, Id}) -> io_lib:format("id \"~ts\"", [Id]);
+describe_key({entity_id, Id}) -> io_lib:format("entity_id \"~ts\"", [Id]);
+describe_key({name, N}) -> io_lib:format("name ~0tp", [N]);
+describe_key({address, Ip, Port}) -> io_lib:format("address ~ts port ~b", [inet:ntoa(Ip), Port]).
+
+listener_key(#{port := Port} = L) when Port > 0 ->
+    {address, maps:get(ip, L, {127, 0, 0, 1}), Port};
+listener_key(_) ->
+    none.
+
+%% ---------------------------------------------------------------------------
+%% Listeners: agent_bridge checks the options it takes.
+%% ---------------------------------------------------------------------------
+
+listener(E) when is_map(E) ->
+    E1 = case maps:find(name, E) of
+             {ok, N} -> case text(N) of
+                            {ok, B} -> E#{name => B};
+                            error -> E
+                        end;
+             error -> E
+         end,
+    case maps:find(ip, E1) of
+        {ok, Ip} when is_list(Ip); is_binary(Ip) ->
+            case inet:parse_strict_address(unicode:characters_to_list(Ip)) of
+                {ok, Addr} -> check_listener(E1#{ip => Addr});
+                {error, _} -> {error, io_lib:format("ip ~0tp is not an IP address", [Ip])}
+            end;
+        _ ->
+            check_listener(E1)
+    end;
+listener(_) ->
+    {error, "a listener is a map #{...}"}.
+
+check_listener(E) ->
+    case agent_bridge:check_listener(E) of
+        ok -> {ok, E};
+        {error, Why} -> {error, Why}
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Pairings: evatar checks the options it takes.
+%% ---------------------------------------------------------------------------
+
+pairing(E) when is_map(E) ->
+    case texts(?PAIRING_TEXT, E) of
+        {ok, #{id := Id} = E1} when Id =/= <<>> ->
+            case [K || K <- [agent_credential, avatar_credential],
+                       maps:get(K, E1, <<>>) =:= <<>>] of
+                [] ->
+                    case evatar:check_pairing_opts(maps:remove(id, E1)) of
+                        ok -> {ok, E1};
+                        {error, {bad_option, {K, V}}} when is_atom(K) ->
+                            {error, io_lib:format("~ts ~0tp is not accepted", [K, V])};
+                        {error, {bad_option, Bad}} ->
+                            {error, io_lib:format("bad option ~0tp", [Bad])}
+                    end;
+                Missing ->
+                    {error, io_lib:format("~ts required (no default credentials: choose a secret)",
+                                          [join(Missing)])}
+            end;
+        {ok, _} ->
+            {error, "id (text, for example \"home\") is required"};
+        {error, _} = Error ->
+            Error
+    end;
+pairing(_) ->
+    {error, "a pairing is a map #{id => \"...\", agent_credential => \"...\", "
+            "avatar_credential => \"...\"}"}.
+
+%% ---------------------------------------------------------------------------
+%% MQTT Avatars
+%% ---------------------------------------------------------------------------
+
+avatar(E, PairingIds, Pairings, #{listeners := Listeners} = Defaults) when is_map(E) ->
+    Steps = [fun(A) -> unknown(A, ?AVATAR_KEYS) end,
+             fun(A) -> texts([entity_id, pairing, credential, api_name, timestamp_field], A) end,
+             fun(A) -> required([entity_id, pairing, mqtt], A) end,
+             fun(A) -> declared(A, PairingIds) end,
+             fun(A) -> integers([settle, discovery_wait, echo_timeout], 0, A) end,
+             fun(A) -> integers([retry], 1, A) end,
+             fun(A) -> submap(mqtt, fun mqtt/1, A) end,
+             fun(A) -> submap(discovery, fun discovery/1, A) end,
+             fun(A) -> submap(overrides, fun overrides/1, A) end,
+             fun(A) -> submap(restart, fun restart/1, A) end,
+             fun(A) -> description(A, maps:get(dir, Defaults, ".")) end,
+             fun(A) -> evatar_opts(A, Pairings, Listeners) end,
+             fun(A) -> case mqtt_avatar:check_opts(A) of
+                           ok -> {ok, A};
+                           {error, Ps} -> {error, join([M || #{message := M} <- Ps])}
+                       end
+             end],
+    chain(Steps, E);
+avatar(_, _, _, _Defaults) ->
+    {error, "an MQTT Avatar is a map #{entity_id => \"...\", pairing => \"...\", mqtt => #{...}}"}.
+
+declared(#{pairing := P} = A, Ids) ->
+    case lists:member(P, Ids) of
+        true -> {ok, A};
+        false -> {error, io_lib:format("pairing \"~ts\" is not declared in the pairings section", [P])}
+    end.
+
+%% `evatar' as mqtt_avatar takes it: the pairing, its avatar credential
+%% (unless given), and this node's own listener (unless endpoints are given).
+evatar_opts(#{pairing := P} = A, Pairings, Listeners) ->
+    Credential = case maps:find(credential, A) of
+                     {ok, C} -> C;
+                     error -> hd([maps:get(avatar_credential, X) || #{id := Id} = X <- Pairings,
+                                                                     Id =:= P])
+                 end,
+    case endpoints(maps:get(endpoints, A, local), Listeners) of
+        {ok, Endpoints} ->
+            {ok, (maps:without([pairing, endpoints, credential], A))#{
+                   evatar => #{pairing => P, credential => Credential, endpoints => Endpoints}}};
+        {error, _} = Error ->
+            Error
+    end.
+
+endpoints(local, [L | _]) ->
+    case maps:get(port, L, 7400) of
+        0 -> {error, "endpoints are required: this node's first listener has port 0 (a port picked "
+                     "at start)"};
+        Port -> {ok, [{loopback(maps:get(ip, L, {127, 0, 0, 1})), Port}]}
+    end;
+endpoints(local, []) ->
+    {error, "endpoints are required: this node has no listener"};
+endpoints(List, _) when is_list(List), List =/= [] ->
+    Eps = [endpoint(E) || E <- List],
+    case [E || {error, E} <- Eps] of
+        [] -> {ok, [Ep || {ok, Ep} <- Eps]};
+        [Bad | _] -> {error, io_lib:format("endpoint ~0tp is not {\"host\", Port}", [Bad])}
+    end;
+endpoints(Other, _) ->
+    {error, io_lib:format("endpoints ~0tp is not a list of {\"host\", Port}", [Other])}.
+
+endpoint({Host, Port} = E) when is_integer(Port), Port > 0, Port < 65536 ->
+    case Host of
+        _ when is_tuple(Host) ->
+            case inet:is_ip_address(Host) of
+                true -> {ok, E};
+                false -> {error, E}
+            end;
+        _ ->
+            case text(Host) of
+                {ok, B} -> {ok, {binary_to_list(B), Port}};
+                error -> {error, E}
+            end
+    end;
+endpoint(E) ->
+    {error, E}.
+
+loopback({0, 0, 0, 0}) -> {127, 0, 0, 1};
+loopback({0, 0, 0, 0, 0, 0, 0, 0}) -> {0, 0, 0, 0, 0, 0, 0, 1};
+loopback(Ip) -> Ip.
+
+mqtt(M) ->
+    chain([fun(X) -> unknown(X, ?MQTT_TEXT ++ ?MQTT_OTHER) end,
+           fun(X) -> texts(?MQTT_TEXT, X) end,
+           fun(X) -> required([host, port], X) end,
+           fun(#{host := H} = X) ->
+                   case H of
+                       _ when is_tuple(H) ->
+                           case inet:is_ip_address(H) of
+                               true -> {ok, X};
+                               false -> {error, io_lib:format("host ~0tp is not an address", [H])}
+                           end;
+                       _ ->
+                           case text(H) of
+                               {ok, B} -> {ok, X#{host => binary_to_list(B)}};
+                               error -> {error, "host must be text, for example \"localhost\""}
+                           end
+                   end
+           end,
+           fun(X) -> integers([port], 1, X) end,
+           fun(X) -> integers([session_expiry, keepalive], 0, X) end,
+           fun(X) -> integers([inflight_window, retry_interval, connect_timeout, max_packet_size], 1, X) end,
+           fun(X) -> one_of(protocol, [v311, v5], X) end,
+           fun(X) -> one_of(clean_start, [true, false], X) end,
+           fun(#{tls := T} = X) when T =:= false; is_list(T) -> {ok, X};
+              (#{tls := _}) -> {error, "tls must be false or a list of TLS client options"};
+              (X) -> {ok, X}
+           end,
+           fun(#{reconnect := false} = X) -> {ok, X};
+              (#{reconnect := R} = X) when is_map(R) ->
+                   case chain([fun(Y) -> unknown(Y, [min_ms, max_ms]) end,
+                               fun(Y) -> integers([min_ms, max_ms], 1, Y) end], R) of
+                       {ok, _} -> {ok, X};
+                       {error, W} -> {error, ["reconnect: ", W]}
+                   end;
+              (#{reconnect := _}) -> {error, "reconnect must be false or #{min_ms => ..., max_ms => ...}"};
+              (X) -> {ok, X}
+           end], M).
+
+discovery(false) ->
+    {ok, false};
+discovery(D) when is_map(D) ->
+    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt]) end,
+           fun(X) ->
+                   lists:foldl(fun(_K, {error, _} = Err) -> Err;
+                                  (K, {ok, Acc}) ->
+                                       case maps:find(K, Acc) of
+                                           {ok, false} -> {ok, Acc};
+                                           {ok, V} ->
+                                               case text(V) of
+                                                   {ok, B} when B =/= <<>> -> {ok, Acc#{K => B}};
+                                                   _ -> {error, io_lib:format(
+                                                                  "~ts must be a topic prefix (text) or false",
+                                                                  [K])}
+                                               end;
+                                           error -> {ok, Acc}
+                                       end
+                               end, {ok, X}, [homeassistant, zigbee2mqtt])
+           end], D);
+discovery(_) ->
+    {error, "must be false or #{homeassistant => \"homeassistant\", zigbee2mqtt => \"zigbee2mqtt\"}"}.
+
+overrides(O) ->
+    Results = [{K, text(K), override(V)} || {K, V} <- maps:to_list(O)],
+    case [{K, W} || {K, _, {error, W}} <- Results] ++ [{K, "the key must be text"}
+                                                        || {K, error, _} <- Results] of
+        [] -> {ok, maps:from_list([{B, V} || {_, {ok, B}, {ok, V}} <- Results])};
+        [{K, W} | _] -> {error, io_lib:format("override ~0tp: ~ts", [K, W])}
+    end.
+
+override(V) when is_map(V) ->
+    chain([fun(X) -> unknown(X, ?OVERRIDE_KEYS) end,
+           fun(X) -> texts([component, room], X) end,
+           fun(X) -> one_of(skip, [true, false], X) end,
+           fun(#{feedback := none} = X) -> {ok, X};
+              (X) -> texts([feedback], X)
+           end,
+           fun(X) -> case maps:find(parameters, X) of
+                         error -> {ok, X};
+                         {ok, Ps} -> parameters(Ps, X)
+                     end
+           end,
+           fun(X) -> case [K || K <- [services, consumes], maps:is_key(K, X),
+                                not is_list(maps:get(K, X))] of
+                         [] -> {ok, X};
+                         [K | _] -> {error, io_lib:format("~ts must be a list", [K])}
+                     end
+           end], V);
+override(_) ->
+    {error, "an override is a map #{room => \"...\", ...}"}.
+
+parameters(Ps, X) when is_list(Ps) ->
+    Pairs = [{text(N), text(V)} || {N, V} <- Ps],
+    case length(Pairs) =:= length(Ps) andalso [P || {A, B} = P <- Pairs, A =:= error orelse B =:= error] of
+        [] -> {ok, X#{parameters => [{N, V} || {{ok, N}, {ok, V}} <- Pairs]}};
+        _ -> {error, "parameters must be a list of {\"Name\", \"value\"}"}
+    end;
+parameters(_, _) ->
+    {error, "parameters must be a list of {\"Name\", \"value\"}"}.
+
+restart(R) ->
+    chain([fun(X) -> unknown(X, ?RESTART_KEYS) end,
+           fun(X) -> integers(?RESTART_KEYS, 1, X) end], R).
+
+%% A hand-written description is a file (BIL XML, as printed and edited),
+%% relative paths from the configuration file's directory (node_config
+%% resolves them before).
+description(#{description := D} = A, Dir) ->
+    case text(D) of
+        {ok, B} -> {ok, A#{description => {file, filename:absname(unicode:characters_to_list(B), Dir)}}};
+        error -> {error, "description must be the name of a BIL XML file (text)"}
+    end;
+description(A, _Dir) ->
+    {ok, A}.
+
+%% ---------------------------------------------------------------------------
+%% Small checks; each returns {ok, Map} or {error, Why}.
+%% ---------------------------------------------------------------------------
+
+chain([], V) -> {ok, V};
+chain([F | Fs], V) ->
+    case F(V) of
+        {ok, V1} -> chain(Fs, V1);
+        {error, _} = Error -> Error
+    end.
+
+submap(Key, Check, A) ->
+    case maps:find(Key, A) of
+        error -> {ok, A};
+        {ok, V} when is_map(V); V =:= false ->
+            case Check(V) of
+                {ok, V1} -> {ok, A#{Key => V1}};
+                {error, Why} -> {error, [atom_to_list(Key), ": ", Why]}
+            end;
+        {ok, _} -> {error, io_lib:format("~ts must be a map #{...}", [Key])}
+    end.
+
+unknown(M, Keys) when is_map(M) ->
+    case [K || K <- maps:keys(M), not lists:member(K, Keys)] of
+        [] -> {ok, M};
+        Bad -> {error, io_lib:format("unknown key ~ts (known: ~ts)",
+                                     [join([io_lib:format("~0tp", [K]) || K <- Bad]), join(Keys)])}
+    end.
+
+required(Keys, M) ->
+    case [K || K <- Keys, not maps:is_key(K, M)] of
+        [] -> {ok, M};
+        Missing -> {error, io_lib:format("~ts required", [join(Missing)])}
+    end.
+
+texts(Keys, M) ->
+    lists:foldl(fun(_, {error, _} = E) -> E;
+                   (K, {ok, Acc}) ->
+                        case maps:find(K, Acc) of
+                            error -> {ok, Acc};
+                            {ok, V} ->
+                                case text(V) of
+                                    {ok, B} -> {ok, Acc#{K => B}};
+                                    error -> {error, io_lib:format("~ts must be text in double quotes",
+                                                                   [K])}
+                                end
+                        end
+                end, {ok, M}, Keys).
+
+integers(Keys, Min, M) ->
+    case [K || K <- Keys, maps:is_key(K, M),
+               not (is_integer(maps:get(K, M)) andalso maps:get(K, M) >= Min)] of
+        [] -> {ok, M};
+        [K | _] -> {error, io_lib:format("~ts must be an integer of at least ~b", [K, Min])}
+    end.
+
+one_of(Key, Allowed, M) ->
+    case maps:find(Key, M) of
+        error -> {ok, M};
+        {ok, V} ->
+            case lists:member(V, Allowed) of
+                true -> {ok, M};
+                false -> {error, io_lib:format("~ts must be one of ~ts", [Key, join(Allowed)])}
+            end
+    end.
+
+%% Text: "..." in the file (a list of characters) or <<"...">>.
+text(B) when is_binary(B) ->
+    case unicode:characters_to_binary(B) of
+        B -> {ok, B};
+        _ -> error
+    end;
+text(L) when is_list(L) ->
+    case io_lib:printable_unicode_list(L) of
+        true -> {ok, unicode:characters_to_binary(L)};
+        false -> error
+    end;
+text(_) ->
+    error.
+
+join(Items) ->
+    lists:join(", ", [case I of
+                          A when is_atom(A) -> atom_to_list(A);
+                          S -> S
+                      end || I <- Items]).
+
+msg(Line, Format, Args) ->
+    {Line, iolist_to_binary(io_lib:format("line ~b: " ++ Format, [Line | Args]))}.

@@ -1,0 +1,177 @@
+%% EUnit: the node configuration file's reader (node_config_file) and
+%% checks (node_config_check), through node_config:load/1 on real files.
+-module(node_config_tests).
+
+-include_lib("eunit/include/eunit.hrl").
+
+-define(PAIRING, "{pairings, [#{id => \"home\", agent_credential => \"va-secret\", "
+                 "avatar_credential => \"av-secret\"}]}.\n").
+-define(AVATAR(Extra), "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"home\", "
+                       "mqtt => #{host => \"localhost\", port => 1883}" Extra "}]}.\n").
+
+load(Text) ->
+    File = filename:join(dir(), "evatar.config"),
+    ok = file:write_file(File, Text),
+    node_config:load(File).
+
+dir() ->
+    Dir = filename:join(["/tmp", "node_config_tests." ++ os:getpid()]),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    Dir.
+
+%% The problems of a refused file, each without its "line N: " prefix.
+problems(Text) ->
+    {error, {bad_config, _, Ps}} = load(Text),
+    [P || P <- Ps].
+
+has(Text, Expected) ->
+    Ps = problems(Text),
+    ?assert(lists:any(fun(P) -> binary:match(P, list_to_binary(Expected)) =/= nomatch end, Ps),
+            {Expected, Ps}).
+
+%% ---------------------------------------------------------------------------
+%% Accepted files
+%% ---------------------------------------------------------------------------
+
+empty_file_declares_nothing_test() ->
+    {ok, #{listeners := undefined, pairings := [], mqtt_avatars := []}} =
+        load("%% nothing here\n").
+
+full_file_is_translated_test() ->
+    {ok, #{listeners := [L], pairings := [P], mqtt_avatars := [A]}} =
+        load("{listeners, [#{name => \"main\", ip => \"0.0.0.0\", port => 7411, "
+             "conn => #{heartbeat => 200}}]}.\n" ?PAIRING
+             ?AVATAR(", discovery => #{zigbee2mqtt => false}, "
+                     "overrides => #{\"ha:1\" => #{room => \"hall\", feedback => none, "
+                     "parameters => [{\"Light\", \"yes\"}]}}, restart => #{min_ms => 10}")),
+    #{name := <<"main">>, ip := {0, 0, 0, 0}, port := 7411, conn := #{heartbeat := 200}} = L,
+    #{id := <<"home">>, agent_credential := <<"va-secret">>, avatar_credential := <<"av-secret">>} = P,
+    %% Text became binaries (the host stays a string, as inet takes it);
+    %% the Avatar joins its pairing with the pairing's avatar credential at
+    %% this node's listener, reached on the loopback address.
+    #{entity_id := <<"house">>, mqtt := #{host := "localhost", port := 1883},
+      evatar := #{pairing := <<"home">>, credential := <<"av-secret">>,
+                  endpoints := [{{127, 0, 0, 1}, 7411}]},
+      discovery := #{zigbee2mqtt := false},
+      overrides := #{<<"ha:1">> := #{room := <<"hall">>, feedback := none,
+                                     parameters := [{<<"Light">>, <<"yes">>}]}},
+      restart := #{min_ms := 10}} = A,
+    false = maps:is_key(pairing, A).
+
+explicit_endpoints_and_credential_test() ->
+    {ok, #{mqtt_avatars := [#{evatar := E}]}} =
+        load(?PAIRING ?AVATAR(", endpoints => [{\"evatar2.local\", 7400}, {{10,0,0,2}, 7401}], "
+                              "credential => \"other\"")),
+    #{endpoints := [{"evatar2.local", 7400}, {{10, 0, 0, 2}, 7401}], credential := <<"other">>} = E.
+
+binaries_are_text_too_test() ->
+    {ok, #{pairings := [#{id := <<"home">>}]}} =
+        load("{pairings, [#{id => <<\"home\">>, agent_credential => <<\"a\">>, "
+             "avatar_credential => <<\"b\">>}]}.").
+
+shipped_example_is_inert_and_valid_when_uncommented_test() ->
+    Example = filename:join([code:lib_dir(node_config), "..", "..", "..", "..", "config",
+                             "evatar.config"]),
+    {ok, Bin} = file:read_file(Example),
+    {ok, #{listeners := undefined, pairings := [], mqtt_avatars := []}} = load(Bin),
+    {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_]}} = load(uncomment(Bin)).
+
+%% Removes the `%% ' of the example sections (from `%% {' to `]}.').
+uncomment(Bin) ->
+    Lines = string:split(binary_to_list(Bin), "\n", all),
+    {Out, _} = lists:mapfoldl(
+                 fun("%% {" ++ _ = L, _) -> {lists:nthtail(3, L), true};
+                    ("%%" ++ Rest = L, true) ->
+                         Line = lists:nthtail(min(3, length(L)), L),
+                         {Line, not lists:suffix("]}.", string:trim(Rest))};
+                    (L, In) -> {L, In}
+                 end, false, Lines),
+    lists:join("\n", Out).
+
+%% ---------------------------------------------------------------------------
+%% Refused files: the file, the line, the entry and the mistake
+%% ---------------------------------------------------------------------------
+
+message_names_file_line_entry_test() ->
+    {error, {bad_config, File, _} = E} = load(?PAIRING "\n{mqtt_avatars, [#{entity_id => \"house\", "
+                                              "pairing => \"flat\", mqtt => #{host => \"h\", port => 1}}]}."),
+    Text = node_config:format_error(E),
+    Expected = iolist_to_binary([File, ": line 3: mqtt_avatars entry 1 (house): pairing \"flat\" is not "
+                                 "declared in the pairings section\n"]),
+    ?assertEqual(Expected, Text).
+
+unknown_words_are_not_made_atoms_test() ->
+    Word = "zz_" ++ integer_to_list(erlang:unique_integer([positive])),
+    has("{pairings, [#{id => \"home\", " ++ Word ++ " => 1}]}.", "unknown word " ++ Word),
+    ?assertError(badarg, list_to_existing_atom(Word)),
+    Quoted = "zz q " ++ integer_to_list(erlang:unique_integer([positive])),
+    has("{pairings, ['" ++ Quoted ++ "']}.", "unknown word " ++ Quoted),
+    ?assertError(badarg, list_to_existing_atom(Quoted)).
+
+strings_comments_and_chars_are_not_atoms_test() ->
+    {ok, _} = load("%% zz_never_an_atom here\n"
+                   "{pairings, [#{id => \"zz not an atom\", agent_credential => \"it's\", "
+                   "avatar_credential => [$z, $\\n, $']}]}.\n").
+
+unknown_keys_test() ->
+    has("{listeners, [#{port => 1, acceptor => 2}]}.", "listeners entry 1: unknown listener option acceptor"),
+    has("{listeners, [#{conn => #{timeout => 2}}]}.", "unknown connection option timeout"),
+    has(?PAIRING ?AVATAR(", timeout => 3"), "mqtt_avatars entry 1 (house): unknown key timeout"),
+    has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\", "
+        "mqtt => #{host => \"h\", port => 1, user => \"x\"}}]}.", "mqtt: unknown key user"),
+    has(?PAIRING ?AVATAR(", overrides => #{\"x\" => #{rooms => \"a\"}}"), "override \"x\": unknown key rooms"),
+    has(?PAIRING ?AVATAR(", discovery => #{home => \"a\"}"), "discovery: unknown key home").
+
+wrong_types_test() ->
+    has("{listeners, [#{port => \"7400\"}]}.", "port must be an integer"),
+    has("{listeners, [#{ip => \"localhost\"}]}.", "ip \"localhost\" is not an IP address"),
+    has("{pairings, [#{id => home, agent_credential => \"a\", avatar_credential => \"b\"}]}.",
+        "id must be text"),
+    has("{pairings, [#{id => \"h\", agent_credential => \"a\", avatar_credential => \"b\", "
+        "join_timeout => -1}]}.", "join_timeout -1 is not accepted"),
+    has(?PAIRING ?AVATAR(", settle => \"soon\""), "settle must be an integer"),
+    has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\", "
+        "mqtt => #{host => \"h\", port => 0}}]}.", "port must be an integer of at least 1"),
+    has(?PAIRING ?AVATAR(", discovery => true"), "discovery must be a map"),
+    has(?PAIRING ?AVATAR(", restart => #{min_ms => 0}"), "min_ms must be an integer of at least 1"),
+    has("{pairings, #{id => \"h\"}}.", "pairings: the value must be a list"),
+    has("{pairings, [42]}.", "pairings entry 1: a pairing is a map").
+
+missing_and_undeclared_test() ->
+    has("{pairings, [#{id => \"h\", agent_credential => \"a\"}]}.",
+        "avatar_credential required (no default credentials"),
+    has("{pairings, [#{id => \"h\", agent_credential => \"\", avatar_credential => \"b\"}]}.",
+        "agent_credential required"),
+    has("{pairings, [#{agent_credential => \"a\", avatar_credential => \"b\"}]}.", "id (text"),
+    has(?AVATAR(""), "pairing \"home\" is not declared"),
+    has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\"}]}.", "mqtt required"),
+    has(?PAIRING "{listeners, [#{port => 0}]}.\n" ?AVATAR(""),
+        "endpoints are required: this node's first listener has port 0").
+
+duplicates_test() ->
+    has("{pairings, [#{id => \"h\", agent_credential => \"a\", avatar_credential => \"b\"},"
+        " #{id => \"h\", agent_credential => \"c\", avatar_credential => \"d\"}]}.",
+        "pairings: id \"h\" appears more than once"),
+    has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\", mqtt => #{host => \"h\", port => 1}},"
+        " #{entity_id => \"a\", pairing => \"home\", mqtt => #{host => \"h\", port => 2}}]}.",
+        "mqtt_avatars: entity_id \"a\" appears more than once"),
+    has("{listeners, [#{port => 7400}, #{ip => \"127.0.0.1\", port => 7400}]}.",
+        "address 127.0.0.1 port 7400 appears more than once"),
+    has("{listeners, [#{name => \"a\", port => 0}, #{name => \"a\", port => 0}]}.",
+        "name <<\"a\">> appears more than once"),
+    has(?PAIRING ?PAIRING, "line 2: pairings: the section appears a second time").
+
+syntax_and_shape_test() ->
+    has("{pairings, [#{id => \"h\"}]}", "line 1: the file ends inside the entry"),
+    has("{pairings, [#{id => \"h\",, port => 1}]}.", "line 1: syntax error before"),
+    has("{pairings, [#{id => \"h}]}.", "line 1:"),
+    has("{pairings, [X]}.", "only plain values here"),
+    has("{pairings, [lists:seq(1, 2)]}.", "only plain values here"),
+    has("pairings.", "each entry of the file is {section, [...]}."),
+    has("{gizmos, []}.", "unknown word gizmos"),
+    has("{timeout, []}.", "timeout: unknown section"),
+    has(?PAIRING ?AVATAR(", description => \"no-such.xml\""), "no-such.xml").
+
+missing_file_test() ->
+    {error, {bad_config, "/nonexistent/evatar.config", [<<"cannot be read: no such file or directory">>]}} =
+        node_config:load("/nonexistent/evatar.config").

@@ -1,0 +1,321 @@
+%% Common Test: a node brought up by its configuration file alone. Each
+%% node is a real OS process (OTP peer, controlled over its standard I/O)
+%% whose applications start in the
+%% release's order (node_config, evatar, agent_bridge, mqtt_avatar), with
+%% EVATAR_CONFIG naming a file in the case's directory; the MQTT Avatars
+%% talk to a real mosquitto (mqtt_broker), and a VA joins over real TCP.
+-module(node_config_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, suite/0, groups/0, init_per_suite/1, end_per_suite/1,
+         init_per_testcase/2, end_per_testcase/2]).
+-export([starts_everything_from_the_file/1, killed_avatar_restarts_with_backoff/1,
+         node_restart_brings_everything_back/1, malformed_files_stop_the_start/1,
+         bad_broker_is_a_reported_crash_loop/1]).
+%% Run on the peer nodes.
+-export([collect/0, log/2, events/0]).
+
+-define(VA_CRED, <<"va-secret-for-config">>).
+-define(AV_CRED, <<"av-secret-for-config">>).
+-define(COLLECTOR, node_config_suite_log).
+
+suite() -> [{timetrap, {minutes, 3}}].
+
+all() ->
+    [{group, from_file}, malformed_files_stop_the_start].
+
+groups() ->
+    [{from_file, [], [starts_everything_from_the_file, killed_avatar_restarts_with_backoff,
+                      node_restart_brings_everything_back, bad_broker_is_a_reported_crash_loop]}].
+
+init_per_suite(Config) ->
+    {ok, Broker} = mqtt_broker:start(),
+    [{broker, Broker} | Config].
+
+end_per_suite(Config) ->
+    ok = mqtt_broker:stop(?config(broker, Config)).
+
+init_per_testcase(Case, Config) ->
+    [{prefix, atom_to_list(Case)} | Config].
+
+end_per_testcase(_Case, _Config) ->
+    [catch peer:stop(P) || P <- cleanup()],
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% The file's listener listens, its pairing exists and a VA joins it with
+%% the file's credential over TCP, and its MQTT Avatar is connected to the
+%% broker, has discovered a device under the file's prefix (with the
+%% file's override applied) and has joined the pairing.
+starts_everything_from_the_file(Config) ->
+    ok = publish_light(Config),
+    {Peer, Port} = boot(Config, home_file(Config, #{})),
+    {ok, {{127, 0, 0, 1}, Port}} = peer:call(Peer, agent_bridge, address, [<<"main">>]),
+    [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, []),
+    Avatar = await_running(Peer, 1),
+    ok = ha_cluster:await(fun() -> up =:= maps:get(mqtt, peer:call(Peer, mqtt_avatar, status, [Avatar]))
+                          end, 60000, mqtt_up),
+    {ok, Va} = agent_bridge_client:connect([{{127, 0, 0, 1}, Port}],
+                                           #{pairing => <<"home">>, role => agent,
+                                             entity_id => <<"test-va">>, credential => ?VA_CRED}),
+    ok = agent_bridge_client:close(Va),
+    #{description := D} = await_avatar_joined(Peer),
+    [Light] = [C || #{id := <<"KitchenLight01">>} = C <- maps:get(components, D)],
+    ?assert(lists:member({<<"Room">>, <<"hall">>},
+                         lists:append([Ps || #{parameters := Ps} <- maps:get(services, Light)])),
+            Light).
+
+%% exit(Avatar, kill): the Avatar is started again after 1 s, then 2 s,
+%% then 4 s (the delay doubles while runs stay short), joins again each
+%% time, and the third short run in a row is logged as a crash loop.
+killed_avatar_restarts_with_backoff(Config) ->
+    {Peer, _} = boot(Config, home_file(Config, #{})),
+    A1 = await_running(Peer, 1),
+    _ = await_avatar_joined(Peer),
+    Delays = [kill_and_await_restart(Peer, N) || N <- [2, 3, 4]],
+    %% The delay each restart waited: what the next-delay was before it.
+    [1000, 2000, 4000] = Delays,
+    #{crashes := 3, next_delay_ms := 8000} = kept(Peer),
+    A4 = await_running(Peer, 4),
+    ?assertNotEqual(A1, A4),
+    _ = await_avatar_joined(Peer),
+    [#{crashes := 3, entity := <<"house">>}] =
+        [R || #{what := crash_loop} = R <- logged(Peer)].
+
+%% Stopping the node and starting it again from the same file brings the
+%% listener, the pairing and the kept Avatar back, with nobody at a shell.
+node_restart_brings_everything_back(Config) ->
+    File = home_file(Config, #{}),
+    {Peer1, Port} = boot(Config, File),
+    _ = await_running(Peer1, 1),
+    ok = peer:stop(Peer1),
+    {Peer2, Port} = boot(Config, File),
+    {ok, {_, Port}} = peer:call(Peer2, agent_bridge, address, [<<"main">>]),
+    [#{id := <<"home">>}] = peer:call(Peer2, evatar, pairings, []),
+    _ = await_running(Peer2, 1),
+    _ = await_avatar_joined(Peer2).
+
+%% A broker that refuses the Avatar (a wrong password: mosquitto with a
+%% password file) makes it stop at every start: the keeper keeps trying
+%% with a growing delay and reports the crash loop; the node and its
+%% pairing stay up.
+bad_broker_is_a_reported_crash_loop(Config) ->
+    {ok, Broker} = mqtt_broker:start(#{users => [{"home", "right"}]}),
+    try
+        File = home_file(Config, #{broker_port => maps:get(port, Broker),
+                                   mqtt_extra => ", username => \"home\", password => \"wrong\"",
+                                   restart => "#{min_ms => 100, max_ms => 400}"}),
+        {Peer, _} = boot(Config, File),
+        ok = ha_cluster:await(fun() -> [] =/= [R || #{what := crash_loop} = R <- logged(Peer)] end,
+                              60000, crash_loop),
+        [#{crashes := N} | _] = [R || #{what := crash_loop} = R <- logged(Peer)],
+        ?assert(N >= 3),
+        ok = ha_cluster:await(fun() -> maps:get(next_delay_ms, kept(Peer)) =:= 400 end, 60000,
+                              delay_at_max),
+        [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, [])
+    after
+        ok = mqtt_broker:stop(Broker)
+    end.
+
+%% Files with mistakes stop the start: node_config refuses, with the file,
+%% the line, the entry and the mistake, and nothing else starts (no
+%% listener, no pairing).
+malformed_files_stop_the_start(Config) ->
+    Cases =
+        [{"{pairings, [#{id => \"home\", agent_credential => \"a\"}]}.\n",
+          "line 1: pairings entry 1 (home): avatar_credential required"},
+         {"{listeners, [#{port => 7400, acceptors => 0}]}.\n",
+          "line 1: listeners entry 1: acceptors must be a positive integer"},
+         {"{pairings, [#{id => \"home\", agent_credential => \"a\", avatar_credential => \"b\"}]}.\n"
+          "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"flat\",\n"
+          "                  mqtt => #{host => \"localhost\", port => 1883}}]}.\n",
+          "line 2: mqtt_avatars entry 1 (house): pairing \"flat\" is not declared"},
+         {"{pairings, [#{id => \"a\", agent_credential => \"a\", avatar_credential => \"b\"},\n"
+          "            #{id => \"a\", agent_credential => \"c\", avatar_credential => \"d\"}]}.\n",
+          "pairings: id \"a\" appears more than once"},
+         {"{pairings, [#{id => \"a\", zz_unknown_key_of_node_config_suite => 1}]}.\n",
+          "line 1: unknown word zz_unknown_key_of_node_config_suite"},
+         {"{pairings, [#{id => \"a\"}]\n", "line 1: the file ends inside the entry that starts at line 1"},
+         {"{pairings, [#{id => \"a\",, port => 1}]}.\n", "line 1: syntax error before"}],
+    Dir = ?config(priv_dir, Config),
+    {ok, Peer, _} = peer:start_link(#{name => peer:random_name(?MODULE), host => "127.0.0.1",
+                                      longnames => true, connection => standard_io,
+                                      args => code_path()}),
+    remember(Peer),
+    lists:foreach(
+      fun({N, {Text, Expected}}) ->
+              File = filename:join(Dir, "bad" ++ integer_to_list(N) ++ ".config"),
+              ok = file:write_file(File, Text),
+              true = peer:call(Peer, os, putenv, ["EVATAR_CONFIG", File]),
+              {error, {node_config, {{bad_config, File, Problems} = Reason, _}}} = start_apps(Peer),
+              Message = binary_to_list(peer:call(Peer, node_config, format_error, [Reason])),
+              ?assert(lists:any(fun(P) -> string:find(P, Expected) =/= nomatch end, Problems),
+                      {Expected, Problems}),
+              ?assertEqual(File ++ ": ", lists:sublist(Message, length(File) + 2)),
+              [] = [A || {A, _, _} <- peer:call(Peer, application, which_applications, []),
+                         lists:member(A, [node_config, evatar, agent_bridge, mqtt_avatar])]
+      end, lists:zip(lists:seq(1, length(Cases)), Cases)),
+    %% The misspelt key did not become an atom on the node.
+    {'EXIT', _} = (catch peer:call(Peer, erlang, list_to_existing_atom,
+                                   ["zz_unknown_key_of_node_config_suite"])),
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+%% A file with a listener on a free port, the pairing "home" and the MQTT
+%% Avatar "house" on the suite's broker, discovering under the case's prefix.
+home_file(Config, Opts) ->
+    Port = maps:get(listener_port, Opts, free_port()),
+    Broker = maps:get(broker_port, Opts, maps:get(port, ?config(broker, Config))),
+    Prefix = "ha_" ++ ?config(prefix, Config),
+    Text = io_lib:format(
+             "%% written by node_config_SUITE\n"
+             "{listeners, [#{name => \"main\", ip => \"127.0.0.1\", port => ~b}]}.\n"
+             "{pairings, [#{id => \"home\", agent_credential => \"~s\",\n"
+             "              avatar_credential => \"~s\"}]}.\n"
+             "{mqtt_avatars,\n"
+             " [#{entity_id => \"house\", pairing => \"home\",\n"
+             "    mqtt => #{host => \"127.0.0.1\", port => ~b~s},\n"
+             "    discovery => #{homeassistant => \"~s\", zigbee2mqtt => false},\n"
+             "    overrides => #{\"Kitchen Light 01\" => #{room => \"hall\"}},\n"
+             "    settle => 200~s}]}.\n",
+             [Port, ?VA_CRED, ?AV_CRED, Broker, maps:get(mqtt_extra, Opts, ""), Prefix,
+              case maps:get(restart, Opts, undefined) of
+                  undefined -> "";
+                  R -> ",\n    restart => " ++ R
+              end]),
+    File = filename:join(?config(priv_dir, Config), ?config(prefix, Config) ++ ".config"),
+    ok = file:write_file(File, Text),
+    {File, Port}.
+
+%% Starts a node from the file, as the release does, with a log collector.
+boot(_Config, {File, Port}) ->
+    {ok, Peer, _} = peer:start_link(#{name => peer:random_name(?MODULE), host => "127.0.0.1",
+                                      longnames => true, connection => standard_io,
+                                      args => code_path(), env => [{"EVATAR_CONFIG", File}]}),
+    remember(Peer),
+    ok = peer:call(Peer, ?MODULE, collect, []),
+    ok = peer:call(Peer, logger, add_handler, [node_config_suite, ?MODULE, #{level => notice}]),
+    ok = start_apps(Peer),
+    {Peer, Port}.
+
+%% The release's order: node_config fills the others' environment first.
+start_apps(Peer) ->
+    lists:foldl(fun(App, ok) ->
+                        case peer:call(Peer, application, ensure_all_started, [App], 30000) of
+                            {ok, _} -> ok;
+                            {error, _} = Error -> Error
+                        end;
+                   (_, Error) -> Error
+                end, ok, [node_config, evatar, agent_bridge, mqtt_avatar]).
+
+code_path() ->
+    lists:append([["-pa", D] || D <- code:get_path(), string:find(D, "_build") =/= nomatch]).
+
+kept(Peer) ->
+    [Status] = peer:call(Peer, mqtt_avatar, kept, []),
+    Status.
+
+%% Waits for the kept Avatar's Nth start, running; returns its pid.
+await_running(Peer, Starts) ->
+    ok = ha_cluster:await(fun() ->
+                                  case kept(Peer) of
+                                      #{state := running, starts := Starts} -> true;
+                                      _ -> false
+                                  end
+                          end, 60000, {avatar_running, Starts}),
+    #{avatar := Pid} = kept(Peer),
+    Pid.
+
+%% Kills the running Avatar; returns the delay its keeper waits before
+%% start number N, read while it waits.
+kill_and_await_restart(Peer, N) ->
+    #{avatar := Pid, state := running} = kept(Peer),
+    Expected = maps:get(next_delay_ms, kept(Peer)),
+    true = peer:call(Peer, erlang, exit, [Pid, kill]),
+    _ = await_running(Peer, N),
+    Expected.
+
+await_avatar_joined(Peer) ->
+    Find = fun() ->
+                   case peer:call(Peer, evatar, registry, [<<"home">>]) of
+                       {ok, Entities} -> [E || #{role := avatar, entity := <<"house">>,
+                                                 registered := true} = E <- Entities];
+                       _ -> []
+                   end
+           end,
+    ok = ha_cluster:await(fun() -> Find() =/= [] end, 60000, avatar_joined),
+    [E] = Find(),
+    E.
+
+%% A retained Home Assistant discovery config for one light, under the
+%% case's prefix.
+publish_light(Config) ->
+    P = list_to_binary(?config(prefix, Config)),
+    Disc = #{<<"name">> => null, <<"uniq_id">> => <<P/binary, "-light">>,
+             <<"~">> => <<P/binary, "/light">>, <<"stat_t">> => <<"~/state">>,
+             <<"cmd_t">> => <<"~/set">>, <<"schema">> => <<"json">>,
+             <<"dev">> => #{<<"ids">> => [<<P/binary, "-dev">>], <<"name">> => <<"Kitchen Light 01">>,
+                            <<"mdl">> => <<"LightSwitch">>}},
+    {ok, C} = mqtt_client:start_link(#{host => {127, 0, 0, 1},
+                                       port => maps:get(port, ?config(broker, Config)),
+                                       client_id => <<"node-config-suite">>}),
+    ok = mqtt_client:await_connected(C, 10000),
+    ok = mqtt_client:publish(C, <<"ha_", P/binary, "/light/", P/binary, "/config">>,
+                             mqtt_avatar_json:encode(Disc), #{qos => 1, retain => true}),
+    mqtt_client:stop(C).
+
+free_port() ->
+    {ok, S} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(S),
+    ok = gen_tcp:close(S),
+    Port.
+
+remember(Peer) ->
+    put(peers, [Peer | get_peers()]).
+
+cleanup() ->
+    Peers = get_peers(),
+    put(peers, []),
+    Peers.
+
+get_peers() ->
+    case get(peers) of
+        undefined -> [];
+        Ps -> Ps
+    end.
+
+%% ---------------------------------------------------------------------------
+%% On the peer: a logger handler keeping the report maps
+%% ---------------------------------------------------------------------------
+
+collect() ->
+    Pid = spawn(fun() -> collector([]) end),
+    true = register(?COLLECTOR, Pid),
+    ok.
+
+collector(Events) ->
+    receive
+        {event, E} -> collector([E | Events]);
+        {get, From} -> From ! {events, lists:reverse(Events)}, collector(Events)
+    end.
+
+log(#{msg := {report, Report}}, _Config) when is_map(Report) ->
+    ?COLLECTOR ! {event, Report},
+    ok;
+log(_Event, _Config) ->
+    ok.
+
+events() ->
+    ?COLLECTOR ! {get, self()},
+    receive {events, Es} -> Es after 10000 -> error(no_collector) end.
+
+logged(Peer) ->
+    peer:call(Peer, ?MODULE, events, []).
