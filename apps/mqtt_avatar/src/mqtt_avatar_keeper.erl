@@ -49,9 +49,7 @@ callback_mode() -> handle_event_function.
 -spec init(mqtt_avatar:opts()) -> gen_statem:init_result(waiting).
 init(#{entity_id := Entity} = Opts) ->
     process_flag(trap_exit, true),
-    %% No `domain': the default handler drops reports of domains other
-    %% than otp and sasl, and a crash loop must be seen.
-    logger:set_process_metadata(#{entity => Entity}),
+    logger:set_process_metadata(#{entity => Entity, domain => [mqtt_avatar]}),
     D = #d{opts = Opts, entity = Entity,
            backoff = mqtt_avatar_backoff:new(maps:get(restart, Opts, #{}))},
     {ok, waiting, D, [{state_timeout, 0, start}]}.
