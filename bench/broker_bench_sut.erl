@@ -53,7 +53,10 @@ start(evatar, RunDir, Cfg) ->
     {ok, _} = erpc:call(Node, application, ensure_all_started, [agent_bridge]),
     {ok, _} = erpc:call(Node, agent_bridge, start_listener,
                         [broker_bench, #{ip => {127, 0, 0, 1}, port => 0,
-                                         acceptors => 8, backlog => 4096}]),
+                                         acceptors => 8, backlog => 4096,
+                                         %% mosquitto runs with max_connections -1
+                                         max_connections => infinity,
+                                         handshake => #{rate => infinity}}]),
     {ok, {Ip, Port}} = erpc:call(Node, agent_bridge, address, [broker_bench]),
     #{system => evatar, os_pid => OsPid, host => Ip, port => Port, dir => RunDir,
       node => Node, peer => Peer};

@@ -125,6 +125,10 @@ start(Cfg) ->
     {ok, LSup} = agent_bridge:start_listener(evatar_bench,
                                              #{ip => {127, 0, 0, 1}, port => 0,
                                                acceptors => 8, backlog => 4096,
+                                               %% thousands of clients from one
+                                               %% address: no guard limits
+                                               max_connections => infinity,
+                                               handshake => #{rate => infinity},
                                                conn => maps:get(conn, Cfg, #{})}),
     {ok, Addr} = agent_bridge:address(evatar_bench),
     _ = erlang:system_flag(scheduler_wall_time, true),

@@ -7,15 +7,29 @@
 -export([start_listener/2, stop_listener/1, address/1, listeners/0,
          start_port/2, stop_port/1, publish/2, check_listener/1]).
 
--export_type([listener_opts/0, port_opts/0]).
+-export_type([listener_opts/0, handshake_opts/0, port_opts/0]).
 
-%% `conn' holds connection options (agent_bridge_conn:default_opts/0).
+%% `conn' holds connection options (agent_bridge_conn:default_opts/0);
+%% `max_connections' and `handshake' the listener's guard's limits
+%% (agent_bridge_guard_logic:default_config/0, docs/protocol.md section 7).
 -type listener_opts() :: #{ip => inet:ip_address(),
                            port => inet:port_number(),
                            acceptors => pos_integer(),
                            backlog => pos_integer(),
                            name => term(),
+                           max_connections => pos_integer() | infinity,
+                           handshake => handshake_opts(),
                            conn => agent_bridge_conn:opts()}.
+-type handshake_opts() :: #{rate => pos_integer() | infinity,
+                            burst => pos_integer(),
+                            failure_delay => non_neg_integer(),
+                            max_failure_delay => non_neg_integer(),
+                            max_failures => pos_integer(),
+                            failure_window => pos_integer(),
+                            lockout => non_neg_integer(),
+                            max_addresses => pos_integer(),
+                            summary_interval => pos_integer(),
+                            max_summaries => pos_integer()}.
 -type port_opts() :: agent_bridge_port:opts().
 
 %% @doc Starts a listener; port 0 picks a free port (see address/1).

@@ -1,5 +1,7 @@
-%% @doc Internal. One acceptor of a listener's pool: accepts a socket,
-%% starts its connection process and hands the socket over.
+%% @doc Internal. One acceptor of a listener's pool: accepts a socket, asks
+%% the listener's guard whether it may go on (else writes the refusal and
+%% closes it at once), starts its connection process and hands the socket
+%% over.
 -module(agent_bridge_acceptor).
 
 -export([start_link/3, loop/3]).
@@ -10,7 +12,8 @@
 start_link(LSock, ListenerSup, ConnOpts) ->
     Pid = proc_lib:spawn_link(fun() ->
                                       ConnSup = agent_bridge_listener_sup:conn_sup(ListenerSup),
-                                      loop(LSock, ConnSup, ConnOpts)
+                                      Guard = agent_bridge_listener_sup:guard(ListenerSup),
+                                      loop(LSock, ConnSup, ConnOpts#{guard => Guard})
                               end),
     {ok, Pid}.
 
@@ -18,7 +21,7 @@ start_link(LSock, ListenerSup, ConnOpts) ->
 loop(LSock, ConnSup, ConnOpts) ->
     case gen_tcp:accept(LSock) of
         {ok, Sock} ->
-            ok = hand_over(Sock, ConnSup, ConnOpts);
+            ok = admit(Sock, ConnSup, ConnOpts);
         {error, closed} ->
             exit(normal);
         {error, Why} ->
@@ -28,14 +31,26 @@ loop(LSock, ConnSup, ConnOpts) ->
     end,
     ?MODULE:loop(LSock, ConnSup, ConnOpts).
 
-hand_over(Sock, ConnSup, ConnOpts) ->
+admit(Sock, ConnSup, #{guard := Guard} = ConnOpts) ->
+    Ip = case inet:peername(Sock) of
+             {ok, {Addr, _Port}} -> Addr;
+             {error, _} -> unknown
+         end,
+    case agent_bridge_guard:admit(Guard, Ip) of
+        ok -> hand_over(Sock, ConnSup, ConnOpts);
+        {refuse, Code, LockedMs} -> agent_bridge_guard:refuse_socket(Sock, Code, LockedMs)
+    end.
+
+hand_over(Sock, ConnSup, #{guard := Guard} = ConnOpts) ->
     case agent_bridge_conn_sup:start_conn(ConnSup, ConnOpts) of
         {ok, Pid} ->
+            ok = agent_bridge_guard:attach(Guard, Pid),
             case gen_tcp:controlling_process(Sock, Pid) of
                 ok -> Pid ! {agent_bridge_shoot, Sock}, ok;
                 {error, _} -> gen_tcp:close(Sock)
             end;
         {error, Why} ->
             ?LOG_WARNING(#{what => connection_not_started, reason => Why}),
+            ok = agent_bridge_guard:release(Guard),
             gen_tcp:close(Sock)
     end.

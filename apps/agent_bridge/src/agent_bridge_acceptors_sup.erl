@@ -17,6 +17,9 @@ init({Name, ListenerSup, Opts}) ->
     Ip = maps:get(ip, Opts, {127, 0, 0, 1}),
     SockOpts = [binary, {packet, 4}, {active, false}, {ip, Ip},
                 {reuseaddr, true}, {nodelay, true}, {exit_on_close, false},
+                %% A blocking write (only the refusal of a socket the guard
+                %% turned away) gives up and closes after 5 s.
+                {send_timeout, 5000}, {send_timeout_close, true},
                 {backlog, maps:get(backlog, Opts, 1024)}],
     case gen_tcp:listen(maps:get(port, Opts, 7400), SockOpts) of
         {ok, LSock} ->

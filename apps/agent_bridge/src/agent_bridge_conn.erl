@@ -7,7 +7,15 @@
 %%                          |  bad Hello, timeout             | description accepted
 %%                          v                                 v
 %%                       closing <--Refused/Bye/dropped---- active
+%%                          ^
+%%                          +--delay-- penalty <--wrong credential-- handshaking
 %% '''
+%% `penalty' holds back the Refused of a wrong credential for the delay the
+%% listener's guard (agent_bridge_guard) gives, which grows with the
+%% address's failures. A slow consumer's socket is aborted (linger 0), not
+%% kept until its client reads; so is a socket still holding output when
+%% the connection ends. A version 1 session with no frame in either
+%% direction for `idle_timeout' is closed with `Refused IdleTimeout'.
 %% `joined' waits for the first accepted description (the pairing enforces
 %% the join timeout and drops the entity); `active' relays in both
 %% directions; `closing' sends the last frame, half-closes, drains what the
@@ -39,7 +47,10 @@
                   linger => non_neg_integer(),
                   retry_interval => pos_integer(),
                   heartbeat => pos_integer(),
-                  hibernate_after => timeout()}.
+                  idle_timeout => pos_integer() | infinity,
+                  hibernate_after => timeout(),
+                  %% Set by the acceptor: its listener's agent_bridge_guard.
+                  guard => pid()}.
 
 -type start_arg() :: {tcp, opts()}
                    | {port, {file:filename_all(), [string()], [{string(), string()}]}, opts()}.
@@ -56,6 +67,9 @@
             peer_closed = false :: boolean(),
             version = 1 :: 1 | 2,
             sent = false :: boolean(),
+            %% A frame arrived since the last idle check (version 1).
+            heard = false :: boolean(),
+            ip :: inet:ip_address() | undefined,
             %% Frames to read before the next top-up (0: not reading
             %% in `{active, N}' mode).
             credit = 0 :: non_neg_integer()}).
@@ -73,6 +87,7 @@ default_opts() ->
       linger => 1000,
       retry_interval => 10,
       heartbeat => 500,
+      idle_timeout => 600000,
       hibernate_after => 5000}.
 
 -spec start_link(start_arg()) -> {ok, pid()}.
@@ -111,7 +126,11 @@ handle_event(info, {agent_bridge_shoot, Sock}, handshaking, #d{transport = undef
     ok = agent_bridge_transport:set_max_frame(T, opt(handshake_max_frame, D)),
     ok = agent_bridge_transport:activate(T, once),
     logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
-    {keep_state, D#d{transport = T}};
+    Ip = case inet:peername(Sock) of
+             {ok, {Addr, _}} -> Addr;
+             {error, _} -> undefined
+         end,
+    {keep_state, D#d{transport = T, ip = Ip}};
 handle_event(internal, {open, {Exe, Args, Env}}, handshaking, D) ->
     Port = open_port({spawn_executable, Exe},
                      [{args, Args}, {env, Env}, {packet, 4}, binary, exit_status, use_stdio]),
@@ -120,12 +139,12 @@ handle_event(internal, {open, {Exe, Args, Env}}, handshaking, D) ->
     {keep_state, D#d{transport = T}};
 
 %% Frames in.
-handle_event(info, {tcp, _, Frame}, State, D) when State =/= closing ->
-    D1 = read_on(D),
+handle_event(info, {tcp, _, Frame}, State, D) when State =/= closing, State =/= penalty ->
+    D1 = read_on(D#d{heard = true}),
     with_data(D1, frame(Frame, State, D1));
 handle_event(info, {Port, {data, Frame}}, State, #d{transport = {port, Port}} = D)
-  when State =/= closing ->
-    frame(Frame, State, D);
+  when State =/= closing, State =/= penalty ->
+    frame(Frame, State, D#d{heard = true});
 handle_event(info, {tcp_passive, _}, State, #d{transport = T} = D) when State =/= closing ->
     %% A top-up made just as the socket went passive makes this notice
     %% stale: the socket reads on.
@@ -138,8 +157,7 @@ handle_event({timeout, resume}, _, State, D) when State =/= closing ->
 handle_event({timeout, resume}, _, closing, _D) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, emsgsize}, State, D) when State =/= closing ->
-    ?LOG_NOTICE(#{what => frame_too_large}),
-    close(agent_bridge_frame:refusal(emsgsize), D);
+    refuse(agent_bridge_frame:refusal(emsgsize), D);
 
 %% Traffic from the pairing.
 handle_event(info, {evatar, P, {signal, Signal}}, State, #d{pairing = P} = D)
@@ -164,6 +182,17 @@ handle_event({timeout, heartbeat}, beat, State, #d{sent = Sent} = D) when State 
     end;
 handle_event({timeout, heartbeat}, beat, closing, _D) ->
     keep_state_and_data;
+handle_event({timeout, idle}, check, State, #d{heard = false, sent = false} = D)
+  when State =/= closing ->
+    ?LOG_INFO(#{what => idle_timeout}),
+    close(refused(<<"IdleTimeout">>, <<"no frame either way within the idle timeout">>), D);
+handle_event({timeout, idle}, check, State, D) when State =/= closing ->
+    {keep_state, D#d{heard = false, sent = false}, [idle_check(D)]};
+handle_event({timeout, idle}, check, closing, _D) ->
+    keep_state_and_data;
+handle_event(state_timeout, {refuse, Last}, penalty, D) ->
+    %% Logged when the credential was found wrong.
+    close(Last, D);
 handle_event(info, {evatar, P, {dropped, Code, Reason}}, State, #d{pairing = P} = D)
   when State =/= closing ->
     ?LOG_NOTICE(#{what => dropped_by_pairing, code => Code, reason => Reason}),
@@ -195,12 +224,14 @@ handle_event(info, {inet_reply, _, {error, _}}, _State, D) ->
 
 %% Timeouts and endings.
 handle_event(state_timeout, handshake, handshaking, D) ->
-    close({refused, #{code => <<"HandshakeTimeout">>,
-                      message => <<"no Hello within the handshake timeout">>}}, D);
+    refuse({refused, #{code => <<"HandshakeTimeout">>,
+                       message => <<"no Hello within the handshake timeout">>}}, D);
 handle_event(state_timeout, linger, closing, D) ->
     {stop, normal, D};
 handle_event(info, {tcp, _, _}, closing, #d{transport = T}) ->
     ok = agent_bridge_transport:drain(T),
+    keep_state_and_data;
+handle_event(info, {tcp, _, _}, penalty, _D) ->
     keep_state_and_data;
 handle_event(info, {tcp_closed, _}, closing, D) ->
     maybe_done(D#d{peer_closed = true});
@@ -221,8 +252,14 @@ handle_event(info, Other, _State, _D) ->
     keep_state_and_data.
 
 -spec terminate(term(), atom(), #d{}) -> ok.
-terminate(_Why, _State, #d{transport = T}) ->
-    agent_bridge_transport:close(T).
+terminate(_Why, _State, #d{transport = T, outq = Q}) ->
+    %% Output still queued here or in the socket belongs to a peer that did
+    %% not read it within the linger: a plain close would keep the socket
+    %% (and its descriptor) until the peer reads.
+    case agent_bridge_outq:is_empty(Q) of
+        true -> agent_bridge_transport:close(T);
+        false -> agent_bridge_transport:abort(T)
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Inbound frames
@@ -235,6 +272,7 @@ frame(Frame, State, D) ->
           end,
     case agent_bridge_frame:check(Frame, Max) of
         ok -> document(bil_control:parse_frame(Frame, #{}), State, D);
+        {error, Why} when State =:= handshaking -> refuse(agent_bridge_frame:refusal(Why), D);
         {error, Why} -> close(agent_bridge_frame:refusal(Why), D)
     end.
 
@@ -243,9 +281,9 @@ document({ok, {control, {hello, Hello}}}, handshaking, D) ->
 document({ok, {control, {resume, Resume}}}, handshaking, D) ->
     hello(Resume, D);
 document({ok, _}, handshaking, D) ->
-    close(refused(<<"BadHandshake">>, <<"the first frame must be a Hello">>), D);
+    refuse(refused(<<"BadHandshake">>, <<"the first frame must be a Hello">>), D);
 document({error, Reason}, handshaking, D) ->
-    close(agent_bridge_frame:refusal({malformed, Reason}), D);
+    refuse(agent_bridge_frame:refusal({malformed, Reason}), D);
 document({ok, {signal, Signal}}, _State, #d{session = Session}) ->
     ok = evatar:send(Session, Signal),
     keep_state_and_data;
@@ -254,7 +292,7 @@ document({ok, {description, Description}}, _State, #d{session = Session} = D) ->
         ok ->
             {next_state, active, D};
         {error, Reason} ->
-            ?LOG_NOTICE(#{what => description_refused, reason => Reason}),
+            ?LOG_NOTICE(#{what => description_refused, reason => evatar_log:term(Reason)}),
             send(bil:encode_signal(error_signal(<<"DescriptionRefused">>, Reason, D)), D)
     end;
 document({ok, {control, {bye, _}}}, _State, D) ->
@@ -262,20 +300,36 @@ document({ok, {control, {bye, _}}}, _State, D) ->
 document({ok, {control, {ack, Ack}}}, _State, #d{version = 2, session = Session}) ->
     _ = [evatar:ack(Session, N) || #{received := N} <- [Ack], Session =/= undefined],
     keep_state_and_data;
+document({ok, {control, {ack, Ack}}}, _State, #d{version = 1}) when map_size(Ack) =:= 0 ->
+    %% A version 1 client's keepalive (it resets the idle timeout).
+    keep_state_and_data;
 document({ok, {control, {Other, _}}}, _State, D) ->
     Message = <<"a client does not send ", (atom_to_binary(Other))/binary, " documents">>,
     send(bil:encode_signal(error_signal(<<"UnexpectedDocument">>, Message, D)), D);
 document({error, Reason}, _State, D) ->
-    ?LOG_INFO(#{what => malformed_document, reason => Reason}),
+    ?LOG_INFO(#{what => malformed_document, reason => evatar_log:term(Reason)}),
     Signal = error_signal(<<"Malformed">>, bil:format_error(Reason), D),
     send(bil:encode_signal(Signal), D).
 
 hello(#{protocol_version := V}, D) when V =/= 1, V =/= 2 ->
-    close(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1 and 2">>), D);
+    refuse(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1 and 2">>), D);
 hello(#{protocol_version := 1, session_id := _}, D) ->
-    close(refused(<<"BadHandshake">>, <<"Resume needs ProtocolVersion 2">>), D);
-hello(#{pairing := P, role := Role, entity_id := E, credential := C,
-        protocol_version := V} = Hello, D) ->
+    refuse(refused(<<"BadHandshake">>, <<"Resume needs ProtocolVersion 2">>), D);
+hello(#{pairing := P, role := Role, entity_id := E} = Hello, #d{ip = Ip} = D) ->
+    %% An address locked out while this socket waited is refused before
+    %% its credential is looked at.
+    case agent_bridge_guard:locked(opt_guard(D), Ip) of
+        0 ->
+            join(Hello, D);
+        Ms ->
+            refuse(refused(<<"LockedOut">>,
+                           <<"too many failed handshakes from your address; retry in ",
+                             (integer_to_binary((Ms + 999) div 1000))/binary, " s">>),
+                   D#d{pairing = P, entity = E}, #{role => Role})
+    end.
+
+join(#{pairing := P, role := Role, entity_id := E, credential := C,
+       protocol_version := V} = Hello, D) ->
     {SessionId, Result} =
         case Hello of
             #{session_id := S, received := R, epoch := Ep} ->
@@ -290,7 +344,8 @@ hello(#{pairing := P, role := Role, entity_id := E, credential := C,
         {ok, Session} ->
             Pid = evatar:session_pid(Session),
             Info = evatar:session_info(Session),
-            logger:update_process_metadata(#{pairing => P, entity => E}),
+            logger:update_process_metadata(#{pairing => evatar_log:id(P),
+                                             entity => evatar_log:id(E)}),
             ?LOG_INFO(#{what => joined, role => Role, protocol_version => V,
                         resumed => maps:get(resumed, Info)}),
             D1 = D#d{session = Session, pairing = P, pairing_pid = Pid,
@@ -309,7 +364,10 @@ hello(#{pairing := P, role := Role, entity_id := E, credential := C,
             ok = agent_bridge_transport:set_max_frame(D1#d.transport, opt(max_frame, D)),
             ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
             D1a = D1#d{credit = max(1, opt(active_n, D) div 2)},
-            Beat = [{{timeout, heartbeat}, opt(heartbeat, D), beat} || V =:= 2],
+            Beat = case V of
+                       2 -> [{{timeout, heartbeat}, opt(heartbeat, D), beat}];
+                       1 -> [idle_check(D) || opt(idle_timeout, D) =/= infinity]
+                   end,
             %% A resumed session has described itself already.
             Next = case maps:get(resumed, Info) of
                        true -> active;
@@ -319,9 +377,18 @@ hello(#{pairing := P, role := Role, entity_id := E, credential := C,
                 {ok, D2, Actions} -> {next_state, Next, D2, Beat ++ Actions};
                 overflow -> slow_consumer(D1a)
             end;
+        {error, bad_credential} ->
+            %% Slowed down: the Refused waits for a delay that grows with
+            %% the failures of this address (docs/protocol.md, section 7).
+            Last = join_refusal(bad_credential),
+            D1 = D#d{pairing = P, entity = E},
+            ok = log_refusal(Last, D1, #{role => Role}),
+            case agent_bridge_guard:failed(opt_guard(D), D#d.ip) of
+                0 -> close(Last, D);
+                Delay -> {next_state, penalty, D, [{state_timeout, Delay, {refuse, Last}}]}
+            end;
         {error, Why} ->
-            ?LOG_NOTICE(#{what => join_refused, pairing => P, entity => E, reason => Why}),
-            close(join_refusal(Why), D)
+            refuse(join_refusal(Why), D#d{pairing = P, entity = E}, #{role => Role})
     end.
 
 join_refusal(unknown_pairing) -> refused(<<"UnknownPairing">>, <<"no such pairing">>);
@@ -357,6 +424,24 @@ dropped_code(silent_link) -> <<"SilentLink">>;
 dropped_code(session_resumed) -> <<"SessionResumed">>.
 
 refused(Code, Message) -> {refused, #{code => Code, message => Message}}.
+
+%% A refusal during the handshake: logged through the listener's guard, in
+%% rate-limited summaries, then closed.
+refuse(Last, D) ->
+    refuse(Last, D, #{}).
+
+refuse(Last, D, Details) ->
+    ok = log_refusal(Last, D, Details),
+    close(Last, D).
+
+log_refusal({refused, #{code := Code}}, #d{ip = Ip, pairing = P, entity = E} = D, Details) ->
+    Ids = maps:from_list([{K, V} || {K, V} <- [{pairing, P}, {entity, E}], V =/= undefined,
+                                    V =/= <<>>]),
+    agent_bridge_guard:refused(opt_guard(D), Ip, Code, maps:merge(Details, Ids)).
+
+opt_guard(#d{opts = Opts}) -> maps:get(guard, Opts, undefined).
+
+idle_check(D) -> {{timeout, idle}, opt(idle_timeout, D), check}.
 
 error_signal(Type, Message, #d{entity = E}) ->
     agent_bridge_frame:error_signal(E, Type, Message, undefined).
@@ -444,14 +529,16 @@ try_flush(#d{outq = Q, transport = T} = D) ->
     end.
 
 %% The peer stopped reading: the Refused goes out only if the transport
-%% happens to take it.
+%% happens to take it, and the socket is aborted at once (linger 0), so it
+%% is not kept until the peer reads.
 slow_consumer(#d{outq = Q, transport = T} = D) ->
     {C, B} = agent_bridge_outq:size(Q),
     ?LOG_WARNING(#{what => slow_consumer, frames => C, bytes => B}),
     Refused = bil_control:encode(refused(<<"SlowConsumer">>, <<"the outbound queue is full">>)),
     _ = (agent_bridge_transport:send_fun(T))(Refused),
     ok = leave(D),
-    {stop, normal, forget_session(D)}.
+    ok = agent_bridge_transport:abort(T),
+    {stop, normal, (forget_session(D))#d{transport = undefined}}.
 
 flush(closing, D) ->
     case try_flush(D) of

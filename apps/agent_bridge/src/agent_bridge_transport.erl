@@ -4,7 +4,7 @@
 -module(agent_bridge_transport).
 
 -export([send_fun/1, activate/2, top_up/2, is_passive/1, set_max_frame/2, drain/1, shutdown/1, close/1,
-         peer/1]).
+         abort/1, peer/1]).
 
 -export_type([t/0]).
 
@@ -76,6 +76,16 @@ close({port, P}) ->
     catch error:badarg -> ok
     end;
 close(undefined) -> ok.
+
+%% @doc Closes at once, dropping unsent output: a socket whose peer does
+%% not read would otherwise be kept (with its descriptor) by a plain close
+%% until the peer reads. The peer sees a reset.
+-spec abort(t() | undefined) -> ok.
+abort({tcp, S}) ->
+    _ = inet:setopts(S, [{linger, {true, 0}}]),
+    gen_tcp:close(S);
+abort(T) ->
+    close(T).
 
 %% @doc The peer's address for logs.
 -spec peer(t()) -> binary().

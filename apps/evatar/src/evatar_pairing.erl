@@ -509,7 +509,8 @@ execute([{cancel_timer, Key} | Rest], Reply, #data{timers = Timers} = Data) ->
     ok = cancel(maps:get(Key, Timers, undefined)),
     execute(Rest, Reply, Data#data{timers = maps:remove(Key, Timers)});
 execute([{log, Level, Report} | Rest], Reply, #data{id = Id} = Data) ->
-    ?LOG(Level, Report#{pairing => Id}),
+    %% Ids in a report come from clients: cut to 64 bytes (evatar_log).
+    ?LOG(Level, evatar_log:report(Report#{pairing => Id})),
     execute(Rest, Reply, Data);
 execute([{reply, Reply} | Rest], _Reply, Data) ->
     execute(Rest, Reply, Data);
