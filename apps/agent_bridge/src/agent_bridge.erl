@@ -69,6 +69,14 @@ check_listener_opt(backlog, N) ->
     expect(backlog, is_integer(N) andalso N > 0, "a positive integer");
 check_listener_opt(name, _) ->
     ok;
+check_listener_opt(max_connections, N) ->
+    expect(max_connections, N =:= infinity orelse (is_integer(N) andalso N > 0),
+           "a positive integer or infinity");
+check_listener_opt(handshake, Handshake) when is_map(Handshake) ->
+    Defaults = agent_bridge_guard_logic:default_config(),
+    first_error([check_handshake_opt(K, V, Defaults) || {K, V} <- maps:to_list(Handshake)]);
+check_listener_opt(handshake, _) ->
+    {error, <<"handshake must be a map of handshake limits">>};
 check_listener_opt(conn, Conn) when is_map(Conn) ->
     Defaults = agent_bridge_conn:default_opts(),
     first_error([check_conn_opt(K, V, Defaults) || {K, V} <- maps:to_list(Conn)]);
@@ -77,12 +85,21 @@ check_listener_opt(conn, _) ->
 check_listener_opt(Key, _) ->
     {error, iolist_to_binary(io_lib:format("unknown listener option ~0tp", [Key]))}.
 
-check_conn_opt(hibernate_after, infinity, _Defaults) ->
+check_conn_opt(Key, infinity, _Defaults) when Key =:= hibernate_after; Key =:= idle_timeout ->
     ok;
 check_conn_opt(Key, Value, Defaults) when is_map_key(Key, Defaults) ->
     expect(Key, is_integer(Value) andalso Value >= 0, "a non-negative integer");
 check_conn_opt(Key, _Value, _Defaults) ->
     {error, iolist_to_binary(io_lib:format("unknown connection option ~0tp", [Key]))}.
+
+check_handshake_opt(rate, infinity, _Defaults) ->
+    ok;
+check_handshake_opt(max_connections, _Value, _Defaults) ->
+    {error, <<"max_connections is a listener option, not a handshake one">>};
+check_handshake_opt(Key, Value, Defaults) when is_map_key(Key, Defaults) ->
+    expect(Key, is_integer(Value) andalso Value >= 0, "a non-negative integer");
+check_handshake_opt(Key, _Value, _Defaults) ->
+    {error, iolist_to_binary(io_lib:format("unknown handshake option ~0tp", [Key]))}.
 
 expect(_Key, true, _What) -> ok;
 expect(Key, false, What) -> {error, iolist_to_binary(io_lib:format("~0tp must be ~ts", [Key, What]))}.

@@ -315,18 +315,8 @@ hello(#{protocol_version := V}, D) when V =/= 1, V =/= 2 ->
     refuse(refused(<<"BadHandshake">>, <<"this server speaks ProtocolVersion 1 and 2">>), D);
 hello(#{protocol_version := 1, session_id := _}, D) ->
     refuse(refused(<<"BadHandshake">>, <<"Resume needs ProtocolVersion 2">>), D);
-hello(#{pairing := P, role := Role, entity_id := E} = Hello, #d{ip = Ip} = D) ->
-    %% An address locked out while this socket waited is refused before
-    %% its credential is looked at.
-    case agent_bridge_guard:locked(opt_guard(D), Ip) of
-        0 ->
-            join(Hello, D);
-        Ms ->
-            refuse(refused(<<"LockedOut">>,
-                           <<"too many failed handshakes from your address; retry in ",
-                             (integer_to_binary((Ms + 999) div 1000))/binary, " s">>),
-                   D#d{pairing = P, entity = E}, #{role => Role})
-    end.
+hello(Hello, D) ->
+    join(Hello, D).
 
 join(#{pairing := P, role := Role, entity_id := E, credential := C,
        protocol_version := V} = Hello, D) ->
@@ -340,7 +330,12 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
             #{} ->
                 {session_id(), evatar:join(P, Role, E, C)}
         end,
-    case Result of
+    case locked_out(Result, D) of
+        {locked, Ms, Session} ->
+            %% A handshake under way when its address was locked out gets
+            %% no verdict, right or wrong.
+            ok = evatar:leave(Session),
+            refuse(locked_refusal(Ms), D#d{pairing = P, entity = E}, #{role => Role});
         {ok, Session} ->
             Pid = evatar:session_pid(Session),
             Info = evatar:session_info(Session),
@@ -380,12 +375,15 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
         {error, bad_credential} ->
             %% Slowed down: the Refused waits for a delay that grows with
             %% the failures of this address (docs/protocol.md, section 7).
-            Last = join_refusal(bad_credential),
-            D1 = D#d{pairing = P, entity = E},
-            ok = log_refusal(Last, D1, #{role => Role}),
-            case agent_bridge_guard:failed(opt_guard(D), D#d.ip) of
+            {Delay, LockedMs} = agent_bridge_guard:failed(opt_guard(D), D#d.ip),
+            Last = case LockedMs of
+                       0 -> join_refusal(bad_credential);
+                       _ -> locked_refusal(LockedMs)
+                   end,
+            ok = log_refusal(Last, D#d{pairing = P, entity = E}, #{role => Role}),
+            case Delay of
                 0 -> close(Last, D);
-                Delay -> {next_state, penalty, D, [{state_timeout, Delay, {refuse, Last}}]}
+                _ -> {next_state, penalty, D, [{state_timeout, Delay, {refuse, Last}}]}
             end;
         {error, Why} ->
             refuse(join_refusal(Why), D#d{pairing = P, entity = E}, #{role => Role})
@@ -424,6 +422,18 @@ dropped_code(silent_link) -> <<"SilentLink">>;
 dropped_code(session_resumed) -> <<"SessionResumed">>.
 
 refused(Code, Message) -> {refused, #{code => Code, message => Message}}.
+
+locked_refusal(Ms) ->
+    agent_bridge_guard:refusal(<<"LockedOut">>, Ms).
+
+%% A successful join from an address locked out meanwhile.
+locked_out({ok, Session} = Ok, #d{ip = Ip} = D) ->
+    case agent_bridge_guard:locked(opt_guard(D), Ip) of
+        0 -> Ok;
+        Ms -> {locked, Ms, Session}
+    end;
+locked_out(Error, _D) ->
+    Error.
 
 %% A refusal during the handshake: logged through the listener's guard, in
 %% rate-limited summaries, then closed.

@@ -9,7 +9,7 @@
 -behaviour(gen_server).
 
 -export([start_link/2, admit/2, attach/2, release/1, failed/2, locked/2, refused/4, info/1,
-         refuse_socket/3]).
+         refusal/2, refuse_socket/3]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -include_lib("kernel/include/logger.hrl").
@@ -39,9 +39,11 @@ attach(Guard, Pid) -> gen_server:cast(Guard, {attach, Pid}).
 -spec release(guard()) -> ok.
 release(Guard) -> gen_server:cast(Guard, release).
 
-%% @doc A failed handshake from Ip: ms to wait before the Refused.
--spec failed(guard() | undefined, inet:ip_address() | term()) -> non_neg_integer().
-failed(undefined, _Ip) -> 0;
+%% @doc A failed handshake from Ip: ms to wait before the Refused, and
+%% 0 or the ms the address is locked out for (agent_bridge_guard_logic:failed/3).
+-spec failed(guard() | undefined, inet:ip_address() | term()) ->
+          {non_neg_integer(), non_neg_integer()}.
+failed(undefined, _Ip) -> {0, 0};
 failed(Guard, Ip) -> gen_server:call(Guard, {failed, agent_bridge_guard_logic:key(Ip)}, infinity).
 
 %% @doc 0, or the ms Ip stays locked out.
@@ -61,11 +63,10 @@ refused(Guard, Ip, Code, Details) ->
 -spec info(guard()) -> #{addresses := non_neg_integer(), connections := non_neg_integer()}.
 info(Guard) -> gen_server:call(Guard, info).
 
-%% @doc Writes Refused Code to a socket that was never handed to a
-%% connection process, and closes it at once: a refused socket costs its
-%% file descriptor only for this write.
--spec refuse_socket(gen_tcp:socket(), binary(), non_neg_integer()) -> ok.
-refuse_socket(Sock, Code, LockedMs) ->
+%% @doc The Refused document of one of the guard's codes.
+-spec refusal(agent_bridge_guard_logic:refusal(), non_neg_integer()) ->
+          {refused, #{code := binary(), message := binary()}}.
+refusal(Code, LockedMs) ->
     Message = case Code of
                   <<"TooManyConnections">> -> <<"this listener has its maximum of connections">>;
                   <<"RateLimited">> -> <<"too many connections from your address; slow down">>;
@@ -73,7 +74,14 @@ refuse_socket(Sock, Code, LockedMs) ->
                       <<"too many failed handshakes from your address; retry in ",
                         (integer_to_binary((LockedMs + 999) div 1000))/binary, " s">>
               end,
-    Frame = bil_control:encode({refused, #{code => Code, message => Message}}),
+    {refused, #{code => Code, message => Message}}.
+
+%% @doc Writes Refused Code to a socket that was never handed to a
+%% connection process, and closes it at once: a refused socket costs its
+%% file descriptor only for this write.
+-spec refuse_socket(gen_tcp:socket(), binary(), non_neg_integer()) -> ok.
+refuse_socket(Sock, Code, LockedMs) ->
+    Frame = bil_control:encode(refusal(Code, LockedMs)),
     _ = inet:setopts(Sock, [{send_timeout, ?REFUSE_SEND_TIMEOUT}, {send_timeout_close, true}]),
     _ = gen_tcp:send(Sock, Frame),
     gen_tcp:close(Sock).
@@ -104,10 +112,10 @@ handle_call({admit, Key}, _From, #s{logic = L} = S) ->
             {reply, {refuse, Code, Ms}, S#s{logic = L2}}
     end;
 handle_call({failed, Key}, _From, #s{logic = L} = S) ->
-    {Delay, Locked, L1} = agent_bridge_guard_logic:failed(Key, now_ms(), L),
-    Locked andalso ?LOG_WARNING(#{what => address_locked_out, listener => S#s.name,
-                                  address => address(Key)}),
-    {reply, Delay, S#s{logic = L1}};
+    {Delay, LockedMs, New, L1} = agent_bridge_guard_logic:failed(Key, now_ms(), L),
+    New andalso ?LOG_WARNING(#{what => address_locked_out, listener => S#s.name,
+                               address => address(Key), lockout_ms => LockedMs}),
+    {reply, {Delay, LockedMs}, S#s{logic = L1}};
 handle_call({locked, Key}, _From, #s{logic = L} = S) ->
     {reply, agent_bridge_guard_logic:locked(Key, now_ms(), L), S};
 handle_call(info, _From, #s{logic = L} = S) ->

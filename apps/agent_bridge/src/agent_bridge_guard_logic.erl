@@ -121,23 +121,33 @@ opened(#g{conns = N} = G) -> G#g{conns = N + 1}.
 closed(#g{conns = N} = G) -> G#g{conns = max(0, N - 1)}.
 
 %% @doc A failed handshake (a wrong credential) from Key: how long to wait
-%% before the Refused, and whether the address is now locked out.
--spec failed(key(), integer(), state()) -> {Delay :: non_neg_integer(), boolean(), state()}.
+%% before the Refused, and for how long the address is locked out (0: not
+%% locked; the Refused is then LockedOut, not BadCredential, so a lockout
+%% hides every verdict, even of handshakes already under way), and
+%% whether this failure started the lockout. Failures of an address
+%% already locked out are not counted.
+-spec failed(key(), integer(), state()) ->
+          {Delay :: non_neg_integer(), LockedMs :: non_neg_integer(), New :: boolean(),
+           state()}.
 failed(Key0, Now, #g{config = Config} = G) ->
     #{failure_delay := Base, max_failure_delay := MaxDelay, max_failures := MaxFailures,
       failure_window := Window, lockout := Lockout} = Config,
-    {Key, E} = entry(Key0, Now, G),
-    E1 = case Now - E#e.window_start >= Window of
-             true -> E#e{failures = 1, window_start = Now};
-             false -> E#e{failures = E#e.failures + 1}
-         end,
-    Delay = min(MaxDelay, Base bsl min(E1#e.failures - 1, 20)),
-    case E1#e.failures >= MaxFailures of
-        true ->
-            E2 = E1#e{locked_until = Now + Lockout, failures = 0, window_start = Now},
-            {Delay, true, put_entry(Key, E2, G)};
-        false ->
-            {Delay, false, put_entry(Key, E1, G)}
+    case entry(Key0, Now, G) of
+        {_, #e{locked_until = Until}} when Until > Now ->
+            {MaxDelay, Until - Now, false, G};
+        {Key, E} ->
+            E1 = case Now - E#e.window_start >= Window of
+                     true -> E#e{failures = 1, window_start = Now};
+                     false -> E#e{failures = E#e.failures + 1}
+                 end,
+            Delay = min(MaxDelay, Base bsl min(E1#e.failures - 1, 20)),
+            case E1#e.failures >= MaxFailures andalso Lockout > 0 of
+                true ->
+                    E2 = E1#e{locked_until = Now + Lockout, failures = 0, window_start = Now},
+                    {Delay, Lockout, true, put_entry(Key, E2, G)};
+                false ->
+                    {Delay, 0, false, put_entry(Key, E1, G)}
+            end
     end.
 
 %% @doc Whether Key is locked out at Now: the ms left, or 0.

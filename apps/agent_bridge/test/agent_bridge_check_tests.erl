@@ -9,7 +9,22 @@ accepts_every_documented_option_test() ->
     ok = agent_bridge:check_listener(#{ip => {0, 0, 0, 0}, port => 7400, acceptors => 2,
                                        backlog => 16, name => main,
                                        conn => #{heartbeat => 200, hibernate_after => infinity}}),
-    ok = agent_bridge:check_listener(#{ip => {0, 0, 0, 0, 0, 0, 0, 1}, port => 0}).
+    ok = agent_bridge:check_listener(#{ip => {0, 0, 0, 0, 0, 0, 0, 1}, port => 0}),
+    ok = agent_bridge:check_listener(#{max_connections => 10,
+                                       handshake => #{rate => infinity, burst => 5,
+                                                      failure_delay => 0, lockout => 1000},
+                                       conn => #{idle_timeout => infinity}}),
+    ok = agent_bridge:check_listener(#{max_connections => infinity}).
+
+refuses_bad_limits_test() ->
+    {error, <<"max_connections must be", _/binary>>} =
+        agent_bridge:check_listener(#{max_connections => 0}),
+    {error, <<"unknown handshake option rates">>} =
+        agent_bridge:check_listener(#{handshake => #{rates => 1}}),
+    {error, <<"burst must be", _/binary>>} =
+        agent_bridge:check_listener(#{handshake => #{burst => infinity}}),
+    {error, <<"max_connections is a listener option", _/binary>>} =
+        agent_bridge:check_listener(#{handshake => #{max_connections => 1}}).
 
 refuses_unknown_options_test() ->
     {error, <<"unknown listener option prot">>} = agent_bridge:check_listener(#{prot => 7400}),

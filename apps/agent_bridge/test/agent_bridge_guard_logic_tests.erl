@@ -40,11 +40,13 @@ failure_delay_doubles_then_lockout_test() ->
              lockout => 5000, rate => infinity}),
     {Delays, Locks, G} =
         lists:foldl(fun(_, {Ds, Ls, Gi}) ->
-                            {D, L, Gj} = agent_bridge_guard_logic:failed(?IP, 10, Gi),
+                            {D, L, _New, Gj} = agent_bridge_guard_logic:failed(?IP, 10, Gi),
                             {Ds ++ [D], Ls ++ [L], Gj}
                     end, {[], [], G0}, lists:seq(1, 6)),
     ?assertEqual([100, 200, 400, 800, 1000, 1000], Delays),
-    ?assertEqual([false, false, false, false, false, true], Locks),
+    ?assertEqual([0, 0, 0, 0, 0, 5000], Locks),
+    %% A failure while locked out: not counted, the lockout not renewed.
+    ?assertMatch({1000, 4000, false, G}, agent_bridge_guard_logic:failed(?IP, 1010, G)),
     ?assertMatch({{refuse, <<"LockedOut">>, 5000}, _},
                  agent_bridge_guard_logic:admit(?IP, 10, G)),
     ?assertEqual(5000, agent_bridge_guard_logic:locked(?IP, 10, G)),
@@ -55,9 +57,9 @@ failure_delay_doubles_then_lockout_test() ->
 
 failures_forgotten_after_window_test() ->
     G0 = g(#{failure_delay => 100, failure_window => 1000}),
-    {_, _, G1} = agent_bridge_guard_logic:failed(?IP, 0, G0),
-    {200, _, G2} = agent_bridge_guard_logic:failed(?IP, 10, G1),
-    ?assertMatch({100, false, _}, agent_bridge_guard_logic:failed(?IP, 2000, G2)).
+    {_, _, _, G1} = agent_bridge_guard_logic:failed(?IP, 0, G0),
+    {200, _, _, G2} = agent_bridge_guard_logic:failed(?IP, 10, G1),
+    ?assertMatch({100, 0, false, _}, agent_bridge_guard_logic:failed(?IP, 2000, G2)).
 
 table_is_bounded_test() ->
     G0 = g(#{max_addresses => 100, rate => 1, burst => 1}),

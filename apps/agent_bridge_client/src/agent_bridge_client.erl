@@ -69,7 +69,7 @@
 %% Refusals after which a version 2 client tries the next endpoint.
 -define(RETRY_CODES, [<<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>, <<"PairingDown">>,
                       <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
-                      <<"SessionResumed">>]).
+                      <<"SessionResumed">>, <<"TooManyConnections">>, <<"RateLimited">>]).
 -define(ACK_DELAY, 5).
 -define(ACK_EVERY, 32).
 

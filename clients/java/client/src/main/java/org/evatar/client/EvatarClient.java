@@ -92,7 +92,7 @@ public final class EvatarClient implements AutoCloseable {
     /** Refused codes after which a version 2 client tries its next endpoint (section 11.3). */
     private static final List<String> RETRY_CODES = List.of("NotActive", "Fenced", "StaleEpoch",
             "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink", "SessionResumed",
-            "Busy");
+            "Busy", "TooManyConnections", "RateLimited");
     private static final int ACK_EVERY = 32;
     private static final long ACK_DELAY_MS = 5;
 
