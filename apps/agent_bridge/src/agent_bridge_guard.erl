@@ -57,7 +57,8 @@ locked(Guard, Ip) -> gen_server:call(Guard, {locked, agent_bridge_guard_logic:ke
 refused(undefined, Ip, Code, Details) ->
     log({log, agent_bridge_guard_logic:key(Ip), Code, 1, first}, Details, undefined);
 refused(Guard, Ip, Code, Details) ->
-    gen_server:cast(Guard, {refused, agent_bridge_guard_logic:key(Ip), Code, Details}).
+    %% A call, so the line is written before the client sees the close.
+    gen_server:call(Guard, {refused, agent_bridge_guard_logic:key(Ip), Code, Details}, infinity).
 
 %% @doc Addresses tracked and sockets held (for tests and operators).
 -spec info(guard()) -> #{addresses := non_neg_integer(), connections := non_neg_integer()}.
@@ -118,6 +119,10 @@ handle_call({failed, Key}, _From, #s{logic = L} = S) ->
     {reply, {Delay, LockedMs}, S#s{logic = L1}};
 handle_call({locked, Key}, _From, #s{logic = L} = S) ->
     {reply, agent_bridge_guard_logic:locked(Key, now_ms(), L), S};
+handle_call({refused, Key, Code, Details}, _From, #s{logic = L} = S) ->
+    {Effects, L1} = agent_bridge_guard_logic:refused(Key, Code, now_ms(), L),
+    ok = run(Effects, Details, S),
+    {reply, ok, S#s{logic = L1}};
 handle_call(info, _From, #s{logic = L} = S) ->
     {reply, agent_bridge_guard_logic:size(L), S}.
 
@@ -126,11 +131,7 @@ handle_cast({attach, Pid}, S) ->
     _ = monitor(process, Pid),
     {noreply, S};
 handle_cast(release, #s{logic = L} = S) ->
-    {noreply, S#s{logic = agent_bridge_guard_logic:closed(L)}};
-handle_cast({refused, Key, Code, Details}, #s{logic = L} = S) ->
-    {Effects, L1} = agent_bridge_guard_logic:refused(Key, Code, now_ms(), L),
-    ok = run(Effects, Details, S),
-    {noreply, S#s{logic = L1}}.
+    {noreply, S#s{logic = agent_bridge_guard_logic:closed(L)}}.
 
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
 handle_info({'DOWN', _, process, _, _}, #s{logic = L} = S) ->
