@@ -1,9 +1,10 @@
-%% Common Test: a node brought up by its configuration file alone. Each
-%% node is a real OS process (OTP peer, controlled over its standard I/O)
-%% whose applications start in the
-%% release's order (node_config, evatar, agent_bridge, mqtt_avatar), with
-%% EVATAR_CONFIG naming a file in the case's directory; the MQTT Avatars
-%% talk to a real mosquitto (mqtt_broker), and a VA joins over real TCP.
+%% Common Test: a node brought up by its configuration file alone, with
+%% EVATAR_CONFIG naming a file in the case's directory. Group from_file:
+%% each node is a real OS process (OTP peer, controlled over its standard
+%% I/O) whose applications start in the release's order (node_config,
+%% evatar, agent_bridge, mqtt_avatar). Group release: the release itself
+%% (rebar3 release, then bin/evatar daemon, eval, stop, foreground). The
+%% MQTT Avatars talk to a real mosquitto (mqtt_broker); VAs join over TCP.
 -module(node_config_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -13,7 +14,8 @@
          init_per_testcase/2, end_per_testcase/2]).
 -export([starts_everything_from_the_file/1, killed_avatar_restarts_with_backoff/1,
          node_restart_brings_everything_back/1, malformed_files_stop_the_start/1,
-         bad_broker_is_a_reported_crash_loop/1]).
+         bad_broker_is_a_reported_crash_loop/1, init_per_group/2, end_per_group/2,
+         release_daemon_runs_the_file/1, release_refuses_a_bad_file/1]).
 %% Run on the peer nodes.
 -export([collect/0, log/2, events/0]).
 
@@ -24,11 +26,25 @@
 suite() -> [{timetrap, {minutes, 3}}].
 
 all() ->
-    [{group, from_file}, malformed_files_stop_the_start].
+    [{group, from_file}, malformed_files_stop_the_start, {group, release}].
 
 groups() ->
     [{from_file, [], [starts_everything_from_the_file, killed_avatar_restarts_with_backoff,
-                      node_restart_brings_everything_back, bad_broker_is_a_reported_crash_loop]}].
+                      node_restart_brings_everything_back, bad_broker_is_a_reported_crash_loop]},
+     %% The release as shipped (rebar3 release, bin/evatar): its boot order
+     %% and its applications, driven only through bin/evatar.
+     {release, [], [release_daemon_runs_the_file, release_refuses_a_bad_file]}].
+
+init_per_group(release, Config) ->
+    Root = ha_cluster:repo_root(),
+    Log = filename:join(?config(priv_dir, Config), "rebar3_release.log"),
+    "0\n" = os:cmd("cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo $?"),
+    [{rel, filename:join([Root, "_build", "default", "rel", "evatar"])} | Config];
+init_per_group(_, Config) ->
+    Config.
+
+end_per_group(_, _Config) ->
+    ok.
 
 init_per_suite(Config) ->
     {ok, Broker} = mqtt_broker:start(),
@@ -165,9 +181,66 @@ malformed_files_stop_the_start(Config) ->
                                    ["zz_unknown_key_of_node_config_suite"])),
     ok.
 
+%% `bin/evatar daemon' with the file: the listener, the pairing and the
+%% MQTT Avatar come up; the Avatar killed is started again; after
+%% `bin/evatar stop' and `daemon' again everything is back.
+release_daemon_runs_the_file(Config) ->
+    {File, Port} = home_file(Config, #{}),
+    Env = release_env(Config, File),
+    try
+        "" = string:trim(evatar_cmd(Config, Env, "daemon")),
+        ok = await_eval(Config, Env, "joined", "house_joined()"),
+        {ok, Va} = agent_bridge_client:connect([{{127, 0, 0, 1}, Port}],
+                                               #{pairing => <<"home">>, role => agent,
+                                                 entity_id => <<"release-va">>, credential => ?VA_CRED}),
+        ok = agent_bridge_client:close(Va),
+        "ok" = eval(Config, Env, "begin [#{avatar := P}] = mqtt_avatar:kept(), true = exit(P, kill), ok end"),
+        ok = await_eval(Config, Env, "2", "begin [#{starts := N, state := running}] = mqtt_avatar:kept(), N end"),
+        ok = await_eval(Config, Env, "joined", "house_joined()"),
+        _ = evatar_cmd(Config, Env, "stop"),
+        "" = string:trim(evatar_cmd(Config, Env, "daemon")),
+        ok = await_eval(Config, Env, "joined", "house_joined()")
+    after
+        _ = evatar_cmd(Config, Env, "stop")
+    end.
+
+%% `bin/evatar foreground' with a file with mistakes: the node does not
+%% start, and its output names the file, the line, the entry and the mistake.
+release_refuses_a_bad_file(Config) ->
+    File = filename:join(?config(priv_dir, Config), "release_bad.config"),
+    ok = file:write_file(File, "{pairings, [#{id => \"home\", agent_credential => \"a\",\n"
+                               "              avatar_credential => \"b\", join_timeout => -5}]}.\n"),
+    Out = evatar_cmd(Config, release_env(Config, File), "foreground"),
+    Expected = File ++ ": line 1: pairings entry 1 (home): join_timeout -5 is not accepted",
+    ?assertNotEqual(nomatch, string:find(Out, Expected), Out),
+    ?assertNotEqual(nomatch, string:find(Out, "EVATAR will not start"), Out).
+
 %% ---------------------------------------------------------------------------
 %% Helpers
 %% ---------------------------------------------------------------------------
+
+release_env(_Config, File) ->
+    Name = "nc" ++ integer_to_list(erlang:unique_integer([positive])) ++ "_" ++ os:getpid(),
+    Dist = integer_to_list(free_port()),
+    [{"EVATAR_CONFIG", File}, {"EVATAR_NODE", Name ++ "@127.0.0.1"},
+     {"EVATAR_COOKIE", "node_config_suite_" ++ os:getpid()},
+     {"EVATAR_DIST_PORT_MIN", Dist}, {"EVATAR_DIST_PORT_MAX", Dist}].
+
+evatar_cmd(Config, Env, Args) ->
+    Exports = [[K, "='", V, "' "] || {K, V} <- Env],
+    os:cmd(lists:flatten(["cd '", ?config(rel, Config), "' && env ", Exports,
+                          "timeout 120 bin/evatar ", Args, " 2>&1"])).
+
+%% Evaluates an expression on the release's node; `house_joined()' stands
+%% for "the Avatar house is registered in the pairing home".
+eval(Config, Env, Expr0) ->
+    Joined = "case evatar:registry(<<\"home\">>) of {ok, Es} -> case [x || #{entity := <<\"house\">>, "
+             "registered := true} <- Es] of [_] -> joined; _ -> no end; _ -> no end",
+    Expr = string:replace(Expr0, "house_joined()", Joined, all),
+    string:trim(evatar_cmd(Config, Env, ["eval '", Expr, ".'"])).
+
+await_eval(Config, Env, Expected, Expr) ->
+    ha_cluster:await(fun() -> eval(Config, Env, Expr) =:= Expected end, 90000, {eval, Expr}).
 
 %% A file with a listener on a free port, the pairing "home" and the MQTT
 %% Avatar "house" on the suite's broker, discovering under the case's prefix.
