@@ -1,4 +1,4 @@
-%% @doc Public API of the bridge: TCP listeners and port connectors through
+%% @doc Public API of the bridge: TCP and TLS listeners and port connectors through
 %% which VAs and Avatars join EVATAR pairings (docs/protocol.md). Listeners
 %% named in the application environment start with the application; more
 %% can be started and stopped at run time.
@@ -12,7 +12,12 @@
 %% `conn' holds connection options (agent_bridge_conn:default_opts/0);
 %% `max_connections' and `handshake' the listener's guard's limits
 %% (agent_bridge_guard_logic:default_config/0, docs/protocol.md section 7).
+%% `transport' is `tcp' (the default without `tls') or `tls' (the default
+%% with it); `tls' holds the certificate, key and client verification
+%% options (agent_bridge_tls:tls_opts(), docs/protocol.md, "TLS").
 -type listener_opts() :: #{ip => inet:ip_address(),
+                           transport => tcp | tls,
+                           tls => agent_bridge_tls:tls_opts(),
                            port => inet:port_number(),
                            acceptors => pos_integer(),
                            backlog => pos_integer(),
@@ -47,13 +52,17 @@ start_listener(Name, Opts) ->
             {error, {bad_listener, Message}}
     end.
 
-%% @doc Pure: checks a listener's options (the keys of listener_opts/0,
-%% and `conn' keys those of agent_bridge_conn:default_opts/0), so a
-%% mistake in a configuration file is found before anything listens. The
-%% message names the option and what is wrong with it.
+%% @doc Checks a listener's options (the keys of listener_opts/0, and
+%% `conn' keys those of agent_bridge_conn:default_opts/0), so a mistake in
+%% a configuration file is found before anything listens. The message
+%% names the option and what is wrong with it. Pure but for a TLS
+%% listener's certificate and key files, which it reads.
 -spec check_listener(term()) -> ok | {error, binary()}.
 check_listener(Opts) when is_map(Opts) ->
-    first_error([check_listener_opt(K, V) || {K, V} <- maps:to_list(Opts)]);
+    case first_error([check_listener_opt(K, V) || {K, V} <- maps:to_list(Opts)]) of
+        ok -> check_tls(Opts);
+        Error -> Error
+    end;
 check_listener(_Opts) ->
     {error, <<"a listener is a map of options">>}.
 
@@ -77,6 +86,10 @@ check_listener_opt(handshake, Handshake) when is_map(Handshake) ->
     first_error([check_handshake_opt(K, V, Defaults) || {K, V} <- maps:to_list(Handshake)]);
 check_listener_opt(handshake, _) ->
     {error, <<"handshake must be a map of handshake limits">>};
+check_listener_opt(transport, _) ->
+    ok;
+check_listener_opt(tls, _) ->
+    ok;
 check_listener_opt(conn, Conn) when is_map(Conn) ->
     Defaults = agent_bridge_conn:default_opts(),
     first_error([check_conn_opt(K, V, Defaults) || {K, V} <- maps:to_list(Conn)]);
@@ -100,6 +113,12 @@ check_handshake_opt(Key, Value, Defaults) when is_map_key(Key, Defaults) ->
     expect(Key, is_integer(Value) andalso Value >= 0, "a non-negative integer");
 check_handshake_opt(Key, _Value, _Defaults) ->
     {error, iolist_to_binary(io_lib:format("unknown handshake option ~0tp", [Key]))}.
+%% `transport' and `tls' together; this reads the certificate and key files.
+check_tls(Opts) ->
+    case agent_bridge_tls:check(Opts) of
+        {ok, _} -> ok;
+        {error, Reason} -> {error, agent_bridge_tls:format_error(Reason)}
+    end.
 
 expect(_Key, true, _What) -> ok;
 expect(Key, false, What) -> {error, iolist_to_binary(io_lib:format("~0tp must be ~ts", [Key, What]))}.

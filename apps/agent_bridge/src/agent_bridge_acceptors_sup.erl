@@ -25,7 +25,7 @@ init({Name, ListenerSup, Opts}) ->
         {ok, LSock} ->
             {ok, Address} = inet:sockname(LSock),
             ok = agent_bridge:publish(Name, Address),
-            ConnOpts = maps:get(conn, Opts, #{}),
+            ConnOpts = agent_bridge_tls:conn_opts(Opts),
             Acceptors = [#{id => {acceptor, N},
                            start => {agent_bridge_acceptor, start_link,
                                      [LSock, ListenerSup, ConnOpts]}}

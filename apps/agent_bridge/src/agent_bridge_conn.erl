@@ -64,6 +64,8 @@
             pairing_pid :: pid() | undefined,
             monitor :: reference() | undefined,
             entity = <<>> :: binary(),
+            %% The client certificate a TLS handshake verified.
+            peer_cert :: evatar:peer_cert() | undefined,
             peer_closed = false :: boolean(),
             version = 1 :: 1 | 2,
             sent = false :: boolean(),
@@ -122,21 +124,41 @@ init(Arg) ->
 -spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
           gen_statem:event_handler_result(atom()).
 handle_event(info, {agent_bridge_shoot, Sock}, handshaking, #d{transport = undefined} = D) ->
-    T = {tcp, Sock},
-    ok = agent_bridge_transport:set_max_frame(T, opt(handshake_max_frame, D)),
-    ok = agent_bridge_transport:activate(T, once),
-    logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
     Ip = case inet:peername(Sock) of
              {ok, {Addr, _}} -> Addr;
              {error, _} -> undefined
          end,
-    {keep_state, D#d{transport = T, ip = Ip}};
+    case agent_bridge_transport:accepted(Sock, D#d.opts, opt(handshake_timeout, D)) of
+        {ok, T} ->
+            ok = agent_bridge_transport:set_max_frame(T, opt(handshake_max_frame, D)),
+            ok = agent_bridge_transport:activate(T, once),
+            logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
+            {keep_state, D#d{transport = T, ip = Ip,
+                             peer_cert = agent_bridge_transport:peer_cert(T)}};
+        {error, Why} ->
+            %% The client got the TLS alert; nothing of the protocol was said.
+            ?LOG_NOTICE(#{what => tls_handshake_failed, reason => Why}),
+            {stop, normal, D}
+    end;
 handle_event(internal, {open, {Exe, Args, Env}}, handshaking, D) ->
     Port = open_port({spawn_executable, Exe},
                      [{args, Args}, {env, Env}, {packet, 4}, binary, exit_status, use_stdio]),
     T = {port, Port},
     logger:update_process_metadata(#{peer => agent_bridge_transport:peer(T)}),
     {keep_state, D#d{transport = T}};
+
+%% A TLS socket's messages, read as a TCP socket's; an oversized frame is
+%% an invalid packet there.
+handle_event(info, {ssl, S, Frame}, State, D) ->
+    handle_event(info, {tcp, S, Frame}, State, D);
+handle_event(info, {ssl_passive, S}, State, D) ->
+    handle_event(info, {tcp_passive, S}, State, D);
+handle_event(info, {ssl_closed, S}, State, D) ->
+    handle_event(info, {tcp_closed, S}, State, D);
+handle_event(info, {ssl_error, S, {invalid_packet, _}}, State, D) ->
+    handle_event(info, {tcp_error, S, emsgsize}, State, D);
+handle_event(info, {ssl_error, S, Why}, State, D) ->
+    handle_event(info, {tcp_error, S, Why}, State, D);
 
 %% Frames in.
 handle_event(info, {tcp, _, Frame}, State, D) when State =/= closing, State =/= penalty ->
@@ -320,15 +342,16 @@ hello(Hello, D) ->
 
 join(#{pairing := P, role := Role, entity_id := E, credential := C,
        protocol_version := V} = Hello, D) ->
+    Auth = #{credential => C, peer_cert => D#d.peer_cert},
     {SessionId, Result} =
         case Hello of
             #{session_id := S, received := R, epoch := Ep} ->
-                {S, evatar:resume(P, Role, E, C, #{session => S, received => R, epoch => Ep})};
+                {S, evatar:resume(P, Role, E, Auth, #{session => S, received => R, epoch => Ep})};
             #{} when V =:= 2 ->
                 S = session_id(),
-                {S, evatar:join(P, Role, E, C, #{session => S})};
+                {S, evatar:join(P, Role, E, Auth, #{session => S})};
             #{} ->
-                {session_id(), evatar:join(P, Role, E, C)}
+                {session_id(), evatar:join(P, Role, E, Auth)}
         end,
     case locked_out(Result, D) of
         {locked, Ms, Session} ->
@@ -342,7 +365,7 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
             logger:update_process_metadata(#{pairing => evatar_log:id(P),
                                              entity => evatar_log:id(E)}),
             ?LOG_INFO(#{what => joined, role => Role, protocol_version => V,
-                        resumed => maps:get(resumed, Info)}),
+                        resumed => maps:get(resumed, Info), peer_cert => D#d.peer_cert}),
             D1 = D#d{session = Session, pairing = P, pairing_pid = Pid,
                      monitor = monitor(process, Pid), entity = E, version = V},
             Welcome0 = #{pairing => P, entity_id => E, session_id => SessionId,

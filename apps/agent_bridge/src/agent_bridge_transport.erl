@@ -1,20 +1,42 @@
-%% @doc Internal. The two transports a connection runs over: a TCP socket
-%% accepted by a listener, or an Erlang port running an external program.
-%% Both carry `{packet, 4}' frames; writes never suspend the caller.
+%% @doc Internal. The transports a connection runs over: a TCP socket
+%% accepted by a listener, the same upgraded to TLS (agent_bridge_tls), or
+%% an Erlang port running an external program. All carry `{packet, 4}'
+%% frames; writes never suspend the caller.
 -module(agent_bridge_transport).
 
--export([send_fun/1, activate/2, top_up/2, is_passive/1, set_max_frame/2, drain/1, shutdown/1, close/1,
+-export([accepted/3, peer_cert/1,
+         send_fun/1, activate/2, top_up/2, is_passive/1, set_max_frame/2, drain/1, shutdown/1, close/1,
          abort/1, peer/1]).
 
 -export_type([t/0]).
 
--type t() :: {tcp, gen_tcp:socket()} | {port, port()}.
+-type t() :: {tcp, gen_tcp:socket()} | {port, port()}
+           | {tls, ssl:sslsocket(), agent_bridge_tls:writer()}.
+
+%% @doc The transport of a socket a listener accepted: TCP as it is, or TLS
+%% after a handshake run here, in the connection's process, within
+%% `Timeout' ms (connection options with `tls', set by agent_bridge_tls).
+-spec accepted(gen_tcp:socket(), map(), timeout()) -> {ok, t()} | {error, term()}.
+accepted(Sock, #{tls := Tls}, Timeout) ->
+    case agent_bridge_tls:handshake(Sock, Tls, Timeout) of
+        {ok, SslSock} -> {ok, {tls, SslSock, agent_bridge_tls:start_writer(SslSock, Sock)}};
+        {error, _} = Error -> Error
+    end;
+accepted(Sock, #{}, _Timeout) ->
+    {ok, {tcp, Sock}}.
+
+%% @doc The client certificate a TLS handshake verified.
+-spec peer_cert(t()) -> evatar:peer_cert() | undefined.
+peer_cert({tls, S, _}) -> agent_bridge_tls:peer_cert(S);
+peer_cert(_) -> undefined.
 
 %% @doc A function that writes one frame without suspending: false when the
 %% transport is busy (its queue is over the high watermark). A transport
 %% already closed takes the frame and drops it; the close arrives as a
 %% message.
 -spec send_fun(t()) -> agent_bridge_outq:send_fun().
+send_fun({tls, _, Writer}) ->
+    agent_bridge_tls:send_fun(Writer);
 send_fun({_, Port}) ->
     fun(Frame) ->
             try erlang:port_command(Port, Frame, [nosuspend])
@@ -25,11 +47,14 @@ send_fun({_, Port}) ->
 %% @doc Lets the next N frames in (`once' for one). Ports cannot be paused.
 -spec activate(t(), once | pos_integer()) -> ok.
 activate({tcp, S}, N) -> ok_or_closed(inet:setopts(S, [{active, N}]));
+activate({tls, S, _}, N) -> ok_or_closed(ssl:setopts(S, [{active, N}]));
 activate({port, _}, _) -> ok.
 
 %% @doc Raises a socket's `{active, N}' count to `Target' frames still to
 %% deliver; a passive socket is left alone (its passive notice is on its
-%% way, and the owner decides then).
+%% way, and the owner decides then). TLS sockets are read by their own
+%% process, so topping them up gains nothing: they go passive and are
+%% activated again.
 -spec top_up(t(), integer()) -> ok.
 top_up({tcp, S}, Target) ->
     case inet:getopts(S, [active]) of
@@ -38,10 +63,11 @@ top_up({tcp, S}, Target) ->
         _ ->
             ok
     end;
-top_up({port, _}, _) -> ok.
+top_up(_, _) -> ok.
 
 %% @doc Whether a socket has stopped delivering frames (`{active, false}');
-%% a closed one counts as passive.
+%% a closed one counts as passive. A TLS socket's passive notice is never
+%% stale (no top-ups).
 -spec is_passive(t()) -> boolean().
 is_passive({tcp, S}) ->
     case inet:getopts(S, [active]) of
@@ -49,10 +75,12 @@ is_passive({tcp, S}) ->
         {ok, [{active, _}]} -> false;
         {error, _} -> true
     end;
+is_passive({tls, _, _}) -> true;
 is_passive({port, _}) -> false.
 
 -spec set_max_frame(t(), pos_integer()) -> ok.
 set_max_frame({tcp, S}, Max) -> ok_or_closed(inet:setopts(S, [{packet_size, Max}]));
+set_max_frame({tls, S, _}, Max) -> ok_or_closed(ssl:setopts(S, [{packet_size, Max}]));
 set_max_frame({port, _}, _) -> ok.
 
 %% @doc While closing: read what the peer still sends and throw it away, so
@@ -61,16 +89,22 @@ set_max_frame({port, _}, _) -> ok.
 %% length ends the drain with an error, which is fine.
 -spec drain(t()) -> ok.
 drain({tcp, S}) -> ok_or_closed(inet:setopts(S, [{active, once}]));
+drain({tls, S, _}) -> ok_or_closed(ssl:setopts(S, [{active, once}]));
 drain({port, _}) -> ok.
 
 %% @doc Half-closes after the queued output; inet delays it until its queue
-%% is empty.
+%% is empty, TLS's writer until it has written the frames it holds.
 -spec shutdown(t()) -> ok.
 shutdown({tcp, S}) -> ok_or_closed(gen_tcp:shutdown(S, write));
+shutdown({tls, _, Writer}) -> agent_bridge_tls:shutdown(Writer);
 shutdown({port, _}) -> ok.
 
 -spec close(t() | undefined) -> ok.
 close({tcp, S}) -> gen_tcp:close(S);
+close({tls, S, Writer}) ->
+    ok = agent_bridge_tls:stop_writer(Writer),
+    _ = ssl:close(S),
+    ok;
 close({port, P}) ->
     try port_close(P) of true -> ok
     catch error:badarg -> ok
@@ -84,18 +118,25 @@ close(undefined) -> ok.
 abort({tcp, S}) ->
     _ = inet:setopts(S, [{linger, {true, 0}}]),
     gen_tcp:close(S);
+abort({tls, S, Writer}) ->
+    agent_bridge_tls:abort(S, Writer);
 abort(T) ->
     close(T).
 
 %% @doc The peer's address for logs.
 -spec peer(t()) -> binary().
+peer({tls, S, _}) ->
+    address(ssl:peername(S));
 peer({tcp, S}) ->
-    case inet:peername(S) of
-        {ok, {Ip, Port}} -> iolist_to_binary([inet:ntoa(Ip), ":", integer_to_binary(Port)]);
-        {error, _} -> <<"unknown">>
-    end;
+    address(inet:peername(S));
 peer({port, P}) ->
     iolist_to_binary(io_lib:format("~p", [P])).
+
+address(Peername) ->
+    case Peername of
+        {ok, {Ip, Port}} -> iolist_to_binary([inet:ntoa(Ip), ":", integer_to_binary(Port)]);
+        {error, _} -> <<"unknown">>
+    end.
 
 %% A closed socket is reported separately as tcp_closed.
 ok_or_closed(ok) -> ok;

@@ -7,7 +7,7 @@
 
 -export([start/1, start_with_broker/3, stop/2, listen/1, listen/2, va_credential/0,
          avatar_credential/0, create_pairing/2, stop_broker/1, wait_binding/3, wait_signal/3,
-         wait_until/2]).
+         wait_until/2, bridge_certs/2]).
 
 %% @doc Starts evatar, agent_bridge (without a default listener) and Apps.
 -spec start([atom()]) -> ok.
@@ -51,6 +51,20 @@ listen(Name, Opts) ->
     {ok, _} = agent_bridge:start_listener(Name, Opts#{port => 0}),
     {ok, Addr} = agent_bridge:address(Name),
     Addr.
+
+%% @doc Runs scripts/gen-bridge-certs.sh: a CA, a server certificate for
+%% localhost and 127.0.0.1, and a client certificate per name in Dir.
+-spec bridge_certs(file:filename(), [string()]) -> file:filename().
+bridge_certs(Dir, Clients) ->
+    Src = proplists:get_value(source, evatar:module_info(compile)),
+    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Script = filename:join([Root, "scripts", "gen-bridge-certs.sh"]),
+    Out = os:cmd(lists:join(" ", ["EVATAR_SERVER_HOSTS='localhost 127.0.0.1'", "bash", Script, Dir
+                                  | Clients]) ++ " 2>&1; echo rc=$?"),
+    case string:find(Out, "rc=0\n") of
+        nomatch -> ct:fail({gen_bridge_certs, Out});
+        _ -> Dir
+    end.
 
 %% @doc The credential of the VAs of the suites' pairings.
 -spec va_credential() -> binary().

@@ -1,5 +1,5 @@
 %% @doc Erlang client of the EVATAR wire protocol (docs/protocol.md): joins
-%% a pairing as a VA or an Avatar over TCP, sends descriptions and signals,
+%% a pairing as a VA or an Avatar over TCP or TLS, sends descriptions and signals,
 %% and passes what EVATAR sends to an owner process as messages:
 %% `{agent_bridge, Client, {signal, Signal}}',
 %% `{agent_bridge, Client, {binding, Report}}' and, last,
@@ -34,11 +34,14 @@
 %% `ha' (default false) turns on protocol version 2; `reconnect_backoff'
 %% (ms, doubling, default {20, 500}) and `reconnect_limit' (ms without a
 %% session before giving up, default 30000) apply to it, and so does
-%% `notify_acks' (default false).
+%% `notify_acks' (default false). `tls' (default false: plain TCP) connects
+%% with TLS and checks the server (agent_bridge_client_sock:tls_opts(),
+%% docs/clients.md, "TLS").
 -type opts() :: #{pairing := binary(),
                   role := agent | avatar,
                   entity_id := binary(),
                   credential := binary(),
+                  tls => agent_bridge_client_sock:tls_opts() | false,
                   owner => pid(),
                   connect_timeout => timeout(),
                   handshake_timeout => timeout(),
@@ -78,7 +81,7 @@
             endpoints :: [endpoint()],
             failures = [] :: [{endpoint(), term()}],
             current :: endpoint() | undefined,
-            sock :: gen_tcp:socket() | undefined,
+            sock :: agent_bridge_client_sock:sock() | undefined,
             waiter :: gen_statem:from() | undefined,
             welcome :: bil_control:welcome() | undefined,
             nonce :: binary(),
@@ -216,13 +219,22 @@ handle_event(internal, connect, connecting, #d{endpoints = []} = D) ->
     fail({unreachable, lists:reverse(D#d.failures)}, D);
 handle_event(internal, connect, connecting, #d{endpoints = [E | Rest]} = D) ->
     try_endpoint(E, D#d{endpoints = Rest});
+%% A TLS socket's messages, read as a TCP socket's.
+handle_event(info, {ssl, Sock, Frame}, State, D) ->
+    handle_event(info, {tcp, Sock, Frame}, State, D);
+handle_event(info, {ssl_passive, Sock}, State, D) ->
+    handle_event(info, {tcp_passive, Sock}, State, D);
+handle_event(info, {ssl_closed, Sock}, State, D) ->
+    handle_event(info, {tcp_closed, Sock}, State, D);
+handle_event(info, {ssl_error, Sock, Why}, State, D) ->
+    handle_event(info, {tcp_error, Sock, Why}, State, D);
 handle_event(state_timeout, E, handshaking, D) ->
-    gen_tcp:close(D#d.sock),
+    agent_bridge_client_sock:close(D#d.sock),
     next_endpoint(E, handshake_timeout, D#d{sock = undefined});
 handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock} = D) ->
     case bil_control:parse_frame(Frame, #{}) of
         {ok, {control, {welcome, Welcome}}} ->
-            ok = inet:setopts(Sock, [{active, active_n(D)}]),
+            ok = agent_bridge_client_sock:setopts(Sock, [{active, active_n(D)}]),
             reply_waiter({ok, self()}, D),
             welcomed(Welcome, D#d{welcome = Welcome, waiter = undefined,
                                   reads = max(1, active_n(D) div 2)});
@@ -246,9 +258,9 @@ handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock} = D) ->
     incoming(bil_control:parse_frame(Frame, #{}), read_on(D#d{last_rx = now_ms()}));
 handle_event(info, {tcp_passive, Sock}, connected, #d{sock = Sock} = D) ->
     %% A top-up made just as the socket went passive makes this notice stale.
-    case inet:getopts(Sock, [active]) of
+    case agent_bridge_client_sock:getopts(Sock, [active]) of
         {ok, [{active, false}]} ->
-            ok = inet:setopts(Sock, [{active, active_n(D)}]),
+            ok = agent_bridge_client_sock:setopts(Sock, [{active, active_n(D)}]),
             {keep_state, D#d{reads = max(1, active_n(D) div 2)}};
         _ ->
             keep_state_and_data
@@ -307,8 +319,8 @@ handle_event({call, From}, await_acks, _State, D) ->
 handle_event({call, From}, close, connected, #d{sock = Sock} = D) ->
     %% The server answers Bye and closes at once, so either call may find
     %% the socket already closed.
-    _ = gen_tcp:send(Sock, bil_control:encode({bye, <<>>})),
-    _ = gen_tcp:shutdown(Sock, write),
+    _ = agent_bridge_client_sock:send(Sock, bil_control:encode({bye, <<>>})),
+    _ = agent_bridge_client_sock:shutdown(Sock),
     {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
 handle_event({call, From}, close, _State, #d{ha = true} = D) ->
     {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
@@ -321,7 +333,7 @@ handle_event(info, _Other, _State, _D) ->
 
 -spec terminate(term(), atom(), #d{}) -> ok.
 terminate(_Why, _State, #d{sock = undefined}) -> ok;
-terminate(_Why, _State, #d{sock = Sock}) -> gen_tcp:close(Sock).
+terminate(_Why, _State, #d{sock = Sock}) -> agent_bridge_client_sock:close(Sock).
 
 %% ---------------------------------------------------------------------------
 %% Connecting
@@ -331,14 +343,20 @@ try_endpoint({Host, Port} = E, D) ->
     Opts = D#d.opts,
     SockOpts = [binary, {packet, 4}, {packet_size, maps:get(max_frame, Opts, 1048576)},
                 {active, once}, {nodelay, true}],
-    case gen_tcp:connect(Host, Port, SockOpts, maps:get(connect_timeout, Opts, 5000)) of
+    case agent_bridge_client_sock:connect(Host, Port, SockOpts,
+                                          #{tls => maps:get(tls, Opts, false),
+                                            timeout => maps:get(connect_timeout, Opts, 5000)}) of
         {ok, Sock} ->
-            case gen_tcp:send(Sock, bil_control:encode(hello(D))) of
-                ok ->
+            case agent_bridge_client_sock:send(Sock, bil_control:encode(hello(D))) of
+                Sent when Sent =:= ok; not is_port(Sock) ->
+                    %% With TLS 1.3 a server refuses a client certificate
+                    %% after the client's handshake is done: the send may
+                    %% fail, and the reason (the TLS alert) follows as a
+                    %% message.
                     {next_state, handshaking, D#d{sock = Sock, current = E},
                      [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
                 {error, Why} ->
-                    gen_tcp:close(Sock),
+                    agent_bridge_client_sock:close(Sock),
                     next_endpoint(E, Why, D)
             end;
         {error, Why} ->
@@ -385,7 +403,7 @@ next_endpoint(E, Why, #d{all = All, tried = Tried, opts = Opts} = D) ->
 refused_in_handshake(Code, Message, #d{ha = true} = D) ->
     case lists:member(Code, ?RETRY_CODES) of
         true ->
-            gen_tcp:close(D#d.sock),
+            agent_bridge_client_sock:close(D#d.sock),
             next_endpoint(D#d.current, {refused, Code, Message}, D#d{sock = undefined});
         false ->
             fail({refused, Code, Message}, D)
@@ -450,9 +468,9 @@ read_on(#d{reads = R} = D) when R > 1 ->
     D#d{reads = R - 1};
 read_on(#d{sock = Sock} = D) ->
     N = active_n(D),
-    case inet:getopts(Sock, [active]) of
+    case agent_bridge_client_sock:getopts(Sock, [active]) of
         {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
-            _ = inet:setopts(Sock, [{active, N - Left}]),
+            _ = agent_bridge_client_sock:setopts(Sock, [{active, N - Left}]),
             ok;
         _ ->
             ok
@@ -624,7 +642,7 @@ disconnected(Reason, #d{ha = true, sock = Sock} = D) ->
             end,
     case Retry of
         true ->
-            _ = [gen_tcp:close(Sock) || Sock =/= undefined],
+            _ = [agent_bridge_client_sock:close(Sock) || Sock =/= undefined],
             Next = index_of(D#d.current, D#d.all) + 1,
             {next_state, connecting,
              D#d{sock = undefined, welcome = undefined, next = Next, tried = 0,
@@ -659,7 +677,7 @@ notify(Event, #d{owner = Owner} = D) ->
 write(_Doc, #d{sock = undefined}) ->
     {error, closed};
 write(Doc, #d{sock = Sock}) ->
-    case gen_tcp:send(Sock, Doc) of
+    case agent_bridge_client_sock:send(Sock, Doc) of
         ok -> ok;
         {error, _} -> {error, closed}
     end.

@@ -1,0 +1,396 @@
+%% Common Test suite of the bridge's TLS listeners (docs/protocol.md, "TLS")
+%% over real TLS with certificates from scripts/gen-bridge-certs.sh: a full
+%% session through the client library, the server checked against a CA or
+%% a pinned fingerprint, client certificates required and verified, and the
+%% attacks of issue 15 (a sniffer on the wire, a server the client does not
+%% trust, a client without a certificate or with a foreign one).
+-module(agent_bridge_tls_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-compile([export_all, nowarn_export_all]).
+
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(LISTENERS, [tls_open, tls_mutual, tls_plain_tcp]).
+
+suite() -> [{timetrap, {seconds, 60}}].
+
+all() ->
+    [{group, server}, {group, client_certificates}, {group, attacks}, {group, config}].
+
+groups() ->
+    [{server, [], [session_over_tls, ha_session_over_tls, pinned_server, pin_mismatch,
+                   untrusted_server, wrong_server_name, oversize_frame_over_tls,
+                   slow_handshakes_do_not_block]},
+     {client_certificates, [], [client_certificate_identifies, no_client_certificate,
+                                untrusted_client_certificate, plain_client_on_tls]},
+     {attacks, [], [sniffer_sees_nothing, sniffer_on_plain_tcp_sees_secrets]},
+     {config, [], [bad_listener_options]}].
+
+%% ---------------------------------------------------------------------------
+%% Setup
+%% ---------------------------------------------------------------------------
+
+init_per_suite(Config) ->
+    ok = agent_bridge_test_node:start([]),
+    Priv = ?config(priv_dir, Config),
+    Certs = agent_bridge_test_node:bridge_certs(filename:join(Priv, "certs"), ["va", "av"]),
+    Rogue = agent_bridge_test_node:bridge_certs(filename:join(Priv, "rogue"), ["va"]),
+    Server = #{certfile => file(Certs, "server.pem"), keyfile => file(Certs, "server.key")},
+    Conn = #{handshake_timeout => 1000, linger => 200},
+    Open = agent_bridge_test_node:listen(tls_open, #{tls => Server, conn => Conn}),
+    Mutual = agent_bridge_test_node:listen(
+               tls_mutual, #{tls => Server#{cacertfile => file(Certs, "ca.pem")}, conn => Conn}),
+    Plain = agent_bridge_test_node:listen(tls_plain_tcp, #{conn => Conn}),
+    [{certs, Certs}, {rogue, Rogue}, {open, Open}, {mutual, Mutual}, {plain, Plain} | Config].
+
+end_per_suite(_Config) ->
+    agent_bridge_test_node:stop(?LISTENERS, [agent_bridge]).
+
+init_per_testcase(Case, Config) ->
+    Pairing = atom_to_binary(Case),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 5000}),
+    [{pairing, Pairing} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = evatar:delete_pairing(?config(pairing, Config)),
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Server
+%% ---------------------------------------------------------------------------
+
+%% Hello, describe, bind, a request with its feedback and a sensor stream,
+%% all over TLS with the server checked against the CA.
+session_over_tls(Config) ->
+    Tls = #{cacertfile => cert(Config, "ca.pem")},
+    bound_session(Config, open, Tls, Tls, #{}).
+
+%% The same with protocol version 2 (acknowledgements, heartbeats).
+ha_session_over_tls(Config) ->
+    Tls = #{cacertfile => cert(Config, "ca.pem")},
+    bound_session(Config, open, Tls, Tls, #{ha => true}).
+
+%% A pinned server fingerprint replaces the CA: no CA file given.
+pinned_server(Config) ->
+    Pin = read(cert(Config, "server.sha256")),
+    %% Colons and upper case, as other tools print fingerprints, are fine.
+    Pretty = lists:join(":", [string:uppercase(binary_to_list(<<A, B>>)) || <<A, B>> <= Pin]),
+    {ok, C} = connect(Config, open, agent, <<"va">>, #{pin_sha256 => Pretty}),
+    ok = agent_bridge_client:close(C).
+
+%% A pin that does not match (the rogue server's) fails before any Hello,
+%% naming both fingerprints.
+pin_mismatch(Config) ->
+    Pin = read(rogue(Config, "server.sha256")),
+    Real = read(cert(Config, "server.sha256")),
+    {error, {unreachable, [{_, {pin_mismatch, Pin, Real}}]}} =
+        connect(Config, open, agent, <<"va">>, #{pin_sha256 => Pin}).
+
+%% The client trusts another CA (a man in the middle with its own
+%% certificate looks the same): the TLS alert unknown_ca, no Hello sent.
+untrusted_server(Config) ->
+    {error, {unreachable, [{_, {tls_alert, {unknown_ca, Text}}}]}} =
+        connect(Config, open, agent, <<"va">>, #{cacertfile => rogue(Config, "ca.pem")}),
+    ct:log("client error: ~s", [Text]),
+    %% Nobody joined.
+    {ok, []} = evatar:registry(?config(pairing, Config)).
+
+%% A certificate for other names than the one the client asks for.
+wrong_server_name(Config) ->
+    {error, {unreachable, [{_, {tls_alert, {handshake_failure, Text}}}]}} =
+        connect(Config, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem"),
+                                                  server_name => "evatar.example"}),
+    ct:log("client error: ~s", [Text]).
+
+%% An oversized frame over TLS closes the connection (the TLS library ends
+%% the session at once, so no Refused gets out) and frees the entity id.
+oversize_frame_over_tls(Config) ->
+    S = ssl_connect(Config, open, []),
+    ok = ssl:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
+    {control, {welcome, #{max_frame := Max}}} = ssl_recv_doc(S),
+    _ = ssl:send(S, binary:copy(<<"x">>, Max + 1)),
+    {error, closed} = ssl:recv(S, 0, 5000),
+    {ok, C} = connect(Config, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
+    ok = agent_bridge_client:close(C).
+
+%% Clients that open TCP and never start TLS hold no acceptor: with more of
+%% them than acceptors, a real client still joins, and each silent one is
+%% closed by the handshake timeout.
+slow_handshakes_do_not_block(Config) ->
+    {Ip, Port} = ?config(open, Config),
+    Silent = [begin
+                  {ok, S} = gen_tcp:connect(Ip, Port, [binary, {active, false}]),
+                  S
+              end || _ <- lists:seq(1, 12)],
+    {ok, C} = connect(Config, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
+    ok = agent_bridge_client:close(C),
+    [{error, closed} = gen_tcp:recv(S, 0, 10000) || S <- Silent],
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Client certificates
+%% ---------------------------------------------------------------------------
+
+%% A client certificate signed by the listener's CA: the session works, and
+%% the connection names the certificate's SHA-256 and CN (it gives them to
+%% the pairing with the credential, and logs them with the join).
+client_certificate_identifies(Config) ->
+    Logger = logger:get_primary_config(),
+    ok = logger:add_handler(tls_joined, ?MODULE, #{config => #{pid => self()}, level => info}),
+    ok = logger:set_primary_config(level, info),
+    try
+        {ok, C} = connect(Config, mutual, agent, <<"va">>, client_tls(Config, "va")),
+        receive
+            {joined, PeerCert} ->
+                ?assertEqual(#{sha256 => read(cert(Config, "client-va.sha256")), cn => <<"va">>},
+                             PeerCert)
+        after 5000 -> ct:fail(no_join_seen)
+        end,
+        ok = agent_bridge_client:close(C)
+    after
+        ok = logger:set_primary_config(level, maps:get(level, Logger)),
+        ok = logger:remove_handler(tls_joined)
+    end,
+    %% The full session works with certificates on both sides.
+    bound_session(Config, mutual, client_tls(Config, "va"), client_tls(Config, "av"), #{}).
+
+%% logger handler callback: forwards the bridge's `joined' reports.
+log(#{msg := {report, #{what := joined, peer_cert := PeerCert}}}, #{config := #{pid := Pid}}) ->
+    Pid ! {joined, PeerCert};
+log(_, _) ->
+    ok.
+
+%% A listener that requires client certificates refuses a client without
+%% one: the TLS alert certificate_required, and nobody joins.
+no_client_certificate(Config) ->
+    {error, {unreachable, [{_, {tls_alert, {certificate_required, Text}}}]}} =
+        connect(Config, mutual, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
+    ct:log("client error: ~s", [Text]),
+    {ok, []} = evatar:registry(?config(pairing, Config)).
+
+%% A client certificate from another CA: the TLS alert unknown_ca.
+untrusted_client_certificate(Config) ->
+    Tls = #{cacertfile => cert(Config, "ca.pem"),
+            certfile => rogue(Config, "client-va.pem"), keyfile => rogue(Config, "client-va.key")},
+    {error, {unreachable, [{_, {tls_alert, {unknown_ca, Text}}}]}} =
+        connect(Config, mutual, agent, <<"va">>, Tls),
+    ct:log("client error: ~s", [Text]),
+    {ok, []} = evatar:registry(?config(pairing, Config)).
+
+%% A plain TCP client's Hello is no TLS ClientHello: the server answers a
+%% TLS alert (which reads as an oversized frame) and closes; nobody joins.
+plain_client_on_tls(Config) ->
+    {error, {unreachable, [{_, Why}]}} =
+        agent_bridge_client:connect([?config(mutual, Config)],
+                                    client_opts(Config, agent, <<"va">>)),
+    true = lists:member(Why, [emsgsize, closed]),
+    {ok, []} = evatar:registry(?config(pairing, Config)).
+
+%% ---------------------------------------------------------------------------
+%% Attacks
+%% ---------------------------------------------------------------------------
+
+%% A relay between client and TLS listener records every byte both ways:
+%% neither the credential nor the SessionID nor any BIL appears in it.
+sniffer_sees_nothing(Config) ->
+    Wire = sniffed_session(Config, open, #{cacertfile => cert(Config, "ca.pem")}),
+    #{credential := Cred, session_id := Sid} = Wire,
+    Bytes = maps:get(bytes, Wire),
+    nomatch = binary:match(Bytes, Cred),
+    nomatch = binary:match(Bytes, Sid),
+    nomatch = binary:match(Bytes, <<"Hello">>),
+    nomatch = binary:match(Bytes, <<"bil:">>).
+
+%% The control: over plain TCP the same relay sees both secrets.
+sniffer_on_plain_tcp_sees_secrets(Config) ->
+    Wire = sniffed_session(Config, plain, false),
+    #{credential := Cred, session_id := Sid, bytes := Bytes} = Wire,
+    {_, _} = binary:match(Bytes, Cred),
+    {_, _} = binary:match(Bytes, Sid).
+
+%% ---------------------------------------------------------------------------
+%% Configuration
+%% ---------------------------------------------------------------------------
+
+%% Bad TLS options fail the listener's start with a reason naming them.
+bad_listener_options(Config) ->
+    Cert = cert(Config, "server.pem"),
+    Key = cert(Config, "server.key"),
+    Start = fun(Opts) ->
+                    {error, {bad_listener, Message}} =
+                        agent_bridge:start_listener(bad_tls, Opts#{port => 0}),
+                    ct:log("~s", [Message]),
+                    Message
+            end,
+    <<"tls option keyfile is missing">> = Start(#{tls => #{certfile => Cert}}),
+    <<"transport tls needs a tls map", _/binary>> = Start(#{transport => tls}),
+    <<"transport must be tcp or tls, not quic">> = Start(#{transport => quic}),
+    <<"tls option cacertfile is missing">> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, verify => verify_peer}}),
+    <<"tls certfile /nonexistent.pem cannot be read: no such file or directory">> =
+        Start(#{tls => #{certfile => "/nonexistent.pem", keyfile => Key}}),
+    <<"tls keyfile ", _/binary>> = Start(#{tls => #{certfile => Cert, keyfile => Cert}}),
+    <<"unknown tls option verfy">> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, verfy => verify_peer}}),
+    {error, not_found} = agent_bridge:address(bad_tls).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+file(Dir, Name) -> filename:join(Dir, Name).
+cert(Config, Name) -> file(?config(certs, Config), Name).
+rogue(Config, Name) -> file(?config(rogue, Config), Name).
+
+read(File) ->
+    {ok, Bin} = file:read_file(File),
+    string:trim(Bin).
+
+client_tls(Config, Name) ->
+    #{cacertfile => cert(Config, "ca.pem"),
+      certfile => cert(Config, "client-" ++ Name ++ ".pem"),
+      keyfile => cert(Config, "client-" ++ Name ++ ".key")}.
+
+client_opts(Config, Role, Entity) ->
+    #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
+      credential => case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end}.
+
+connect(Config, Listener, Role, Entity, Tls) ->
+    connect(Config, Listener, Role, Entity, Tls, #{}).
+
+connect(Config, Listener, Role, Entity, Tls, Extra) ->
+    agent_bridge_client:connect([?config(Listener, Config)],
+                                maps:merge((client_opts(Config, Role, Entity))#{tls => Tls}, Extra)).
+
+%% A VA and an Avatar bound over Listener: a request answered by the
+%% Avatar, then 500 sensor signals in order.
+bound_session(Config, Listener, VaTls, AvTls, Extra) ->
+    Parent = self(),
+    Av = spawn_link(fun() ->
+                            {ok, C} = connect(Config, Listener, avatar, <<"av">>, AvTls, Extra),
+                            ok = agent_bridge_client:describe(C, avatar_description(<<"av">>)),
+                            Parent ! {avatar, self()},
+                            responder(C)
+                    end),
+    receive {avatar, Av} -> ok after 10000 -> ct:fail(no_avatar) end,
+    {ok, Va} = connect(Config, Listener, agent, <<"va">>, VaTls, Extra),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
+    N = 500,
+    Av ! {stream, N},
+    Got = [begin
+               #{body := #{parameters := [{<<"N">>, V}]}} =
+                   agent_bridge_test_node:wait_signal(
+                     Va, fun(#{context := Ctx}) -> Ctx =:= sensor_data end, 5000),
+               binary_to_integer(V)
+           end || _ <- lists:seq(1, N)],
+    ?assertEqual(lists:seq(1, N), Got),
+    ok = agent_bridge_client:close(Va),
+    Av ! {stop, self()},
+    receive {stopped, Av} -> ok after 5000 -> ct:fail(avatar_not_stopped) end.
+
+responder(C) ->
+    receive
+        {agent_bridge, C, {signal, #{context := request, id := Id, sender := From,
+                                     receiver := To, body := Body}}} ->
+            ok = agent_bridge_client:send(C, #{context => feedback, sender => To,
+                                               receiver => From, in_reply_to => Id,
+                                               body => Body}),
+            responder(C);
+        {stream, N} ->
+            [ok = agent_bridge_client:send(C, #{context => sensor_data, sender => <<"Thermo01">>,
+                                                receiver => <<"ThermoEmulator01">>,
+                                                body => sensor_body(I)})
+             || I <- lists:seq(1, N)],
+            responder(C);
+        {stop, From} ->
+            ok = agent_bridge_client:close(C),
+            From ! {stopped, self()};
+        _ ->
+            responder(C)
+    end.
+
+sensor_body(I) ->
+    #{category => <<"SENSOR">>, type => <<"Temperature">>,
+      parameters => [{<<"N">>, integer_to_binary(I)}]}.
+
+light_request() ->
+    #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+                parameters => [{<<"Light">>, <<"yes">>}]}}.
+
+%% The bodies of the HA suites' entities: a light and a thermometer.
+va_description(Id) -> ha_traffic:va_description(Id).
+
+avatar_description(Id) -> ha_traffic:avatar_description(Id).
+
+hello(Config, Role, Entity, Cred) ->
+    bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,
+                                 entity_id => Entity, credential => Cred,
+                                 protocol_version => 1}}).
+
+ssl_connect(Config, Listener, Extra) ->
+    {Ip, Port} = ?config(Listener, Config),
+    {ok, S} = ssl:connect(Ip, Port, [binary, {packet, 4}, {active, false}, {verify, verify_peer},
+                                     {cacertfile, cert(Config, "ca.pem")} | Extra], 5000),
+    S.
+
+ssl_recv_doc(S) ->
+    {ok, Frame} = ssl:recv(S, 0, 5000),
+    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
+    Doc.
+
+%% A protocol version 2 session through a relay that records the bytes of
+%% both directions; the credential, the SessionID and the bytes.
+sniffed_session(Config, Listener, Tls) ->
+    {Relay, RelayAddr} = start_relay(?config(Listener, Config)),
+    Opts = (client_opts(Config, agent, <<"va">>))#{tls => Tls, ha => true},
+    {ok, C} = agent_bridge_client:connect([RelayAddr], Opts),
+    {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
+    ok = agent_bridge_client:describe(C, va_description(<<"va">>)),
+    _ = agent_bridge_test_node:wait_binding(C, fun(_) -> true end, 5000),
+    ok = agent_bridge_client:close(C),
+    Relay ! {bytes, self()},
+    Bytes = receive {relay_bytes, B} -> B after 5000 -> ct:fail(no_relay_bytes) end,
+    ct:log("the relay saw ~b bytes", [byte_size(Bytes)]),
+    true = byte_size(Bytes) > 0,
+    #{credential => ?VA_CRED, session_id => Sid, bytes => Bytes}.
+
+%% One-connection TCP relay to Upstream that keeps a copy of what passes.
+start_relay({Ip, Port}) ->
+    {ok, L} = gen_tcp:listen(0, [binary, {ip, {127, 0, 0, 1}}, {active, false}]),
+    {ok, RelayPort} = inet:port(L),
+    Relay = spawn_link(fun() ->
+                               {ok, Down} = gen_tcp:accept(L),
+                               {ok, Up} = gen_tcp:connect(Ip, Port, [binary, {active, true}]),
+                               ok = inet:setopts(Down, [{active, true}]),
+                               relay(Down, Up, [])
+                       end),
+    ok = gen_tcp:controlling_process(L, Relay),
+    {Relay, {{127, 0, 0, 1}, RelayPort}}.
+
+relay(Down, Up, Acc) ->
+    receive
+        {tcp, Down, Data} -> _ = gen_tcp:send(Up, Data), relay(Down, Up, [Acc, Data]);
+        {tcp, Up, Data} -> _ = gen_tcp:send(Down, Data), relay(Down, Up, [Acc, Data]);
+        {tcp_closed, _} -> gen_tcp:close(Down), gen_tcp:close(Up), relay_done(Acc);
+        {bytes, From} -> relay(Down, Up, Acc, From)
+    end.
+
+relay(Down, Up, Acc, From) ->
+    %% Asked for the bytes: wait for the close that ends the session.
+    receive
+        {tcp, Down, Data} -> _ = gen_tcp:send(Up, Data), relay(Down, Up, [Acc, Data], From);
+        {tcp, Up, Data} -> _ = gen_tcp:send(Down, Data), relay(Down, Up, [Acc, Data], From);
+        {tcp_closed, _} -> From ! {relay_bytes, iolist_to_binary(Acc)}
+    after 2000 -> From ! {relay_bytes, iolist_to_binary(Acc)}
+    end.
+
+relay_done(Acc) ->
+    receive {bytes, From} -> From ! {relay_bytes, iolist_to_binary(Acc)}
+    after 10000 -> ok
+    end.
