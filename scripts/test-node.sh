@@ -10,6 +10,10 @@
 #   e.g. scripts/test-node.sh home:va-secret:avatar-secret
 # Honours REBAR_BASE_DIR (default _build); the code must be compiled
 # (`rebar3 compile`).
+# With EVATAR_TLS_DIR set to a directory made by scripts/gen-bridge-certs.sh
+# it also opens two TLS listeners on free ports of 127.0.0.1 and prints,
+# before EVATAR_PORT, EVATAR_TLS_PORT=<port> (server certificate only) and
+# EVATAR_MTLS_PORT=<port> (client certificates signed by ca.pem required).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BASE=${REBAR_BASE_DIR:-_build}
@@ -24,6 +28,7 @@ for arg in "$@"; do
   specs="$specs{<<\"$id\">>, <<\"$agent\">>, <<\"$avatar\">>},"
 done
 specs="[${specs%,}]"
+TLS_DIR=${EVATAR_TLS_DIR:-}
 exec erl -noshell -kernel logger_level warning \
   -pa "$BASE"/default/lib/*/ebin -config config/test.config \
   -eval "
@@ -31,6 +36,18 @@ exec erl -noshell -kernel logger_level warning \
     {ok, _} = application:ensure_all_started(agent_bridge),
     [{ok, _} = evatar:create_pairing(Id, #{agent_credential => A, avatar_credential => V})
      || {Id, A, V} <- $specs],
+    case \"$TLS_DIR\" of
+      \"\" -> ok;
+      Dir ->
+        F = fun(Name) -> filename:join(Dir, Name) end,
+        Server = #{certfile => F(\"server.pem\"), keyfile => F(\"server.key\")},
+        {ok, _} = agent_bridge:start_listener(test_tls, #{ip => {127,0,0,1}, port => 0,
+                                                          tls => Server}),
+        {ok, _} = agent_bridge:start_listener(test_mtls, #{ip => {127,0,0,1}, port => 0,
+                                                           tls => Server#{cacertfile => F(\"ca.pem\")}}),
+        [begin {ok, {_, TP}} = agent_bridge:address(L), io:format(\"~s=~b~n\", [Var, TP]) end
+         || {L, Var} <- [{test_tls, \"EVATAR_TLS_PORT\"}, {test_mtls, \"EVATAR_MTLS_PORT\"}]]
+    end,
     {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127,0,0,1}, port => $PORT}),
     {ok, {_, P}} = agent_bridge:address(test_node),
     io:format(\"EVATAR_PORT=~b~n\", [P]),

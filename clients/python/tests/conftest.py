@@ -8,7 +8,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from typing import Iterator, List, Optional
+from typing import Dict, Iterator, List, Optional
 
 import pytest
 
@@ -22,17 +22,24 @@ PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
 class Node:
     """An EVATAR node in an OS process; stops when its stdin closes."""
 
-    def __init__(self, script: str, args: List[str]) -> None:
+    def __init__(self, script: str, args: List[str],
+                 env: Optional[Dict[str, str]] = None) -> None:
         self.proc = subprocess.Popen([str(REPO / "scripts" / script)] + args,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=sys.stderr, cwd=str(REPO), text=True, bufsize=1,
-                                     errors="replace")
+                                     errors="replace",
+                                     env=None if env is None else {**os.environ, **env})
         self.port: Optional[int] = None
         self.lines: List[str] = []
+        #: Every ``EVATAR_*=<port>`` line before EVATAR_PORT (the TLS ports).
+        self.ports: Dict[str, int] = {}
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
             line = line.strip()
             self.lines.append(line)
+            name, eq, value = line.partition("=")
+            if eq and name.startswith("EVATAR_") and value.isdigit():
+                self.ports[name] = int(value)
             if line.startswith("EVATAR_PORT="):
                 self.port = int(line.split("=", 1)[1])
                 break

@@ -14,6 +14,7 @@ from .emulators import (Actuator, ActuatorEmulator, NotBoundError, Sensor, Senso
                         describe)
 from .frame import FrameDecoder, FrameError, encode_frame
 from .sync import SyncClient
+from .tls import PinMismatch, Tls, TlsError
 from .xml import BilError
 
 __version__ = "0.1.0"
@@ -24,5 +25,5 @@ __all__ = [
     "Closed", "ClosedError", "ConnectError", "EvatarError", "FeedbackTimeout", "Reconnected",
     "RefusedError", "SignalError", "Actuator", "ActuatorEmulator", "NotBoundError", "Sensor",
     "SensorEmulator", "describe", "FrameDecoder", "FrameError", "encode_frame", "SyncClient",
-    "BilError",
+    "BilError", "Tls", "TlsError", "PinMismatch",
 ]

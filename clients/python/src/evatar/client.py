@@ -1,8 +1,9 @@
 """The asyncio client of the EVATAR wire protocol (docs/protocol.md).
 
 A :class:`Client` joins one pairing as a VA (``role="agent"``) or as an
-Avatar (``role="avatar"``) over TCP, or over its own stdin/stdout when
-EVATAR's port connector started the program (endpoint ``"stdio"``).
+Avatar (``role="avatar"``) over TCP, over TLS (``tls=Tls(...)``, see
+:mod:`evatar.tls`), or over its own stdin/stdout when EVATAR's port
+connector started the program (endpoint ``"stdio"``).
 
 With ``ha=True`` it speaks protocol version 2 (section 11): it keeps every
 signal until EVATAR acknowledges it, acknowledges what it receives, and when
@@ -36,6 +37,7 @@ from . import bil
 from .bil import (Ack, Binding, Bye, Description, Entry, Hello, Refused, Resume, Signal,
                   Welcome, encode, parse_frame)
 from .frame import MAX_FRAME, FrameError, check_length, encode_frame
+from .tls import Tls
 from .xml import BilError
 
 __all__ = ["Client", "Endpoint", "Closed", "Reconnected", "EvatarError", "ConnectError",
@@ -184,6 +186,7 @@ class Client:
     :param pairing: the pairing id; ``role`` ``"agent"`` or ``"avatar"``;
         ``entity_id`` this entity's id; ``credential`` the pairing's secret.
     :param ha: speak protocol version 2 (reconnect, resume, nothing lost).
+    :param tls: connect with TLS (:class:`evatar.tls.Tls`); default plain TCP.
     :param reconnect_backoff: seconds, (min, max) pause after a full round.
     :param reconnect_limit: seconds without a session before giving up.
     """
@@ -192,7 +195,8 @@ class Client:
                  entity_id: str, credential: str = "", ha: bool = False,
                  connect_timeout: float = 5.0, handshake_timeout: float = 5.0,
                  reconnect_backoff: Tuple[float, float] = (0.02, 0.5),
-                 reconnect_limit: float = 30.0, max_frame: int = MAX_FRAME) -> None:
+                 reconnect_limit: float = 30.0, max_frame: int = MAX_FRAME,
+                 tls: Optional[Tls] = None) -> None:
         if role not in ("agent", "avatar"):
             raise ValueError("role is 'agent' or 'avatar'")
         if not endpoints:
@@ -200,6 +204,8 @@ class Client:
         self.endpoints: List[Endpoint] = list(endpoints)
         self.pairing, self.role, self.entity_id = pairing, role, entity_id
         self.credential = credential
+        self.tls = tls
+        self._ssl_context = tls.context() if tls is not None else None
         self.ha = ha
         self.connect_timeout = connect_timeout
         self.handshake_timeout = handshake_timeout
@@ -430,8 +436,21 @@ class Client:
             reader, writer = await _open_stdio()
         else:
             host, port = e
-            reader, writer = await asyncio.wait_for(
-                asyncio.open_connection(host, port), self.connect_timeout)
+            if self.tls is None:
+                reader, writer = await asyncio.wait_for(
+                    asyncio.open_connection(host, port), self.connect_timeout)
+            else:
+                reader, writer = await asyncio.wait_for(
+                    asyncio.open_connection(
+                        host, port, ssl=self._ssl_context,
+                        server_hostname=self.tls.server_hostname or host,
+                        ssl_handshake_timeout=self.connect_timeout),
+                    self.connect_timeout)
+                try:
+                    self.tls.check(writer.get_extra_info("ssl_object"))
+                except BaseException:
+                    writer.transport.abort()
+                    raise
         link = _Link(e, reader, writer)
         link.max_in = self.max_frame
         return link
@@ -440,7 +459,14 @@ class Client:
         link = await self._open(e)
         try:
             link.write(encode(self._hello()))
-            await link.writer.drain()
+            try:
+                await link.writer.drain()
+            except ConnectionResetError:
+                # With TLS 1.3 a server refuses a client certificate after
+                # the client's handshake is done: the reason (the TLS
+                # alert) waits in the reader.
+                if self.tls is None:
+                    raise
             doc = parse_frame(await asyncio.wait_for(link.read(), self.handshake_timeout))
         except BaseException:
             link.abort()
