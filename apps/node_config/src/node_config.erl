@@ -43,11 +43,13 @@ release_root() ->
 %% default an MQTT Avatar joins when the file declares no listeners.
 -spec load(file:filename()) -> {ok, config()} | {error, {bad_config, file:filename(), [binary()]}}.
 load(File) ->
-    _ = [application:load(A) || A <- [agent_bridge, evatar, mqtt_avatar]],
-    %% Their checks run before they start; the atoms they know exist once
-    %% their code is loaded (a TLS option such as verify_peer, too).
-    _ = [code:ensure_loaded(M) || M <- [agent_bridge, agent_bridge_conn, evatar, mqtt_avatar,
-                                        mqtt_client, ssl]],
+    Apps = [agent_bridge, evatar, mqtt_avatar, mqtt_client, ssl],
+    _ = [application:load(A) || A <- Apps],
+    %% Their checks run before they start; the words their options use
+    %% exist as atoms once their code is loaded (a listener limit, a TLS
+    %% option such as verify_peer), as in a release, which loads every
+    %% module at boot.
+    _ = [code:ensure_loaded(M) || A <- Apps, {ok, Ms} <- [application:get_key(A, modules)], M <- Ms],
     case node_config_file:read(File, node_config_check:known_words()) of
         {ok, Sections} ->
             Defaults = #{listeners => application:get_env(agent_bridge, listeners, []),

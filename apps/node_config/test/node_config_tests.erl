@@ -58,6 +58,12 @@ full_file_is_translated_test() ->
       restart := #{min_ms := 10}} = A,
     false = maps:is_key(pairing, A).
 
+every_listener_option_of_the_bridge_test() ->
+    %% Options the bridge checks itself (limits included) pass through.
+    {ok, #{listeners := [#{max_connections := 10, conn := #{linger := 0}}]}} =
+        load("{listeners, [#{port => 7411, max_connections => 10, conn => #{linger => 0}}]}."),
+    has("{listeners, [#{port => 7411, max_connections => 0}]}.", "max_connections must be").
+
 explicit_endpoints_and_credential_test() ->
     {ok, #{mqtt_avatars := [#{evatar := E}]}} =
         load(?PAIRING ?AVATAR(", endpoints => [{\"evatar2.local\", 7400}, {{10,0,0,2}, 7401}], "
