@@ -62,7 +62,11 @@ every_listener_option_of_the_bridge_test() ->
     %% Options the bridge checks itself (limits included) pass through.
     {ok, #{listeners := [#{max_connections := 10, conn := #{linger := 0}}]}} =
         load("{listeners, [#{port => 7411, max_connections => 10, conn => #{linger => 0}}]}."),
-    has("{listeners, [#{port => 7411, max_connections => 0}]}.", "max_connections must be").
+    has("{listeners, [#{port => 7411, max_connections => 0}]}.", "max_connections must be"),
+    %% TLS: the bridge reads the certificate files when it checks.
+    has("{listeners, [#{port => 7443, tls => #{certfile => \"/nonexistent/c.pem\", "
+        "keyfile => \"/nonexistent/k.pem\"}}]}.",
+        "listeners entry 1: tls certfile /nonexistent/c.pem cannot be read").
 
 explicit_endpoints_and_credential_test() ->
     {ok, #{mqtt_avatars := [#{evatar := E}]}} =
