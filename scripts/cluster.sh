@@ -18,11 +18,13 @@
 #                       release` builds under REBAR_BASE_DIR or _build;
 #                       built when missing)
 #   EVATAR_CLUSTER_DIR  configuration and logs (default _build/cluster)
-#   EVATAR_COOKIE       the cookie (default: made once, kept in the cluster
-#                       directory)
 #   EVATAR_DIST         inet_tcp (default) or inet_tls; with inet_tls the
 #                       certificates are made once in the cluster directory
 #                       by scripts/gen-dist-certs.sh
+#   EVATAR_DIST_IP      distribution's and epmd's address (default: HOST
+#                       when it is an IPv4 address, else 127,0,0,1)
+# The nodes share one cookie, $HOME/.erlang.cookie: bin/evatar makes it
+# (random, mode 0400) when the first node starts (docs/ha.md section 1).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd -P)
 cd "$ROOT"
@@ -36,6 +38,11 @@ HOST=${EVATAR_HOST:-127.0.0.1}
 BASE_PORT=${EVATAR_BASE_PORT:-7400}
 DIST_BASE=${EVATAR_DIST_BASE:-9100}
 DIST=${EVATAR_DIST:-inet_tcp}
+if [ -z "${EVATAR_DIST_IP:-}" ]; then
+  if [[ $HOST =~ ^[0-9]+\.[0-9]+\.[0-9]+\.[0-9]+$ ]]; then DIST_IP=${HOST//./,}; else DIST_IP=127,0,0,1; fi
+else
+  DIST_IP=$EVATAR_DIST_IP
+fi
 
 usage() {
   sed -n '2,/^set -euo/p' "$0" | sed -e '/^set -euo/d' -e 's/^# \{0,1\}//' >&2
@@ -45,18 +52,6 @@ usage() {
 # The number of nodes of the running cluster, from the last `start`.
 started_n() {
   if [ -f "$DIR/nodes" ]; then cat "$DIR/nodes"; else echo 0; fi
-}
-
-cookie() {
-  if [ -n "${EVATAR_COOKIE:-}" ]; then
-    echo "$EVATAR_COOKIE"
-    return
-  fi
-  mkdir -p "$DIR"
-  if [ ! -s "$DIR/cookie" ]; then
-    (umask 077; od -An -N16 -tx1 /dev/urandom | tr -d ' \n' > "$DIR/cookie")
-  fi
-  cat "$DIR/cookie"
 }
 
 peers() {
@@ -70,11 +65,11 @@ node_env() {
   local i=$1 n=$2 nd="$DIR/$NAME$1"
   echo "export EVATAR_NODE=$NAME$i@$HOST"
   echo "export EVATAR_PEERS=$(peers "$n")"
-  echo "export EVATAR_COOKIE=$(cookie)"
   echo "export EVATAR_PORT=$((BASE_PORT + i))"
   echo "export EVATAR_DIST_PORT_MIN=$((DIST_BASE + i))"
   echo "export EVATAR_DIST_PORT_MAX=$((DIST_BASE + i))"
   echo "export EVATAR_DIST=$DIST"
+  echo "export EVATAR_DIST_IP=$DIST_IP"
   # Each node writes its own vm.args and sys.config (made from the .src
   # files) and its logs in its own directory, not in the shared release.
   echo "export RELX_OUT_FILE_PATH=$nd"

@@ -21,7 +21,7 @@
 -export([start/1, stop/1, nodes/1, node/2, index/2, endpoints/1, endpoint/2, info/1,
          up/1, kill/2, stall/2, resume/2, restart/2, partition/2, isolate/2, cut/2, heal/2,
          os_pid/2, call/5, call/6, await_formed/2, await/3, ensure_distributed/0,
-         release_distribution/1, repo_root/0]).
+         release_distribution/1, repo_root/0, free_ports/1]).
 -export([node_setup/1, watchdog/0, watchdog/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 
@@ -222,7 +222,9 @@ await_loop(Fun, Deadline, What) ->
 ensure_distributed() ->
     case node() of
         nonode@nohost ->
-            _ = os:cmd("epmd -daemon"),
+            _ = os:cmd("ERL_EPMD_ADDRESS=127.0.0.1 epmd -daemon"),
+            %% Listens on loopback only, as the nodes it starts.
+            ok = application:set_env(kernel, inet_dist_use_interface, {127, 0, 0, 1}),
             Name = list_to_atom("ha_ctl_" ++ os:getpid() ++ "@127.0.0.1"),
             {ok, _} = net_kernel:start(Name, #{name_domain => longnames, hidden => true}),
             started;
@@ -403,12 +405,13 @@ terminate(_Why, #s{nodes = Nodes, proxies = Proxies}) ->
 
 down(Nd) -> Nd#nd{status = down, os_pid = undefined, port = undefined, peer = undefined}.
 
-%% Ports for the nodes' distribution and bridge listeners, which bind them
+%% @doc Ports for the nodes' distribution and bridge listeners, which bind them
 %% only later, when the nodes boot. They are taken below the kernel's
 %% ephemeral range: a port in it, found free with listen(0) and closed, can
 %% be handed to a proxy's listen(0) or to an outgoing connection before its
 %% node binds it (a nemesis run once failed so: eaddrinuse at boot). Below
 %% the range only an explicit bind takes a port; each is checked free.
+-spec free_ports(non_neg_integer()) -> [inet:port_number()].
 free_ports(N) ->
     {Min, _} = ephemeral_range(),
     High = Min - 1,
@@ -485,6 +488,8 @@ args(#nd{dist_port = DP, links = Links}, #s{opts = Opts, nodes = Nodes}) ->
      %% As config/vm.args.src: EVATAR does not use global, whose default
      %% answer to a cut link is to cut more links.
      "-kernel", "prevent_overlapping_partitions", "false",
+     %% Like a release (config/vm.args.src): distribution on loopback only.
+     "-kernel", "inet_dist_use_interface", "{127,0,0,1}",
      "+K", "true"]
         ++ Input ++ Epmd ++ LinkArgs ++ Dist
         ++ lists:append([["-pa", D] || D <- code_path()]).
