@@ -7,7 +7,12 @@ cd "$(dirname "$0")/.."
 # only from arguments that were given.
 args="[]"
 if [ "$#" -gt 0 ]; then args=$(printf '"%s",' "$@"); args="[${args%,}]"; fi
-exec erl -noshell -sname "evatar_demo_$$" -kernel logger_level notice \
+# Distributed only for --keep's remote shell: on loopback only (epmd too,
+# when this starts it), with the cookie of $HOME/.erlang.cookie, which
+# Erlang makes random (mode 0400) when there is none.
+export ERL_EPMD_ADDRESS=${ERL_EPMD_ADDRESS:-127.0.0.1}
+exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{127,0,0,1}' \
+  -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
   -eval "ok = reference_agents_demo:main($args), init:stop()."

@@ -193,10 +193,15 @@ cluster(N, Args) ->
     Names = [list_to_atom("evatar_ctl" ++ integer_to_list(I) ++ "_" ++ Unique)
              || I <- lists:seq(1, N)],
     NodeNames = [list_to_atom(atom_to_list(Nm) ++ "@127.0.0.1") || Nm <- Names],
+    %% A random cookie, and distribution on loopback only: no one else can
+    %% run code on these nodes.
+    Cookie = lists:flatten([io_lib:format("~2.16.0b", [B]) || <<B>> <= crypto:strong_rand_bytes(24)]),
     Started = [begin
                    {ok, P, Node} = peer:start(#{name => Nm, host => "127.0.0.1",
                                                 longnames => true, connection => standard_io,
-                                                args => ["-setcookie", "evatar_ctl",
+                                                args => ["-setcookie", Cookie,
+                                                         "-kernel", "inet_dist_use_interface",
+                                                         "{127,0,0,1}",
                                                          "-kernel", "prevent_overlapping_partitions",
                                                          "false"]}),
                    {P, Node}

@@ -240,7 +240,9 @@ start_cluster(TC, N) ->
 start_node(Name, Paths) ->
     {ok, P, Node} = peer:start(#{name => Name, host => "127.0.0.1", longnames => true,
                                  connection => standard_io,
-                                 args => ["-setcookie", "evatar_ha_suite",
+                                 args => ["-setcookie", atom_to_list(cookie(cluster)),
+                                          %% Loopback only, as a release.
+                                          "-kernel", "inet_dist_use_interface", "{127,0,0,1}",
                                           %% global would turn one isolated node
                                           %% into a full split (EVATAR does not
                                           %% use global).
@@ -293,14 +295,28 @@ kill9(#{peer := P}) ->
 %% for each of them, then the connections dropped.
 partition(#{peer := P}, Others) ->
     _ = [begin
-             true = peer:call(P, erlang, set_cookie, [O, evatar_ha_suite_blocked]),
+             true = peer:call(P, erlang, set_cookie, [O, cookie(blocked)]),
              _ = peer:call(P, erlang, disconnect_node, [O])
          end || #{node := O} <- Others],
     ok.
 
 heal(#{peer := P}, Others) ->
-    _ = [true = peer:call(P, erlang, set_cookie, [O, evatar_ha_suite]) || #{node := O} <- Others],
+    _ = [true = peer:call(P, erlang, set_cookie, [O, cookie(cluster)]) || #{node := O} <- Others],
     ok.
+
+%% The nodes' cookie, and the wrong one of a partition: random, made once
+%% per run (with a known cookie, anyone reaching a node while the tests
+%% run could run code on it).
+cookie(Which) ->
+    case persistent_term:get({?MODULE, cookie, Which}, undefined) of
+        undefined ->
+            Hex = [io_lib:format("~2.16.0b", [B]) || <<B>> <= crypto:strong_rand_bytes(24)],
+            Cookie = list_to_atom(lists:flatten(Hex)),
+            persistent_term:put({?MODULE, cookie, Which}, Cookie),
+            Cookie;
+        Cookie ->
+            Cookie
+    end.
 
 node_name(#{node := N}) -> N.
 

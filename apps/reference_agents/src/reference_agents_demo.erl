@@ -145,13 +145,17 @@ keep(true, S) ->
     section("The node keeps running"),
     case node() of
         nonode@nohost ->
-            io:format("  This node has no name (start it with -sname to connect a remote shell).~n");
+            io:format("  This node has no name (start it with -name to connect a remote shell).~n");
         _ ->
             [_, Host] = string:split(Node, "@"),
+            NameFlag = case net_kernel:longnames() of
+                           true -> "-name";
+                           false -> "-sname"
+                       end,
             io:format("  Node: ~s~n"
-                      "  From another terminal:  erl -sname probe@~s -remsh ~s~n"
+                      "  From another terminal:  erl ~s probe@~s -remsh ~s~n"
                       "  Then for example:       evatar:print_pairings().  "
-                      "reference_agents_demo:inspect().~n", [Node, Host, Node])
+                      "reference_agents_demo:inspect().~n", [Node, NameFlag, Host, Node])
     end,
     io:format("  Stop it with Ctrl-C here (then a), or reference_agents_demo:stop(). from the "
               "remote shell.~n"),
