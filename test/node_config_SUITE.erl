@@ -39,10 +39,21 @@ init_per_group(release, Config) ->
     Root = ha_cluster:repo_root(),
     Log = filename:join(?config(priv_dir, Config), "rebar3_release.log"),
     "0\n" = os:cmd("cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo $?"),
-    [{rel, filename:join([Root, "_build", "default", "rel", "evatar"])} | Config];
+    %% The nodes' HOME holds their cookie, as an installed node's does
+    %% (docs/ha.md section 1); their epmd is the group's own.
+    Home = filename:join(?config(priv_dir, Config), "home"),
+    Cookie = filename:join(Home, ".erlang.cookie"),
+    ok = filelib:ensure_dir(Cookie),
+    ok = file:write_file(Cookie, binary:encode_hex(crypto:strong_rand_bytes(24))),
+    ok = file:change_mode(Cookie, 8#400),
+    [{rel, filename:join([Root, "_build", "default", "rel", "evatar"])}, {home, Home},
+     {epmd_port, integer_to_list(free_port())} | Config];
 init_per_group(_, Config) ->
     Config.
 
+end_per_group(release, Config) ->
+    _ = os:cmd("ERL_EPMD_PORT=" ++ ?config(epmd_port, Config) ++ " epmd -kill"),
+    ok;
 end_per_group(_, _Config) ->
     ok.
 
@@ -219,11 +230,11 @@ release_refuses_a_bad_file(Config) ->
 %% Helpers
 %% ---------------------------------------------------------------------------
 
-release_env(_Config, File) ->
+release_env(Config, File) ->
     Name = "nc" ++ integer_to_list(erlang:unique_integer([positive])) ++ "_" ++ os:getpid(),
     Dist = integer_to_list(free_port()),
     [{"EVATAR_CONFIG", File}, {"EVATAR_NODE", Name ++ "@127.0.0.1"},
-     {"EVATAR_COOKIE", "node_config_suite_" ++ os:getpid()},
+     {"HOME", ?config(home, Config)}, {"ERL_EPMD_PORT", ?config(epmd_port, Config)},
      {"EVATAR_DIST_PORT_MIN", Dist}, {"EVATAR_DIST_PORT_MAX", Dist}].
 
 evatar_cmd(Config, Env, Args) ->
