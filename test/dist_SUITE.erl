@@ -87,7 +87,8 @@ first_start_makes_a_cookie(Config) ->
     ?assertMatch({match, _}, re:run(Cookie, "^[0-9a-f]{48}$")),
     ?assertNotEqual(<<"evatar_dev_cookie">>, Cookie),
     {0, NodeCookie} = rel(Config, Env, ["eval", "erlang:get_cookie()."]),
-    ?assertEqual("'" ++ binary_to_list(Cookie) ++ "'", string:trim(NodeCookie)),
+    ?assertEqual(lists:flatten(io_lib:format("~p", [binary_to_atom(Cookie)])),
+                 string:trim(NodeCookie)),
     %% Not on the node's command line, where every local user can read it.
     {0, Pid} = rel(Config, Env, ["pid"]),
     {ok, CmdLine} = file:read_file("/proc/" ++ string:trim(Pid) ++ "/cmdline"),
