@@ -171,8 +171,18 @@ status() ->
 %% ---------------------------------------------------------------------------
 
 %% @private
--spec init([]) -> {ok, #s{}}.
+-spec init([]) -> {ok, #s{}} | {stop, term()}.
 init([]) ->
+    %% Timings come from the release's environment (EVATAR_HEARTBEAT_MS...):
+    %% a node with inconsistent ones does not start, saying which.
+    case evatar_ha_rules:check_timings(maps:from_list([{K, opt(K)} || K <- [heartbeat_ms,
+                                                                             suspect_ms,
+                                                                             lease_ms]])) of
+        ok -> init_view();
+        {error, Reason} -> {stop, Reason}
+    end.
+
+init_view() ->
     _ = ets:new(?TABLE, [named_table, protected, set, {read_concurrency, true}]),
     _ = ets:new(?VOTES, [named_table, protected, set]),
     Nodes = lists:usort([node() | configured_nodes()]),
@@ -287,27 +297,32 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
     Suspect = opt(suspect_ms),
     Connected = erlang:nodes(),
     Peers = [N || N <- Nodes, N =/= node()],
-    S1 = case evatar_ha_rules:stalled(Last, Now, Suspect) of
-             true ->
-                 true = ets:insert(?TABLE, {stall_gen, stall_gen() + 1}),
-                 broadcast(stalled),
-                 forgive(Peers, Connected, Now, S);
-             false ->
-                 S
-         end,
+    S0 = discount(evatar_ha_rules:own_pause(Last, Now, opt(heartbeat_ms)), Now, S),
+    _ = case evatar_ha_rules:stalled(Last, Now, Suspect) of
+            true ->
+                %% Long enough for the others to have suspected this node:
+                %% its actives ask the cluster again (evatar_pairing).
+                true = ets:insert(?TABLE, {stall_gen, stall_gen() + 1}),
+                broadcast(stalled);
+            false ->
+                ok
+        end,
     true = ets:insert(?TABLE, {last_tick, Now}),
     _ = [evatar_ha_proto_v1:heartbeat(N, node()) || N <- Peers, lists:member(N, Connected)],
-    S2 = lists:foldl(fun(N, Acc) -> evaluate(N, Connected, Now, Suspect, Acc) end, S1, Peers),
+    S2 = lists:foldl(fun(N, Acc) -> evaluate(N, Connected, Now, Suspect, Acc) end, S0, Peers),
     S3 = reconnect(Peers, Connected, Now, S2),
     S4 = quorum(Now, S3),
     S4#s{last_tick = Now}.
 
-%% This node itself was stopped (SIGSTOP) or starved: nobody is suspected
-%% for the silence this caused.
-forgive(Peers, Connected, Now, #s{heard = Heard} = S) ->
-    Fresh = maps:from_list([{N, Now} || N <- Peers, lists:member(N, Connected)]),
-    true = ets:insert(?TABLE, [{{heard, N}, T} || {N, T} <- maps:to_list(Fresh)]),
-    S#s{heard = maps:merge(Heard, Fresh)}.
+%% This node itself was stopped (SIGSTOP), starved or late: nobody is
+%% suspected, and the lease is not lost, for the silence this caused
+%% (evatar_ha_rules:discount/3).
+discount(0, _Now, S) ->
+    S;
+discount(Paused, Now, #s{heard = Heard} = S) ->
+    Heard1 = maps:map(fun(_N, T) -> evatar_ha_rules:discount(T, Paused, Now) end, Heard),
+    true = ets:insert(?TABLE, [{{heard, N}, T} || {N, T} <- maps:to_list(Heard1)]),
+    S#s{heard = Heard1}.
 
 evaluate(Node, Connected, Now, Suspect, #s{alive = Alive, heard = Heard} = S) ->
     Fresh = lists:member(Node, Connected) andalso

@@ -6,10 +6,11 @@
 %% section 8).
 -module(evatar_ha_rules).
 
--export([standby_node/4, majority/2, must_fence/3,
-         reconcile/2, stalled/3, quorum_size/1, new_record/0, vote/5, register/4]).
+-export([standby_node/4, majority/2, must_fence/3, reconcile/2,
+         stalled/3, own_pause/3, discount/3, after_pause/2, check_timings/1,
+         quorum_size/1, new_record/0, vote/5, register/4]).
 
--export_type([instance/0, verdict/0, claim/0, record/0, refusal/0]).
+-export_type([instance/0, verdict/0, claim/0, record/0, refusal/0, pause_action/0]).
 
 %% A claim: the configuration {Epoch, Seq} an instance holds. The active
 %% makes a new one (Seq + 1) each time its standby changes and gives it to
@@ -29,6 +30,7 @@
                       pid := pid(),
                       peer => pid() | undefined}.
 -type verdict() :: keep | step_down | stop.
+-type pause_action() :: keep | reconfirm | await.
 
 %% @doc The node for a standby of a pairing active on `Self': `Preferred'
 %% when it is alive, else the first alive node after `Self' in the sorted
@@ -93,6 +95,66 @@ reconcile(_Me, _Other) ->
           boolean().
 stalled(LastTick, Now, SuspectMs) ->
     Now - LastTick > SuspectMs.
+
+%% @doc How long this node was itself paused before a tick: how much later
+%% than planned (`HeartbeatMs' after the last one) the tick came. The
+%% peers' silence during that time says nothing about them ({@link
+%% discount/3}).
+-spec own_pause(LastTickMs :: integer(), NowMs :: integer(), HeartbeatMs :: pos_integer()) ->
+          non_neg_integer().
+own_pause(LastTick, Now, HeartbeatMs) ->
+    max(0, Now - LastTick - HeartbeatMs).
+
+%% @doc When a peer counts as last heard once this node's own pause is
+%% taken out: a peer silent for 40 ms before a pause of 300 ms is silent
+%% for 40 ms after it, not 340 ms, so neither its suspicion nor this
+%% node's lease counts time in which this node could not hear anything.
+%% A peer silent before the pause stays as silent. Never later than `Now'.
+-spec discount(HeardAtMs :: integer(), PausedMs :: non_neg_integer(), NowMs :: integer()) ->
+          integer().
+discount(HeardAt, PausedMs, Now) ->
+    min(Now, HeardAt + PausedMs).
+
+%% @doc What an active does when its node finds it was paused itself
+%% ({@link stalled/3}: SIGSTOP, a laptop lid, a long GC or a load spike),
+%% rather than that its peers went silent. It never fences for the pause
+%% alone (docs/ha.md section 6):
+%% <ul>
+%% <li>`keep' on a lone node: no other node holds the pairing's state, so
+%% nobody can have taken it over.</li>
+%% <li>`reconfirm' in a cluster: keep every client, hold what is not yet
+%% seen outside, and ask every node to record this active's configuration
+%% again. A majority that accepts it has promised the pairing to nobody
+%% else (and now refuses a standby's election while it hears this node);
+%% a refusal means a standby won meanwhile, and the active fences.</li>
+%% <li>`await' in a cluster while a registration of this active's
+%% configuration is already under way (`Registering'): its answer settles
+%% the same question.</li>
+%% </ul>
+-spec after_pause(ClusterSize :: pos_integer(), Registering :: boolean()) -> pause_action().
+after_pause(Size, _Registering) when Size =< 1 -> keep;
+after_pause(_Size, true) -> await;
+after_pause(_Size, false) -> reconfirm.
+
+%% @doc Whether the high-availability timings hang together: positive
+%% integers with `lease_ms + heartbeat_ms =< suspect_ms', so an active cut
+%% off from the majority has fenced before any node stops hearing it for
+%% `suspect_ms' and votes it away (docs/architecture.md section 8). The
+%% error names the setting and says what is wrong.
+-spec check_timings(#{heartbeat_ms := term(), suspect_ms := term(), lease_ms := term()}) ->
+          ok | {error, {bad_ha_timing, atom(), term(), string()}}.
+check_timings(#{heartbeat_ms := Hb, suspect_ms := Suspect, lease_ms := Lease} = T) ->
+    case [K || K <- [heartbeat_ms, suspect_ms, lease_ms],
+               not (is_integer(maps:get(K, T)) andalso maps:get(K, T) > 0)] of
+        [K | _] ->
+            {error, {bad_ha_timing, K, maps:get(K, T), "must be a positive integer (ms)"}};
+        [] when Lease + Hb > Suspect ->
+            {error, {bad_ha_timing, suspect_ms, Suspect,
+                     lists:flatten(io_lib:format("must be at least lease_ms + heartbeat_ms "
+                                                 "(~b + ~b)", [Lease, Hb]))}};
+        [] ->
+            ok
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Votes: one promise per pairing and epoch on every node

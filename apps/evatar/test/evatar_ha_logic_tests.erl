@@ -298,3 +298,47 @@ reconcile_test_() ->
 stalled_test() ->
     ?assert(evatar_ha_rules:stalled(0, 1000, 250)),
     ?assertNot(evatar_ha_rules:stalled(0, 60, 250)).
+
+%% A pause never fences by itself: a lone node keeps serving (nobody else
+%% holds the state), a node of a cluster asks the others again, or awaits
+%% the answer to a registration already under way.
+after_pause_test_() ->
+    [?_assertEqual(keep, evatar_ha_rules:after_pause(1, false)),
+     ?_assertEqual(keep, evatar_ha_rules:after_pause(1, true)),
+     ?_assertEqual(reconfirm, evatar_ha_rules:after_pause(2, false)),
+     ?_assertEqual(reconfirm, evatar_ha_rules:after_pause(3, false)),
+     ?_assertEqual(await, evatar_ha_rules:after_pause(3, true)),
+     ?_assertEqual(await, evatar_ha_rules:after_pause(2, true))].
+
+%% The timings of the defaults and of the release pass; a lease that would
+%% outlive the others' suspicion, or a value that is no duration, is named.
+check_timings_test_() ->
+    T = fun(Hb, S, L) -> #{heartbeat_ms => Hb, suspect_ms => S, lease_ms => L} end,
+    [?_assertEqual(ok, evatar_ha_rules:check_timings(T(50, 250, 150))),
+     ?_assertEqual(ok, evatar_ha_rules:check_timings(T(100, 1000, 600))),
+     ?_assertEqual(ok, evatar_ha_rules:check_timings(T(100, 250, 150))),
+     ?_assertMatch({error, {bad_ha_timing, suspect_ms, 250, _}},
+                   evatar_ha_rules:check_timings(T(101, 250, 150))),
+     ?_assertMatch({error, {bad_ha_timing, heartbeat_ms, 0, _}},
+                   evatar_ha_rules:check_timings(T(0, 250, 150))),
+     ?_assertMatch({error, {bad_ha_timing, lease_ms, "150", _}},
+                   evatar_ha_rules:check_timings(T(50, 250, "150")))].
+
+%% A tick later than planned is this node's own pause; the peers' silence
+%% is counted without it, and a peer silent before the pause stays silent.
+own_pause_test_() ->
+    [?_assertEqual(0, evatar_ha_rules:own_pause(1000, 1050, 50)),
+     ?_assertEqual(0, evatar_ha_rules:own_pause(1000, 1030, 50)),
+     ?_assertEqual(350, evatar_ha_rules:own_pause(1000, 1400, 50))].
+
+discount_test_() ->
+    Paused = evatar_ha_rules:own_pause(1000, 1400, 50),
+    [%% Heard 40 ms before the last tick: 40 + 50 ms silent after the pause.
+     ?_assertEqual(1310, evatar_ha_rules:discount(960, Paused, 1400)),
+     ?_assert(1400 - evatar_ha_rules:discount(960, Paused, 1400) < 150),
+     %% Silent for 300 ms before the pause: still silent for 300 + 50 ms.
+     ?_assertEqual(1050, evatar_ha_rules:discount(700, Paused, 1400)),
+     ?_assert(1400 - evatar_ha_rules:discount(700, Paused, 1400) > 250),
+     %% Heard during the pause's last moments: never in the future.
+     ?_assertEqual(1400, evatar_ha_rules:discount(1390, Paused, 1400)),
+     ?_assertEqual(960, evatar_ha_rules:discount(960, 0, 1400))].
