@@ -26,8 +26,10 @@
 %%     |    | election won again (a new epoch)
 %%     v    |
 %%  +---------+  no majority and no word from the standby's node
-%%  | fenced  |  within the lease, or this node was stalled: clients
-%%  +---------+  closed with Fenced, nothing externalised, timers postponed
+%%  | fenced  |  within the lease, or the cluster refused its configuration
+%%  +---------+  (after a pause of this node, a standby won meanwhile):
+%%               clients closed with Fenced, nothing externalised, timers
+%%               postponed. A pause alone fences nothing (paused/1).
 %% '''
 %% The active's name is the logic's {@link evatar_pairing_logic:phase/1}
 %% (`waiting' or `bound'); `handing_over' is the short planned-handover
@@ -97,6 +99,10 @@
                                     no := [node()]},
                hold = false :: boolean(),
                gen = 0 :: non_neg_integer(),
+               %% Active after a pause of its node: asking the cluster
+               %% whether it is still the active; inspections wait for it.
+               reconfirming = false :: boolean(),
+               inspects = [] :: [{gen_statem:from(), atom()}],
                %% Standby: resumes held until it takes over or hears its active.
                held = [] :: [{gen_statem:from(), term(), integer()}],
                held_armed = false :: boolean(),
@@ -190,11 +196,19 @@ handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{standby_mon = Re
 handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{active_mon = Ref} = Data) ->
     active_down(Why, State, Data#data{active_mon = undefined});
 handle_event({call, From}, {inspect, What}, State, Data) ->
-    %% An active whose node was stalled since it began serving may have been
-    %% replaced meanwhile: it fences before it says anything.
-    case stalled_active(State, Data) of
-        true -> fence_now(Data, [postpone]);
-        false -> inspect(From, What, State, Data)
+    %% An active whose node was paused since it began serving asks the
+    %% cluster whether it is still the active (evatar_ha_rules:after_pause/2)
+    %% and says nothing until it knows: never `active' beside a standby
+    %% that took over meanwhile.
+    Data1 = case stalled_active(State, Data) of
+                true -> paused(Data);
+                false -> Data
+            end,
+    case Data1 of
+        #data{reconfirming = true, inspects = Waiting} ->
+            {keep_state, Data1#data{inspects = [{From, What} | Waiting]}};
+        #data{} ->
+            {keep_state, Data1, [{reply, From, inspect(What, State, Data1)}]}
     end;
 handle_event({timeout, place}, place, State, Data) ->
     {keep_state, place(State, Data#data{placing = false})};
@@ -318,22 +332,29 @@ handle_event(EventType, Event, _State, #data{id = Id}) ->
                   event => Event}),
     keep_state_and_data.
 
-inspect(From, ha, _State, Data) ->
-    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
-inspect(From, What, State, #data{logic = Logic} = Data) ->
-    Reply = case What of
-                summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
-                                                                   role => Data#data.role,
-                                                                   state => phase(State, Logic)};
-                bindings -> evatar_pairing_logic:bindings(Logic);
-                registry -> evatar_pairing_logic:registration_list(Logic);
-                stats -> evatar_pairing_logic:stats(Logic);
-                state -> Logic;
-                %% One read of both: a state compared with another
-                %% instance's only at the same version (tests).
-                versioned_state -> {Data#data.version, Logic}
-            end,
-    {keep_state, Data, [{reply, From, Reply}]}.
+inspect(ha, _State, Data) ->
+    ha_status(Data);
+inspect(What, State, #data{logic = Logic} = Data) ->
+    case What of
+        summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
+                                                           role => Data#data.role,
+                                                           state => phase(State, Logic)};
+        bindings -> evatar_pairing_logic:bindings(Logic);
+        registry -> evatar_pairing_logic:registration_list(Logic);
+        stats -> evatar_pairing_logic:stats(Logic);
+        state -> Logic;
+        %% One read of both: a state compared with another instance's
+        %% only at the same version (tests).
+        versioned_state -> {Data#data.version, Logic}
+    end.
+
+%% The reconfirmation after a pause is over (accepted, or fenced): the
+%% inspections that waited for it are answered, in order.
+reconfirmed(State, #data{inspects = Waiting} = Data) ->
+    Data1 = Data#data{reconfirming = false, inspects = []},
+    _ = [gen_statem:reply(From, inspect(What, State, Data1))
+         || {From, What} <- lists:reverse(Waiting)],
+    Data1.
 
 %% @private
 %% Only an orderly stop runs this (the process does not trap exits): tell
@@ -357,7 +378,7 @@ terminate(_Reason, _State, _Data) ->
 %% whatever was registered before.
 join(Event, EntityId, Pid, From, Data) ->
     case stalled_active(waiting, Data) of
-        true -> fence_now(Data, [postpone]);
+        true -> join1(Event, EntityId, Pid, From, paused(Data));
         false -> join1(Event, EntityId, Pid, From, Data)
     end.
 
@@ -946,8 +967,8 @@ cluster_event({quorum, false}, State, Data) when State =:= waiting; State =:= bo
     maybe_fence(Data);
 cluster_event(stalled, State, Data) when State =:= waiting; State =:= bound ->
     %% This node was stopped for longer than suspect_ms: the pairing may
-    %% have another active by now.
-    fence_now(Data, []);
+    %% have another active by now, or (far more often) not.
+    {keep_state, paused(Data)};
 cluster_event({quorum, true}, fenced, Data) ->
     {keep_state, start_election(fenced, false, Data)};
 cluster_event({node_alive, _}, fenced, Data) ->
@@ -1061,7 +1082,12 @@ send_register(#data{id = Id, conf = {E, Seq}} = Data) ->
                           {evatar_register_retry, {E, Seq}}),
     Data#data{hold = true, reg = #{claim => {E, Seq}, ok => Done, no => []}}.
 
-registered(State, Data) ->
+registered(State, #data{standby = Standby} = Data) when is_pid(Standby) ->
+    %% A reconfirmation after a pause: the standby's confirmations still
+    %% decide what goes out.
+    {keep_state, reconfirmed(State, Data#data{hold = false})};
+registered(State, Data0) ->
+    Data = reconfirmed(State, Data0),
     Data1 = release_all(Data#data{hold = false}),
     {keep_state, place(State, Data1), [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
 
@@ -1089,12 +1115,32 @@ fence_now(#data{id = Id} = Data, Actions) ->
                 true -> start_election(fenced, false, Data1);
                 false -> Data1
             end,
-    {next_state, fenced, publish(Data2), Actions}.
+    {next_state, fenced, reconfirmed(fenced, publish(Data2)), Actions}.
 
 stalled_active(State, #data{gen = Gen}) when State =:= waiting; State =:= bound ->
     not evatar_cluster:unstalled(Gen);
 stalled_active(_State, _Data) ->
     false.
+
+%% This node was paused itself while this instance was active (SIGSTOP, a
+%% laptop lid, a long GC): told apart from a loss of the peers by
+%% evatar_cluster, decided by evatar_ha_rules:after_pause/2. Nothing is
+%% fenced for the pause alone: with a standby, only what it confirmed goes
+%% out, and a standby that took over meanwhile confirms nothing more; a
+%% reconfirmation holds the rest until a majority recorded this active's
+%% configuration again (or refused it, and the active fences).
+paused(#data{id = Id, reg = Reg} = Data) ->
+    Data1 = Data#data{gen = evatar_cluster:stall_gen()},
+    case evatar_ha_rules:after_pause(evatar_cluster:size(), Reg =/= undefined) of
+        keep ->
+            Data1;
+        await ->
+            Data1#data{reconfirming = true};
+        reconfirm ->
+            ?LOG_NOTICE(#{what => reconfirming_after_pause, pairing => Id,
+                          claim => Data1#data.conf}),
+            send_register(Data1#data{reconfirming = true})
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Resumes held by a standby
