@@ -65,7 +65,10 @@ single(Args0) ->
     {ok, _} = application:ensure_all_started(agent_bridge),
     [{ok, _} = evatar:create_pairing(Id, Opts) || {Id, Opts} <- Pairings],
     Port = case os:getenv("EVATAR_PORT") of false -> 0; P -> list_to_integer(P) end,
-    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127, 0, 0, 1}, port => Port}),
+    %% Heartbeat 500: the value in the shared vectors' Welcome, which the
+    %% SDKs' transcript tests replay against this node.
+    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127, 0, 0, 1}, port => Port,
+                                                       conn => #{heartbeat => 500}}),
     {ok, {_, Bound}} = agent_bridge:address(test_node),
     State = start_home(Home, Bound),
     io:format("EVATAR_PORT=~b~n", [Bound]),
@@ -236,8 +239,10 @@ setup_peer(P, Nodes) ->
     _ = [ok = peer:call(P, application, set_env, [evatar, K, V]) || {K, V} <- Env],
     ok = peer:call(P, application, set_env, [agent_bridge, listeners, []]),
     {ok, _} = peer:call(P, application, ensure_all_started, [agent_bridge]),
+    %% Slow timings, as above, for a loaded machine: heartbeat 500.
     {ok, _} = peer:call(P, agent_bridge, start_listener,
-                        [ctl, #{ip => {127, 0, 0, 1}, port => 0}]),
+                        [ctl, #{ip => {127, 0, 0, 1}, port => 0,
+                                conn => #{heartbeat => 500}}]),
     {ok, {_, Port}} = peer:call(P, agent_bridge, address, [ctl]),
     Port.
 

@@ -88,7 +88,7 @@ default_opts() ->
       active_n => 32,
       linger => 1000,
       retry_interval => 10,
-      heartbeat => 500,
+      heartbeat => 150,
       idle_timeout => 600000,
       hibernate_after => 5000}.
 

@@ -29,7 +29,10 @@ init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = evatar:create_pairing(<<"vectors">>, #{agent_credential => <<"va-secret">>,
                                                      avatar_credential => <<"avatar-secret">>}),
-    {ok, _} = agent_bridge:start_listener(vectors, #{ip => {127, 0, 0, 1}, port => 0}),
+    %% The transcripts' Welcome carries Heartbeat 500, the value the shared
+    %% vectors were written with (not the default, which may change).
+    {ok, _} = agent_bridge:start_listener(vectors, #{ip => {127, 0, 0, 1}, port => 0,
+                                                     conn => #{heartbeat => 500}}),
     {ok, {_, Port}} = agent_bridge:address(vectors),
     [{dir, Dir}, {vectors, Vectors}, {port, Port} | Config].
 
