@@ -19,6 +19,18 @@
 %%    a pairing whose every accepted signal is replicated to the standby on
 %%    the other node before the Ack.
 %%
+%% c. Pauses (`pauses', not in the default run): the active's node is
+%%    stopped with SIGSTOP for 100 ms to 5 s and woken with SIGCONT, on a
+%%    lone node and in a three-node cluster, and the table says for each
+%%    length whether the pairing failed over, whether anything was fenced
+%%    (a client told `Fenced', or a new epoch on the same node), how many
+%%    times the clients reconnected, and how long after SIGCONT traffic
+%%    flowed again.
+%%
+%% Every section runs the release's defaults: evatar's timings
+%% (heartbeat_ms, suspect_ms, lease_ms) and the bridge's heartbeat, as
+%% config/sys.config.src ships them.
+%%
 %% Run it with scripts/bench-failover.sh (`make bench-failover').
 -module(failover_bench).
 
@@ -31,9 +43,10 @@
 -spec main() -> ok.
 main() -> main([]).
 
-%% @doc Options: `{trials, N}' (default 50), `kill' or `stall' or `tls'
-%% (only those sections; default all three), `quick' (5 trials, short TLS
-%% runs: a smoke run whose figures are not meant to be read),
+%% @doc Options: `{trials, N}' (default 50), `kill' or `stall' or `tls' or
+%% `pauses' (only those sections; default the first three), `quick' (5
+%% trials, short TLS runs: a smoke run whose figures are not meant to be
+%% read), `{pauses, [Ms]}' (the pause lengths),
 %% `{dir, Dir}' (node logs; default a fresh directory under /tmp).
 -spec main([term()]) -> ok.
 main(Opts) ->
@@ -41,7 +54,7 @@ main(Opts) ->
     Quick = lists:member(quick, Opts),
     Trials = proplists:get_value(trials, Opts, case Quick of true -> 5; false -> 50 end),
     Dir = proplists:get_value(dir, Opts, temp_dir()),
-    Sections = case [S || S <- [kill, stall, tls], lists:member(S, Opts)] of
+    Sections = case [S || S <- [kill, stall, tls, pauses], lists:member(S, Opts)] of
                    [] -> [kill, stall, tls];
                    Some -> Some
                end,
@@ -55,6 +68,8 @@ main(Opts) ->
                 || Fault <- [kill, stall], lists:member(Fault, Sections)],
     _ = Failover =/= [] andalso print_failover(Failover, Trials),
     _ = lists:member(tls, Sections) andalso tls_cost(Dir, Quick),
+    _ = lists:member(pauses, Sections)
+        andalso pauses(proplists:get_value(pauses, Opts, [100, 250, 400, 1000, 2000, 5000]), Dir),
     ok.
 
 temp_dir() ->
@@ -71,7 +86,7 @@ failover(Fault, Trials, Dir0) ->
     ok = filelib:ensure_path(Dir),
     %% No proxies: node-to-node links are direct, as in a deployment.
     {ok, C} = ha_cluster:start(#{dir => Dir, prefix => "fo" ++ atom_to_list(Fault),
-                                 links => false, conn => #{heartbeat => 100}}),
+                                 links => false, conn => #{}}),
     Shell = open_port({spawn, "/bin/sh"}, [binary, stderr_to_stdout]),
     try
         io:format("~s: ", [name(Fault)]),
@@ -228,6 +243,78 @@ last(L) -> lists:last(L).
 fmt(undefined) -> "-";
 fmt(timeout) -> "timeout";
 fmt(X) -> io_lib:format("~.1f", [X]).
+
+%% ---------------------------------------------------------------------------
+%% c. Pauses of the active's node
+%% ---------------------------------------------------------------------------
+
+pauses(Lengths, Dir0) ->
+    io:format("~nc. Pauses of the active's node (SIGSTOP, SIGCONT after the pause), "
+              "the release's defaults~n~n"),
+    io:format("  ~-8s ~-9s ~8s ~8s ~8s ~10s  ~s~n",
+              ["nodes", "pause ms", "failover", "fenced", "reconn.", "flows ms", "clients' reasons"]),
+    _ = [pauses(N, Lengths, Dir0) || N <- [1, 3]],
+    io:format("~n  failover: the pairing is active on another node; fenced: a client was told "
+              "Fenced, or the pairing~n  has a new epoch on the same node; flows: from SIGCONT "
+              "to the next signal the VA receives.~n"),
+    ok.
+
+pauses(N, Lengths, Dir0) ->
+    Dir = filename:join(Dir0, "pauses" ++ integer_to_list(N)),
+    ok = filelib:ensure_path(Dir),
+    {ok, C} = ha_cluster:start(#{dir => Dir, n => N, prefix => "fp" ++ integer_to_list(N),
+                                 links => false, conn => #{}}),
+    Shell = open_port({spawn, "/bin/sh"}, [binary, stderr_to_stdout]),
+    try
+        [pause_trial(C, Shell, N, Ms) || Ms <- Lengths]
+    after
+        port_close(Shell),
+        ha_cluster:stop(C)
+    end.
+
+pause_trial(C, Shell, N, Ms) ->
+    Id = iolist_to_binary(io_lib:format("fp-~b-~b", [N, Ms])),
+    ok = ha_pairing:create(C, 1, Id),
+    {ok, 1, #{epoch := E0}} = ha_pairing:active(C, Id),
+    {ok, Pair} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id,
+                                       #{sensor_interval => ?SENSOR_MS, notify => self()}),
+    VaName = entity(Pair),
+    ok = await_signals(VaName, E0, 20, 30000),
+    OsPid = ha_cluster:os_pid(C, 1),
+    true = port_command(Shell, ["kill -STOP ", OsPid, "\n"]),
+    timer:sleep(Ms),
+    flush(VaName),
+    T0 = erlang:monotonic_time(microsecond),
+    true = port_command(Shell, ["kill -CONT ", OsPid, "\n"]),
+    Flows = receive {ha_traffic, VaName, {received, _, _, T}} -> (T - T0) / 1000
+            after 60000 -> timeout
+            end,
+    {ok, _} = ha_traffic:round_trip(Pair, 60000),
+    {ok, I, #{epoch := E1}} = ha_pairing:await_active(C, Id, fun(_, _) -> true end, 60000),
+    #{va := #{reconnects := VaRe}, av := #{reconnects := AvRe}} = ha_traffic:history(Pair),
+    Reasons = [maps:get(reason, R, undefined) || R <- VaRe ++ AvRe],
+    Fenced = [R || {refused, <<"Fenced">>, _} = R <- Reasons] =/= []
+        orelse (I =:= 1 andalso E1 =/= E0),
+    ha_traffic:close(Pair),
+    io:format("  ~-8b ~-9b ~8s ~8s ~8b ~10s  ~s~n",
+              [N, Ms, yes_no(I =/= 1), yes_no(Fenced), length(Reasons), fmt(Flows),
+               reasons(Reasons)]),
+    ok = ha_cluster:await_formed(C, 60000),
+    _ = N > 1 andalso ha_pairing:await_healthy(C, Id, 60000),
+    _ = ha_pairing:delete(C, I, Id),
+    ok.
+
+yes_no(true) -> "yes";
+yes_no(false) -> "no".
+
+reasons(Reasons) ->
+    Names = [case R of
+                 {refused, Code, _} -> binary_to_list(Code);
+                 Atom when is_atom(Atom) -> atom_to_list(Atom);
+                 _ -> "other"
+             end || R <- Reasons],
+    lists:join(" ", [io_lib:format("~s x~b", [Name, length([X || X <- Names, X =:= Name])])
+                     || Name <- lists:usort(Names)]).
 
 %% ---------------------------------------------------------------------------
 %% b. TLS distribution
