@@ -46,7 +46,7 @@ main() -> main([]).
 %% @doc Options: `{trials, N}' (default 50), `kill' or `stall' or `tls' or
 %% `pauses' (only those sections; default the first three), `quick' (5
 %% trials, short TLS runs: a smoke run whose figures are not meant to be
-%% read), `{pauses, [Ms]}' (the pause lengths),
+%% read), `{pauses, [Ms]}' (that section, with those pause lengths),
 %% `{dir, Dir}' (node logs; default a fresh directory under /tmp).
 -spec main([term()]) -> ok.
 main(Opts) ->
@@ -54,7 +54,8 @@ main(Opts) ->
     Quick = lists:member(quick, Opts),
     Trials = proplists:get_value(trials, Opts, case Quick of true -> 5; false -> 50 end),
     Dir = proplists:get_value(dir, Opts, temp_dir()),
-    Sections = case [S || S <- [kill, stall, tls, pauses], lists:member(S, Opts)] of
+    Sections = case [S || S <- [kill, stall, tls, pauses],
+                          lists:member(S, Opts) orelse lists:keymember(S, 1, Opts)] of
                    [] -> [kill, stall, tls];
                    Some -> Some
                end,
@@ -69,7 +70,10 @@ main(Opts) ->
     _ = Failover =/= [] andalso print_failover(Failover, Trials),
     _ = lists:member(tls, Sections) andalso tls_cost(Dir, Quick),
     _ = lists:member(pauses, Sections)
-        andalso pauses(proplists:get_value(pauses, Opts, [100, 250, 400, 1000, 2000, 5000]), Dir),
+        andalso pauses(case lists:keyfind(pauses, 1, Opts) of
+                           {pauses, Lengths} when is_list(Lengths) -> Lengths;
+                           false -> [100, 250, 400, 1000, 2000, 5000]
+                       end, Dir),
     ok.
 
 temp_dir() ->
