@@ -819,7 +819,7 @@ ha({handover_done, New, _Epoch, Claim}, handing_over, #data{standby = New, id = 
                                   standby = undefined, standby_mon = undefined,
                                   outbox = queue:new(), repl = [], acks = #{}, conf = Claim,
                                   hold = false, reg = undefined}),
-    {next_state, standby, publish(Data2)};
+    {next_state, standby, reconfirmed(standby, publish(Data2))};
 ha({stale, From, Epoch}, State, Data) ->
     other_instance(From, active, Epoch, State, Data);
 ha({peer_instance, Pid, Role, Epoch}, State, Data) when is_pid(Pid), is_atom(Role),
