@@ -36,19 +36,24 @@ exec erl -noshell -kernel logger_level warning \
     {ok, _} = application:ensure_all_started(agent_bridge),
     [{ok, _} = evatar:create_pairing(Id, #{agent_credential => A, avatar_credential => V})
      || {Id, A, V} <- $specs],
+    %% Heartbeat 500 (not the default): the value in the shared vectors'
+    %% Welcome, which the SDKs' transcript tests replay against this node.
+    Hb500 = #{heartbeat => 500},
     case \"$TLS_DIR\" of
       \"\" -> ok;
       Dir ->
         F = fun(Name) -> filename:join(Dir, Name) end,
         Server = #{certfile => F(\"server.pem\"), keyfile => F(\"server.key\")},
         {ok, _} = agent_bridge:start_listener(test_tls, #{ip => {127,0,0,1}, port => 0,
-                                                          tls => Server}),
+                                                          tls => Server, conn => Hb500}),
         {ok, _} = agent_bridge:start_listener(test_mtls, #{ip => {127,0,0,1}, port => 0,
-                                                           tls => Server#{cacertfile => F(\"ca.pem\")}}),
+                                                           tls => Server#{cacertfile => F(\"ca.pem\")},
+                                                           conn => Hb500}),
         [begin {ok, {_, TP}} = agent_bridge:address(L), io:format(\"~s=~b~n\", [Var, TP]) end
          || {L, Var} <- [{test_tls, \"EVATAR_TLS_PORT\"}, {test_mtls, \"EVATAR_MTLS_PORT\"}]]
     end,
-    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127,0,0,1}, port => $PORT}),
+    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127,0,0,1}, port => $PORT,
+                                                       conn => Hb500}),
     {ok, {_, P}} = agent_bridge:address(test_node),
     io:format(\"EVATAR_PORT=~b~n\", [P]),
     WaitEof = fun Loop() -> case io:get_line('') of eof -> ok; {error, _} -> ok; _ -> Loop() end end,
