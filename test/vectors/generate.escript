@@ -211,11 +211,11 @@ signals() ->
            {signal, R#{seq := 7, epoch := 2}},
            "a signal as EVATAR delivers it: with Sequence and Epoch"),
      canon("signal_evatar_timeout", <<"signal">>,
-           {signal, sig(<<"evatar-12">>, feedback, <<"EVATAR">>, <<"LightEmulator01">>,
-                        <<"va-1-000042">>, 3, 1, <<"EVATAR">>, <<"Timeout">>,
-                        [{<<"Message">>, <<"no feedback within 5000 ms">>}])},
+           {signal, (sig(<<"evatar-12">>, feedback, <<"EVATAR">>, <<"LightEmulator01">>,
+                         <<"va-1-000042">>, 3, 1, <<"EVATAR">>, <<"Timeout">>,
+                         [{<<"Message">>, <<"no feedback within 5000 ms">>}]))#{origin => evatar}},
            "the Feedback EVATAR sends when a request's deadline passes (docs/protocol.md "
-           "section 4)"),
+           "section 4), marked Origin EVATAR: no entity can send that mark"),
      canon("signal_escaped", <<"signal">>,
            {signal, R#{id := <<"a&b<c>\"d'">>,
                        body := #{category => <<"ACTUATOR">>, type => <<"Say">>,
@@ -657,6 +657,12 @@ invalid() ->
          "</bil:Header><bil:Body><ServiceCategory>c</ServiceCategory><ServiceType>t</ServiceType>"
          "</bil:Body></bil:Envelope>">>,
        "a signal Context that is not one of the seven"),
+     D("invalid_signal_origin",
+       <<"<bil:Envelope xmlns:bil=\"urn:evatar:bil:1\"><bil:Header><SignalID>s</SignalID>"
+         "<Context>Event</Context><Sender>a</Sender><Receiver>b</Receiver><Timestamp>1</Timestamp>"
+         "<Origin>lamp</Origin></bil:Header><bil:Body><ServiceCategory>c</ServiceCategory>"
+         "<ServiceType>t</ServiceType></bil:Body></bil:Envelope>">>,
+       "an Origin other than EVATAR (the only value: EVATAR's mark on its own signals)"),
      D("invalid_duplicate_parameter",
        <<"<bil:Envelope xmlns:bil=\"urn:evatar:bil:1\"><bil:Header><SignalID>s</SignalID>"
          "<Context>Event</Context><Sender>a</Sender><Receiver>b</Receiver><Timestamp>1</Timestamp>"

@@ -65,6 +65,7 @@ error_signal(Entity, Type, Message, InReplyTo) ->
                               integer_to_binary(erlang:unique_integer([positive]))]),
       context => error,
       sender => <<"EVATAR">>,
+      origin => evatar,
       receiver => Entity,
       in_reply_to => InReplyTo,
       timestamp => os:system_time(millisecond),

@@ -24,8 +24,12 @@ to_json({control, C}) -> control(C).
 
 signal(#{id := Id, context := Context, sender := Sender, receiver := Receiver,
          in_reply_to := InReplyTo, timestamp := Ts, seq := Seq, epoch := Epoch,
-         body := #{category := Cat, type := Type, parameters := Params}}) ->
+         body := #{category := Cat, type := Type, parameters := Params}} = S) ->
     #{<<"context">> => context_wire(Context), <<"id">> => Id,
+      <<"origin">> => case S of
+                          #{origin := evatar} -> <<"EVATAR">>;
+                          #{} -> null
+                      end,
       <<"sender">> => Sender, <<"receiver">> => Receiver,
       <<"in_reply_to">> => null_if(InReplyTo), <<"timestamp">> => Ts,
       <<"sequence">> => null_if(Seq), <<"epoch">> => null_if(Epoch),
@@ -117,7 +121,11 @@ from_json(#{<<"control">> := Root} = J) ->
 from_json(#{<<"components">> := _} = J) ->
     {description, description_term(J)};
 from_json(#{<<"service">> := #{<<"category">> := Cat, <<"type">> := Type}} = J) ->
-    {signal, #{id => get(<<"id">>, J), context => context_term(get(<<"context">>, J)),
+    Origin = case get(<<"origin">>, J) of
+                 <<"EVATAR">> -> #{origin => evatar};
+                 null -> #{}
+             end,
+    {signal, Origin#{id => get(<<"id">>, J), context => context_term(get(<<"context">>, J)),
                sender => get(<<"sender">>, J), receiver => get(<<"receiver">>, J),
                in_reply_to => undef_if(get(<<"in_reply_to">>, J)),
                timestamp => get(<<"timestamp">>, J),

@@ -52,6 +52,9 @@
                         | error.
 %% `in_reply_to', `seq' and `epoch' are `undefined' when absent from the
 %% document. `timestamp' is milliseconds since 1970-01-01T00:00:00Z.
+%% `origin' is present, `evatar', only on signals EVATAR made itself (its
+%% Timeout and ProviderGone feedback, its error signals): the header's
+%% `Origin' element, which an entity never sends.
 -type signal() :: #{id := binary(),
                     context := signal_context(),
                     sender := binary(),
@@ -60,6 +63,7 @@
                     timestamp := non_neg_integer(),
                     seq := non_neg_integer() | undefined,
                     epoch := non_neg_integer() | undefined,
+                    origin => evatar,
                     body := entry()}.
 
 %% ---------------------------------------------------------------------------

@@ -66,10 +66,18 @@ header(C0) ->
     Seq = optional_number(SeqText, <<"Sequence">>),
     {EpochText, C8} = optional(<<"Epoch">>, C7),
     Epoch = optional_number(EpochText, <<"Epoch">>),
-    finish_header(C8),
-    #{id => Id, context => Context, sender => Sender, receiver => Receiver,
-      in_reply_to => InReplyTo, timestamp => Timestamp, seq => Seq, epoch => Epoch,
-      body => undefined}.
+    {OriginText, C9} = optional(<<"Origin">>, C8),
+    finish_header(C9),
+    Signal = #{id => Id, context => Context, sender => Sender, receiver => Receiver,
+               in_reply_to => InReplyTo, timestamp => Timestamp, seq => Seq, epoch => Epoch,
+               body => undefined},
+    case OriginText of
+        undefined -> Signal;
+        <<"EVATAR">> -> Signal#{origin => evatar};
+        Other -> bil_description:fail(bad_value, <<?HEADER/binary, "/Origin">>,
+                                      [<<"Origin must be EVATAR; found ">>,
+                                       bil_description:quote(Other)])
+    end.
 
 body(Content) ->
     bil_description:entry(Content, <<"/Envelope/Body">>).
@@ -81,9 +89,9 @@ finish_header(Rest) ->
       Rest, ?HEADER,
       [{undefined, F} || F <- [<<"SignalID">>, <<"Context">>, <<"Sender">>, <<"Receiver">>,
                                 <<"InReplyTo">>, <<"Timestamp">>, <<"Sequence">>,
-                                <<"Epoch">>]],
+                                <<"Epoch">>, <<"Origin">>]],
       <<"SignalID, Context, Sender, Receiver, optional InReplyTo, Timestamp,"
-        " optional Sequence, optional Epoch, in that order">>).
+        " optional Sequence, optional Epoch, optional Origin, in that order">>).
 
 %% The header's fields: local copies of the common case, falling back to
 %% bil_description for whitespace and errors.
@@ -134,10 +142,13 @@ wire(error) -> <<"Error">>.
 %% ---------------------------------------------------------------------------
 
 -spec encode(bil:signal()) -> iodata().
+encode(#{} = Signal) ->
+    encode(Signal, maps:get(origin, Signal, undefined)).
+
 encode(#{id := Id, context := Context, sender := Sender, receiver := Receiver,
          in_reply_to := InReplyTo, timestamp := Timestamp, seq := Seq, epoch := Epoch,
-         body := #{category := Category, type := Type, parameters := Parameters}})
-  when is_integer(Timestamp), Timestamp >= 0 ->
+         body := #{category := Category, type := Type, parameters := Parameters}}, Origin)
+  when is_integer(Timestamp), Timestamp >= 0, (Origin =:= undefined orelse Origin =:= evatar) ->
     [<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?>"
        "<bil:Envelope xmlns:bil=\"urn:evatar:bil:1\"><bil:Header><SignalID>">>,
      bil_description:esc(Id),
@@ -153,6 +164,10 @@ encode(#{id := Id, context := Context, sender := Sender, receiver := Receiver,
      <<"</Timestamp>">>,
      encode_number(<<"<Sequence>">>, Seq, <<"</Sequence>">>),
      encode_number(<<"<Epoch>">>, Epoch, <<"</Epoch>">>),
+     case Origin of
+         evatar -> <<"<Origin>EVATAR</Origin>">>;
+         undefined -> <<>>
+     end,
      <<"</bil:Header><bil:Body><ServiceCategory>">>, bil_description:esc(Category),
      <<"</ServiceCategory><ServiceType>">>, bil_description:esc(Type),
      <<"</ServiceType>">>,

@@ -57,6 +57,7 @@ def meaning(doc: bil.Document) -> Dict[str, Any]:
         return {"context": doc.context, "id": doc.id, "sender": doc.sender,
                 "receiver": doc.receiver, "in_reply_to": doc.in_reply_to,
                 "timestamp": doc.timestamp, "sequence": doc.sequence, "epoch": doc.epoch,
+                "origin": doc.origin,
                 "service": {"category": doc.body.category, "type": doc.body.type},
                 "parameters": params_meaning(doc.body.parameters)}
     if isinstance(doc, Description):
@@ -105,6 +106,7 @@ def document(m: Dict[str, Any]) -> bil.Document:
         return Signal(id=m["id"], context=m["context"], sender=m["sender"],
                       receiver=m["receiver"], in_reply_to=m["in_reply_to"],
                       timestamp=m["timestamp"], sequence=m["sequence"], epoch=m["epoch"],
+                      origin=m["origin"],
                       body=Entry(m["service"]["category"], m["service"]["type"],
                                  params_of(m["parameters"])))
     if "components" in m:

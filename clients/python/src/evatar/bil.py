@@ -131,6 +131,16 @@ class Signal:
     in_reply_to: Optional[str] = None
     sequence: Optional[int] = None
     epoch: Optional[int] = None
+    #: ``"EVATAR"`` on a signal EVATAR made itself (its Timeout and
+    #: ProviderGone feedback, its errors), ``None`` on an entity's: the
+    #: header's ``Origin``, which EVATAR refuses from entities.
+    origin: Optional[str] = None
+
+    @property
+    def from_evatar(self) -> bool:
+        """True for a signal EVATAR made itself (``Origin`` ``EVATAR``), not an
+        entity's, whatever its ``Sender`` says."""
+        return self.origin == "EVATAR"
 
     @property
     def category(self) -> str:
@@ -150,7 +160,7 @@ class Signal:
     @property
     def is_evatar_timeout(self) -> bool:
         """EVATAR's own feedback for a request that got no answer in time."""
-        return (self.context == "Feedback" and self.sender == "EVATAR"
+        return (self.context == "Feedback" and self.from_evatar and self.sender == "EVATAR"
                 and self.body.category == "EVATAR" and self.body.type == "Timeout")
 
     def encode(self) -> bytes:
@@ -166,6 +176,10 @@ class Signal:
             h.append("<Sequence>%d</Sequence>" % _nonneg(self.sequence))
         if self.epoch is not None:
             h.append("<Epoch>%d</Epoch>" % _nonneg(self.epoch))
+        if self.origin is not None:
+            if self.origin != "EVATAR":
+                raise ValueError("Origin can only be EVATAR, not %r" % self.origin)
+            h.append("<Origin>EVATAR</Origin>")
         return ('<?xml version="1.0" encoding="UTF-8"?><bil:Envelope xmlns:bil="%s">'
                 "<bil:Header>%s</bil:Header><bil:Body>%s</bil:Body></bil:Envelope>"
                 % (NS, "".join(h), _body(self.body))).encode("utf-8")
@@ -563,6 +577,9 @@ def _signal(root: Element) -> Signal:
     (ts,), rest = _fields(rest, [("Timestamp", "int")], hpath)
     seq, rest = _optional(rest, "Sequence", "int", hpath)
     ep, rest = _optional(rest, "Epoch", "int", hpath)
+    origin, rest = _optional(rest, "Origin", "text", hpath)
+    if origin is not None and origin != "EVATAR":
+        raise _err("bad_value", "Origin must be EVATAR; found %s" % origin, hpath + "/Origin")
     if rest:
         extra = rest[0]
         assert isinstance(extra, Element)
@@ -571,7 +588,8 @@ def _signal(root: Element) -> Signal:
     body = _entry(kids[1], path + "/Body")
     return Signal(id=str(v[0]), context=str(v[1]), sender=str(v[2]), receiver=str(v[3]),
                   body=body, timestamp=int(ts),  # type: ignore[call-overload]
-                  in_reply_to=irt, sequence=seq, epoch=ep)  # type: ignore[arg-type]
+                  in_reply_to=irt, sequence=seq, epoch=ep,  # type: ignore[arg-type]
+                  origin=origin)  # type: ignore[arg-type]
 
 
 def _description(root: Element) -> Description:

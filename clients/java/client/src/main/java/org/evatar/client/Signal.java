@@ -10,10 +10,16 @@ import org.w3c.dom.Element;
 /**
  * A BIL signal (an {@code Envelope}, docs/bil.md section 3). Immutable; build
  * one with {@link #builder()}, change one with {@link #toBuilder()}.
+ * {@code origin} is {@code "EVATAR"} on a signal EVATAR made itself (its
+ * Timeout and ProviderGone feedback, its errors) and {@code null} on an
+ * entity's: the header's {@code Origin}, which EVATAR refuses from entities.
  */
 public record Signal(String id, String context, String sender, String receiver,
                      String inReplyTo, long timestamp, Long sequence, Long epoch,
-                     String category, String type, List<Param> parameters) {
+                     String category, String type, List<Param> parameters, String origin) {
+
+    /** The value of {@code Origin} on EVATAR's own signals. */
+    public static final String ORIGIN_EVATAR = "EVATAR";
 
     public static final String REQUEST = "RequestAwaitingFeedback";
     public static final String REQUEST_NO_FEEDBACK = "Request";
@@ -38,6 +44,22 @@ public record Signal(String id, String context, String sender, String receiver,
             throw new IllegalArgumentException("negative Timestamp");
         }
         parameters = List.copyOf(parameters == null ? List.of() : parameters);
+        if (origin != null && !ORIGIN_EVATAR.equals(origin)) {
+            throw new IllegalArgumentException("Origin can only be EVATAR, not " + origin);
+        }
+    }
+
+    /** A signal without {@code Origin}: an entity's. */
+    public Signal(String id, String context, String sender, String receiver, String inReplyTo,
+                  long timestamp, Long sequence, Long epoch, String category, String type,
+                  List<Param> parameters) {
+        this(id, context, sender, receiver, inReplyTo, timestamp, sequence, epoch, category, type,
+                parameters, null);
+    }
+
+    /** True for a signal EVATAR made itself ({@code Origin} {@code EVATAR}), whatever its Sender says. */
+    public boolean isFromEvatar() {
+        return ORIGIN_EVATAR.equals(origin);
     }
 
     private static void require(String v, String what) {
@@ -53,7 +75,7 @@ public record Signal(String id, String context, String sender, String receiver,
 
     /** EVATAR's own answer when the feedback deadline passed (docs/protocol.md section 4). */
     public boolean isTimeout() {
-        return FEEDBACK.equals(context) && "EVATAR".equals(sender)
+        return FEEDBACK.equals(context) && isFromEvatar() && "EVATAR".equals(sender)
                 && "EVATAR".equals(category) && "Timeout".equals(type);
     }
 
@@ -84,6 +106,9 @@ public record Signal(String id, String context, String sender, String receiver,
         }
         if (epoch != null) {
             Bil.field(sb, "Epoch", Long.toString(epoch));
+        }
+        if (origin != null) {
+            Bil.field(sb, "Origin", origin);
         }
         sb.append("</bil:Header><bil:Body>");
         Bil.field(sb, "ServiceCategory", category);
@@ -141,6 +166,13 @@ public record Signal(String id, String context, String sender, String receiver,
         }
         if (e != null && Bil.isField(e, "Epoch")) {
             b.epoch = Bil.number(e);
+            e = next(h);
+        }
+        if (e != null && Bil.isField(e, "Origin")) {
+            b.origin = Bil.text(e);
+            if (!ORIGIN_EVATAR.equals(b.origin)) {
+                throw ProtocolException.malformed("bad_value", "Origin must be EVATAR, not " + b.origin);
+            }
             e = next(h);
         }
         if (e != null) {
@@ -206,6 +238,7 @@ public record Signal(String id, String context, String sender, String receiver,
         b.timestamp = timestamp;
         b.sequence = sequence;
         b.epoch = epoch;
+        b.origin = origin;
         b.category = category;
         b.type = type;
         b.parameters = new ArrayList<>(parameters);
@@ -222,6 +255,7 @@ public record Signal(String id, String context, String sender, String receiver,
         private long timestamp = -1;
         private Long sequence;
         private Long epoch;
+        private String origin;
         private String category;
         private String type;
         private List<Param> parameters = new ArrayList<>();
@@ -234,6 +268,7 @@ public record Signal(String id, String context, String sender, String receiver,
         public Builder timestamp(long v) { timestamp = v; return this; }
         public Builder sequence(Long v) { sequence = v; return this; }
         public Builder epoch(Long v) { epoch = v; return this; }
+        public Builder origin(String v) { origin = v; return this; }
         public Builder service(String cat, String typ) { category = cat; type = typ; return this; }
         public Builder param(String name, String value) { parameters.add(new Param(name, value)); return this; }
         public Builder params(List<Param> ps) { parameters.addAll(ps); return this; }
@@ -243,7 +278,7 @@ public record Signal(String id, String context, String sender, String receiver,
         public Signal build() {
             return new Signal(id, context, sender, receiver, inReplyTo,
                     timestamp < 0 ? System.currentTimeMillis() : timestamp,
-                    sequence, epoch, category, type, parameters);
+                    sequence, epoch, category, type, parameters, origin);
         }
     }
 }

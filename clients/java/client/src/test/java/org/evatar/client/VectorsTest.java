@@ -244,6 +244,7 @@ class VectorsTest {
             m.addProperty("timestamp", s.timestamp());
             m.add("sequence", num(s.sequence()));
             m.add("epoch", num(s.epoch()));
+            m.add("origin", str(s.origin()));
             JsonObject svc = new JsonObject();
             svc.addProperty("category", s.category());
             svc.addProperty("type", s.type());
@@ -398,7 +399,7 @@ class VectorsTest {
                 JsonObject svc = m.getAsJsonObject("service");
                 return new Signal(s(m, "id"), s(m, "context"), s(m, "sender"), s(m, "receiver"), s(m, "in_reply_to"),
                         l(m, "timestamp"), l(m, "sequence"), l(m, "epoch"), s(svc, "category"), s(svc, "type"),
-                        ps(m.getAsJsonArray("parameters"))).toBytes();
+                        ps(m.getAsJsonArray("parameters")), s(m, "origin")).toBytes();
             }
             case "description" -> {
                 List<Description.Component> cs = new ArrayList<>();
