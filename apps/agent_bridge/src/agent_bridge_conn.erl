@@ -414,6 +414,11 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
 
 join_refusal(unknown_pairing) -> refused(<<"UnknownPairing">>, <<"no such pairing">>);
 join_refusal(bad_credential) -> refused(<<"BadCredential">>, <<"wrong credential">>);
+join_refusal(id_too_long) ->
+    refused(<<"IdTooLong">>, <<"the EntityID is longer than the pairing's max_id_length">>);
+join_refusal(reserved_id) ->
+    refused(<<"ReservedId">>, <<"the EntityID reads as EVATAR, the sender of EVATAR's own "
+                                "signals">>);
 join_refusal(occupied) ->
     refused(<<"Occupied">>, <<"this pairing already has its agent">>);
 join_refusal(entity_exists) ->

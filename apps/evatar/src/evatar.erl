@@ -15,10 +15,11 @@
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
 -export([ha_status/1, ha_locate/1, cluster_status/0]).
+-export([hash_credential/1, hash_credential/2]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
               pairing_summary/0, drop_code/0, session_info/0, join_error/0,
-              resume_opts/0, ha_status/0, auth/0, peer_cert/0]).
+              resume_opts/0, ha_status/0, auth/0, peer_cert/0, identity/0]).
 
 %% A credential as join/4,5 and resume/5 take it: a bare binary, or a map
 %% with the client certificate the bridge verified (docs/protocol.md,
@@ -42,13 +43,28 @@
 -type peer_cert() :: #{sha256 := binary(), cn := binary() | undefined}.
 -type auth() :: binary() | #{credential := binary(), peer_cert := peer_cert() | undefined}.
 -opaque session() :: #session{}.
+%% Who may join (docs/architecture.md, "Identity"): the shared role
+%% credentials, a list of `identities' (one per device: its EntityID, role,
+%% and its own credential, its client certificate's SHA-256 fingerprint, or
+%% both), or both kinds. A listed EntityID joins only with its own
+%% identity; an unlisted one is refused unless `unlisted_ids' is
+%% `role_credential'. Credentials are given plain or as
+%% {@link hash_credential/1} made them; the pairing keeps only hashes.
 %% Timeouts in milliseconds; `join_timeout' and `feedback_timeout' default
-%% to 5000, `max_avatars' to 64.
+%% to 5000, `max_avatars' to 64. Limits (docs/protocol.md section 7):
+%% `max_id_length' 128 bytes, `max_open_requests' 1024 per requester,
+%% `max_consumes' 256 per description, `max_binding_report' 1048576 bytes.
 %% High availability (docs/architecture.md, section 8): `resume_timeout',
 %% `dedup_window' and `max_unacked_out' default to the application
 %% environment's; `standby_node' asks for the standby on that node.
--type pairing_opts() :: #{agent_credential := binary(),
-                          avatar_credential := binary(),
+-type pairing_opts() :: #{agent_credential => binary() | evatar_auth:hashed(),
+                          avatar_credential => binary() | evatar_auth:hashed(),
+                          identities => [identity()],
+                          unlisted_ids => refuse | role_credential,
+                          max_id_length => pos_integer(),
+                          max_open_requests => pos_integer(),
+                          max_consumes => pos_integer(),
+                          max_binding_report => pos_integer(),
                           join_timeout => non_neg_integer(),
                           feedback_timeout => non_neg_integer(),
                           max_avatars => pos_integer(),
@@ -61,9 +77,15 @@
 -type resume_opts() :: #{session := binary(),
                          received := non_neg_integer(),
                          epoch := non_neg_integer()}.
+%% One device's identity in `pairing_opts()': `cert_sha256' is the SHA-256
+%% fingerprint of its client certificate (hex, colons allowed).
+-type identity() :: #{entity := binary(),
+                      role := role(),
+                      credential => binary() | evatar_auth:hashed(),
+                      cert_sha256 => binary()}.
 -type join_error() :: unknown_pairing | bad_credential | occupied | entity_exists
                     | too_many_entities | stale_epoch | fenced | {not_active, node()}
-                    | busy.
+                    | busy | id_too_long | reserved_id.
 -type ha_status() :: #{role := starting | active | standby | fenced,
                        epoch := non_neg_integer(),
                        node := node(),
@@ -206,10 +228,11 @@ delete_pairing(PairingId) ->
 %% pairing did not answer within the call timeout (the caller is not held longer, and
 %% a join the pairing gets to later ends when the caller's process does).
 -spec join(pairing_id(), role(), binary(), auth()) -> {ok, session()} | {error, join_error()}.
-join(PairingId, Role, EntityId, Credential)
+join(PairingId, Role, EntityId, Auth)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), ?IS_AUTH(Credential) ->
-    join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self()});
+       is_binary(EntityId), ?IS_AUTH(Auth) ->
+    join_call(PairingId, EntityId, Role, Auth,
+              fun(Verdict) -> {join, Role, EntityId, Verdict, self()} end);
 join(_PairingId, _Role, _EntityId, _Credential) ->
     {error, bad_credential}.
 
@@ -220,10 +243,11 @@ join(_PairingId, _Role, _EntityId, _Credential) ->
 %% and keeps what it delivers until {@link ack/2}.
 -spec join(pairing_id(), role(), binary(), auth(), #{session := binary()}) ->
           {ok, session()} | {error, join_error()}.
-join(PairingId, Role, EntityId, Credential, #{session := S} = Opts)
+join(PairingId, Role, EntityId, Auth, #{session := S} = Opts)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), ?IS_AUTH(Credential), is_binary(S) ->
-    join_call(PairingId, EntityId, Role, {join, Role, EntityId, Credential, self(), Opts});
+       is_binary(EntityId), ?IS_AUTH(Auth), is_binary(S) ->
+    join_call(PairingId, EntityId, Role, Auth,
+              fun(Verdict) -> {join, Role, EntityId, Verdict, self(), Opts} end);
 join(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
     {error, bad_credential}.
 
@@ -234,31 +258,47 @@ join(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
 %% caller has seen a newer epoch than this instance's.
 -spec resume(pairing_id(), role(), binary(), auth(), resume_opts()) ->
           {ok, session()} | {error, join_error()}.
-resume(PairingId, Role, EntityId, Credential,
+resume(PairingId, Role, EntityId, Auth,
        #{session := S, received := R, epoch := E} = Opts)
   when is_binary(PairingId), (Role =:= agent orelse Role =:= avatar),
-       is_binary(EntityId), ?IS_AUTH(Credential), is_binary(S), is_integer(R), R >= 0,
+       is_binary(EntityId), ?IS_AUTH(Auth), is_binary(S), is_integer(R), R >= 0,
        is_integer(E), E >= 0 ->
-    join_call(PairingId, EntityId, Role, {resume, Role, EntityId, Credential, self(), Opts});
+    join_call(PairingId, EntityId, Role, Auth,
+              fun(Verdict) -> {resume, Role, EntityId, Verdict, self(), Opts} end);
 resume(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
     {error, bad_credential}.
 
-join_call(PairingId, EntityId, Role, Request) ->
+%% The credential is checked here, in the caller's process, against what
+%% the pairing requires of this EntityID (a hash, a certificate
+%% fingerprint): the PBKDF2 cost is the joining client's, and only the
+%% verdict reaches the pairing.
+join_call(PairingId, EntityId, Role, Auth, Request) ->
     case evatar_registry:whereis_name(PairingId) of
         undefined ->
             {error, unknown_pairing};
         Pid ->
-            case call(Pid, Request) of
-                {ok, #{join_timeout := J, epoch := E, resumed := R, last_accepted := L,
-                       dedup_window := W}} ->
-                    {ok, #session{pairing = PairingId, pid = Pid, entity = EntityId,
-                                  role = Role, join_timeout = J, epoch = E, resumed = R,
-                                  last_accepted = L, dedup_window = W}};
+            case call(Pid, {auth, Role, EntityId}) of
+                {ok, Requirement} ->
+                    join_verified(Pid, PairingId, EntityId, Role,
+                                  Request(evatar_auth:verify(Requirement, Auth)));
                 {error, gone} ->
                     {error, unknown_pairing};
                 {error, _} = Error ->
                     Error
             end
+    end.
+
+join_verified(Pid, PairingId, EntityId, Role, Request) ->
+    case call(Pid, Request) of
+        {ok, #{join_timeout := J, epoch := E, resumed := R, last_accepted := L,
+               dedup_window := W}} ->
+            {ok, #session{pairing = PairingId, pid = Pid, entity = EntityId,
+                          role = Role, join_timeout = J, epoch = E, resumed = R,
+                          last_accepted = L, dedup_window = W}};
+        {error, gone} ->
+            {error, unknown_pairing};
+        {error, _} = Error ->
+            Error
     end.
 
 %% @doc Registers (or replaces) the entity's BIL description; the pairing
@@ -311,6 +351,16 @@ leave(#session{pid = Pid, entity = EntityId}) ->
 -spec leave_async(session()) -> ok.
 leave_async(#session{pid = Pid, entity = EntityId}) ->
     gen_statem:cast(Pid, {leave, EntityId}).
+
+%% @doc A credential's stored form for pairing options (PBKDF2-HMAC-SHA256,
+%% 10,000 iterations, a random 16-byte salt): keep this in configuration
+%% instead of the plain credential.
+-spec hash_credential(binary()) -> evatar_auth:hashed().
+hash_credential(Plain) when is_binary(Plain) -> evatar_auth:hash(Plain).
+
+%% @doc {@link hash_credential/1} with another iteration count.
+-spec hash_credential(binary(), pos_integer()) -> evatar_auth:hashed().
+hash_credential(Plain, Iterations) when is_binary(Plain) -> evatar_auth:hash(Plain, Iterations).
 
 %% @doc The pid of the pairing process the session belongs to.
 -spec session_pid(session()) -> pid().

@@ -210,6 +210,15 @@ handle_event({call, From}, {inspect, What}, State, Data) ->
         #data{} ->
             {keep_state, Data1, [{reply, From, inspect(What, State, Data1)}]}
     end;
+handle_event({call, From}, {auth, Role, EntityId}, _State, #data{config = Config}) ->
+    %% What a join must present, so that the joining process checks its
+    %% credential itself (evatar:join/4): an id the pairing refuses anyway
+    %% costs no hash.
+    Reply = case evatar_auth:check_id(EntityId, maps:get(max_id_length, Config)) of
+                ok -> {ok, evatar_auth:requirement(Role, EntityId, Config)};
+                {error, _} = Error -> Error
+            end,
+    {keep_state_and_data, [{reply, From, Reply}]};
 handle_event({timeout, place}, place, State, Data) ->
     {keep_state, place(State, Data#data{placing = false})};
 handle_event(info, {evatar_election_retry, Ec}, State, #data{election = #{epoch := Ec}} = Data)

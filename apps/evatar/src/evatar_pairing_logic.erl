@@ -73,11 +73,24 @@
              counters = #{} :: #{term() => non_neg_integer()},
              next_id = 1 :: pos_integer(),
              %% HA entities over max_unacked_out during the current event.
-             overflow = [] :: [binary()]}).
+             overflow = [] :: [binary()],
+             %% Open requests per requester entity (max_open_requests).
+             open = #{} :: #{binary() => pos_integer()},
+             %% Bytes each registered entity may add to a Binding report at
+             %% most, and their sum (max_binding_report).
+             charges = #{} :: #{binary() => non_neg_integer()},
+             charged = 0 :: non_neg_integer()}).
 
 -opaque state() :: #st{}.
--type config() :: #{agent_credential := binary(),
-                    avatar_credential := binary(),
+%% Credentials are stored hashed (evatar_auth); see evatar:pairing_opts().
+-type config() :: #{agent_credential => evatar_auth:hashed(),
+                    avatar_credential => evatar_auth:hashed(),
+                    identities => [evatar_auth:identity()],
+                    unlisted_ids => refuse | role_credential,
+                    max_id_length := pos_integer(),
+                    max_open_requests := pos_integer(),
+                    max_consumes := pos_integer(),
+                    max_binding_report := pos_integer(),
                     join_timeout := non_neg_integer(),
                     feedback_timeout := non_neg_integer(),
                     max_avatars := pos_integer(),
@@ -88,10 +101,14 @@
 -type timer_key() :: {join, EntityId :: binary()}
                    | {feedback, RequesterComponent :: binary(), SignalId :: binary()}
                    | {resume, EntityId :: binary()}.
--type event() :: {join, evatar:role(), EntityId :: binary(), Credential :: evatar:auth()}
-               | {join, evatar:role(), EntityId :: binary(), Credential :: evatar:auth(),
+%% A join carries the verdict of evatar_auth:verify/2, made before the event
+%% (the pairing process never sees a plain credential); a plain credential
+%% is verified here, for tests and direct use of this module.
+-type auth() :: evatar_auth:verdict() | evatar:auth().
+-type event() :: {join, evatar:role(), EntityId :: binary(), auth()}
+               | {join, evatar:role(), EntityId :: binary(), auth(),
                   SessionId :: binary()}
-               | {resume, evatar:role(), EntityId :: binary(), Credential :: evatar:auth(),
+               | {resume, evatar:role(), EntityId :: binary(), auth(),
                   SessionId :: binary(), Received :: non_neg_integer(),
                   ClientEpoch :: non_neg_integer()}
                | {describe, EntityId :: binary(), bil:description()}
@@ -112,7 +129,17 @@
 -type phase() :: waiting | bound.
 
 -define(DEFAULTS, #{join_timeout => 5000, feedback_timeout => 5000, max_avatars => 64,
-                   resume_timeout => 10000, dedup_window => 1024, max_unacked_out => 8192}).
+                   resume_timeout => 10000, dedup_window => 1024, max_unacked_out => 8192,
+                   max_id_length => 128, max_open_requests => 1024, max_consumes => 256,
+                   max_binding_report => 1048576}).
+
+%% The bytes of a Binding report that do not depend on its values: the
+%% document around the Entities list, one EntityID entry, and one Bound row
+%% with its Score and Candidates at 20 digits (an Unbound row is shorter).
+%% evatar_pairing_logic_tests checks them against bil_control's encoder.
+-define(REPORT_TAGS, 77).
+-define(ENTITY_TAGS, 21).
+-define(ROW_TAGS, 301).
 
 %% ---------------------------------------------------------------------------
 %% Construction
@@ -121,26 +148,27 @@
 %% @doc Checks pairing options (see `evatar:pairing_opts()') and fills in
 %% the defaults.
 -spec config(term()) -> {ok, config()} | {error, {bad_option, term()}}.
-config(#{agent_credential := A, avatar_credential := V} = Opts)
-  when is_binary(A), is_binary(V) ->
-    check_options(maps:to_list(maps:merge(?DEFAULTS, Opts)), Opts);
-config(#{agent_credential := A, avatar_credential := _} = Opts) when not is_binary(A) ->
-    {error, {bad_option, {agent_credential, maps:get(agent_credential, Opts)}}};
-config(#{agent_credential := _, avatar_credential := V}) ->
-    {error, {bad_option, {avatar_credential, V}}};
+%% Plain credentials are hashed here; a configuration made by this
+%% function is accepted again as it is.
 config(Opts) when is_map(Opts) ->
-    {error, {bad_option, {missing, [K || K <- [agent_credential, avatar_credential],
-                                        not maps:is_key(K, Opts)]}}};
+    case evatar_auth:normalise(Opts) of
+        {ok, Opts1} -> check_options(maps:to_list(maps:merge(?DEFAULTS, Opts1)), Opts1);
+        {error, _} = Error -> Error
+    end;
 config(Other) ->
     {error, {bad_option, Other}}.
 
 check_options([{K, V} | Rest], Opts)
   when (K =:= join_timeout orelse K =:= feedback_timeout orelse K =:= resume_timeout),
        is_integer(V), V >= 0;
-       (K =:= max_avatars orelse K =:= dedup_window orelse K =:= max_unacked_out),
+       (K =:= max_avatars orelse K =:= dedup_window orelse K =:= max_unacked_out orelse
+        K =:= max_open_requests orelse K =:= max_consumes),
        is_integer(V), V > 0;
+       K =:= max_id_length, is_integer(V), V > 0, V =< 65536;
+       K =:= max_binding_report, is_integer(V), V >= 4096;
        K =:= standby_node, is_atom(V);
-       K =:= agent_credential; K =:= avatar_credential ->
+       K =:= agent_credential; K =:= avatar_credential; K =:= identities;
+       K =:= unlisted_ids ->
     check_options(Rest, Opts);
 check_options([Bad | _], _Opts) ->
     {error, {bad_option, Bad}};
@@ -201,7 +229,7 @@ handle1({timeout, {feedback, Component, SignalId}}, Now, St) ->
 join(Role, EntityId, Credential, Session, Now, #st{entities = Entities} = St) ->
     case Entities of
         #{EntityId := #entity{attached = false}} ->
-            case credential_ok(Role, Credential, St#st.config) of
+            case credential_ok(Role, EntityId, Credential, St#st.config) of
                 true ->
                     {St1, LeaveEffects} = leave(EntityId, replaced, Now, St),
                     {St2, JoinEffects} = join1(Role, EntityId, Credential, Session, Now, St1),
@@ -215,16 +243,9 @@ join(Role, EntityId, Credential, Session, Now, #st{entities = Entities} = St) ->
 
 join1(Role, EntityId, Credential, Session, Now,
      #st{config = Config, entities = Entities} = St) ->
-    Check = case credential_ok(Role, Credential, Config) of
-                false -> {error, bad_credential};
-                true when is_map_key(EntityId, Entities) -> {error, entity_exists};
-                true when Role =:= agent, St#st.agent =/= undefined -> {error, occupied};
-                true when Role =:= avatar ->
-                    case St#st.avatars < maps:get(max_avatars, Config) of
-                        true -> ok;
-                        false -> {error, too_many_entities}
-                    end;
-                true -> ok
+    Check = case evatar_auth:check_id(EntityId, maps:get(max_id_length, Config)) of
+                {error, _} = IdError -> IdError;
+                ok -> join_check(Role, EntityId, Credential, St)
             end,
     case Check of
         {error, _} = Error ->
@@ -246,17 +267,25 @@ join1(Role, EntityId, Credential, Session, Now,
                                  role => Role}}]}
     end.
 
-%% Hashing first gives equal-length inputs, as crypto:hash_equals/2 needs,
-%% so the comparison time does not depend on where the inputs differ.
-credential_ok(Role, #{credential := Given}, Config) ->
-    credential_ok(Role, Given, Config);
-credential_ok(Role, Given, Config) when is_binary(Given) ->
-    Expected = case Role of
-                   agent -> maps:get(agent_credential, Config);
-                   avatar -> maps:get(avatar_credential, Config)
-               end,
-    crypto:hash_equals(crypto:hash(sha256, Given), crypto:hash(sha256, Expected));
-credential_ok(_Role, _Given, _Config) ->
+join_check(Role, EntityId, Credential, #st{config = Config, entities = Entities} = St) ->
+    case credential_ok(Role, EntityId, Credential, Config) of
+        false -> {error, bad_credential};
+        true when is_map_key(EntityId, Entities) -> {error, entity_exists};
+        true when Role =:= agent, St#st.agent =/= undefined -> {error, occupied};
+        true when Role =:= avatar ->
+            case St#st.avatars < maps:get(max_avatars, Config) of
+                true -> ok;
+                false -> {error, too_many_entities}
+            end;
+        true -> ok
+    end.
+
+credential_ok(_Role, _EntityId, authenticated, _Config) ->
+    true;
+credential_ok(Role, EntityId, Given, Config) when is_binary(Given); is_map(Given) ->
+    evatar_auth:verify(evatar_auth:requirement(Role, EntityId, Config), Given)
+        =:= authenticated;
+credential_ok(_Role, _EntityId, _Given, _Config) ->
     false.
 
 join_timeout(EntityId, Now, #st{entities = Entities, config = Config} = St) ->
@@ -282,8 +311,8 @@ describe(EntityId, Description, Now, #st{entities = Entities} = St) ->
     case Entities of
         #{EntityId := Entity} ->
             case check_description(Entity, Description, St) of
-                ok ->
-                    register(Entity, Description, Now, St);
+                {ok, Charge} ->
+                    register(Entity, Description, Charge, Now, St);
                 {error, Message} ->
                     {St, [{reply, {error, Message}},
                           {log, notice, #{what => description_refused,
@@ -306,12 +335,29 @@ check_description(#entity{id = Id, role = Role},
             {error, <<"EntityType ", (type_name(Type))/binary,
                       " does not match the role ", (type_name(Role))/binary>>};
         true ->
-            check_components([C || #{id := C} <- Components], Id, #{}, St)
+            case check_components([C || #{id := C} <- Components], Id, #{}, St) of
+                ok -> check_report(Id, Components, St);
+                {error, _} = Error -> Error
+            end
     end;
 check_description(_Entity, _Description, _St) ->
     {error, <<"malformed description">>}.
 
-check_components([C | Rest], Id, Seen, #st{components = Owners} = St) ->
+check_components([C | Rest], Id, Seen, #st{components = Owners, config = Config} = St) ->
+    Max = maps:get(max_id_length, Config),
+    case evatar_auth:check_id(C, Max) of
+        {error, id_too_long} ->
+            {error, <<"ComponentID '", (evatar_auth:log_id(C))/binary, "' is longer than ",
+                      (integer_to_binary(Max))/binary, " bytes (max_id_length)">>};
+        {error, reserved_id} ->
+            {error, <<"ComponentID '", C/binary, "' is reserved: it reads as EVATAR">>};
+        ok ->
+            check_component(C, Rest, Id, Seen, Owners, St)
+    end;
+check_components([], _Id, _Seen, _St) ->
+    ok.
+
+check_component(C, Rest, Id, Seen, Owners, St) ->
     case Owners of
         _ when is_map_key(C, Seen) ->
             {error, <<"ComponentID '", C/binary, "' appears twice">>};
@@ -320,9 +366,45 @@ check_components([C | Rest], Id, Seen, #st{components = Owners} = St) ->
                       Owner/binary, "'">>};
         #{} ->
             check_components(Rest, Id, Seen#{C => true}, St)
-    end;
-check_components([], _Id, _Seen, _St) ->
-    ok.
+    end.
+
+%% Every value a Binding report repeats is at most max_id_length bytes as
+%% the report writes it, a description has at most max_consumes Consumes
+%% entries (one report row each), and the report stays within
+%% max_binding_report bytes however the pairing binds: each row is counted
+%% as a Bound row whose provider ids have the longest length allowed.
+%% Returns the bytes this entity adds to a report at most.
+check_report(Id, Components, #st{config = Config, charges = Charges, charged = Charged}) ->
+    Max = maps:get(max_id_length, Config),
+    Entries = [{C, E} || #{id := C, services := S, consumes := U} <- Components,
+                         E <- S ++ U],
+    Long = [{C, Field} || {C, #{category := Cat, type := Type}} <- Entries,
+                          {Field, V} <- [{<<"ServiceCategory">>, Cat},
+                                         {<<"ServiceType">>, Type}],
+                          evatar_auth:escaped_size(V) > Max],
+    Consumes = [{C, E} || #{id := C, consumes := U} <- Components, E <- U],
+    IdSize = evatar_auth:escaped_size(Id),
+    Charge = ?ENTITY_TAGS + IdSize +
+        lists:sum([?ROW_TAGS + IdSize + evatar_auth:escaped_size(C) +
+                   evatar_auth:escaped_size(Cat) + evatar_auth:escaped_size(Type) + 2 * Max
+                   || {C, #{category := Cat, type := Type}} <- Consumes]),
+    Total = ?REPORT_TAGS + Charged - maps:get(Id, Charges, 0) + Charge,
+    Report = maps:get(max_binding_report, Config),
+    MaxConsumes = maps:get(max_consumes, Config),
+    case {Long, length(Consumes)} of
+        {[{C, Field} | _], _} ->
+            {error, <<Field/binary, " of ComponentID '", C/binary, "' is longer than ",
+                      (integer_to_binary(Max))/binary, " bytes (max_id_length)">>};
+        {[], N} when N > MaxConsumes ->
+            {error, <<(integer_to_binary(N))/binary, " Consumes entries, over the pairing's ",
+                      (integer_to_binary(MaxConsumes))/binary, " (max_consumes)">>};
+        {[], _} when Total > Report ->
+            {error, <<"with this description the pairing's Binding report could reach ",
+                      (integer_to_binary(Total))/binary, " bytes, over its ",
+                      (integer_to_binary(Report))/binary, " (max_binding_report)">>};
+        {[], _} ->
+            {ok, Charge}
+    end.
 
 %% The bridge hands over parser output; this guards the Erlang API against
 %% terms that would make the binding code raise.
@@ -350,7 +432,10 @@ type_name(avatar) -> <<"Avatar">>;
 type_name(Other) when is_binary(Other) -> Other;
 type_name(_) -> <<"(invalid)">>.
 
-register(#entity{id = Id, description = Old} = Entity, Description, Now, St) ->
+register(#entity{id = Id, description = Old} = Entity, Description, Charge, Now,
+         #st{charges = Charges, charged = Charged} = St0) ->
+    St = St0#st{charges = Charges#{Id => Charge},
+                charged = Charged - maps:get(Id, Charges, 0) + Charge},
     Components0 = maps:without(component_ids(Old), St#st.components),
     Components = lists:foldl(fun(C, Acc) -> Acc#{C => Id} end, Components0,
                              component_ids(Description)),
@@ -401,7 +486,7 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
     {St1, RevEffects} =
         lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov}},
                         {StAcc, Acc}) ->
-                            StAcc1 = StAcc#st{pending = maps:remove(Key, StAcc#st.pending)},
+                            StAcc1 = drop_pending(Key, StAcc),
                             {Sig, StAcc2} = mediator_signal(
                                               feedback, Req, SigId, <<"EVATAR">>,
                                               <<"ProviderGone">>,
@@ -450,7 +535,10 @@ remove_entity(EntityId, #st{entities = Entities} = St) ->
     St2 = St1#st{entities = maps:remove(EntityId, Entities),
                  order = lists:delete(EntityId, St#st.order),
                  components = maps:without(component_ids(Description), St#st.components),
-                 pending = Others},
+                 pending = Others,
+                 open = maps:remove(EntityId, St#st.open),
+                 charges = maps:remove(EntityId, St#st.charges),
+                 charged = St#st.charged - maps:get(EntityId, St#st.charges, 0)},
     JoinTimer = case Description of
                     undefined -> [{cancel_timer, {join, EntityId}}];
                     _ -> []
@@ -508,8 +596,27 @@ field(Key, Signal) when is_map(Signal) ->
 field(_Key, _Signal) ->
     <<>>.
 
-route_known(EntityId, #{sender := Sender, receiver := Receiver} = Signal, Now,
-            #st{components = Components, routes = Routes} = St) ->
+route_known(EntityId, #{origin := _} = Signal, Now, St) ->
+    refuse(EntityId, Signal, <<"BadSignal">>,
+           <<"Origin is EVATAR's mark on its own signals; an entity does not send it">>,
+           Now, St);
+route_known(EntityId, #{id := Id} = Signal, Now, #st{config = Config} = St)
+  when byte_size(Id) > 0 ->
+    Max = maps:get(max_id_length, Config),
+    case evatar_auth:escaped_size(Id) > Max orelse
+        evatar_auth:escaped_size(field(in_reply_to, Signal)) > Max of
+        true ->
+            refuse(EntityId, Signal#{id := <<>>}, <<"IdTooLong">>,
+                   <<"SignalID and InReplyTo are at most ", (integer_to_binary(Max))/binary,
+                     " bytes (max_id_length)">>, Now, St);
+        false ->
+            route_checked(EntityId, Signal, Now, St)
+    end;
+route_known(EntityId, Signal, Now, St) ->
+    route_checked(EntityId, Signal, Now, St).
+
+route_checked(EntityId, #{sender := Sender, receiver := Receiver} = Signal, Now,
+              #st{components = Components, routes = Routes} = St) ->
     case Components of
         #{Sender := EntityId} ->
             case Components of
@@ -528,21 +635,24 @@ route_known(EntityId, #{sender := Sender, receiver := Receiver} = Signal, Now,
                    <<"'", Sender/binary, "' is not a component of your description">>, Now, St)
     end.
 
-route_bound(Target, #{context := request, id := Id, sender := Sender,
-                      receiver := Receiver} = Signal, Now, St) ->
+route_bound(Target, #{context := request, id := Id, sender := Sender} = Signal, Now, St) ->
     Key = {Sender, Id},
     case is_map_key(Key, St#st.pending) of
         true ->
             refuse(maps:get(Sender, St#st.components), Signal, <<"DuplicateRequest">>,
                    <<"a request with this SignalID is still open">>, Now, St);
         false ->
-            Timeout = maps:get(feedback_timeout, St#st.config),
-            P = #pending{requester = maps:get(Sender, St#st.components), provider = Receiver,
-                         provider_entity = Target, deadline = Now + Timeout},
-            St1 = St#st{pending = (St#st.pending)#{Key => P}},
-            {St2, Deliver} = stamp(Target, Signal, Now, St1),
-            {count({routed, request}, St2),
-             [Deliver, {start_timer, {feedback, Sender, Id}, Timeout}]}
+            Requester = maps:get(Sender, St#st.components),
+            Max = maps:get(max_open_requests, St#st.config),
+            case maps:get(Requester, St#st.open, 0) of
+                Open when Open >= Max ->
+                    refuse(Requester, Signal, <<"TooManyRequests">>,
+                           <<"you have ", (integer_to_binary(Open))/binary,
+                             " requests open, the pairing's max_open_requests: wait for"
+                             " their Feedback">>, Now, St);
+                Open ->
+                    open_request(Requester, Open, Target, Signal, Now, St)
+            end
     end;
 route_bound(Target, #{context := Context} = Signal, Now, St)
   when Context =:= feedback; Context =:= progress; Context =:= error ->
@@ -554,6 +664,31 @@ route_bound(Target, #{context := Context} = Signal, Now, St)
 route_bound(_Target, #{sender := Sender} = Signal, Now, St) ->
     refuse(maps:get(Sender, St#st.components), Signal, <<"BadSignal">>,
            <<"unknown signal context">>, Now, St).
+
+open_request(Requester, Open, Target, #{id := Id, sender := Sender, receiver := Receiver} = Signal,
+             Now, St) ->
+    Key = {Sender, Id},
+    Timeout = maps:get(feedback_timeout, St#st.config),
+    P = #pending{requester = Requester, provider = Receiver,
+                 provider_entity = Target, deadline = Now + Timeout},
+    St1 = St#st{pending = (St#st.pending)#{Key => P},
+                open = (St#st.open)#{Requester => Open + 1}},
+    {St2, Deliver} = stamp(Target, Signal, Now, St1),
+    {count({routed, request}, St2),
+     [Deliver, {start_timer, {feedback, Sender, Id}, Timeout}]}.
+
+%% Forgets an open request and counts it off its requester's.
+drop_pending(Key, #st{pending = Pending, open = Open} = St) ->
+    case Pending of
+        #{Key := #pending{requester = R}} ->
+            Open1 = case maps:get(R, Open, 0) of
+                        N when N > 1 -> Open#{R => N - 1};
+                        _ -> maps:remove(R, Open)
+                    end,
+            St#st{pending = maps:remove(Key, Pending), open = Open1};
+        #{} ->
+            St
+    end.
 
 %% Feedback closes the open request it answers, progress keeps it open and
 %% moves its deadline to a full feedback timeout from now, an error answering
@@ -572,7 +707,7 @@ answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = S
             {count({routed, progress}, St2),
              [Deliver, {start_timer, {feedback, Receiver, InReplyTo}, Timeout}]};
         #{Key := #pending{provider = Sender}} ->
-            St1 = St#st{pending = maps:remove(Key, Pending)},
+            St1 = drop_pending(Key, St),
             {St2, Deliver} = stamp(Target, Signal, Now, St1),
             {count({routed, Context}, St2),
              [{cancel_timer, {feedback, Receiver, InReplyTo}}, Deliver]};
@@ -588,9 +723,9 @@ answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = S
 feedback_timeout({Requester, SignalId} = Key, Now, #st{pending = Pending} = St) ->
     case Pending of
         #{Key := #pending{requester = Entity, provider = Provider}} ->
-            St1 = St#st{pending = maps:remove(Key, Pending)},
+            St1 = drop_pending(Key, St),
             Message = <<"no feedback from '", Provider/binary, "' within the feedback timeout">>,
-            {Sig, St2} = mediator_signal(feedback, Requester, SignalId, <<"EVATAR">>,
+            {Sig, St2} = mediator_signal(feedback, Requester, SignalId, ?MEDIATOR,
                                          <<"Timeout">>, Message, Now, St1),
             {St3, Deliver} = stamp(Entity, Sig, Now, St2),
             {count(timeouts, St3),
@@ -621,6 +756,7 @@ mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now,
     Sig = #{id => <<"evatar-", (integer_to_binary(N))/binary>>,
             context => Context,
             sender => ?MEDIATOR,
+            origin => evatar,
             receiver => Receiver,
             in_reply_to => InReplyTo,
             timestamp => max(Now, 0),
@@ -675,7 +811,7 @@ remember(Id, #entity{seen = Seen, seen_q = Q} = Entity, #st{config = Config}) ->
 %% instance is behind one the client has already talked to.
 resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
        #st{entities = Entities, epoch = Epoch} = St) ->
-    case credential_ok(Role, Credential, St#st.config) of
+    case credential_ok(Role, EntityId, Credential, St#st.config) of
         false ->
             {St, [{reply, {error, bad_credential}}]};
         true ->

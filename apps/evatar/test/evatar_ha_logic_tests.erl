@@ -207,7 +207,8 @@ deterministic_test() ->
     Events = [{signal, ?VA, light(<<"a">>)}, {client_ack, ?AV, 1}, {detach, ?VA},
               {resume, agent, ?VA, ?CA, <<"sa">>, 0, 1}, {signal, ?VA, light(<<"a">>)},
               {takeover, 2}],
-    ?assertEqual(run(Events, bound()), run(Events, bound())).
+    Start = bound(),
+    ?assertEqual(run(Events, Start), run(Events, Start)).
 
 %% ---------------------------------------------------------------------------
 %% evatar_ha_rules

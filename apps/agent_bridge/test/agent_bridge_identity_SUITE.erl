@@ -1,0 +1,362 @@
+%% @doc Attacks on device identity and on the per-pairing limits, over real
+%% sockets against a real node (issue 15, sections 3 and 4): a holder of
+%% the Avatar credential tries to take a detached device's EntityID, to
+%% fill every Avatar slot, to pass for EVATAR and to forge its Timeout
+%% feedback; a VA holds 100,000 requests open; an Avatar uses 60,000-
+%% character ids. Each gets a clear refusal, and after each case a
+%% bystander pairing still does a request round trip.
+-module(agent_bridge_identity_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1, init_per_testcase/2,
+         end_per_testcase/2]).
+-export([take_detached_entity/1, fill_avatar_slots/1, pass_for_evatar/1,
+         forge_timeout_feedback/1, hold_100000_requests/1, ids_of_60000_characters/1]).
+
+-define(VA_CRED, <<"va-secret">>).
+-define(AV_CRED, <<"avatar-secret">>).
+-define(LAMP_CRED, <<"lamp-own-secret">>).
+
+suite() -> [{timetrap, {minutes, 5}}].
+
+all() ->
+    [take_detached_entity, fill_avatar_slots, pass_for_evatar, forge_timeout_feedback,
+     hold_100000_requests, ids_of_60000_characters].
+
+init_per_suite(Config) ->
+    %% A lone node fences its pairings after a scheduling gap of suspect_ms
+    %% (250 ms): on a loaded machine, 100,000 signals can cause one. These
+    %% cases are about identity and limits, not fencing.
+    ok = application:set_env(evatar, suspect_ms, 10000),
+    ok = agent_bridge_test_node:start([]),
+    Addr = agent_bridge_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
+                                                               linger => 100}}),
+    Bystander = start_bystander(Addr),
+    [{addr, Addr}, {bystander, Bystander} | Config].
+
+end_per_suite(Config) ->
+    {_, _, Holder} = ?config(bystander, Config),
+    Holder ! stop,
+    ok = evatar:delete_pairing(<<"identity-bystander">>),
+    ok = application:unset_env(evatar, suspect_ms),
+    agent_bridge_test_node:stop([identity], [agent_bridge]).
+
+%% Every pairing of these cases lists the device `lamp' with its own
+%% credential, and lets unlisted ids join with the role credentials.
+init_per_testcase(Case, Config) ->
+    Pairing = atom_to_binary(Case),
+    {ok, _} = evatar:create_pairing(
+                Pairing, #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED,
+                           identities => [#{entity => <<"lamp">>, role => avatar,
+                                            credential => ?LAMP_CRED}],
+                           unlisted_ids => role_credential,
+                           max_avatars => 4, feedback_timeout => 600000,
+                           join_timeout => 20000}),
+    [{pairing, Pairing} | Config].
+
+end_per_testcase(_Case, Config) ->
+    _ = evatar:delete_pairing(?config(pairing, Config)),
+    %% The node and the other pairings are unaffected.
+    {Va, _, _} = ?config(bystander, Config),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 10000),
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% The device `lamp' is detached (its version 2 connection went); the
+%% Avatar credential does not join as `lamp', and the device resumes.
+take_detached_entity(Config) ->
+    Pairing = ?config(pairing, Config),
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, hello(Config, avatar, <<"lamp">>, ?LAMP_CRED, 2)),
+    {control, {welcome, #{session_id := Session}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"lamp">>))),
+    {control, {binding, _}} = recv_doc(S),
+    ok = gen_tcp:close(S),
+    ok = agent_bridge_test_node:wait_until(fun() -> not attached(Pairing, <<"lamp">>) end, 500),
+    [<<"BadCredential">> = refused_code(Config, hello(Config, avatar, <<"lamp">>, Cred, V))
+     || Cred <- [?AV_CRED, ?VA_CRED, <<>>], V <- [1, 2]],
+    {ok, Registry} = evatar:registry(Pairing),
+    [#{entity := <<"lamp">>, registered := true}] = Registry,
+    S2 = raw_connect(Config),
+    ok = gen_tcp:send(S2, bil_control:encode(
+                            {resume, #{pairing => Pairing, role => avatar, entity_id => <<"lamp">>,
+                                       credential => ?LAMP_CRED, protocol_version => 2,
+                                       session_id => Session, received => 0, epoch => 1}})),
+    {control, {welcome, #{ha := #{resumed := true}}}} = recv_doc(S2),
+    ok = gen_tcp:close(S2).
+
+%% With identities and no unlisted ids, the Avatar credential joins no
+%% slot at all; with unlisted ids it fills at most max_avatars, and the
+%% listed device still has to present its own credential.
+fill_avatar_slots(Config) ->
+    Pairing = <<"fill_avatar_slots_listed_only">>,
+    {ok, _} = evatar:create_pairing(
+                Pairing, #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED,
+                           identities => [#{entity => <<"lamp">>, role => avatar,
+                                            credential => ?LAMP_CRED}]}),
+    Listed = [{pairing, Pairing} | Config],
+    [<<"BadCredential">> = refused_code(Listed, hello(Listed, avatar, Id, ?AV_CRED, 1))
+     || I <- lists:seq(1, 70), Id <- [<<"slot-", (integer_to_binary(I))/binary>>]],
+    {ok, []} = evatar:registry(Pairing),
+    S = joined_raw(Listed, avatar, <<"lamp">>, ?LAMP_CRED),
+    ok = gen_tcp:close(S),
+    ok = evatar:delete_pairing(Pairing),
+    %% The case's pairing allows unlisted ids: they stop at max_avatars (4).
+    Held = [joined_raw(Config, avatar, <<"slot-", (integer_to_binary(I))/binary>>, ?AV_CRED)
+            || I <- lists:seq(1, 4)],
+    <<"TooManyEntities">> = refused_code(Config, hello(Config, avatar, <<"slot-5">>, ?AV_CRED, 1)),
+    [ok = gen_tcp:close(H) || H <- Held].
+
+%% Ids that read as EVATAR are refused: as an EntityID at the Hello, as a
+%% ComponentID in a description; what EVATAR says carries Origin EVATAR.
+pass_for_evatar(Config) ->
+    [<<"ReservedId">> = refused_code(Config, hello(Config, avatar, Id, ?AV_CRED, 1))
+     || Id <- [<<"EVATAR">>, <<"evatar">>, <<"E-V-A-T-A-R">>, <<" Evatar ">>]],
+    S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
+    Desc = lamp_description(<<"mallory">>),
+    [C | _] = maps:get(components, Desc),
+    ok = gen_tcp:send(S, bil:encode_description(Desc#{components := [C#{id := <<"Evatar">>}]})),
+    {signal, #{sender := <<"EVATAR">>, origin := evatar, context := error,
+               body := #{type := <<"DescriptionRefused">>, parameters := Params}}} = recv_doc(S),
+    {_, Message} = lists:keyfind(<<"Message">>, 1, Params),
+    ct:log("DescriptionRefused: ~s", [Message]),
+    {match, _} = re:run(Message, "reserved"),
+    ok = gen_tcp:close(S).
+
+%% An Avatar that provides the VA's service answers a request with a
+%% Feedback made to look like EVATAR's Timeout: with the Origin mark it is
+%% refused; without it, it reaches the VA as the Avatar's own (its Sender
+%% is the Avatar's component, no Origin), while EVATAR's real Timeout
+%% carries Origin EVATAR.
+forge_timeout_feedback(Config) ->
+    {ok, Va} = client(Config, agent, <<"va">>, ?VA_CRED),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
+    ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mallory">>))),
+    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+    ok = agent_bridge_client:send(Va, (light_request())#{id => <<"req-1">>,
+                                                           context => request}),
+    Req = recv_until(S, fun({signal, #{context := request}}) -> true; (_) -> false end),
+    {signal, #{id := <<"req-1">>, sender := VaComp, receiver := MyComp}} = Req,
+    Forged = #{id => <<"forged-1">>, context => feedback, sender => MyComp, receiver => VaComp,
+               in_reply_to => <<"req-1">>, timestamp => 1, seq => undefined, epoch => undefined,
+               body => #{category => <<"EVATAR">>, type => <<"Timeout">>,
+                         parameters => [{<<"Message">>, <<"no feedback">>}]}},
+    ok = gen_tcp:send(S, bil:encode_signal(Forged#{origin => evatar})),
+    {signal, #{context := error, origin := evatar, in_reply_to := <<"forged-1">>,
+               body := #{type := <<"BadSignal">>}}} =
+        recv_until(S, fun({signal, #{context := error}}) -> true; (_) -> false end),
+    %% Without the mark it is the Avatar's feedback, and looks it.
+    ok = gen_tcp:send(S, bil:encode_signal(Forged)),
+    #{sender := MyComp} = Seen =
+        agent_bridge_test_node:wait_signal(Va, fun(#{id := Id}) -> Id =:= <<"forged-1">> end,
+                                           10000),
+    false = maps:is_key(origin, Seen),
+    ok = gen_tcp:close(S),
+    %% A request left open when its provider goes: EVATAR's own feedback.
+    ok = agent_bridge_client:close(Va).
+
+%% 100,000 requests to an Avatar that never answers: max_open_requests
+%% (1,024) stay open, every other one is refused with TooManyRequests.
+hold_100000_requests(Config) ->
+    Pairing = ?config(pairing, Config),
+    Va = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    ok = gen_tcp:send(Va, bil:encode_description(va_description(<<"va">>))),
+    S = joined_raw(Config, avatar, <<"mute">>, ?AV_CRED),
+    ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mute">>))),
+    ok = agent_bridge_test_node:wait_until(
+           fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end, 500),
+    %% Both sockets are read by processes of their own, so the bridge never
+    %% drops either as a slow consumer; the VA's counts the refusals.
+    N = 100000,
+    Self = self(),
+    Mute = spawn_link(fun() -> receive go -> count_frames(S, 0) end end),
+    ok = gen_tcp:controlling_process(S, Mute),
+    Mute ! go,
+    [Template] = [bil:encode_signal(
+                    (light_request())#{id => <<"@REQ@">>, context => request,
+                                       in_reply_to => undefined, timestamp => 1,
+                                       seq => undefined, epoch => undefined})],
+    [Head, Tail] = binary:split(iolist_to_binary(Template), <<"@REQ@">>),
+    Reader = spawn_link(fun() -> receive go -> ok end,
+                                 Self ! {refused, count_refusals(Va, N - 1024, 0)}
+                        end),
+    ok = gen_tcp:controlling_process(Va, Reader),
+    Reader ! go,
+    [ok = gen_tcp:send(Va, [Head, integer_to_binary(I), Tail]) || I <- lists:seq(1, N)],
+    Refused = receive {refused, R} -> R end,
+    ct:log("~b requests: ~b refused with TooManyRequests", [N, Refused]),
+    N = Refused + 1024,
+    {ok, #{pending := 1024, errors := #{<<"TooManyRequests">> := Refused}}} =
+        evatar:stats(Pairing),
+    [begin unlink(P), exit(P, kill) end || P <- [Mute, Reader]],
+    ok.
+
+%% 60,000-character ids: an EntityID at the Hello, a ComponentID in a
+%% description, a SignalID; each is refused, and another entity's Binding
+%% report stays small.
+ids_of_60000_characters(Config) ->
+    Long = binary:copy(<<"x">>, 60000),
+    <<"IdTooLong">> = refused_code(Config, hello(Config, avatar, Long, ?AV_CRED, 1)),
+    {ok, Va} = client(Config, agent, <<"va">>, ?VA_CRED),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = agent_bridge_test_node:wait_binding(Va, fun(_) -> true end, 10000),
+    S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
+    Desc = lamp_description(<<"mallory">>),
+    [C | _] = maps:get(components, Desc),
+    ok = gen_tcp:send(S, bil:encode_description(Desc#{components := [C#{id := Long}]})),
+    {signal, #{context := error, body := #{type := <<"DescriptionRefused">>}}} = recv_doc(S),
+    %% Long service names are refused the same way.
+    #{consumes := [E]} = C,
+    ok = gen_tcp:send(S, bil:encode_description(
+                           Desc#{components := [C#{consumes := [E#{type := Long}]}]})),
+    {signal, #{context := error, body := #{type := <<"DescriptionRefused">>}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil:encode_description(Desc)),
+    {control, {binding, _}} = recv_doc(S),
+    Report = agent_bridge_test_node:wait_binding(
+               Va, fun(#{entities := Es}) -> lists:member(<<"mallory">>, Es) end, 10000),
+    Size = iolist_size(bil_control:encode({binding, Report})),
+    ct:log("the VA's Binding report: ~b bytes", [Size]),
+    true = Size < 4096,
+    #{receiver := MyComp} = light_request(),
+    Signal = #{id => Long, context => event, sender => <<"Light01">>, receiver => MyComp,
+               in_reply_to => undefined, timestamp => 1, seq => undefined, epoch => undefined,
+               body => #{category => <<"X">>, type => <<"Y">>, parameters => []}},
+    ok = gen_tcp:send(S, bil:encode_signal(Signal)),
+    {signal, #{context := error, in_reply_to := undefined,
+               body := #{type := <<"IdTooLong">>}}} = recv_doc(S),
+    ok = gen_tcp:close(S),
+    ok = agent_bridge_client:close(Va).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+attached(Pairing, Entity) ->
+    {ok, Registry} = evatar:registry(Pairing),
+    [true] =:= [A || #{entity := E, attached := A} <- Registry, E =:= Entity].
+
+count_frames(S, N) ->
+    case gen_tcp:recv(S, 0) of
+        {ok, _} -> count_frames(S, N + 1);
+        {error, _} -> N
+    end.
+
+%% Counts the TooManyRequests error signals among the frames read, without
+%% parsing each (a reader that parses 100,000 frames falls behind).
+count_refusals(S, Left, N) ->
+    count_refusals(S, Left, N, <<>>).
+
+count_refusals(_S, 0, N, _Last) ->
+    N;
+count_refusals(S, Left, N, Last) ->
+    case gen_tcp:recv(S, 0, 60000) of
+        {ok, Frame} ->
+            case binary:match(Frame, <<"<ServiceType>TooManyRequests</ServiceType>">>) of
+                nomatch -> count_refusals(S, Left, N, Frame);
+                _ -> count_refusals(S, Left - 1, N + 1, Frame)
+            end;
+        {error, Why} ->
+            exit({va_connection, Why, N, Last})
+    end.
+
+client(Config, Role, Entity, Cred) ->
+    agent_bridge_client:connect([?config(addr, Config)],
+                                #{pairing => ?config(pairing, Config), role => Role,
+                                  entity_id => Entity, credential => Cred}).
+
+hello(Config, Role, Entity, Cred, Version) ->
+    bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,
+                                 entity_id => Entity, credential => Cred,
+                                 protocol_version => Version}}).
+
+raw_connect(Config) ->
+    {Ip, Port} = ?config(addr, Config),
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false},
+                                         {packet_size, 1048576}]),
+    S.
+
+joined_raw(Config, Role, Entity, Cred) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, hello(Config, Role, Entity, Cred, 1)),
+    {control, {welcome, _}} = recv_doc(S),
+    S.
+
+%% The Refused code a Hello gets; the connection is closed after it.
+refused_code(Config, Hello) ->
+    S = raw_connect(Config),
+    ok = gen_tcp:send(S, Hello),
+    {control, {refused, #{code := Code}}} = recv_doc(S),
+    {error, closed} = gen_tcp:recv(S, 0, 10000),
+    Code.
+
+recv_doc(S) ->
+    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
+    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
+    Doc.
+
+recv_until(S, Pred) ->
+    Doc = recv_doc(S),
+    case Pred(Doc) of
+        true -> Doc;
+        false -> recv_until(S, Pred)
+    end.
+
+entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+
+va_description(Id) ->
+    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent, context => <<>>,
+      components => [#{id => <<"LightEmulator01">>,
+                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
+                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]}]}.
+
+lamp_description(Id) ->
+    #{entity_id => Id, api_name => <<"LAMP">>, entity_type => avatar, context => <<>>,
+      components => [#{id => <<"Light01">>,
+                       services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
+                       consumes => [entry(<<"BEHAVIOUR">>, <<"Light">>)]}]}.
+
+light_request() ->
+    #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>, parameters => []}}.
+
+%% A pairing of its own with a VA and an Avatar that answers every request.
+start_bystander(Addr) ->
+    Pairing = <<"identity-bystander">>,
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{}),
+    Config = [{addr, Addr}, {pairing, Pairing}],
+    Parent = self(),
+    Holder = spawn(fun() ->
+                           {ok, Va} = client(Config, agent, <<"va">>,
+                                             agent_bridge_test_node:va_credential()),
+                           ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+                           Av = spawn(fun() ->
+                                              {ok, C} = client(
+                                                          Config, avatar, <<"av">>,
+                                                          agent_bridge_test_node:avatar_credential()),
+                                              ok = agent_bridge_client:describe(
+                                                     C, lamp_description(<<"av">>)),
+                                              answer(C)
+                                      end),
+                           _ = agent_bridge_test_node:wait_binding(
+                                 Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+                           Parent ! {bystander, Va, Av},
+                           receive stop -> ok end
+                   end),
+    receive {bystander, Va, Av} -> {Va, Av, Holder} after 20000 -> ct:fail(no_bystander) end.
+
+answer(Av) ->
+    receive
+        {agent_bridge, Av, {signal, #{context := request, id := Id, sender := From,
+                                      receiver := To, body := Body}}} ->
+            ok = agent_bridge_client:send(Av, #{context => feedback, sender => To,
+                                                receiver => From, in_reply_to => Id,
+                                                body => Body}),
+            answer(Av);
+        _ ->
+            answer(Av)
+    end.
