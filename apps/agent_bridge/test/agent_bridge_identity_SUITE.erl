@@ -30,8 +30,14 @@ init_per_suite(Config) ->
     %% cases are about identity and limits, not fencing.
     ok = application:set_env(evatar, suspect_ms, 10000),
     ok = agent_bridge_test_node:start([]),
+    %% The listener's guard (rate, failure delay, lockout) is tested by
+    %% agent_bridge_attack_SUITE; here every refusal must come from the pairing.
     Addr = agent_bridge_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
-                                                               linger => 100}}),
+                                                               linger => 100},
+                                                     handshake => #{rate => infinity,
+                                                                    failure_delay => 0,
+                                                                    max_failure_delay => 0,
+                                                                    lockout => 0}}),
     Bystander = start_bystander(Addr),
     [{addr, Addr}, {bystander, Bystander} | Config].
 

@@ -353,7 +353,7 @@ leave_async(#session{pid = Pid, entity = EntityId}) ->
     gen_statem:cast(Pid, {leave, EntityId}).
 
 %% @doc A credential's stored form for pairing options (PBKDF2-HMAC-SHA256,
-%% 10,000 iterations, a random 16-byte salt): keep this in configuration
+%% 1,000 iterations, a random 16-byte salt): keep this in configuration
 %% instead of the plain credential.
 -spec hash_credential(binary()) -> evatar_auth:hashed().
 hash_credential(Plain) when is_binary(Plain) -> evatar_auth:hash(Plain).

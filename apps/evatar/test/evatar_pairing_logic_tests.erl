@@ -74,7 +74,13 @@ joined() ->
     ok({join, avatar, ?AV, <<"avatar-secret">>}, St).
 
 bound() ->
-    St = ok({describe, ?VA, agent_description()}, joined()),
+    bound(#{}).
+
+bound(Extra) ->
+    St0 = evatar_pairing_logic:new(?P, config(Extra)),
+    Joined = ok({join, avatar, ?AV, <<"avatar-secret">>},
+                ok({join, agent, ?VA, <<"agent-secret">>}, St0)),
+    St = ok({describe, ?VA, agent_description()}, Joined),
     ok({describe, ?AV, avatar_description()}, St).
 
 reply(Effects) ->
@@ -362,7 +368,7 @@ voiding_many_requests_test() ->
     St1 = lists:foldl(fun(Id, St) ->
                               {St1, _} = h({signal, ?VA, signal(Id, request, ?EMU, ?LIGHT)}, St),
                               St1
-                      end, bound(), Ids),
+                      end, bound(#{max_open_requests => 3000}), Ids),
     ?assertMatch(#{pending := 3000}, evatar_pairing_logic:stats(St1)),
     {St2, E2} = h({describe, ?AV, avatar_description([thermo])}, St1),
     Sorted = lists:sort(Ids),
