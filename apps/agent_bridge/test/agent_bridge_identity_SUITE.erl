@@ -188,8 +188,11 @@ hold_100000_requests(Config) ->
                                        in_reply_to => undefined, timestamp => 1,
                                        seq => undefined, epoch => undefined})],
     [Head, Tail] = binary:split(iolist_to_binary(Template), <<"@REQ@">>),
+    %% The reader owns the VA's socket: it stays until the end, or the
+    %% socket would close with it and the VA leave the pairing.
     Reader = spawn_link(fun() -> receive go -> ok end,
-                                 Self ! {refused, count_refusals(Va, N - 1024, 0)}
+                                 Self ! {refused, count_refusals(Va, N - 1024, 0)},
+                                 receive stop -> ok end
                         end),
     ok = gen_tcp:controlling_process(Va, Reader),
     Reader ! go,
