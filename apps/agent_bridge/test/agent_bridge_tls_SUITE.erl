@@ -24,7 +24,8 @@ groups() ->
     [{server, [], [session_over_tls, ha_session_over_tls, pinned_server, pin_mismatch,
                    untrusted_server, wrong_server_name, oversize_frame_over_tls,
                    slow_handshakes_do_not_block]},
-     {client_certificates, [], [client_certificate_identifies, no_client_certificate,
+     {client_certificates, [], [client_certificate_identifies, certificate_identity,
+                                no_client_certificate,
                                 untrusted_client_certificate, plain_client_on_tls]},
      {attacks, [], [sniffer_sees_nothing, sniffer_on_plain_tcp_sees_secrets]},
      {config, [], [bad_listener_options]}].
@@ -165,6 +166,32 @@ log(_, _) ->
 
 %% A listener that requires client certificates refuses a client without
 %% one: the TLS alert certificate_required, and nobody joins.
+%% A pairing that lists the VA by its certificate's fingerprint (issue 15,
+%% section 3): the VA's certificate joins as `va' with any credential; the
+%% Avatar's certificate, or no certificate, with the right VA credential,
+%% is refused BadCredential for `va'.
+certificate_identity(Config) ->
+    Pairing = <<"certificate_identity_listed">>,
+    Fingerprint = read(cert(Config, "client-va.sha256")),
+    {ok, _} = evatar:create_pairing(
+                Pairing, #{identities => [#{entity => <<"va">>, role => agent,
+                                            cert_sha256 => Fingerprint}]}),
+    Listed = [{pairing, Pairing} | Config],
+    try
+        {ok, C} = connect(Listed, mutual, agent, <<"va">>, client_tls(Config, "va"),
+                          #{credential => <<>>}),
+        ok = agent_bridge_client:close(C),
+        {error, {refused, <<"BadCredential">>, _}} =
+            connect(Listed, mutual, agent, <<"va">>, client_tls(Config, "av")),
+        {error, {refused, <<"BadCredential">>, _}} =
+            connect(Listed, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
+        %% Unlisted ids are refused whatever they present.
+        {error, {refused, <<"BadCredential">>, _}} =
+            connect(Listed, mutual, agent, <<"va2">>, client_tls(Config, "va"))
+    after
+        ok = evatar:delete_pairing(Pairing)
+    end.
+
 no_client_certificate(Config) ->
     {error, {unreachable, [{_, {tls_alert, {certificate_required, Text}}}]}} =
         connect(Config, mutual, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
