@@ -22,6 +22,7 @@
                            acceptors => pos_integer(),
                            backlog => pos_integer(),
                            name => term(),
+                           enabled => boolean(),
                            max_connections => pos_integer() | infinity,
                            handshake => handshake_opts(),
                            conn => agent_bridge_conn:opts()}.
@@ -86,6 +87,8 @@ check_listener_opt(handshake, Handshake) when is_map(Handshake) ->
     first_error([check_handshake_opt(K, V, Defaults) || {K, V} <- maps:to_list(Handshake)]);
 check_listener_opt(handshake, _) ->
     {error, <<"handshake must be a map of handshake limits">>};
+check_listener_opt(enabled, B) ->
+    expect(enabled, is_boolean(B), "true or false");
 check_listener_opt(transport, _) ->
     ok;
 check_listener_opt(tls, _) ->

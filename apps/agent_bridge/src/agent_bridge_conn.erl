@@ -136,8 +136,10 @@ handle_event(info, {agent_bridge_shoot, Sock}, handshaking, #d{transport = undef
             {keep_state, D#d{transport = T, ip = Ip,
                              peer_cert = agent_bridge_transport:peer_cert(T)}};
         {error, Why} ->
-            %% The client got the TLS alert; nothing of the protocol was said.
-            ?LOG_NOTICE(#{what => tls_handshake_failed, reason => Why}),
+            %% The client got the TLS alert; nothing of the protocol was
+            %% said. Logged like every refusal, in rate-limited summaries.
+            ok = agent_bridge_guard:refused(opt_guard(D), Ip, <<"TlsHandshakeFailed">>,
+                                            #{tls => agent_bridge_tls:failure(Why)}),
             {stop, normal, D}
     end;
 handle_event(internal, {open, {Exe, Args, Env}}, handshaking, D) ->

@@ -11,7 +11,10 @@ start_link() ->
 
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
-    Listeners = application:get_env(agent_bridge, listeners, []),
+    %% `enabled => false' leaves a listener of the release's configuration
+    %% off (the TLS one of config/sys.config.src until EVATAR_TLS=true).
+    Listeners = [L || L <- application:get_env(agent_bridge, listeners, []),
+                      maps:get(enabled, L, true) =/= false],
     Ports = #{id => agent_bridge_port_sup,
               start => {agent_bridge_port_sup, start_link, []},
               type => supervisor},

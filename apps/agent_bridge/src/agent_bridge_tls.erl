@@ -6,7 +6,7 @@
 %% that stops reading.
 -module(agent_bridge_tls).
 
--export([conn_opts/1, check/1, format_error/1, handshake/3, peer_cert/1,
+-export([conn_opts/1, check/1, format_error/1, handshake/3, failure/1, peer_cert/1,
          start_writer/2, send_fun/1, shutdown/1, stop_writer/1, abort/2, cert_identity/1]).
 
 -export_type([tls_opts/0, writer/0]).
@@ -92,7 +92,10 @@ format_error(Other) ->
 
 fmt(Format, Args) -> iolist_to_binary(io_lib:format(Format, Args)).
 
-check_tls(Tls) when is_map(Tls) ->
+check_tls(Tls0) when is_map(Tls0) ->
+    %% An empty file name is no file: the release's configuration fills
+    %% unset variables in with "".
+    Tls = maps:filter(fun(_, V) -> V =/= "" andalso V =/= <<>> end, Tls0),
     Verify = maps:get(verify, Tls, case is_map_key(cacertfile, Tls) of
                                        true -> verify_peer;
                                        false -> verify_none
@@ -190,6 +193,15 @@ handshake(Sock, {SslOpts, SendTimeout}, Timeout) ->
             _ = gen_tcp:close(Sock),
             Error
     end.
+
+%% @doc Why a handshake failed, in a word for logs: the TLS alert
+%% (certificate_required, unknown_ca, ...), timeout, closed or other. The
+%% alert's text is left out: it can be long, and a client chooses some of it.
+-spec failure(term()) -> atom().
+failure({tls_alert, {Alert, _}}) when is_atom(Alert) -> Alert;
+failure(timeout) -> timeout;
+failure(closed) -> closed;
+failure(_) -> other.
 
 %% @doc The client certificate the handshake verified, or undefined.
 -spec peer_cert(ssl:sslsocket()) -> evatar:peer_cert() | undefined.

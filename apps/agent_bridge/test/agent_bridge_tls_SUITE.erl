@@ -262,6 +262,10 @@ bad_listener_options(Config) ->
     <<"tls keyfile ", _/binary>> = Start(#{tls => #{certfile => Cert, keyfile => Cert}}),
     <<"unknown tls option verfy">> =
         Start(#{tls => #{certfile => Cert, keyfile => Key, verfy => verify_peer}}),
+    <<"enabled must be true or false">> = Start(#{enabled => maybe}),
+    %% Empty file names are no files (the release's unset variables).
+    <<"tls option certfile is missing">> =
+        Start(#{tls => #{certfile => "", keyfile => Key, cacertfile => ""}}),
     {error, not_found} = agent_bridge:address(bad_tls).
 
 %% ---------------------------------------------------------------------------
