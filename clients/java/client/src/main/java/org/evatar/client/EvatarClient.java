@@ -60,6 +60,7 @@ public final class EvatarClient implements AutoCloseable {
         int backoffMinMs = 20;
         int backoffMaxMs = 500;
         long reconnectLimitMs = 30000;
+        Tls tls;
 
         public Options pairing(String v) { pairing = v; return this; }
         /** {@code agent} (a VA) or {@code avatar}. */
@@ -77,6 +78,8 @@ public final class EvatarClient implements AutoCloseable {
             backoffMaxMs = (int) max.toMillis();
             return this;
         }
+        /** Connect with TLS and check the server ({@link Tls}); default plain TCP. */
+        public Options tls(Tls v) { tls = v; return this; }
         /** How long to go without a session before giving up ({@code gave_up}). */
         public Options reconnectLimit(Duration d) { reconnectLimitMs = d.toMillis(); return this; }
 
@@ -190,6 +193,7 @@ public final class EvatarClient implements AutoCloseable {
     /** Opens endpoint {@code i}, says Hello (or Resume), reads the Welcome. */
     private void open(int i, boolean resume) throws IOException, ProtocolException {
         Transport t = stdio ? Transport.stdio()
+                : opts.tls != null ? Transport.tls(opts.endpoints.get(i), opts.connectTimeoutMs, opts.tls)
                 : Transport.tcp(opts.endpoints.get(i), opts.connectTimeoutMs);
         try {
             Control hello;
@@ -200,8 +204,17 @@ public final class EvatarClient implements AutoCloseable {
                         : new Control.Hello(opts.pairing, opts.role, opts.entityId, opts.credential,
                                 opts.ha ? 2 : 1);
             }
-            Frames.write(t.out(), hello.toBytes());
             t.readTimeout(opts.handshakeTimeoutMs);
+            try {
+                Frames.write(t.out(), hello.toBytes());
+            } catch (IOException e) {
+                // With TLS 1.3 a server refuses a client certificate after the
+                // client's handshake is done: the write may fail, and the
+                // reason (the TLS alert) is what a read finds.
+                if (!t.isTls()) {
+                    throw e;
+                }
+            }
             byte[] doc;
             try {
                 doc = Frames.read(t.in(), Frames.HANDSHAKE_MAX);

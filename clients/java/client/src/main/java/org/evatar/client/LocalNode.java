@@ -9,7 +9,9 @@ import java.nio.charset.StandardCharsets;
 import java.nio.file.Files;
 import java.nio.file.Path;
 import java.util.ArrayList;
+import java.util.HashMap;
 import java.util.List;
+import java.util.Map;
 import java.util.concurrent.BlockingQueue;
 import java.util.concurrent.LinkedBlockingQueue;
 import java.util.concurrent.TimeUnit;
@@ -26,6 +28,7 @@ public final class LocalNode implements AutoCloseable {
     private final BlockingQueue<String> lines = new LinkedBlockingQueue<>();
     private final int port;
     private List<Integer> ports = List.of();
+    private Map<String, Integer> named = Map.of();
 
     private LocalNode(Process p, int port, Writer stdin) {
         this.process = p;
@@ -52,13 +55,28 @@ public final class LocalNode implements AutoCloseable {
         return start(repo().resolve("scripts/test-node.sh"), pairings);
     }
 
+    /**
+     * Starts {@code scripts/test-node.sh} with TLS listeners too, their
+     * certificates in {@code certDir} (made by scripts/gen-bridge-certs.sh):
+     * see {@link #tlsPort()} and {@link #mutualTlsPort()}.
+     */
+    public static LocalNode startTls(Path certDir, String... pairings) throws IOException {
+        return start(repo().resolve("scripts/test-node.sh"), Map.of("EVATAR_TLS_DIR", certDir.toString()),
+                pairings);
+    }
+
     /** Starts a node script and waits (at most 120 s) for its EVATAR_PORT line. */
     public static LocalNode start(Path script, String... pairings) throws IOException {
+        return start(script, Map.of(), pairings);
+    }
+
+    private static LocalNode start(Path script, Map<String, String> env, String... pairings) throws IOException {
         List<String> cmd = new ArrayList<>();
         cmd.add(script.toString());
         cmd.addAll(List.of(pairings));
         ProcessBuilder pb = new ProcessBuilder(cmd).directory(repo().toFile())
                 .redirectError(ProcessBuilder.Redirect.INHERIT);
+        pb.environment().putAll(env);
         Process p = pb.start();
         Writer w = new OutputStreamWriter(p.getOutputStream(), StandardCharsets.UTF_8);
         BufferedReader r = new BufferedReader(new InputStreamReader(p.getInputStream(), StandardCharsets.UTF_8));
@@ -76,6 +94,7 @@ public final class LocalNode implements AutoCloseable {
         t.setDaemon(true);
         t.start();
         List<Integer> ports = new ArrayList<>();
+        Map<String, Integer> named = new HashMap<>();
         try {
             while (true) {
                 String l = q.poll(120, TimeUnit.SECONDS);
@@ -88,8 +107,13 @@ public final class LocalNode implements AutoCloseable {
                         ports.add(Integer.parseInt(x));
                     }
                 }
+                if (l.startsWith("EVATAR_TLS_PORT=") || l.startsWith("EVATAR_MTLS_PORT=")) {
+                    String[] kv = l.split("=", 2);
+                    named.put(kv[0], Integer.parseInt(kv[1].strip()));
+                }
                 if (l.startsWith("EVATAR_PORT=")) {
                     LocalNode n = new LocalNode(p, Integer.parseInt(l.substring(12).strip()), w);
+                    n.named = Map.copyOf(named);
                     n.ports = ports.isEmpty() ? List.of(n.port) : List.copyOf(ports);
                     q.drainTo(n.lines);
                     Thread fwd = new Thread(() -> {
@@ -119,6 +143,16 @@ public final class LocalNode implements AutoCloseable {
 
     public int port() {
         return port;
+    }
+
+    /** The TLS listener's port (server certificate only), after {@link #startTls}. */
+    public int tlsPort() {
+        return named.get("EVATAR_TLS_PORT");
+    }
+
+    /** The port of the TLS listener that requires client certificates signed by the CA. */
+    public int mutualTlsPort() {
+        return named.get("EVATAR_MTLS_PORT");
     }
 
     public String host() {

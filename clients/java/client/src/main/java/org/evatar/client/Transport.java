@@ -11,8 +11,10 @@ import java.io.InputStream;
 import java.io.OutputStream;
 import java.net.InetSocketAddress;
 import java.net.Socket;
+import javax.net.ssl.SSLParameters;
+import javax.net.ssl.SSLSocket;
 
-/** Where frames travel: a TCP connection, or stdin/stdout when EVATAR started the program (a port). */
+/** Where frames travel: a TCP or TLS connection, or stdin/stdout when EVATAR started the program (a port). */
 public interface Transport extends Closeable {
     InputStream in();
 
@@ -34,6 +36,44 @@ public interface Transport extends Closeable {
             s.close();
             throw e;
         }
+        return of(s, endpoint, false);
+    }
+
+    /**
+     * Opens a TLS connection to an endpoint and checks the server ({@link Tls});
+     * the handshake is done when this returns.
+     */
+    static Transport tls(InetSocketAddress endpoint, int connectTimeoutMs, Tls tls) throws IOException {
+        Socket raw = new Socket();
+        SSLSocket s;
+        try {
+            raw.setTcpNoDelay(true);
+            raw.connect(endpoint, connectTimeoutMs);
+            String host = tls.serverName() != null ? tls.serverName() : endpoint.getHostString();
+            s = (SSLSocket) tls.context().getSocketFactory().createSocket(raw, host, endpoint.getPort(), true);
+        } catch (IOException e) {
+            raw.close();
+            throw e;
+        }
+        try {
+            SSLParameters p = s.getSSLParameters();
+            if (tls.checksHostName()) {
+                p.setEndpointIdentificationAlgorithm("HTTPS");
+            }
+            p.setProtocols(new String[] {"TLSv1.3", "TLSv1.2"});
+            s.setSSLParameters(p);
+            s.setSoTimeout(connectTimeoutMs);
+            s.startHandshake();
+            tls.check(s.getSession());
+            s.setSoTimeout(0);
+        } catch (IOException e) {
+            s.close();
+            throw e;
+        }
+        return of(s, endpoint, true);
+    }
+
+    private static Transport of(Socket s, InetSocketAddress endpoint, boolean tls) throws IOException {
         InputStream in = new BufferedInputStream(s.getInputStream(), 65536);
         OutputStream out = new BufferedOutputStream(s.getOutputStream(), 65536);
         return new Transport() {
@@ -41,8 +81,14 @@ public interface Transport extends Closeable {
             public OutputStream out() { return out; }
             public void readTimeout(int ms) throws IOException { s.setSoTimeout(ms); }
             public String describe() { return endpoint.getHostString() + ":" + endpoint.getPort(); }
+            public boolean isTls() { return tls; }
             public void close() throws IOException { s.close(); }
         };
+    }
+
+    /** Whether this is a TLS connection. */
+    default boolean isTls() {
+        return false;
     }
 
     /**
