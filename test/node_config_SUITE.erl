@@ -199,7 +199,9 @@ release_daemon_runs_the_file(Config) ->
     {File, Port} = home_file(Config, #{}),
     Env = release_env(Config, File),
     try
-        "" = string:trim(evatar_cmd(Config, Env, "daemon")),
+        Ok = File ++ ": ok (1 listener(s), 1 pairing(s), 1 MQTT Avatar(s))",
+        Ok = string:trim(evatar_cmd(Config, Env, "check_config")),
+        Ok = string:trim(evatar_cmd(Config, Env, "daemon")),
         ok = await_eval(Config, Env, "joined", "house_joined()"),
         {ok, Va} = agent_bridge_client:connect([{{127, 0, 0, 1}, Port}],
                                                #{pairing => <<"home">>, role => agent,
@@ -209,7 +211,7 @@ release_daemon_runs_the_file(Config) ->
         ok = await_eval(Config, Env, "2", "begin [#{starts := N, state := running}] = mqtt_avatar:kept(), N end"),
         ok = await_eval(Config, Env, "joined", "house_joined()"),
         _ = evatar_cmd(Config, Env, "stop"),
-        "" = string:trim(evatar_cmd(Config, Env, "daemon")),
+        Ok = string:trim(evatar_cmd(Config, Env, "daemon")),
         ok = await_eval(Config, Env, "joined", "house_joined()")
     after
         _ = evatar_cmd(Config, Env, "stop")
@@ -221,10 +223,18 @@ release_refuses_a_bad_file(Config) ->
     File = filename:join(?config(priv_dir, Config), "release_bad.config"),
     ok = file:write_file(File, "{pairings, [#{id => \"home\", agent_credential => \"a\",\n"
                                "              avatar_credential => \"b\", join_timeout => -5}]}.\n"),
-    Out = evatar_cmd(Config, release_env(Config, File), "foreground"),
+    Env = release_env(Config, File),
     Expected = File ++ ": line 1: pairings entry 1 (home): join_timeout -5 is not accepted",
-    ?assertNotEqual(nomatch, string:find(Out, Expected), Out),
-    ?assertNotEqual(nomatch, string:find(Out, "EVATAR will not start"), Out).
+    %% daemon (its pre-start hook), check_config and foreground (the boot
+    %% itself) all refuse, with the message on the terminal.
+    lists:foreach(fun(Command) ->
+                          Out = evatar_cmd(Config, Env, Command ++ "; echo \"exit status $?\""),
+                          ?assertNotEqual(nomatch, string:find(Out, Expected), {Command, Out}),
+                          ?assertNotEqual(nomatch, string:find(Out, "EVATAR will not start"), Out),
+                          ?assertEqual(nomatch, string:find(Out, "exit status 0"), {Command, Out})
+                  end, ["daemon", "check_config", "foreground"]),
+    %% The daemon did not start.
+    ?assertNotEqual(nomatch, string:find(evatar_cmd(Config, Env, "ping"), "not running")).
 
 %% ---------------------------------------------------------------------------
 %% Helpers

@@ -8,7 +8,7 @@
 %% are internal.
 -module(node_config).
 
--export([file/0, load/1, apply_env/1, format_error/1]).
+-export([file/0, load/1, apply_env/1, format_error/1, check_file/0]).
 
 -export_type([config/0]).
 
@@ -78,6 +78,31 @@ apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatar
                  not (is_map(P) andalso lists:member(maps:get(id, P, undefined), Ids))],
     ok = application:set_env(evatar, pairings, Kept ++ Pairings, [{persistent, true}]),
     ok = application:set_env(mqtt_avatar, avatars, Avatars, [{persistent, true}]).
+
+%% @doc For `bin/evatar check_config' and the start script's pre-start
+%% hook: checks this node's file (file/0), prints the verdict, and returns
+%% the exit status (0 good or no file, 1 mistakes).
+-spec check_file() -> 0 | 1.
+check_file() ->
+    case file() of
+        none ->
+            io:format("no configuration file (EVATAR_CONFIG unset, no etc/evatar.config)~n"),
+            0;
+        {_, File} ->
+            case load(File) of
+                {ok, #{pairings := Ps, mqtt_avatars := As} = Config} ->
+                    io:format("~ts: ok (~ts, ~b pairing(s), ~b MQTT Avatar(s))~n",
+                              [File, case maps:get(listeners, Config) of
+                                         undefined -> "the environment's listener";
+                                         Ls -> io_lib:format("~b listener(s)", [length(Ls)])
+                                     end, length(Ps), length(As)]),
+                    0;
+                {error, Reason} ->
+                    io:put_chars(standard_error, ["EVATAR will not start: the configuration file has "
+                                                  "mistakes\n", format_error(Reason)]),
+                    1
+            end
+    end.
 
 %% @doc A readable text of load/1's error: the file, then one line per
 %% mistake.
