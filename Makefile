@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover release tar shell clean vectors
+.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -50,6 +50,13 @@ bench-brokers: deps
 ## Failover times (kill -9, silent stall: p50/p99 over 50 trials) and TLS distribution's cost.
 bench-failover: deps
 	@bash scripts/bench-failover.sh $(BENCH_ARGS)
+
+## Growth of a pairing's large operations (voiding, binding, re-binding, resuming) at
+## three sizes, with the old algorithms, and other pairings' round trips meanwhile.
+## BENCH_ARGS='[quick]' for a smoke run (sizes 10 times smaller).
+bench-complexity: deps
+	$(REBAR) as bench compile
+	erl -noshell $(BENCH_PA) -eval 'complexity_bench:main($(or $(BENCH_ARGS),[])), halt().'
 
 bench: bench-bil bench-evatar
 
