@@ -10,7 +10,7 @@
 %% largest case. Not part of the product; bench/COMPLEXITY.md has figures.
 -module(complexity_bench).
 
--export([main/0, main/1]).
+-export([main/0, main/1, concurrent_only/1]).
 
 -type option() :: quick | no_old | no_concurrent.
 
@@ -65,6 +65,14 @@ main(Options) ->
           "unacked", Requests, fun(N, M) -> resume_ms(M, N) end, Old, ?OLD_MAX_VOID),
     _ = [concurrent(lists:last(Requests), lists:last(Components))
          || not lists:member(no_concurrent, Options)],
+    ok.
+
+%% @doc Only the round trips of other pairings during the largest case.
+-spec concurrent_only([option()]) -> ok.
+concurrent_only(Options) ->
+    ok = logger:set_primary_config(level, warning),
+    Scale = case lists:member(quick, Options) of true -> 10; false -> 1 end,
+    concurrent(100000 div Scale, 10000 div Scale),
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -431,6 +439,8 @@ wait_bound(V) ->
 
 answer(A) ->
     receive
+        {agent_bridge, A, {closed, Why}} ->
+            exit({answerer_closed, Why});
         {agent_bridge, A, {signal, #{context := request, id := Id, sender := From,
                                      receiver := To, body := Body}}} ->
             ok = agent_bridge_client:send(A, #{context => feedback, sender => To,
@@ -460,9 +470,14 @@ probe_loop(V, running, Samples) ->
             probe_loop(V, running, Samples)
     after 0 ->
             T0 = erlang:monotonic_time(microsecond),
-            {ok, _} = agent_bridge_client:request(
-                        V, #{sender => ?REQUESTER, receiver => ?TARGET,
-                             body => svc(<<"Light">>, [])}, 60000),
+            case agent_bridge_client:request(V, #{sender => ?REQUESTER, receiver => ?TARGET,
+                                                  body => svc(<<"Light">>, [])}, 60000) of
+                {ok, _} -> ok;
+                {error, closed} ->
+                    receive {agent_bridge, V, {closed, Why}} -> exit({probe_closed, Why})
+                    after 1000 -> exit({probe_closed, unknown})
+                    end
+            end,
             T1 = erlang:monotonic_time(microsecond),
             probe_loop(V, running, [{T0, (T1 - T0) / 1000} | Samples])
     end.

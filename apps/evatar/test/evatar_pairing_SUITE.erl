@@ -166,14 +166,15 @@ feedback_timeout(Config) ->
 %% feedback timeout (each progress restarts it), then the final feedback
 %% closes it; no Timeout is ever sent.
 progress_then_feedback(Config) ->
-    #{va := Va, av := Av, id := Id} = bound_pairing(Config, #{feedback_timeout => 1000}),
+    #{va := Va, av := Av, id := Id} = bound_pairing(Config, #{feedback_timeout => 3000}),
     ok = evatar:send(Va, ?E:signal(<<"walk">>, request, ?EMU, ?LIGHT)),
     #{id := <<"walk">>} = ?E:recv(?AV, signal),
     lists:foreach(
       fun(I) ->
-              %% Three pauses of 400 ms outlast the 1000 ms timeout unless
-              %% each progress moves the deadline.
-              timer:sleep(400),
+              %% Three pauses of 1200 ms outlast the 3000 ms timeout unless
+              %% each progress moves the deadline; each leaves 1800 ms for
+              %% the progress to arrive on a loaded machine (it was 600).
+              timer:sleep(1200),
               ok = evatar:send(Av, ?E:signal(<<"p", (integer_to_binary(I))/binary>>,
                                              progress, ?LIGHT, ?EMU, <<"walk">>)),
               #{context := progress, in_reply_to := <<"walk">>} = ?E:recv(?VA, signal),
