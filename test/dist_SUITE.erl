@@ -37,7 +37,8 @@ all() ->
 groups() ->
     [{cookie, [], [first_start_makes_a_cookie, release_commands, wrong_cookie_cannot_connect,
                    refuses_known_or_visible_cookies]},
-     {interfaces, [], [loopback_by_default, named_interface, wide_epmd_reported]},
+     {interfaces, [], [loopback_by_default, named_interface, name_off_the_interface_refused,
+                       wide_epmd_reported]},
      {cluster, [], [cluster_sh_shares_one_cookie]}].
 
 %% ---------------------------------------------------------------------------
@@ -176,6 +177,12 @@ named_interface(Config) ->
     ok = reachable({127, 0, 0, 2}, Epmd),
     {error, econnrefused} = reachable({127, 0, 0, 3}, Epmd),
     {0, "pong" ++ _} = rel(Config, Env, ["ping"]).
+
+%% A node named by an address it does not listen on (no one could reach
+%% it, bin/evatar daemon would wait for it for ever) is refused.
+name_off_the_interface_refused(Config) ->
+    Env = node_env(Config, "off", [], "127.0.0.2"),
+    refused(Config, Env, "has the address 127.0.0.2, but distribution listens on 127.0.0.1 only").
 
 %% An epmd that something else started on every interface before the node
 %% cannot be narrowed by the node: the start script says so.
