@@ -74,6 +74,7 @@ node_env() {
   # files) and its logs in its own directory, not in the shared release.
   echo "export RELX_OUT_FILE_PATH=$nd"
   echo "export RUNNER_LOG_DIR=$nd/log"
+  echo "export EVATAR_DATA_DIR=$(realpath -m "$nd/data")"
   if [ "$DIST" = inet_tls ]; then
     echo "export USE_NODETOOL=1"
     echo "export ERL_FLAGS=\"-ssl_dist_optfile $DIR/certs/ssl_dist.conf\""

@@ -22,7 +22,10 @@
 %% two_nodes, tls (inet_tls_dist with certificates from
 %% scripts/gen-dist-certs.sh; the controller drives those nodes over
 %% peer's standard I/O channel, since its own distribution is TCP) and
-%% scale (EVATAR_HA_PAIRINGS pairings, default 300, failing over at once).
+%% scale (EVATAR_HA_PAIRINGS pairings, default 300, failing over at once),
+%% durable (the catalogue of pairings: a power cut of every node, a node
+%% restarted after pairings were created and deleted while it was down, a
+%% create and a delete on both sides of a partition).
 -module(ha_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -42,7 +45,8 @@
 suite() -> [{timetrap, {minutes, 4}}].
 
 all() ->
-    [{group, os_process}, {group, peer}, {group, two_nodes}, {group, tls}, {group, scale}].
+    [{group, os_process}, {group, peer}, {group, two_nodes}, {group, tls}, {group, scale},
+     {group, durable}].
 
 groups() ->
     [{os_process, [], [kill_active, stall_active, partition_heal_flush,
@@ -50,7 +54,8 @@ groups() ->
      {peer, [], [kill_active, stall_active]},
      {two_nodes, [], [two_node_partition]},
      {tls, [], [tls_links, tls_kill_active, tls_refuses_foreign_node]},
-     {scale, [], [many_pairings_fail_over]}].
+     {scale, [], [many_pairings_fail_over]},
+     {durable, [], [power_cut, restart_with_changed_catalogue, partition_create_delete]}].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -75,6 +80,7 @@ group_opts(os_process, _Dir, _Config) -> #{};
 group_opts(peer, _Dir, _Config) -> #{backend => peer};
 group_opts(two_nodes, _Dir, _Config) -> #{n => 2};
 group_opts(scale, _Dir, _Config) -> #{conn => #{heartbeat => 1000}};
+group_opts(durable, _Dir, _Config) -> #{};
 group_opts(tls, Dir, _Config) ->
     Certs = gen_certs(filename:join(Dir, "certs")),
     #{backend => peer, control => stdio, dist => inet_tls,
@@ -84,7 +90,8 @@ short(os_process) -> "o";
 short(peer) -> "p";
 short(two_nodes) -> "t";
 short(tls) -> "s";
-short(scale) -> "m".
+short(scale) -> "m";
+short(durable) -> "d".
 
 end_per_group(_Group, Config) ->
     ok = ha_cluster:stop(?config(cluster, Config)).
@@ -101,6 +108,111 @@ end_per_testcase(_Case, Config) ->
 %% ---------------------------------------------------------------------------
 %% Cases
 %% ---------------------------------------------------------------------------
+
+%% A power cut: every node killed at once (kill -9), then all started
+%% again. Every pairing comes back from the nodes' catalogues with one
+%% active and one synced standby; the clients, which kept retrying,
+%% reconnect with new sessions, describe themselves, are bound again and
+%% send what they queued meanwhile once the other side is back (no
+%% UnknownReceiver refusal). Signals sent after the cut obey the checker's
+%% usual rules; those in flight at the cut are counted apart (docs/ha.md
+%% section 6). Prints the recovery time: from the moment every node runs
+%% again to every pairing active and synced.
+power_cut(Config) ->
+    C = ?config(cluster, Config),
+    Base = ?config(pairing, Config),
+    Ids = [<<Base/binary, "-", (integer_to_binary(K))/binary>> || K <- [1, 2, 3]],
+    _ = [ok = ha_pairing:create(C, K, Id) || {K, Id} <- lists:enumerate(Ids)],
+    Pairs = [begin {ok, P} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id, ?TRAFFIC), P end
+             || Id <- Ids],
+    _ = [{ok, 1} = ha_traffic:round_trip(P, ?FAILOVER_TIMEOUT) || P <- Pairs],
+    ok = ha_cluster:power_cut(C),
+    Cut = erlang:monotonic_time(millisecond),
+    %% The clients queue signals while every node is down.
+    timer:sleep(1000),
+    ok = ha_cluster:restart_all(C),
+    Started = erlang:monotonic_time(millisecond),
+    ok = ha_cluster:await(fun() -> lists:all(fun(Id) -> ha_pairing:healthy(C, Id) end, Ids) end,
+                          ?HEAL_TIMEOUT, all_healthy),
+    Recovery = erlang:monotonic_time(millisecond) - Started,
+    ct:pal("power cut: ~b pairings active and synced ~b ms after every node ran again",
+           [length(Ids), Recovery]),
+    ct:comment("recovery ~b ms", [Recovery]),
+    _ = [{ok, _} = ha_traffic:round_trip(P, ?FAILOVER_TIMEOUT) || P <- Pairs],
+    _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
+    _ = [ok = ha_traffic:settle_accepted(P, 30000) || P <- Pairs],
+    Histories = [ha_traffic:history(P) || P <- Pairs],
+    Result = ha_checker:check_pairs(Histories, Cut),
+    Refused = [Sig || #{va := Va, av := Av} <- Histories, H <- [Va, Av],
+                      #{body := #{type := <<"UnknownReceiver">>}} = Sig <- maps:get(mediator, H)],
+    ct:pal("power cut: ~s; UnknownReceiver refusals ~b; history in ~s",
+           [ha_checker:format(Result), length(Refused),
+            [[ha_traffic:dump(P, H), " "] || {P, H} <- lists:zip(Pairs, Histories)]]),
+    ?assert(ha_checker:passed(Result)),
+    ?assertEqual([], Refused),
+    %% Every client reconnected with a new session (the old ones died with
+    %% the nodes) and none gave up.
+    _ = [begin
+             ?assertEqual(undefined, maps:get(closed, H)),
+             ?assertMatch([_ | _], [R || #{resumed := false} = R <- maps:get(reconnects, H)])
+         end || #{va := Va, av := Av} <- Histories, H <- [Va, Av]],
+    _ = [ha_traffic:close(P) || P <- Pairs],
+    _ = [ok = ha_pairing:delete(C, 1, Id) || Id <- Ids],
+    ok.
+
+%% A node restarted with a changed catalogue: while node 3 is down, a
+%% pairing is created and one whose home is node 3 is deleted. Node 3
+%% comes back, learns both before it acts (it never starts the deleted
+%% one, though its own disc still lists it), the new one is known on every
+%% node, and every node's catalogue ends equal.
+restart_with_changed_catalogue(Config) ->
+    C = ?config(cluster, Config),
+    Base = ?config(pairing, Config),
+    Old = <<Base/binary, "-old">>,
+    New = <<Base/binary, "-new">>,
+    ok = ha_pairing:create(C, 3, Old),
+    ok = ha_cluster:kill(C, 3),
+    {ok, A, _} = ha_pairing:await_active(C, Old, fun(I, _) -> I =/= 3 end, ?FAILOVER_TIMEOUT),
+    ok = ha_pairing:delete(C, A, Old),
+    ok = ha_pairing:create(C, 1, New),
+    Watch = spawn_link(fun() -> never_started(C, 3, Old) end),
+    ok = ha_cluster:restart(C, 3),
+    ok = ha_cluster:await_formed(C, ?HEAL_TIMEOUT),
+    ok = ha_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
+    ok = ha_pairing:await_healthy(C, New, ?HEAL_TIMEOUT),
+    {ok, _} = ha_cluster:call(C, 3, evatar_catalogue, lookup, [New]),
+    none = ha_cluster:call(C, 3, evatar_catalogue, lookup, [Old]),
+    Watch ! {stop, self()},
+    receive {watched, Seen} -> ?assertEqual([], Seen) end,
+    ?assertEqual([], ha_pairing:roles(C, Old)),
+    ok = ha_pairing:delete(C, 1, New).
+
+%% A partition during a create and a delete (a laptop on another
+%% network): node 3 is cut off; the majority creates a pairing, node 3
+%% deletes one and creates another on its own. When the links heal, the
+%% catalogues merge with no operator action: the deleted pairing is gone
+%% everywhere, both created ones run with one active and one synced
+%% standby.
+partition_create_delete(Config) ->
+    C = ?config(cluster, Config),
+    Base = ?config(pairing, Config),
+    [Gone, Major, Minor] = [<<Base/binary, "-", X/binary>> || X <- [<<"gone">>, <<"major">>,
+                                                                     <<"minor">>]],
+    ok = ha_pairing:create(C, 1, Gone),
+    ok = ha_cluster:isolate(C, 3),
+    {ok, _} = ha_cluster:call(C, 1, evatar, create_pairing, [Major, ha_traffic:pairing_opts()]),
+    ok = ha_cluster:call(C, 3, evatar, delete_pairing, [Gone]),
+    {ok, _} = ha_cluster:call(C, 3, evatar, create_pairing, [Minor, ha_traffic:pairing_opts()]),
+    ok = ha_cluster:heal(C, flush),
+    ok = ha_cluster:await_formed(C, ?HEAL_TIMEOUT),
+    ok = ha_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
+    ok = ha_pairing:await_healthy(C, Major, ?HEAL_TIMEOUT),
+    ok = ha_pairing:await_healthy(C, Minor, ?HEAL_TIMEOUT),
+    ok = ha_cluster:await(fun() -> ha_pairing:roles(C, Gone) =:= [] end, ?HEAL_TIMEOUT,
+                          {gone, Gone}),
+    _ = [none = ha_cluster:call(C, I, evatar_catalogue, lookup, [Gone]) || I <- [1, 2, 3]],
+    _ = [ok = ha_pairing:delete(C, 1, Id) || Id <- [Major, Minor]],
+    ok.
 
 %% kill -9 of the active node: the standby takes over with a higher epoch,
 %% traffic goes on through it, a new standby is synced on the third node,
@@ -380,6 +492,27 @@ never_active_loop(C, I, Id, Deadline) ->
 %% Samples the roles of Id's instances until stopped; never two actives of
 %% the same epoch, and never two actives at once once one of them holds a
 %% higher epoch for longer than a lease (see ha_pairing:roles/2).
+%% Every node's catalogue, tombstones included, is the same.
+catalogues_equal(C) ->
+    case lists:usort([ha_cluster:call(C, I, evatar_catalogue, entries, []) || I <- [1, 2, 3]]) of
+        [[_ | _]] -> true;
+        _ -> false
+    end.
+
+%% Node I must never run an instance of Id until told to stop.
+never_started(C, I, Id) ->
+    never_started(C, I, Id, []).
+
+never_started(C, I, Id, Seen) ->
+    receive
+        {stop, From} -> From ! {watched, lists:reverse(Seen)}
+    after 20 ->
+            case ha_cluster:call(C, I, evatar, ha_status, [Id], 1000) of
+                {ok, St} -> never_started(C, I, Id, [St | Seen]);
+                _ -> never_started(C, I, Id, Seen)
+            end
+    end.
+
 watch_actives(C, Id) ->
     Parent = self(),
     spawn_link(fun() -> watch_loop(Parent, C, Id, []) end).

@@ -14,15 +14,21 @@
 %% | unconfirmed | sent, never acknowledged, never delivered (allowed) |
 %%
 %% A run passes with zero lost, zero duplicated and zero unexpected.
+%%
+%% Across a power cut (every node killed at once), check_pairs/2 holds
+%% the signals sent after the cut to the same rules, and counts apart
+%% those sent before it that were lost or delivered twice: in flight at a
+%% total loss, they may be (docs/ha.md section 6).
 -module(ha_checker).
 
--export([classify/3, check_pairs/1, merge/2, empty/0, passed/1, format/1]).
+-export([classify/3, check_pairs/1, check_pairs/2, merge/2, empty/0, passed/1, format/1]).
 
 -export_type([result/0]).
 
 -type result() :: #{ok := non_neg_integer(), lost := [binary()],
                     duplicated := [binary()], unexpected := [binary()],
-                    recovered := non_neg_integer(), unconfirmed := non_neg_integer()}.
+                    recovered := non_neg_integer(), unconfirmed := non_neg_integer(),
+                    lost_at_cut => non_neg_integer(), duplicated_at_cut => non_neg_integer()}.
 
 -spec empty() -> result().
 empty() ->
@@ -61,6 +67,25 @@ check_pairs(Histories) ->
 direction(#{sent := Sent, accepted := Acc}, #{received := Rec}) ->
     classify(Sent, Acc, [Id || {Id, _Epoch} <- Rec]).
 
+%% @doc As check_pairs/1, for a run with a power cut at `CutMs' (monotonic
+%% ms of this node, taken once every node was dead): signals sent before
+%% it that were lost or duplicated go to `lost_at_cut' and
+%% `duplicated_at_cut' (counts), not to `lost' and `duplicated'.
+-spec check_pairs([#{va := ha_traffic:history(), av := ha_traffic:history()}], integer()) ->
+          result().
+check_pairs(Histories, CutMs) ->
+    lists:foldl(fun(#{va := Va, av := Av}, Acc) ->
+                        merge(merge(cut(Va, Av, CutMs), cut(Av, Va, CutMs)), Acc)
+                end, (empty())#{lost_at_cut => 0, duplicated_at_cut => 0}, Histories).
+
+cut(#{sent_at := At} = From, To, CutMs) ->
+    #{lost := Lost, duplicated := Dup} = R = direction(From, To),
+    Before = fun(Id) -> maps:get(Id, At, CutMs) < CutMs end,
+    {LostCut, LostAfter} = lists:partition(Before, Lost),
+    {DupCut, DupAfter} = lists:partition(Before, Dup),
+    R#{lost := LostAfter, duplicated := DupAfter, lost_at_cut => length(LostCut),
+       duplicated_at_cut => length(DupCut)}.
+
 -spec merge(result(), result()) -> result().
 merge(A, B) ->
     maps:map(fun(K, V) when is_list(V) -> V ++ maps:get(K, B);
@@ -74,8 +99,10 @@ passed(_) -> false.
 %% @doc One line of counts, then up to 10 SignalIDs of each failing category.
 -spec format(result()) -> iolist().
 format(#{ok := Ok, lost := L, duplicated := D, unexpected := U, recovered := R,
-         unconfirmed := Un}) ->
+         unconfirmed := Un} = Result) ->
     [io_lib:format("ok ~b, lost ~b, duplicated ~b, unexpected ~b, recovered ~b, unconfirmed ~b",
                    [Ok, length(L), length(D), length(U), R, Un]),
+     [io_lib:format(", in flight at the power cut: lost ~b, duplicated ~b", [LC, DC])
+      || #{lost_at_cut := LC, duplicated_at_cut := DC} <- [Result]],
      [io_lib:format("~n  ~s: ~s", [Name, lists:join(" ", lists:sublist(Ids, 10))])
       || {Name, Ids} <- [{lost, L}, {duplicated, D}, {unexpected, U}], Ids =/= []]].

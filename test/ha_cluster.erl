@@ -19,7 +19,8 @@
 -behaviour(gen_server).
 
 -export([start/1, stop/1, nodes/1, node/2, index/2, endpoints/1, endpoint/2, info/1,
-         up/1, kill/2, stall/2, resume/2, restart/2, partition/2, isolate/2, cut/2, heal/2,
+         up/1, kill/2, stall/2, resume/2, restart/2, power_cut/1, restart_all/1,
+         partition/2, isolate/2, cut/2, heal/2,
          os_pid/2, call/5, call/6, await_formed/2, await/3, ensure_distributed/0,
          release_distribution/1, repo_root/0, free_ports/1]).
 -export([node_setup/1, watchdog/0, watchdog/1]).
@@ -38,6 +39,8 @@
 %% whose distribution the controller cannot speak, inet_tls); config: a
 %% sys.config file for the nodes (-config), whose logger settings they then
 %% keep (by default each node logs to a file of its own at level info).
+%% Every node keeps its catalogue of pairings on disc (mnesia) in `dir', in
+%% a directory of its own that outlives kills and restarts.
 -type opts() :: #{n => pos_integer(), prefix => string(), dir := file:filename(),
                   backend => os | peer, control => dist | stdio, links => boolean(),
                   config => file:filename(),
@@ -138,6 +141,17 @@ resume(C, I) -> gen_server:call(C, {signal, I, "CONT", up}, ?CALL_TIMEOUT).
 %% configuration, and returns once it runs evatar and the bridge.
 -spec restart(cluster(), pos_integer()) -> ok | {error, term()}.
 restart(C, I) -> gen_server:call(C, {restart, I}, ?CALL_TIMEOUT).
+
+%% @doc A power cut: kill -9 of every node that runs (or is stalled), all
+%% in one command; returns once every OS process is gone.
+-spec power_cut(cluster()) -> ok.
+power_cut(C) -> gen_server:call(C, power_cut, ?CALL_TIMEOUT).
+
+%% @doc Starts every node that is down, all at once (as machines coming
+%% back after a power cut), and returns once each runs evatar and the
+%% bridge.
+-spec restart_all(cluster()) -> ok | {error, term()}.
+restart_all(C) -> gen_server:call(C, restart_all, ?CALL_TIMEOUT).
 
 %% @doc Cuts every link between nodes of different groups (lists of node
 %% indexes); links within a group and to the controller stay.
@@ -368,6 +382,17 @@ handle_call({restart, I}, _From, #s{nodes = Nodes} = S) ->
         #nd{status = Other} ->
             {reply, {error, {not_down, Other}}, S}
     end;
+handle_call(power_cut, _From, #s{nodes = Nodes} = S) ->
+    Running = [Nd || Nd <- maps:values(Nodes), Nd#nd.os_pid =/= undefined],
+    _ = os:cmd("kill -9 " ++ lists:join(" ", [P || #nd{os_pid = P} <- Running])),
+    _ = [ok = kill_os(Nd) || Nd <- Running],
+    {reply, ok, S#s{nodes = maps:map(fun(_, Nd) -> down(Nd) end, Nodes)}};
+handle_call(restart_all, _From, #s{nodes = Nodes} = S) ->
+    Down = [launch(Nd, S) || #nd{status = down} = Nd <- maps:values(Nodes)],
+    case setup_all(Down, S) of
+        {ok, Ready} -> {reply, ok, S#s{nodes = maps:merge(Nodes, Ready)}};
+        {error, Why, Partial} -> {reply, {error, Why}, S#s{nodes = maps:merge(Nodes, Partial)}}
+    end;
 handle_call({partition, Groups}, _From, #s{proxies = Proxies} = S) ->
     GroupOf = maps:from_list([{I, G} || {G, Is} <- lists:enumerate(Groups), I <- Is]),
     _ = [ok = ha_proxy:block(P)
@@ -558,8 +583,10 @@ booted(#nd{name = Node, peer = Peer}, #s{opts = Opts}) ->
 
 setup(#nd{name = Node} = Nd, #s{opts = Opts, nodes = All} = S) ->
     Cluster = lists:sort([X#nd.name || X <- maps:values(All)]),
+    Data = filename:join(maps:get(dir, Opts), Nd#nd.short ++ ".data"),
     Env = [{evatar, [{cluster, Cluster} | maps:get(evatar, Opts)]},
-           {agent_bridge, [{listeners, []}]}],
+           {agent_bridge, [{listeners, []}]},
+           {mnesia, [{dir, Data}]}],
     Info = #{name => Node, peer => Nd#nd.peer, control => maps:get(control, Opts)},
     ok = rpc(Info, ?MODULE, node_setup,
              [#{log => log_file(Nd, S), env => Env, bridge_port => Nd#nd.bridge_port,

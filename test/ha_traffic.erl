@@ -30,9 +30,11 @@
 %% SignalIDs of signals received from the other entity, in arrival order,
 %% each with the epoch it carried; mediator: signals from EVATAR itself
 %% (errors, timeouts); reconnects: the client's {reconnected, Info} maps;
-%% closed: the client's close reason, if it gave up.
+%% closed: the client's close reason, if it gave up; sent_at: when each
+%% signal was handed to the client (monotonic ms of this node).
 -type history() :: #{entity := binary(), role := agent | avatar,
-                     sent := [binary()], accepted := [binary()],
+                     sent := [binary()], sent_at := #{binary() => integer()},
+                     accepted := [binary()],
                      received := [{binary(), integer() | undefined}],
                      mediator := [map()], reconnects := [map()],
                      closed := term()}.
@@ -50,6 +52,7 @@
             bound = false :: boolean(),
             counter = 0 :: non_neg_integer(),
             sent = [] :: [binary()],
+            sent_at = #{} :: #{binary() => integer()},
             accepted = [] :: [binary()],
             received = [] :: [{binary(), term()}],
             mediator = [] :: [map()],
@@ -231,7 +234,8 @@ handle_call(stop_traffic, _From, S) ->
     {reply, ok, S#s{running = false}};
 handle_call(history, _From, S) ->
     {reply, #{entity => S#s.entity, role => S#s.role,
-              sent => lists:reverse(S#s.sent), accepted => lists:reverse(S#s.accepted),
+              sent => lists:reverse(S#s.sent), sent_at => S#s.sent_at,
+              accepted => lists:reverse(S#s.accepted),
               received => lists:reverse(S#s.received), mediator => lists:reverse(S#s.mediator),
               reconnects => lists:reverse(S#s.reconnects), closed => S#s.closed}, S};
 handle_call({burst, N}, _From, #s{role = avatar} = S) ->
@@ -364,7 +368,8 @@ send_sensor(#s{entity = E, counter = N} = S) ->
 
 %% A client that gave up (it says why in its last message) stops the
 %% traffic; the history shows it as `closed'.
-send(#s{client = C} = S, Signal) ->
+send(#s{client = C} = S0, #{id := Id} = Signal) ->
+    S = S0#s{sent_at = (S0#s.sent_at)#{Id => erlang:monotonic_time(millisecond)}},
     case agent_bridge_client:send(C, Signal) of
         ok -> S;
         {error, closed} -> S#s{running = false, closed = closed_reason(S)}

@@ -27,7 +27,8 @@ groups() ->
                       join_timeout_drops]},
      {traffic, [], [request_feedback, sent_request_feedback_to_owner,
                     sent_request_feedback_to_owner_ha, binding_report, sensor_stream, feedback_timeout,
-                    not_bound_error, re_register, pairing_deleted]},
+                    not_bound_error, re_register, pairing_deleted,
+                    new_session_waits_for_peer]},
      {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
      {busy, [], [busy_pairing_refuses_hello, busy_pairing_description,
                   busy_pairing_bye, busy_pairing_operator]},
@@ -249,6 +250,35 @@ sent_request_feedback(Config, Extra) ->
         {agent_bridge, Va, {signal, #{context := feedback}}} -> ok
     after 5000 ->
             ct:fail({no_feedback_to_owner, Extra})
+    end,
+    ok = agent_bridge_client:close(Va).
+
+%% An HA client whose session the server lost (every node restarted: here
+%% the pairing process is killed and restarted empty) gets a new session,
+%% describes itself again, and keeps what it sends until a Binding report
+%% shows the other side registered again: the request then reaches the
+%% Avatar that comes back, instead of being refused as UnknownReceiver.
+new_session_waits_for_peer(Config) ->
+    Av = start_responder(Config, <<"av">>),
+    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
+                                           (client_opts(Config, agent, <<"va">>))#{ha => true}),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    Pairing = evatar_registry:whereis_name(?config(pairing, Config)),
+    unlink(Av),
+    exit(Pairing, kill),
+    receive
+        {agent_bridge, Va, {reconnected, #{resumed := Resumed}}} -> false = Resumed
+    after 10000 -> ct:fail(no_reconnect)
+    end,
+    ok = agent_bridge_client:send(Va, (light_request())#{id => <<"held-1">>,
+                                                         context => request}),
+    _ = start_responder(Config, <<"av">>),
+    receive
+        {agent_bridge, Va, {signal, #{in_reply_to := <<"held-1">>} = Answer}} ->
+            ?assertMatch(#{context := feedback}, Answer)
+    after 10000 ->
+            ct:fail(no_answer)
     end,
     ok = agent_bridge_client:close(Va).
 

@@ -109,6 +109,11 @@
             last_rx = 0 :: integer(),
             window = 1024 :: pos_integer(),
             ever_connected = false :: boolean(),
+            %% A new session after a reconnect (the server had lost the
+            %% old one, e.g. every node restarted): signals wait until a
+            %% Binding report shows another entity registered, instead of
+            %% being refused as UnknownReceiver while it is not back yet.
+            held = false :: boolean(),
             %% Frames to read before the socket's count is topped up.
             reads = 1 :: pos_integer()}).
 
@@ -440,15 +445,19 @@ welcomed(#{session_id := Sid, ha := Ha}, #d{ever_connected = Again} = D) ->
                  D#d{session_id = Sid, epoch = Epoch, last_seq = 0, acked_seq = 0}
          end,
     D2 = D1#d{ever_connected = true, tried = 0, backoff = 0, failures = [],
-              heartbeat = Hb, window = max(1, Window), last_rx = now_ms()},
+              heartbeat = Hb, window = max(1, Window), last_rx = now_ms(), held = false},
     %% Described again only when the session is new; then everything not
-    %% acknowledged goes again (the server drops what it already accepted).
-    _ = [write(Desc, D2) || not Resumed, Desc <- [D2#d.description], Desc =/= undefined],
-    _ = [write(Frame, D2) || {_, Frame} <- queue:to_list(D2#d.unacked)],
+    %% acknowledged goes again (the server drops what it already accepted),
+    %% once the other side is registered again (held until a Binding
+    %% report says so).
+    Describe = [Desc || not Resumed, Desc <- [D2#d.description], Desc =/= undefined],
+    _ = [write(Desc, D2) || Desc <- Describe],
+    Held = Again andalso Describe =/= [],
+    _ = [write(Frame, D2) || not Held, {_, Frame} <- queue:to_list(D2#d.unacked)],
     D3 = case Again of
              true -> notify({reconnected, #{endpoint => D2#d.current, resumed => Resumed,
                                             epoch => D2#d.epoch, session_id => Sid,
-                                            reason => D#d.last_reason}}, D2);
+                                            reason => D#d.last_reason}}, D2#d{held = Held});
              false -> D2
          end,
     Silence = [{{timeout, silence}, Hb, check} || Hb > 0],
@@ -485,7 +494,7 @@ incoming({ok, {signal, #{in_reply_to := Id, context := Ctx} = S}}, #d{pending = 
 incoming({ok, {signal, S}}, D) ->
     {keep_state, notify({signal, S}, D)};
 incoming({ok, {control, {binding, Report}}}, D) ->
-    {keep_state, notify({binding, Report}, D)};
+    {keep_state, notify({binding, Report}, release_held(Report, D))};
 incoming({ok, {control, {ack, Ack}}}, #d{ha = true} = D) ->
     case Ack of
         #{accepted := Id} -> {keep_state, acknowledged(Id, D)};
@@ -500,6 +509,19 @@ incoming({ok, Other}, D) ->
     {keep_state, D};
 incoming({error, Reason}, D) ->
     disconnected({malformed, Reason}, D).
+
+%% After a new session the signals not acknowledged go once another
+%% entity is registered again.
+release_held(#{entities := Entities}, #d{held = true, opts = Opts} = D) ->
+    case [E || E <- Entities, E =/= maps:get(entity_id, Opts)] of
+        [] ->
+            D;
+        [_ | _] ->
+            _ = [write(Frame, D) || {_, Frame} <- queue:to_list(D#d.unacked)],
+            D#d{held = false}
+    end;
+release_held(_Report, D) ->
+    D.
 
 %% Nothing twice: a signal redelivered after a resume (Sequence already
 %% passed to the owner) or from an older epoch than one seen is dropped.
@@ -616,7 +638,7 @@ ha_send(From, Request, State, #d{unacked_n = N, window = W, blocked = B} = D) ->
 %% signal given to send/2: its feedback goes to the owner like any signal.
 keep(Waiter, #{id := Id} = Signal, #d{unacked = Q, unacked_n = N} = D) ->
     Frame = bil:encode_signal(Signal),
-    _ = [write(Frame, D) || D#d.welcome =/= undefined],
+    _ = [write(Frame, D) || D#d.welcome =/= undefined, not D#d.held],
     D1 = D#d{unacked = queue:in({Id, Frame}, Q), unacked_n = N + 1},
     case Waiter of
         none -> D1;

@@ -9,8 +9,8 @@
 %% is internal.
 -module(evatar).
 
--export([check_pairing_opts/1, create_pairing/2, delete_pairing/1, join/4, join/5, resume/5, describe/2,
-         leave_async/1,
+-export([check_pairing_opts/1, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
+         join/5, resume/5, describe/2, leave_async/1,
          send/2, ack/2, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
@@ -134,16 +134,18 @@
 %% Pairings
 %% ---------------------------------------------------------------------------
 
-%% @doc Starts a pairing with its own supervised process tree. Returns the
-%% pid of the pairing process.
+%% @doc Starts a pairing with its own supervised process tree, its active
+%% on this node, and records it in the cluster's catalogue (durable: it
+%% comes back after every node restarted, docs/ha.md section 2). Returns
+%% the pid of the pairing process. `already_exists' when an alive node runs
+%% an instance of that id, or the catalogue has it.
 -spec create_pairing(pairing_id(), pairing_opts()) ->
           {ok, pid()} | {error, already_exists | {bad_option, term()}}.
 create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
-    Defaults = maps:from_list([{K, evatar_cluster:opt(K)}
-                               || K <- [resume_timeout, dedup_window, max_unacked_out]]),
-    case evatar_pairing_logic:config(maps:merge(Defaults, Opts)) of
+    case pairing_config(Opts) of
         {ok, Config} ->
             case evatar_registry:whereis_name(PairingId) =:= undefined andalso
+                evatar_catalogue:lookup(PairingId) =:= none andalso
                 not exists_elsewhere(PairingId) of
                 true -> start_pairing(PairingId, Config);
                 false -> {error, already_exists}
@@ -163,6 +165,34 @@ check_pairing_opts(Opts) ->
         {error, _} = Error -> Error
     end.
 
+%% @doc Makes sure the cluster has pairing `PairingId': when neither the
+%% catalogue nor an alive node has it, records it with `Opts' (its home is
+%% this node), and the pairing starts as soon as this node is in sync with
+%% the alive nodes and hears a majority (at once on a lone node). When it
+%% exists, nothing changes (`exists'), even if `Opts' differ: for a node's
+%% configuration file, read at every start, that lists pairings to create
+%% when absent. Options are checked as by {@link create_pairing/2}.
+-spec ensure_pairing(pairing_id(), pairing_opts()) ->
+          {ok, created | exists} | {error, {bad_option, term()}}.
+ensure_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
+    case pairing_config(Opts) of
+        {ok, Config} ->
+            case evatar_registry:whereis_name(PairingId) =:= undefined andalso
+                not exists_elsewhere(PairingId) of
+                true -> {ok, evatar_catalogue:ensure(PairingId, Config)};
+                false -> {ok, exists}
+            end;
+        {error, _} = Error ->
+            Error
+    end;
+ensure_pairing(PairingId, _Opts) ->
+    {error, {bad_option, {id, PairingId}}}.
+
+pairing_config(Opts) ->
+    Defaults = maps:from_list([{K, evatar_cluster:opt(K)}
+                               || K <- [resume_timeout, dedup_window, max_unacked_out]]),
+    evatar_pairing_logic:config(maps:merge(Defaults, Opts)).
+
 %% With a cluster, a pairing id is unique across the nodes alive.
 exists_elsewhere(PairingId) ->
     case [N || N <- evatar_cluster:alive_nodes(), N =/= node()] of
@@ -175,40 +205,49 @@ exists_elsewhere(PairingId) ->
     end.
 
 start_pairing(PairingId, Config) ->
-    case evatar_pairings_sup:start_pairing(PairingId, Config) of
+    case evatar_catalogue:create(PairingId, Config) of
         {ok, Sup} ->
             [Pid] = [P || {evatar_pairing, P, _, _} <- supervisor:which_children(Sup)],
             {ok, Pid};
+        {error, already_exists} ->
+            {error, already_exists};
         %% Lost a race with another create of the same id.
         {error, {shutdown, {failed_to_start_child, evatar_pairing, {already_started, _}}}} ->
             {error, already_exists}
     end.
 
-%% @doc Stops a pairing and its whole tree. The entities' processes receive
-%% `{evatar, PairingId, {dropped, pairing_deleted, Reason}}'. Returns once
-%% the pairing process is gone.
+%% @doc Deletes a pairing: records its deletion in the catalogue (every
+%% node stops its instances, now or when it comes back) and stops its
+%% tree. The entities' processes receive `{evatar, PairingId, {dropped,
+%% pairing_deleted, Reason}}'. When this node holds an instance, returns
+%% once the pairing process is gone.
 %% `{error, busy}' when the pairing did not answer within the call timeout
 %% (application env `call_timeout', default 15 s: it is working through a
 %% large operation); the request stays queued, so the pairing goes once it
-%% gets to it.
+%% gets to it (and the deletion is recorded already).
 -spec delete_pairing(pairing_id()) -> ok | {error, not_found | busy}.
 delete_pairing(PairingId) ->
+    Catalogued = evatar_catalogue:remove(PairingId),
     Target = case evatar_registry:role(PairingId) of
                  %% Deleting through the standby's node deletes at the active.
                  #{role := standby, peer := Active} when is_pid(Active) -> Active;
                  _ -> evatar_registry:whereis_name(PairingId)
              end,
-    case Target of
-        undefined ->
+    case {Target, Catalogued} of
+        {undefined, ok} ->
+            ok;
+        {undefined, not_found} ->
             {error, not_found};
-        Pid ->
+        {Pid, _} ->
             Ref = erlang:monitor(process, Pid),
-            case call(Pid, delete) of
-                ok ->
+            case {call(Pid, delete), Catalogued} of
+                {ok, _} ->
                     receive {'DOWN', Ref, process, Pid, _} -> ok end;
-                {error, gone} ->
+                {{error, gone}, ok} ->
+                    receive {'DOWN', Ref, process, Pid, _} -> ok end;
+                {{error, gone}, not_found} ->
                     receive {'DOWN', Ref, process, Pid, _} -> {error, not_found} end;
-                {error, busy} ->
+                {{error, busy}, _} ->
                     true = erlang:demonitor(Ref, [flush]),
                     {error, busy}
             end

@@ -1,5 +1,6 @@
 %% @doc Internal. The evatar application: starts the supervision tree, then
-%% the pairings listed in the application environment
+%% makes sure the cluster has the pairings listed in the application
+%% environment (created when absent: `evatar:ensure_pairing/2')
 %% (`{evatar, [{pairings, [#{id => <<"home">>, agent_credential => ...,
 %% avatar_credential => ...}]}]}').
 -module(evatar_app).
@@ -25,7 +26,7 @@ stop(_State) ->
 %% are found when the node boots, not when the first client is refused.
 start_configured([#{id := Id} = Spec | Rest]) ->
     Opts = maps:remove(id, Spec),
-    case evatar:create_pairing(Id, Opts) of
+    case evatar:ensure_pairing(Id, Opts) of
         {ok, _} -> start_configured(Rest);
         %% Created when absent: another node of the cluster runs it already.
         {error, already_exists} -> start_configured(Rest);

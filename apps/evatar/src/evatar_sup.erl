@@ -1,5 +1,7 @@
 %% @doc Internal. The top supervisor of evatar: the pairing registry, the
-%% cluster membership process, then the supervisor of all pairings.
+%% cluster membership process, the supervisor of all pairings, then the
+%% catalogue of pairings (which starts pairings, so it comes after their
+%% supervisor; its own crash restarts only itself).
 %% `rest_for_one': should the registry or the membership process ever die,
 %% their tables die with them, so every pairing is restarted (with a cluster,
 %% their standbys take over); a pairing's own faults stay inside its own tree.
@@ -31,5 +33,10 @@ init([]) ->
                   start => {evatar_pairings_sup, start_link, []},
                   restart => permanent,
                   shutdown => infinity,
-                  type => supervisor}],
+                  type => supervisor},
+                #{id => evatar_catalogue,
+                  start => {evatar_catalogue, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker}],
     {ok, {Flags, Children}}.

@@ -1,0 +1,356 @@
+%% @doc Internal. The cluster's catalogue of pairings: every pairing's id,
+%% configuration (credentials as the pairing stores them) and home node, so
+%% that pairings survive the loss of every node at once (a power cut) and a
+%% node that was away learns what was created and deleted meanwhile.
+%%
+%% Each node keeps the whole catalogue in a local mnesia table
+%% (`disc_copies' when mnesia has a directory, the release's
+%% `EVATAR_DATA_DIR'; `ram_copies' otherwise, e.g. `make demo', emptied at
+%% every start of evatar). The nodes do not share an mnesia schema: they
+%% exchange their entries and merge them with `evatar_catalogue_rules'
+%% (versioned entries, tombstones, a deterministic winner), on every write,
+%% whenever a peer becomes alive, and every `catalogue_sync_ms'. So nodes
+%% that first started apart, a node off for a week, or two sides of a
+%% healed partition converge with no operator action
+%% (docs/architecture.md, section 8.11).
+%%
+%% Once this node has exchanged catalogues with every alive peer and hears
+%% a majority (in a cluster of two, also after `catalogue_alone_ms' alone),
+%% it starts the pairings it owns of which no instance runs anywhere, and
+%% stops local instances of deleted ones. Messages between nodes have the
+%% shape `{evatar_catalogue, 1, Body}' (introduced in 0.1.0).
+-module(evatar_catalogue).
+-behaviour(gen_server).
+
+-include_lib("kernel/include/logger.hrl").
+
+-export([start_link/0, create/2, remove/1, ensure/2, lookup/1, entries/0, durable/0,
+         sync_now/0]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
+
+-define(TABLE, evatar_catalogue).
+-define(TICK_MS, 500).
+-define(RESTORE_BACKOFF_MIN, 1000).
+-define(RESTORE_BACKOFF_MAX, 300000).
+
+-record(?TABLE, {id :: evatar:pairing_id(),
+                 version :: evatar_catalogue_rules:version(),
+                 value :: evatar_catalogue_rules:value()}).
+
+-record(s, {durable :: boolean(),
+            started :: integer(),
+            alive = [] :: [node()],
+            synced = #{} :: #{node() => true},
+            last_sync :: integer(),
+            backoff = #{} :: #{evatar:pairing_id() => {integer(), pos_integer()}},
+            stopping = #{} :: #{pid() => true},
+            %% Pairings that were active here: one that stopped here
+            %% without being deleted gave up (its restart limit), and is
+            %% not restored on this node until it restarts.
+            ran = #{} :: #{evatar:pairing_id() => true}}).
+
+%% @doc Starts the catalogue process, registered as `evatar_catalogue'.
+-spec start_link() -> {ok, pid()} | {error, term()}.
+start_link() ->
+    gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
+
+%% @doc Starts a new pairing with its active on this node (its home) and
+%% records it, telling the alive peers; `already_exists' when the catalogue
+%% has it. One at a time with the restores, so neither undoes the other.
+-spec create(evatar:pairing_id(), evatar_pairing_logic:config()) ->
+          {ok, pid()} | {error, already_exists | term()}.
+create(Id, Config) ->
+    gen_server:call(?MODULE, {create, Id, Config}, infinity).
+
+%% @doc Records a pairing's deletion (a tombstone), and tells the alive
+%% peers, whose instances of it stop. `not_found' when the catalogue has no
+%% live entry of that id.
+-spec remove(evatar:pairing_id()) -> ok | not_found.
+remove(Id) ->
+    gen_server:call(?MODULE, {remove, Id}, infinity).
+
+%% @doc Records a pairing unless the catalogue already has it (live):
+%% then nothing changes, whatever `Config' says. The pairing is started
+%% by the node that owns it once the catalogues are in sync.
+-spec ensure(evatar:pairing_id(), evatar_pairing_logic:config()) -> created | exists.
+ensure(Id, Config) ->
+    gen_server:call(?MODULE, {ensure, Id, Config}, infinity).
+
+%% @doc A pairing's configuration, when the catalogue has it (live).
+-spec lookup(evatar:pairing_id()) -> {ok, evatar_pairing_logic:config()} | none.
+lookup(Id) ->
+    case mnesia:dirty_read(?TABLE, Id) of
+        [#?TABLE{value = {live, Config, _Home}}] -> {ok, Config};
+        _ -> none
+    end.
+
+%% @doc Every entry, tombstones included, sorted by id.
+-spec entries() -> [evatar_catalogue_rules:entry()].
+entries() ->
+    lists:sort([{Id, V, Val} || {?TABLE, Id, V, Val}
+                                    <- mnesia:dirty_match_object(?TABLE, {?TABLE, '_', '_', '_'})]).
+
+%% @doc Whether the catalogue is on disc (survives a restart of this node).
+-spec durable() -> boolean().
+durable() ->
+    gen_server:call(?MODULE, durable, infinity).
+
+%% @doc Sends this node's catalogue to every alive peer now.
+-spec sync_now() -> ok.
+sync_now() ->
+    gen_server:cast(?MODULE, sync_now).
+
+%% ---------------------------------------------------------------------------
+%% gen_server
+%% ---------------------------------------------------------------------------
+
+%% @private
+-spec init([]) -> {ok, #s{}}.
+init([]) ->
+    Durable = ensure_storage(),
+    self() ! tick,
+    Now = now_ms(),
+    ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
+    {ok, #s{durable = Durable, started = Now, last_sync = Now}}.
+
+%% Disc copies when mnesia was given a directory (it then keeps its schema
+%% there: made on the first start, read on the next ones). Else an
+%% in-memory table that lives as long as evatar does.
+ensure_storage() ->
+    Disc = application:get_env(mnesia, dir) =/= undefined,
+    _ = case Disc andalso mnesia:table_info(schema, storage_type) =:= ram_copies of
+            true -> {atomic, ok} = mnesia:change_table_copy_type(schema, node(), disc_copies);
+            false -> ok
+        end,
+    Storage = case Disc of
+                  true -> disc_copies;
+                  false -> ram_copies
+              end,
+    {atomic, ok} = case lists:member(?TABLE, mnesia:system_info(tables)) of
+                       true ->
+                           ok = mnesia:wait_for_tables([?TABLE], infinity),
+                           case Disc of
+                               true -> {atomic, ok};
+                               false -> mnesia:clear_table(?TABLE)
+                           end;
+                       false ->
+                           mnesia:create_table(?TABLE, [{attributes, record_info(fields, ?TABLE)},
+                                                        {Storage, [node()]}])
+                   end,
+    Disc.
+
+%% @private
+-spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
+handle_call({create, Id, Config}, _From, S) ->
+    case lookup(Id) of
+        {ok, _} ->
+            {reply, {error, already_exists}, S};
+        none ->
+            case evatar_pairings_sup:start_pairing(Id, Config) of
+                {ok, Sup} ->
+                    ok = write_new(Id, {live, Config, node()}, S),
+                    {reply, {ok, Sup}, S};
+                {error, _} = Error ->
+                    {reply, Error, S}
+            end
+    end;
+handle_call({remove, Id}, _From, S) ->
+    case lookup(Id) of
+        {ok, _} ->
+            ok = write_new(Id, deleted, S),
+            {reply, ok, S};
+        none ->
+            {reply, not_found, S}
+    end;
+handle_call({ensure, Id, Config}, _From, S) ->
+    case lookup(Id) of
+        {ok, _} ->
+            {reply, exists, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})};
+        none ->
+            ok = write_new(Id, {live, Config, node()}, S),
+            {reply, created, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})}
+    end;
+handle_call(durable, _From, S) ->
+    {reply, S#s.durable, S};
+handle_call(_Request, _From, S) ->
+    {reply, {error, unknown_call}, S}.
+
+%% @private
+-spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
+handle_cast(sync_now, S) ->
+    _ = [push(N, true) || N <- S#s.alive],
+    {noreply, S};
+handle_cast(_Msg, S) ->
+    {noreply, S}.
+
+%% @private
+-spec handle_info(term(), #s{}) -> {noreply, #s{}}.
+handle_info(tick, S) ->
+    erlang:send_after(?TICK_MS, self(), tick),
+    {noreply, reconcile(sync(S))};
+handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S)
+  when is_atom(From), is_list(Entries), is_boolean(Full) ->
+    Changed = evatar_catalogue_rules:changed(entries(), Entries),
+    ok = write(Changed, S),
+    _ = [?LOG_INFO(#{what => catalogue_learned, pairing => Id, from => From,
+                     deleted => Val =:= deleted}) || {Id, _, Val} <- Changed],
+    S1 = case Full of
+             true -> S#s{synced = (S#s.synced)#{From => true}};
+             false -> S
+         end,
+    {noreply, reconcile(S1)};
+handle_info(_Msg, S) ->
+    {noreply, S}.
+
+%% ---------------------------------------------------------------------------
+%% Internals
+%% ---------------------------------------------------------------------------
+
+write_new(Id, Value, #s{alive = Alive} = S) ->
+    Current = case mnesia:dirty_read(?TABLE, Id) of
+                  [#?TABLE{version = V}] -> V;
+                  [] -> none
+              end,
+    Entry = {Id, evatar_catalogue_rules:next_version(Current, erlang:system_time(millisecond),
+                                                     node()), Value},
+    ok = write([Entry], S),
+    _ = [send(N, {entries, node(), [Entry], false}) || N <- Alive],
+    ok.
+
+%% Committed, then the log forced to disc: a pairing the caller was told
+%% exists survives a power cut that comes right after.
+write([], _S) ->
+    ok;
+write(Entries, #s{durable = Durable}) ->
+    {atomic, ok} = mnesia:sync_transaction(
+                     fun() ->
+                             lists:foreach(fun({Id, V, Val}) ->
+                                                   mnesia:write(#?TABLE{id = Id, version = V,
+                                                                        value = Val})
+                                           end, Entries)
+                     end),
+    case Durable of
+        true -> mnesia:sync_log();
+        false -> ok
+    end.
+
+%% Peers that became alive get the whole catalogue; so does every alive
+%% peer every `catalogue_sync_ms' (what a silent partition held back).
+sync(#s{alive = Old, synced = Synced, last_sync = Last} = S) ->
+    Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
+    Now = now_ms(),
+    Periodic = Now - Last >= opt(catalogue_sync_ms),
+    Due = case Periodic of
+              true -> Alive;
+              false -> Alive -- Old
+          end,
+    _ = [push(N, true) || N <- Due],
+    S#s{alive = Alive, synced = maps:with(Alive, Synced),
+        last_sync = case Periodic of true -> Now; false -> Last end}.
+
+push(Node, Full) ->
+    send(Node, {entries, node(), entries(), Full}).
+
+send(Node, Body) ->
+    erlang:send({?MODULE, Node}, {?MODULE, 1, Body}, [noconnect, nosuspend]).
+
+%% Starts what this node owns and nobody runs; stops what was deleted.
+reconcile(S0) ->
+    Entries = entries(),
+    Roles = evatar_registry:roles(),
+    Local = [Id || {Id, _, _, _} <- Roles],
+    Stopping = lists:foldl(fun stop_local/2,
+                           maps:with([P || {_, P, _, _} <- Roles], S0#s.stopping),
+                           evatar_catalogue_rules:to_stop(Entries, Local)),
+    Ran = maps:merge(S0#s.ran, maps:from_list([{Id, true} || {Id, _, R, _} <- Roles,
+                                                              R =:= active orelse R =:= fenced])),
+    Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
+    S = S0#s{stopping = Stopping, ran = Ran},
+    case ready(Alive, S) of
+        false ->
+            S;
+        true ->
+            View = {evatar_cluster:configured(), [node() | Alive]},
+            case evatar_catalogue_rules:to_start(Entries, node(), View, Local) of
+                [] ->
+                    S;
+                Candidates ->
+                    Remote = running_on(connected()),
+                    %% Running elsewhere: it did not give up here.
+                    S1 = S#s{ran = maps:without(Remote, Ran)},
+                    Missing = [C || {Id, _} = C <- Candidates, not lists:member(Id, Remote),
+                                    not is_map_key(Id, S1#s.ran)],
+                    lists:foldl(fun restore/2, S1, Missing)
+            end
+    end.
+
+%% In sync with every alive peer, and either a majority is heard or, in a
+%% cluster of two, this node has been alone long enough.
+ready(Alive, #s{synced = Synced, started = Started}) ->
+    lists:all(fun(N) -> is_map_key(N, Synced) end, Alive)
+        andalso (evatar_cluster:majority_now()
+                 orelse (evatar_cluster:size() =< 2
+                         andalso now_ms() - Started >= opt(catalogue_alone_ms))).
+
+%% Every configured node connected, alive or not (a suspected node may
+%% only be slow, and may still hold an instance).
+connected() ->
+    Connected = erlang:nodes(),
+    [N || N <- evatar_cluster:configured(), lists:member(N, Connected)].
+
+running_on([]) ->
+    [];
+running_on(Peers) ->
+    Results = erpc:multicall(Peers, evatar_registry, roles, [], 2000),
+    lists:append([[Id || {Id, _, _, _} <- Roles] || {ok, Roles} <- Results])
+        %% A peer that did not answer may run anything: wait for it.
+        ++ case lists:all(fun({ok, _}) -> true; (_) -> false end, Results) of
+               true -> [];
+               false -> [Id || {Id, _, _} <- entries()]
+           end.
+
+%% A pairing restored again soon after its last restore (it keeps dying
+%% with both its instances) waits twice as long each time, up to 5 min.
+restore({Id, Config}, #s{backoff = Backoff} = S) ->
+    Now = now_ms(),
+    case maps:find(Id, Backoff) of
+        {ok, {Last, Delay}} when Now - Last < Delay ->
+            S;
+        Found ->
+            Next = case Found of
+                       {ok, {Last, Delay}} when Now - Last < 10 * Delay ->
+                           min(?RESTORE_BACKOFF_MAX, 2 * Delay);
+                       _ ->
+                           ?RESTORE_BACKOFF_MIN
+                   end,
+            Result = evatar_pairings_sup:start_pairing(Id, Config),
+            ?LOG_NOTICE(#{what => pairing_restored, pairing => Id,
+                          result => element(1, Result), retry_after_ms => Next}),
+            S#s{backoff = Backoff#{Id => {Now, Next}}}
+    end.
+
+stop_local(Id, Stopping) ->
+    case evatar_registry:whereis_name(Id) of
+        undefined ->
+            Stopping;
+        Pid when is_map_key(Pid, Stopping) ->
+            Stopping;
+        Pid ->
+            ?LOG_NOTICE(#{what => pairing_deleted_elsewhere, pairing => Id}),
+            %% Not from this process: the pairing may take a while.
+            _ = spawn(fun() ->
+                              try gen_statem:call(Pid, delete, 15000)
+                              catch exit:_ -> ok
+                              end
+                      end),
+            Stopping#{Pid => true}
+    end.
+
+count_live() ->
+    length([Id || {Id, _, {live, _, _}} <- entries()]).
+
+now_ms() -> erlang:monotonic_time(millisecond).
+
+%% docs/architecture.md, section 8.11.
+opt(catalogue_sync_ms) -> application:get_env(evatar, catalogue_sync_ms, 10000);
+opt(catalogue_alone_ms) -> application:get_env(evatar, catalogue_alone_ms, 30000).
