@@ -114,9 +114,8 @@ end_per_testcase(_Case, Config) ->
 %% active and one synced standby; the clients, which kept retrying,
 %% reconnect with new sessions, describe themselves, are bound again and
 %% send what they queued meanwhile once the other side is back (no
-%% UnknownReceiver refusal). Signals sent after the cut obey the checker's
-%% usual rules; those in flight at the cut are counted apart (docs/ha.md
-%% section 6). Prints the recovery time: from the moment every node runs
+%% UnknownReceiver refusal). Every signal obeys the checker's usual rules
+%% except those in flight at the cut, counted apart (docs/ha.md section 6). Prints the recovery time: from the moment every node runs
 %% again to every pairing active and synced.
 power_cut(Config) ->
     C = ?config(cluster, Config),
@@ -142,7 +141,7 @@ power_cut(Config) ->
     _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
     _ = [ok = ha_traffic:settle_accepted(P, 30000) || P <- Pairs],
     Histories = [ha_traffic:history(P) || P <- Pairs],
-    Result = ha_checker:check_pairs(Histories, Cut),
+    Result = ha_checker:check_pairs(Histories, [Cut]),
     Refused = [Sig || #{va := Va, av := Av} <- Histories, H <- [Va, Av],
                       #{body := #{type := <<"UnknownReceiver">>}} = Sig <- maps:get(mediator, H)],
     ct:pal("power cut: ~s; UnknownReceiver refusals ~b; history in ~s",

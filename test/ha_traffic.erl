@@ -30,10 +30,14 @@
 %% SignalIDs of signals received from the other entity, in arrival order,
 %% each with the epoch it carried; mediator: signals from EVATAR itself
 %% (errors, timeouts); reconnects: the client's {reconnected, Info} maps;
-%% closed: the client's close reason, if it gave up; sent_at: when each
-%% signal was handed to the client (monotonic ms of this node).
+%% closed: the client's close reason, if it gave up; sent_at, accepted_at:
+%% when each signal was handed to the client and first acknowledged;
+%% received_at: when each signal from the other entity arrived, every time
+%% (monotonic ms of this node).
 -type history() :: #{entity := binary(), role := agent | avatar,
                      sent := [binary()], sent_at := #{binary() => integer()},
+                     accepted_at := #{binary() => integer()},
+                     received_at := #{binary() => [integer()]},
                      accepted := [binary()],
                      received := [{binary(), integer() | undefined}],
                      mediator := [map()], reconnects := [map()],
@@ -53,6 +57,8 @@
             counter = 0 :: non_neg_integer(),
             sent = [] :: [binary()],
             sent_at = #{} :: #{binary() => integer()},
+            accepted_at = #{} :: #{binary() => integer()},
+            received_at = #{} :: #{binary() => [integer()]},
             accepted = [] :: [binary()],
             received = [] :: [{binary(), term()}],
             mediator = [] :: [map()],
@@ -235,6 +241,7 @@ handle_call(stop_traffic, _From, S) ->
 handle_call(history, _From, S) ->
     {reply, #{entity => S#s.entity, role => S#s.role,
               sent => lists:reverse(S#s.sent), sent_at => S#s.sent_at,
+              accepted_at => S#s.accepted_at, received_at => S#s.received_at,
               accepted => lists:reverse(S#s.accepted),
               received => lists:reverse(S#s.received), mediator => lists:reverse(S#s.mediator),
               reconnects => lists:reverse(S#s.reconnects), closed => S#s.closed}, S};
@@ -295,7 +302,9 @@ event({binding, #{bound := Bound}}, #s{bound = false} = S) when Bound =/= [] ->
 event({binding, _}, S) ->
     S;
 event({accepted, Ids}, S) ->
-    S#s{accepted = lists:reverse(Ids, S#s.accepted)};
+    Now = erlang:monotonic_time(millisecond),
+    S#s{accepted = lists:reverse(Ids, S#s.accepted),
+        accepted_at = maps:merge(maps:from_list([{Id, Now} || Id <- Ids]), S#s.accepted_at)};
 event({reconnected, Info}, S) ->
     S#s{reconnects = [Info#{at => erlang:monotonic_time(millisecond)} | S#s.reconnects]};
 event({closed, Reason}, S) ->
@@ -321,7 +330,9 @@ received(Id, Sig, #s{opts = Opts} = S) ->
             Pid -> Pid ! {ha_traffic, S#s.entity,
                           {received, Id, Epoch, erlang:monotonic_time(microsecond)}}
         end,
-    S#s{received = [{Id, Epoch} | S#s.received]}.
+    S#s{received = [{Id, Epoch} | S#s.received],
+        received_at = maps:update_with(Id, fun(Ts) -> [erlang:monotonic_time(millisecond) | Ts] end,
+                                       [erlang:monotonic_time(millisecond)], S#s.received_at)}.
 
 reply_waiters(Key, Reply, #s{waiters = W} = S) ->
     {Mine, Rest} = lists:partition(fun({K, _}) -> K =:= Key end, W),

@@ -10,7 +10,10 @@
 %% it receives, and when the connection goes (closed, a Refused that means
 %% "try elsewhere", or a silent server) it reconnects through its endpoints,
 %% starting with the next one, resumes the session, sends again what was
-%% not acknowledged and passes nothing twice to the owner. The owner then
+%% not acknowledged and passes nothing twice to the owner. When the server
+%% lost the session (every node restarted) it describes itself again and
+%% holds its signals until a Binding report shows another entity
+%% registered. The owner then
 %% also gets `{agent_bridge, Client, {reconnected, Info}}' and, with
 %% `notify_acks => true', `{agent_bridge, Client, {accepted, [SignalID]}}'.
 %%
@@ -33,7 +36,8 @@
 -type endpoint() :: {inet:socket_address() | inet:hostname(), inet:port_number()}.
 %% `ha' (default false) turns on protocol version 2; `reconnect_backoff'
 %% (ms, doubling, default {20, 500}) and `reconnect_limit' (ms without a
-%% session before giving up, default 30000) apply to it, and so does
+%% session before giving up, default 600000: longer than a machine's
+%% reboot, so clients outlast a power cut) apply to it, and so does
 %% `notify_acks' (default false). `tls' (default false: plain TCP) connects
 %% with TLS and checks the server (agent_bridge_client_sock:tls_opts(),
 %% docs/clients.md, "TLS").
@@ -74,6 +78,7 @@
                       <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
                       <<"SessionResumed">>, <<"TooManyConnections">>, <<"RateLimited">>]).
 -define(ACK_DELAY, 5).
+-define(RECONNECT_LIMIT, 600000).
 -define(ACK_EVERY, 32).
 
 -record(d, {opts :: opts(),
@@ -382,7 +387,7 @@ hello(#d{opts = Opts, ha = Ha, session_id = Session} = D) ->
 %% Version 2: one endpoint per attempt, round the ring, starting after the
 %% one that was lost; a pause (doubling) after every full round.
 attempt(#d{all = All, next = Next, tried = Tried} = D) ->
-    Limit = maps:get(reconnect_limit, D#d.opts, 30000),
+    Limit = maps:get(reconnect_limit, D#d.opts, ?RECONNECT_LIMIT),
     case now_ms() - D#d.lost_at > Limit andalso Tried > 0 of
         true ->
             give_up(D);

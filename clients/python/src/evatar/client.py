@@ -188,14 +188,15 @@ class Client:
     :param ha: speak protocol version 2 (reconnect, resume, nothing lost).
     :param tls: connect with TLS (:class:`evatar.tls.Tls`); default plain TCP.
     :param reconnect_backoff: seconds, (min, max) pause after a full round.
-    :param reconnect_limit: seconds without a session before giving up.
+    :param reconnect_limit: seconds without a session before giving up
+        (default 600: longer than a machine's reboot).
     """
 
     def __init__(self, endpoints: Sequence[Endpoint], *, pairing: str, role: str,
                  entity_id: str, credential: str = "", ha: bool = False,
                  connect_timeout: float = 5.0, handshake_timeout: float = 5.0,
                  reconnect_backoff: Tuple[float, float] = (0.02, 0.5),
-                 reconnect_limit: float = 30.0, max_frame: int = MAX_FRAME,
+                 reconnect_limit: float = 600.0, max_frame: int = MAX_FRAME,
                  tls: Optional[Tls] = None) -> None:
         if role not in ("agent", "avatar"):
             raise ValueError("role is 'agent' or 'avatar'")
@@ -232,6 +233,11 @@ class Client:
         self._acked_seq = 0
         self._ack_handle: Optional[asyncio.TimerHandle] = None
         self._unacked: "OrderedDict[str, bytes]" = OrderedDict()
+        # After a new session on a reconnect (the server lost the old one,
+        # e.g. every node restarted), signals wait until a Binding report
+        # shows another entity registered, instead of being refused as
+        # UnknownReceiver while the other side is not back yet.
+        self._held = False
         self._window = 1024
         self._room = asyncio.Condition()
         self._heartbeat = 0.0
@@ -508,10 +514,13 @@ class Client:
             self._window = max(1, w.dedup_window or 1)
             self._heartbeat = w.heartbeat / 1000.0
             self._last_rx = time.monotonic()
-            if not w.resumed and self._description is not None:
+            described = not w.resumed and self._description is not None
+            if described:
                 link.write(self._description)
-            for doc in self._unacked.values():
-                link.write(doc)
+            self._held = again and described
+            if not self._held:
+                for doc in self._unacked.values():
+                    link.write(doc)
             if again:
                 self.reconnects += 1
                 self._events.put_nowait(Reconnected(link.endpoint, bool(w.resumed), self.epoch,
@@ -659,6 +668,11 @@ class Client:
             self._events.put_nowait(doc)
         elif isinstance(doc, Binding):
             self.binding = doc
+            if self._held and any(e != self.entity_id for e in doc.entities):
+                self._held = False
+                if self._link is not None:
+                    for queued in self._unacked.values():
+                        self._link.write(queued)
             self._binding_changed.set()
             self._events.put_nowait(doc)
         elif isinstance(doc, Ack):
@@ -730,7 +744,7 @@ class Client:
                     lambda: len(self._unacked) < self._window or self._closed is not None)
             self._check_open()
             self._unacked[s.id] = doc
-            if self._link is not None:
+            if self._link is not None and not self._held:
                 self._link.write(doc)
                 await self._drain()
         else:

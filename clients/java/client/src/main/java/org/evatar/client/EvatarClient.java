@@ -59,7 +59,7 @@ public final class EvatarClient implements AutoCloseable {
         int handshakeTimeoutMs = 5000;
         int backoffMinMs = 20;
         int backoffMaxMs = 500;
-        long reconnectLimitMs = 30000;
+        long reconnectLimitMs = 600000;
         Tls tls;
 
         public Options pairing(String v) { pairing = v; return this; }
@@ -116,6 +116,10 @@ public final class EvatarClient implements AutoCloseable {
     private Description description;
     private Control.Binding binding;
     private final LinkedHashMap<String, byte[]> unacked = new LinkedHashMap<>();
+    /* After a new session on a reconnect (the server lost the old one, e.g.
+       every node restarted), signals wait until a Binding report shows
+       another entity registered, instead of being refused as UnknownReceiver. */
+    private boolean held;
     private long highestSeq;
     private long highestEpoch;
     private long lastAckedSeq;
@@ -262,11 +266,13 @@ public final class EvatarClient implements AutoCloseable {
             highestSeq = 0;
             lastAckedSeq = 0;
             highestEpoch = w.epoch();
+            held = false;
             if (description != null && sessionId != null) {
                 write(description.toBytes());
+                held = true;
             }
         }
-        if (Boolean.TRUE.equals(w.resumed()) || sessionId != null) {
+        if (!held && (Boolean.TRUE.equals(w.resumed()) || sessionId != null)) {
             for (byte[] s : unacked.values()) {
                 write(s);
             }
@@ -517,7 +523,7 @@ public final class EvatarClient implements AutoCloseable {
         if (closedReason != null) {
             throw new IOException("client closed: " + closedReason);
         }
-        if (transport == null) {
+        if (transport == null || (keep && held)) {
             if (keep) {
                 return;
             }
@@ -594,6 +600,16 @@ public final class EvatarClient implements AutoCloseable {
             } else if (d instanceof Control.Binding b) {
                 synchronized (lock) {
                     binding = b;
+                    if (held && b.entities().stream().anyMatch(e -> !e.equals(opts.entityId))) {
+                        held = false;
+                        for (byte[] queued : unacked.values()) {
+                            try {
+                                write(queued);
+                            } catch (IOException e) {
+                                break;  // the connection went: the next session sends them
+                            }
+                        }
+                    }
                     lock.notifyAll();
                 }
                 if (listener != null) {
