@@ -198,6 +198,7 @@ partition_create_delete(Config) ->
     [Gone, Major, Minor] = [<<Base/binary, "-", X/binary>> || X <- [<<"gone">>, <<"major">>,
                                                                      <<"minor">>]],
     ok = ha_pairing:create(C, 1, Gone),
+    ok = ha_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
     ok = ha_cluster:isolate(C, 3),
     {ok, _} = ha_cluster:call(C, 1, evatar, create_pairing, [Major, ha_traffic:pairing_opts()]),
     ok = ha_cluster:call(C, 3, evatar, delete_pairing, [Gone]),

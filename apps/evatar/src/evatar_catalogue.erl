@@ -195,8 +195,13 @@ handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S)
     _ = [?LOG_INFO(#{what => catalogue_learned, pairing => Id, from => From,
                      deleted => Val =:= deleted}) || {Id, _, Val} <- Changed],
     S1 = case Full of
-             true -> S#s{synced = (S#s.synced)#{From => true}};
-             false -> S
+             true ->
+                 %% A peer we were not in sync with gets ours back: both
+                 %% sides are then in sync, whoever noticed the other first.
+                 _ = [push(From, true) || not is_map_key(From, S#s.synced)],
+                 S#s{synced = (S#s.synced)#{From => true}};
+             false ->
+                 S
          end,
     {noreply, reconcile(S1)};
 handle_info(_Msg, S) ->
@@ -251,8 +256,10 @@ sync(#s{alive = Old, synced = Synced, last_sync = Last} = S) ->
 push(Node, Full) ->
     send(Node, {entries, node(), entries(), Full}).
 
+%% Never `nosuspend': a busy distribution buffer would drop the entry.
 send(Node, Body) ->
-    erlang:send({?MODULE, Node}, {?MODULE, 1, Body}, [noconnect, nosuspend]).
+    _ = erlang:send({?MODULE, Node}, {?MODULE, 1, Body}, [noconnect]),
+    ok.
 
 %% Starts what this node owns and nobody runs; stops what was deleted.
 reconcile(S0) ->
@@ -266,7 +273,7 @@ reconcile(S0) ->
                                                               R =:= active orelse R =:= fenced])),
     Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
     S = S0#s{stopping = Stopping, ran = Ran},
-    case ready(Alive, S) of
+    case ready(lists:usort(Alive ++ connected()), S) of
         false ->
             S;
         true ->
@@ -284,10 +291,10 @@ reconcile(S0) ->
             end
     end.
 
-%% In sync with every alive peer, and either a majority is heard or, in a
-%% cluster of two, this node has been alone long enough.
-ready(Alive, #s{synced = Synced, started = Started}) ->
-    lists:all(fun(N) -> is_map_key(N, Synced) end, Alive)
+%% In sync with every peer alive or connected, and either a majority is
+%% heard or, in a cluster of two, this node has been alone long enough.
+ready(Peers, #s{synced = Synced, started = Started}) ->
+    lists:all(fun(N) -> is_map_key(N, Synced) end, Peers)
         andalso (evatar_cluster:majority_now()
                  orelse (evatar_cluster:size() =< 2
                          andalso now_ms() - Started >= opt(catalogue_alone_ms))).
