@@ -27,9 +27,8 @@ stop(_State) ->
 start_configured([#{id := Id} = Spec | Rest]) ->
     Opts = maps:remove(id, Spec),
     case evatar:ensure_pairing(Id, Opts) of
+        %% Created when absent (exists: the catalogue or an alive node has it).
         {ok, _} -> start_configured(Rest);
-        %% Created when absent: another node of the cluster runs it already.
-        {error, already_exists} -> start_configured(Rest);
         {error, Reason} -> {error, {bad_pairing_config, Id, Reason}}
     end;
 start_configured([Other | _]) ->
