@@ -33,7 +33,8 @@
 %% the node logs go (required); backend: os (default) or peer; links: route
 %% node-to-node connections through ha_proxy (default true); dist: inet_tcp
 %% (default) or inet_tls, then ssl_optfile; evatar: extra evatar app env;
-%% conn: the bridge listener's connection options; control: how the
+%% conn: the bridge listener's connection options; listener: more of its
+%% listener options (max_connections, handshake); control: how the
 %% controller reaches the nodes, dist (default) or stdio (OTP peer's
 %% alternative connection over standard I/O, backend peer only: for nodes
 %% whose distribution the controller cannot speak, inet_tls); config: a
@@ -45,7 +46,7 @@
                   backend => os | peer, control => dist | stdio, links => boolean(),
                   config => file:filename(),
                   dist => inet_tcp | inet_tls, ssl_optfile => file:filename(),
-                  evatar => [{atom(), term()}], conn => map(),
+                  evatar => [{atom(), term()}], conn => map(), listener => map(),
                   boot_timeout => pos_integer(), await_formed => boolean()}.
 
 -record(nd, {i :: pos_integer(),
@@ -291,8 +292,9 @@ node_setup(#{log := Log, env := Env, bridge_port := Port, conn := Conn} = Setup)
     end,
     ok = application:set_env(Env, [{persistent, true}]),
     {ok, _} = application:ensure_all_started(agent_bridge),
-    {ok, _} = agent_bridge:start_listener(ha, #{ip => {127, 0, 0, 1}, port => Port,
-                                                conn => Conn}),
+    Listener = maps:get(listener, Setup, #{}),
+    {ok, _} = agent_bridge:start_listener(ha, Listener#{ip => {127, 0, 0, 1}, port => Port,
+                                                        conn => Conn}),
     ok.
 
 %% @private Halts this node when its standard input closes: the controller
@@ -590,7 +592,8 @@ setup(#nd{name = Node} = Nd, #s{opts = Opts, nodes = All} = S) ->
     Info = #{name => Node, peer => Nd#nd.peer, control => maps:get(control, Opts)},
     ok = rpc(Info, ?MODULE, node_setup,
              [#{log => log_file(Nd, S), env => Env, bridge_port => Nd#nd.bridge_port,
-                conn => maps:get(conn, Opts), configured => maps:is_key(config, Opts)}], 60000),
+                conn => maps:get(conn, Opts), listener => maps:get(listener, Opts, #{}),
+                configured => maps:is_key(config, Opts)}], 60000),
     OsPid = rpc(Info, os, getpid, [], 60000),
     Nd#nd{os_pid = OsPid, status = up}.
 
