@@ -280,7 +280,7 @@ terminate(_Why, _State, #d{transport = T, outq = Q}) ->
     %% Output still queued here or in the socket belongs to a peer that did
     %% not read it within the linger: a plain close would keep the socket
     %% (and its descriptor) until the peer reads.
-    case agent_bridge_outq:is_empty(Q) of
+    case agent_bridge_outq:is_empty(Q) andalso not agent_bridge_transport:pending(T) of
         true -> agent_bridge_transport:close(T);
         false -> agent_bridge_transport:abort(T)
     end.
@@ -386,7 +386,9 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
             D1a = D1#d{credit = max(1, opt(active_n, D) div 2)},
             Beat = case V of
                        2 -> [{{timeout, heartbeat}, opt(heartbeat, D), beat}];
-                       1 -> [idle_check(D) || opt(idle_timeout, D) =/= infinity]
+                       %% A port's program is the operator's, and its exit is seen.
+                       1 -> [idle_check(D) || opt(idle_timeout, D) =/= infinity,
+                                              element(1, D1#d.transport) =/= port]
                    end,
             %% A resumed session has described itself already.
             Next = case maps:get(resumed, Info) of

@@ -6,7 +6,7 @@
 
 -export([accepted/3, peer_cert/1,
          send_fun/1, activate/2, top_up/2, is_passive/1, set_max_frame/2, drain/1, shutdown/1, close/1,
-         abort/1, peer/1]).
+         abort/1, pending/1, peer/1]).
 
 -export_type([t/0]).
 
@@ -122,6 +122,17 @@ abort({tls, S, Writer}) ->
     agent_bridge_tls:abort(S, Writer);
 abort(T) ->
     close(T).
+
+%% @doc Whether the runtime still holds output for the socket (not yet
+%% taken by the kernel).
+-spec pending(t() | undefined) -> boolean().
+pending({tcp, S}) ->
+    case inet:getstat(S, [send_pend]) of
+        {ok, [{send_pend, N}]} -> N > 0;
+        _ -> false
+    end;
+pending(_) ->
+    false.
 
 %% @doc The peer's address for logs.
 -spec peer(t()) -> binary().

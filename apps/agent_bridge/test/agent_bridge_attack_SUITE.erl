@@ -42,12 +42,13 @@ init_per_suite(Config) ->
         #{flood => #{max_connections => 50, handshake => #{rate => infinity},
                      %% idle sockets hold their slots for the whole case
                      conn => #{handshake_timeout => 60000}},
-          rate => #{handshake => #{rate => 1, burst => 10}},
+          rate => #{handshake => #{rate => 1, burst => 10}, conn => #{handshake_timeout => 60000}},
           creds => #{handshake => #{rate => infinity, failure_delay => 20,
                                     max_failure_delay => 200, max_failures => 10,
                                     lockout => 600000}},
           slow => #{conn => #{max_out_frames => 50, max_out_bytes => 65536}},
           idle => #{conn => #{idle_timeout => 300}},
+          idle_slow => #{conn => #{idle_timeout => 2000}},
           main => #{}},
     Addrs = maps:map(fun(Name, Opts) -> call(Peer, ?MODULE, listen, [Name, Opts]) end, Listeners),
     Bystander = start_bystander(Peer, maps:get(main, Addrs)),
@@ -98,6 +99,7 @@ listen(Name, Opts) ->
 connection_flood(Config) ->
     Addr = addr(flood, Config),
     {ok, Va} = agent_bridge_client:connect([Addr], client_opts(Config, agent, <<"va">>)),
+    ok = agent_bridge_client:describe(Va, agent_bridge_SUITE:va_description(<<"va">>)),
     FdsBefore = fds(Config),
     Socks = [raw_connect(Addr, []) || _ <- lists:seq(1, 600)],
     Answers = answers(Socks),
@@ -183,7 +185,10 @@ slow_consumer_closed(Config) ->
     ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, agent_bridge_test_node:va_credential())),
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:send(S, bil:encode_description(agent_bridge_SUITE:va_description(<<"va">>))),
-    {ok, Av} = agent_bridge_client:connect([Addr], client_opts(Config, avatar, <<"av">>)),
+    %% The Avatar comes through a listener with the default queue bounds:
+    %% it reads, and must not be dropped itself.
+    {ok, Av} = agent_bridge_client:connect([addr(main, Config)],
+                                           client_opts(Config, avatar, <<"av">>)),
     ok = agent_bridge_client:describe(Av, agent_bridge_SUITE:avatar_description(<<"av">>, false)),
     Payload = binary:copy(<<"x">>, 2000),
     Held = maps:get(connections, guard_info(slow, Config)),
@@ -205,17 +210,17 @@ slow_consumer_closed(Config) ->
 %% A version 1 session with no frame either way for idle_timeout (300 ms
 %% here) is closed with Refused IdleTimeout.
 idle_v1_session(Config) ->
-    S = joined_v1(Config),
+    S = joined_v1(addr(idle, Config), Config),
     ?assertMatch({control, {refused, #{code := <<"IdleTimeout">>}}}, until_not_binding(S)),
     {error, closed} = gen_tcp:recv(S, 0, 5000).
 
 %% A version 1 client that sends an empty Ack more often than the idle
-%% timeout keeps its session: after 20 keepalives (well over the timeout)
-%% its Bye is answered with a Bye.
+%% timeout (2 s here) keeps its session: after 20 keepalives over twice
+%% the timeout its Bye is answered with a Bye.
 idle_v1_keepalive(Config) ->
-    S = joined_v1(Config),
+    S = joined_v1(addr(idle_slow, Config), Config),
     Ack = bil_control:encode({ack, #{}}),
-    [begin ok = gen_tcp:send(S, Ack), timer:sleep(50) end || _ <- lists:seq(1, 20)],
+    [begin ok = gen_tcp:send(S, Ack), timer:sleep(200) end || _ <- lists:seq(1, 20)],
     ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
     %% A Binding may come first (the description was accepted).
     ?assertEqual(bye, until_bye(S)).
@@ -304,9 +309,10 @@ answers(Socks) ->
     [receive {answer, P, A} -> A after 30000 -> ct:fail(no_answer) end || P <- Pids].
 
 %% The Refused code a fresh socket got without sending anything, or `open'
-%% when the server kept it (waiting for the Hello).
+%% when the server kept it (waiting for the Hello: the listeners of these
+%% cases wait 60 s, so nothing comes within the 10 s of this read).
 refused_or_open(S) ->
-    case gen_tcp:recv(S, 0, 2000) of
+    case gen_tcp:recv(S, 0, 10000) of
         {ok, Frame} ->
             {ok, {control, {refused, #{code := Code}}}} = bil_control:parse_frame(Frame, #{}),
             Code;
@@ -330,8 +336,8 @@ wrong_hello(Addr, Config) ->
     ok = gen_tcp:close(S),
     Code.
 
-joined_v1(Config) ->
-    S = raw_connect(addr(idle, Config), []),
+joined_v1(Addr, Config) ->
+    S = raw_connect(Addr, []),
     ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, agent_bridge_test_node:va_credential())),
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:send(S, bil:encode_description(agent_bridge_SUITE:va_description(<<"va">>))),
