@@ -159,7 +159,7 @@ log({log, Key, Code, Count, Kind}, Details, Listener) ->
                    {_, Ms} when Kind =:= summary -> #{summary_ms => Ms};
                    _ -> #{}
                end,
-    Report = maps:merge(evatar_log:report(maps:with([pairing, entity, role], Details)),
+    Report = maps:merge(evatar_log:report(maps:with([pairing, entity, role, tls], Details)),
                         Interval#{what => handshake_refused, reason => Code, count => Count,
                                   address => address(Key)}),
     Report1 = case Listener of
