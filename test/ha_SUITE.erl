@@ -25,7 +25,8 @@
 %% scale (EVATAR_HA_PAIRINGS pairings, default 300, failing over at once),
 %% durable (the catalogue of pairings: a power cut of every node, a node
 %% restarted after pairings were created and deleted while it was down, a
-%% create and a delete on both sides of a partition).
+%% create and a delete on both sides of a partition) and lone (one node
+%% killed and started again).
 -module(ha_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -46,7 +47,7 @@ suite() -> [{timetrap, {minutes, 4}}].
 
 all() ->
     [{group, os_process}, {group, peer}, {group, two_nodes}, {group, tls}, {group, scale},
-     {group, durable}].
+     {group, durable}, {group, lone}].
 
 groups() ->
     [{os_process, [], [kill_active, stall_active, partition_heal_flush,
@@ -55,7 +56,8 @@ groups() ->
      {two_nodes, [], [two_node_partition]},
      {tls, [], [tls_links, tls_kill_active, tls_refuses_foreign_node]},
      {scale, [], [many_pairings_fail_over]},
-     {durable, [], [power_cut, restart_with_changed_catalogue, partition_create_delete]}].
+     {durable, [], [power_cut, restart_with_changed_catalogue, partition_create_delete]},
+     {lone, [], [lone_node_restart]}].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -85,6 +87,7 @@ group_opts(scale, _Dir, _Config) ->
     #{conn => #{heartbeat => 1000},
       listener => #{max_connections => infinity, handshake => #{rate => infinity}}};
 group_opts(durable, _Dir, _Config) -> #{};
+group_opts(lone, _Dir, _Config) -> #{n => 1};
 group_opts(tls, Dir, _Config) ->
     Certs = gen_certs(filename:join(Dir, "certs")),
     #{backend => peer, control => stdio, dist => inet_tls,
@@ -95,7 +98,8 @@ short(peer) -> "p";
 short(two_nodes) -> "t";
 short(tls) -> "s";
 short(scale) -> "m";
-short(durable) -> "d".
+short(durable) -> "d";
+short(lone) -> "l".
 
 end_per_group(_Group, Config) ->
     ok = ha_cluster:stop(?config(cluster, Config)).
@@ -162,6 +166,23 @@ power_cut(Config) ->
     _ = [ha_traffic:close(P) || P <- Pairs],
     _ = [ok = ha_pairing:delete(C, 1, Id) || Id <- Ids],
     ok.
+
+%% A lone node (a home with one machine) killed and started again: its
+%% pairing comes back at once, active, from its own disc; clients that kept
+%% retrying are bound again and their signals go through.
+lone_node_restart(Config) ->
+    C = ?config(cluster, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = ha_cluster:call(C, 1, evatar, create_pairing, [Id, ha_traffic:pairing_opts()]),
+    {ok, Pair} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id, ?TRAFFIC),
+    {ok, 1} = ha_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
+    ok = ha_cluster:power_cut(C),
+    ok = ha_cluster:restart_all(C),
+    {ok, 1, #{standby := undefined}} = ha_pairing:await_active(C, Id, fun(_, _) -> true end,
+                                                               ?HEAL_TIMEOUT),
+    {ok, _} = ha_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
+    ha_traffic:close(Pair),
+    ok = ha_pairing:delete(C, 1, Id).
 
 %% A node restarted with a changed catalogue: while node 3 is down, a
 %% pairing is created and one whose home is node 3 is deleted. Node 3
