@@ -26,7 +26,8 @@
 %% The old algorithms only up to these sizes (beyond: minutes to hours).
 -define(OLD_MAX_VOID, 10000).
 -define(OLD_MAX_BIND, 10000).
--define(BIG_LIMITS, #{max_open_requests => 1000000, max_consumes => 1000000}).
+-define(BIG_LIMITS, #{max_open_requests => 1000000, max_consumes => 1000000,
+                     max_binding_report => 1 bsl 30}).
 
 %% ---------------------------------------------------------------------------
 %% Entry points
@@ -280,7 +281,7 @@ resume_ms(Which, N) ->
 pairing(Mod, Extra) ->
     pairing(Mod, Extra, {join, agent, ?VA, ?CRED_VA}).
 
-%% The pairing limits (max_open_requests, max_consumes, documented in
+%% The pairing limits (max_open_requests, max_consumes, max_binding_report, documented in
 %% docs/architecture.md) are raised to the sizes measured; the old logic
 %% had none.
 limits(evatar_pairing_logic) -> ?BIG_LIMITS;
