@@ -134,9 +134,11 @@ identity(#{entity := E, role := R} = I)
 identity(I) ->
     throw({bad_option, {identity, I}}).
 
-%% A SHA-256 fingerprint as openssl prints it (`AB:CD:...') or as hex.
+%% A SHA-256 fingerprint as hex, with or without colons, in either case, or
+%% the whole line `openssl x509 -noout -fingerprint -sha256' prints
+%% (`sha256 Fingerprint=AB:CD:...'): the text after `=' counts.
 fingerprint(E, F) when is_binary(F) ->
-    Hex = hex(F),
+    Hex = hex(string:trim(lists:last(binary:split(F, <<"=">>)))),
     case byte_size(Hex) =:= 64 andalso
         lists:all(fun(C) -> (C >= $0 andalso C =< $9) orelse (C >= $a andalso C =< $f) end,
                   binary_to_list(Hex)) of

@@ -64,6 +64,21 @@ identities_config() ->
                                    credential => <<"lock-key">>, cert_sha256 => ?FP}]}),
     C.
 
+%% A fingerprint is accepted as hex, with colons in either case, or as the
+%% whole line openssl prints; all normalise to lower-case hex.
+fingerprint_forms_test_() ->
+    Norm = fun(F) ->
+                   {ok, #{identities := [#{cert_sha256 := N}]}} =
+                       evatar_pairing_logic:config(
+                         #{identities => [#{entity => <<"cam">>, role => avatar,
+                                            cert_sha256 => F}]}),
+                   N
+           end,
+    Up = string:uppercase(colons(?FP)),
+    [?_assertEqual(?FP, Norm(F))
+     || F <- [?FP, colons(?FP), Up, <<"sha256 Fingerprint=", Up/binary>>,
+              <<"SHA256 Fingerprint=", Up/binary, "\n">>]].
+
 colons(Hex) ->
     iolist_to_binary(lists:join(<<":">>, [<<A, B>> || <<A, B>> <= Hex])).
 
