@@ -14,6 +14,7 @@
          init_per_testcase/2, end_per_testcase/2]).
 -export([starts_everything_from_the_file/1, killed_avatar_restarts_with_backoff/1,
          node_restart_brings_everything_back/1, malformed_files_stop_the_start/1,
+         identities_from_the_file/1,
          bad_broker_is_a_reported_crash_loop/1, init_per_group/2, end_per_group/2,
          release_daemon_runs_the_file/1, release_refuses_a_bad_file/1]).
 %% Run on the peer nodes.
@@ -30,7 +31,8 @@ all() ->
 
 groups() ->
     [{from_file, [], [starts_everything_from_the_file, killed_avatar_restarts_with_backoff,
-                      node_restart_brings_everything_back, bad_broker_is_a_reported_crash_loop]},
+                      node_restart_brings_everything_back, bad_broker_is_a_reported_crash_loop,
+                      identities_from_the_file]},
      %% The release as shipped (rebar3 release, bin/evatar): its boot order
      %% and its applications, driven only through bin/evatar.
      {release, [], [release_daemon_runs_the_file, release_refuses_a_bad_file]}].
@@ -96,6 +98,33 @@ starts_everything_from_the_file(Config) ->
     ?assert(lists:member({<<"Room">>, <<"hall">>},
                          lists:append([Ps || #{parameters := Ps} <- maps:get(services, Light)])),
             Light).
+
+%% A pairing whose file lists a VA's own identity, its credential kept
+%% hashed (bin/evatar hash_credential's form): that VA joins over TCP with
+%% its secret; another EntityID with the same secret, or with the role
+%% credential the file also gives, is refused BadCredential (unlisted ids
+%% are refused by default), and so is the listed VA with a wrong secret.
+identities_from_the_file(Config) ->
+    Port = free_port(),
+    Own = <<"kitchen-va-own-secret">>,
+    Text = ["{listeners, [#{name => \"main\", ip => \"127.0.0.1\", port => ", integer_to_list(Port),
+            "}]}.\n{pairings, [#{id => \"home\", agent_credential => \"", ?VA_CRED, "\",\n"
+            "              identities => [#{entity => \"kitchen-va\", role => agent,\n"
+            "                               credential => ", node_config:hashed_credential(Own), "}]}]}.\n"],
+    File = filename:join(?config(priv_dir, Config), "identities.config"),
+    ok = file:write_file(File, Text),
+    {Peer, Port} = boot(Config, {File, Port}),
+    [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, []),
+    Join = fun(Entity, Credential) ->
+                   agent_bridge_client:connect([{{127, 0, 0, 1}, Port}],
+                                               #{pairing => <<"home">>, role => agent,
+                                                 entity_id => Entity, credential => Credential})
+           end,
+    {error, {refused, <<"BadCredential">>, _}} = Join(<<"other-va">>, Own),
+    {error, {refused, <<"BadCredential">>, _}} = Join(<<"other-va">>, ?VA_CRED),
+    {error, {refused, <<"BadCredential">>, _}} = Join(<<"kitchen-va">>, ?VA_CRED),
+    {ok, Va} = Join(<<"kitchen-va">>, Own),
+    ok = agent_bridge_client:close(Va).
 
 %% exit(Avatar, kill): the Avatar is started again after 1 s, then 2 s,
 %% then 4 s (the delay doubles while runs stay short), joins again each

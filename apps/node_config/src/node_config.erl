@@ -8,7 +8,8 @@
 %% are internal.
 -module(node_config).
 
--export([file/0, load/1, apply_env/1, format_error/1, check_file/0]).
+-export([file/0, load/1, apply_env/1, format_error/1, check_file/0, hashed_credential/1,
+         hash_credential_cli/0]).
 
 -export_type([config/0]).
 
@@ -109,3 +110,33 @@ check_file() ->
 -spec format_error({bad_config, file:filename(), [binary()]}) -> binary().
 format_error({bad_config, File, Problems}) ->
     iolist_to_binary([io_lib:format("~ts: ~ts~n", [File, P]) || P <- Problems]).
+
+%% @doc A credential's hashed form as the file takes it in place of the
+%% plain text (`agent_credential', `avatar_credential', an identity's
+%% `credential'): `{pbkdf2_sha256, Iterations, <<Salt>>, <<Hash>>}' of
+%% evatar:hash_credential/1, one line. The file then holds no secret a
+%% reader could use to join.
+-spec hashed_credential(binary()) -> binary().
+hashed_credential(Secret) when is_binary(Secret), Secret =/= <<>> ->
+    {pbkdf2_sha256, I, Salt, Hash} = evatar:hash_credential(Secret),
+    iolist_to_binary(io_lib:format("{pbkdf2_sha256, ~b, ~w, ~w}", [I, Salt, Hash])).
+
+%% @doc For `bin/evatar hash_credential': reads a secret (one line) from
+%% standard input and prints its hashed form (hashed_credential/1); returns
+%% the exit status (1 for an empty secret).
+-spec hash_credential_cli() -> 0 | 1.
+hash_credential_cli() ->
+    Secret = case io:get_line("") of
+                 Line when is_list(Line); is_binary(Line) ->
+                     unicode:characters_to_binary(string:trim(Line, trailing, "\r\n"));
+                 _ ->
+                     <<>>
+             end,
+    case Secret of
+        <<_, _/binary>> ->
+            io:format("~ts~n", [hashed_credential(Secret)]),
+            0;
+        _ ->
+            io:put_chars(standard_error, "no secret given (an empty credential is refused)\n"),
+            1
+    end.

@@ -16,7 +16,8 @@
 %% agent_bridge environment's listeners then stay.
 
 -define(SECTIONS, [listeners, pairings, mqtt_avatars]).
--define(PAIRING_TEXT, [id, agent_credential, avatar_credential]).
+-define(PAIRING_KEYS, [id, agent_credential, avatar_credential, identities, unlisted_ids]).
+-define(IDENTITY_KEYS, [entity, role, credential, cert_sha256]).
 -define(PAIRING_INT, [join_timeout, feedback_timeout, max_avatars, resume_timeout, dedup_window,
                       max_unacked_out]).
 -define(AVATAR_KEYS, [entity_id, pairing, endpoints, credential, mqtt, discovery, description,
@@ -32,7 +33,7 @@
 %% that are words), for node_config_file's atom check.
 -spec known_words() -> [atom()].
 known_words() ->
-    ?SECTIONS ++ ?PAIRING_TEXT ++ ?PAIRING_INT ++ ?AVATAR_KEYS ++ ?MQTT_TEXT ++ ?MQTT_OTHER
+    ?SECTIONS ++ ?PAIRING_KEYS ++ ?IDENTITY_KEYS ++ ?PAIRING_INT ++ ?AVATAR_KEYS ++ ?MQTT_TEXT ++ ?MQTT_OTHER
         ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS
         ++ [name, ip, acceptors, backlog, conn, homeassistant, zigbee2mqtt, v311, v5, min_ms,
             max_ms, true, false, none, infinity].
@@ -106,6 +107,7 @@ section(Name, Sections, Check) ->
 label(#{id := Id}) -> label_text(Id);
 label(#{entity_id := Id}) -> label_text(Id);
 label(#{name := Id}) -> label_text(Id);
+label(#{entity := Id}) -> label_text(Id);
 label(_) -> "".
 
 label_text(T) ->
@@ -168,30 +170,93 @@ check_listener(E) ->
 %% ---------------------------------------------------------------------------
 
 pairing(E) when is_map(E) ->
-    case texts(?PAIRING_TEXT, E) of
-        {ok, #{id := Id} = E1} when Id =/= <<>> ->
-            case [K || K <- [agent_credential, avatar_credential],
-                       maps:get(K, E1, <<>>) =:= <<>>] of
-                [] ->
-                    case evatar:check_pairing_opts(maps:remove(id, E1)) of
-                        ok -> {ok, E1};
-                        {error, {bad_option, {K, V}}} when is_atom(K) ->
-                            {error, io_lib:format("~ts ~0tp is not accepted", [K, V])};
-                        {error, {bad_option, Bad}} ->
-                            {error, io_lib:format("bad option ~0tp", [Bad])}
-                    end;
-                Missing ->
-                    {error, io_lib:format("~ts required (no default credentials: choose a secret)",
-                                          [join(Missing)])}
-            end;
-        {ok, _} ->
-            {error, "id (text, for example \"home\") is required"};
-        {error, _} = Error ->
-            Error
-    end;
+    chain([fun(P) -> texts([id], P) end,
+           fun(#{id := Id} = P) when Id =/= <<>> -> {ok, P};
+              (_) -> {error, "id (text, for example \"home\") is required"}
+           end,
+           fun(P) -> credentials([agent_credential, avatar_credential], P) end,
+           fun(#{identities := Is} = P) when is_list(Is) ->
+                   Results = [{N, identity(I)} || {N, I} <- lists:zip(lists:seq(1, length(Is)), Is)],
+                   case [{N, Why} || {N, {error, Why}} <- Results] of
+                       [] -> {ok, P#{identities := [I || {_, {ok, I}} <- Results]}};
+                       [{N, Why} | _] -> {error, io_lib:format("identities entry ~b~ts: ~ts",
+                                                               [N, label(lists:nth(N, Is)), Why])}
+                   end;
+              (#{identities := _}) ->
+                   {error, "identities must be a list [#{entity => \"...\", role => agent, "
+                           "credential => \"...\"}, ...]"};
+              (P) -> {ok, P}
+           end,
+           fun(P) ->
+                   case evatar:check_pairing_opts(maps:remove(id, P)) of
+                       ok -> {ok, P};
+                       {error, {bad_option, Bad}} -> {error, bad_pairing(Bad)}
+                   end
+           end], E);
 pairing(_) ->
     {error, "a pairing is a map #{id => \"...\", agent_credential => \"...\", "
-            "avatar_credential => \"...\"}"}.
+            "avatar_credential => \"...\"} or #{id => \"...\", identities => [...]}"}.
+
+%% One device of a pairing's `identities': its text becomes binaries, its
+%% role stays one of the two words; evatar checks the rest.
+identity(I) when is_map(I) ->
+    chain([fun(X) -> texts([entity, cert_sha256], X) end,
+           fun(X) -> credentials([credential], X) end], I);
+identity(_) ->
+    {error, "an identity is a map #{entity => \"...\", role => agent | avatar, "
+            "credential => \"...\"} (or cert_sha256 => \"...\" instead of, or with, credential)"}.
+
+%% A credential: text (not empty: there is no default secret), or its
+%% hashed form as `bin/evatar hash_credential' prints it, which evatar
+%% checks. Never echoed in a message.
+credentials(Keys, M) ->
+    case [K || K <- Keys, maps:is_key(K, M), credential(maps:get(K, M)) =:= error] of
+        [] -> {ok, maps:map(fun(K, V) ->
+                                    case lists:member(K, Keys) of
+                                        true -> {ok, C} = credential(V), C;
+                                        false -> V
+                                    end
+                            end, M)};
+        [K | _] -> {error, io_lib:format("~ts must be a secret in double quotes, not empty, or its "
+                                         "hashed form {pbkdf2_sha256, ...} (bin/evatar hash_credential)",
+                                         [K])}
+    end.
+
+credential({pbkdf2_sha256, _, _, _} = Hashed) ->
+    {ok, Hashed};
+credential(V) ->
+    case text(V) of
+        {ok, B} when B =/= <<>> -> {ok, B};
+        _ -> error
+    end.
+
+%% evatar's verdict on a pairing's options, for a person.
+bad_pairing({missing, Keys}) ->
+    io_lib:format("~ts required (no default credentials: choose a secret), unless the pairing "
+                  "lists identities", [join(Keys)]);
+bad_pairing({identities, duplicate_entity}) ->
+    "identities: an entity appears more than once";
+bad_pairing({identity, E, {unknown_keys, Keys}}) ->
+    io_lib:format("identity \"~ts\": unknown key ~ts (known: entity, role, credential, cert_sha256)",
+                  [E, join([io_lib:format("~0tp", [K]) || K <- Keys])]);
+bad_pairing({identity, E, no_credential_or_certificate}) ->
+    io_lib:format("identity \"~ts\": credential or cert_sha256 required", [E]);
+bad_pairing({identity, E, {cert_sha256, F}}) when is_binary(F) ->
+    io_lib:format("identity \"~ts\": cert_sha256 \"~ts\" is not a SHA-256 fingerprint (64 hex digits, "
+                  "colons allowed: openssl x509 -noout -fingerprint -sha256)", [E, F]);
+bad_pairing({{identity, E}, _Credential}) ->
+    io_lib:format("identity \"~ts\": credential is not a hashed credential as bin/evatar "
+                  "hash_credential prints it", [E]);
+bad_pairing({identity, _}) ->
+    "an identity needs entity (text, not empty) and role (agent or avatar)";
+bad_pairing({unlisted_ids, _}) ->
+    "unlisted_ids must be refuse or role_credential";
+bad_pairing({K, _Credential}) when K =:= agent_credential; K =:= avatar_credential ->
+    io_lib:format("~ts is not a hashed credential as bin/evatar hash_credential prints it", [K]);
+bad_pairing({K, V}) when is_atom(K) ->
+    io_lib:format("~ts ~0tp is not accepted", [K, V]);
+bad_pairing(Bad) ->
+    io_lib:format("bad option ~0tp", [Bad]).
 
 %% ---------------------------------------------------------------------------
 %% MQTT Avatars
@@ -228,18 +293,56 @@ declared(#{pairing := P} = A, Ids) ->
 %% `evatar' as mqtt_avatar takes it: the pairing, its avatar credential
 %% (unless given), and this node's own listener (unless endpoints are given).
 evatar_opts(#{pairing := P} = A, Pairings, Listeners) ->
-    Credential = case maps:find(credential, A) of
-                     {ok, C} -> C;
-                     error -> hd([maps:get(avatar_credential, X) || #{id := Id} = X <- Pairings,
-                                                                     Id =:= P])
-                 end,
-    case endpoints(maps:get(endpoints, A, local), Listeners) of
-        {ok, Endpoints} ->
-            {ok, (maps:without([pairing, endpoints, credential], A))#{
-                   evatar => #{pairing => P, credential => Credential, endpoints => Endpoints}}};
+    case avatar_credential(A, [X || #{id := Id} = X <- Pairings, Id =:= P]) of
+        {ok, Credential} ->
+            case endpoints(maps:get(endpoints, A, local), Listeners) of
+                {ok, Endpoints} ->
+                    {ok, (maps:without([pairing, endpoints, credential], A))#{
+                           evatar => #{pairing => P, credential => Credential,
+                                       endpoints => Endpoints}}};
+                {error, _} = Error ->
+                    Error
+            end;
         {error, _} = Error ->
             Error
     end.
+
+%% The credential the Avatar joins with: its own `credential', else the
+%% plain one the pairing lets it join with (its identity's, or the avatar
+%% role's). An Avatar its pairing would refuse is a mistake of the file.
+avatar_credential(#{pairing := P}, []) ->
+    {error, io_lib:format("pairing \"~ts\" has a mistake (see its entry)", [P])};
+avatar_credential(#{entity_id := E, pairing := P} = A, [Pairing]) ->
+    Identities = maps:get(identities, Pairing, []),
+    Own = maps:find(credential, A),
+    case [I || #{entity := E1} = I <- Identities, E1 =:= E] of
+        [#{role := avatar} = I] ->
+            plain(Own, maps:find(credential, I),
+                  io_lib:format("the identity of \"~ts\" in pairing \"~ts\" has no plain credential",
+                                [E, P]));
+        [_] ->
+            {error, io_lib:format("pairing \"~ts\" lists \"~ts\" in its identities with role agent: "
+                                  "an Avatar cannot join as it", [P, E])};
+        [] when Identities =/= [] ->
+            case maps:get(unlisted_ids, Pairing, refuse) of
+                role_credential ->
+                    role_credential(Own, Pairing);
+                refuse ->
+                    {error, io_lib:format("pairing \"~ts\" would refuse it: \"~ts\" is not in its "
+                                          "identities and it has no unlisted_ids => role_credential",
+                                          [P, E])}
+            end;
+        [] ->
+            role_credential(Own, Pairing)
+    end.
+
+role_credential(Own, #{id := P} = Pairing) ->
+    plain(Own, maps:find(avatar_credential, Pairing),
+          io_lib:format("pairing \"~ts\" has no plain avatar_credential", [P])).
+
+plain({ok, C}, _, _) -> {ok, C};
+plain(error, {ok, C}, _) when is_binary(C) -> {ok, C};
+plain(error, _, Why) -> {error, ["credential => \"...\" required: ", Why]}.
 
 endpoints(local, [L | _]) ->
     case maps:get(port, L, 7400) of

@@ -86,6 +86,100 @@ shipped_example_is_inert_and_valid_when_uncommented_test() ->
     {ok, #{listeners := undefined, pairings := [], mqtt_avatars := []}} = load(Bin),
     {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_]}} = load(uncomment(Bin)).
 
+%% Per-device identities: text becomes binaries, roles stay the two
+%% words, fingerprints and hashed credentials pass to evatar, which accepts
+%% the pairing without role credentials.
+identities_are_accepted_test() ->
+    Fp = lists:join(":", lists:duplicate(32, "AB")),
+    {ok, #{pairings := [P], mqtt_avatars := [A]}} =
+        load("{pairings, [#{id => \"home\",\n"
+             "              identities => [#{entity => \"kitchen-va\", role => agent, credential => \"va-own\"},\n"
+             "                             #{entity => \"house\", role => avatar, credential => \"house-own\"},\n"
+             "                             #{entity => \"hall-cam\", role => avatar, cert_sha256 => \"" ++ Fp ++ "\"}],\n"
+             "              unlisted_ids => refuse}]}.\n" ?AVATAR("")),
+    #{id := <<"home">>, unlisted_ids := refuse,
+      identities := [#{entity := <<"kitchen-va">>, role := agent, credential := <<"va-own">>},
+                     #{entity := <<"house">>, role := avatar, credential := <<"house-own">>},
+                     #{entity := <<"hall-cam">>, role := avatar, cert_sha256 := FpBin}]} = P,
+    ?assertEqual(list_to_binary(Fp), FpBin),
+    false = maps:is_key(agent_credential, P),
+    ok = evatar:check_pairing_opts(maps:remove(id, P)),
+    %% The Avatar listed in the identities joins with its own credential.
+    #{evatar := #{credential := <<"house-own">>}} = A,
+    %% Listed devices and role credentials together.
+    {ok, #{pairings := [#{unlisted_ids := role_credential}], mqtt_avatars := [#{evatar := E}]}} =
+        load("{pairings, [#{id => \"home\", agent_credential => \"a\", avatar_credential => \"b\",\n"
+             "              identities => [#{entity => \"va\", role => agent, credential => \"c\"}],\n"
+             "              unlisted_ids => role_credential}]}.\n" ?AVATAR("")),
+    #{credential := <<"b">>} = E.
+
+%% bin/evatar hash_credential's output, pasted in the file, is kept as the
+%% hash: the joining secret verifies, another does not.
+hashed_credentials_test() ->
+    Agent = node_config:hashed_credential(<<"va secret">>),
+    Own = node_config:hashed_credential(<<"house secret">>),
+    {ok, #{pairings := [P], mqtt_avatars := [#{evatar := E}]}} =
+        load(["{pairings, [#{id => \"home\", agent_credential => ", Agent, ",\n"
+              "              identities => [#{entity => \"house\", role => avatar, credential => ", Own,
+              "}],\n              unlisted_ids => role_credential}]}.\n",
+              ?AVATAR(", credential => \"house secret\"")]),
+    #{agent_credential := {pbkdf2_sha256, _, _, _} = H,
+      identities := [#{credential := {pbkdf2_sha256, _, _, _} = H2}]} = P,
+    ok = evatar:check_pairing_opts(maps:remove(id, P)),
+    authenticated = evatar_auth:verify(#{credential => H}, <<"va secret">>),
+    bad_credential = evatar_auth:verify(#{credential => H}, <<"va secreT">>),
+    authenticated = evatar_auth:verify(#{credential => H2}, <<"house secret">>),
+    #{credential := <<"house secret">>} = E,
+    %% Without its own plain credential, an Avatar cannot join with a hash.
+    has(["{pairings, [#{id => \"home\", agent_credential => \"a\", avatar_credential => ", Agent,
+         "}]}.\n", ?AVATAR("")],
+        "mqtt_avatars entry 1 (house): credential => \"...\" required: pairing \"home\" has no plain "
+        "avatar_credential"),
+    has("{pairings, [#{id => \"home\", agent_credential => {pbkdf2_sha256, 0, <<>>, <<1,2>>}, "
+        "avatar_credential => \"b\"}]}.",
+        "pairings entry 1 (home): agent_credential is not a hashed credential").
+
+wrong_identities_test() ->
+    Pairing = fun(Ids) -> "{pairings, [#{id => \"home\", identities => [" ++ Ids ++ "]}]}.\n" end,
+    has(Pairing("#{entity => \"va\", role => agent}"),
+        "line 1: pairings entry 1 (home): identity \"va\": credential or cert_sha256 required"),
+    has(Pairing("#{entity => \"va\", role => agent, cert_sha256 => \"abc\"}"),
+        "identity \"va\": cert_sha256 \"abc\" is not a SHA-256 fingerprint"),
+    has(Pairing("#{entity => \"va\", role => agent, credential => \"a\"}, "
+                "#{entity => \"va\", role => avatar, credential => \"b\"}"),
+        "identities: an entity appears more than once"),
+    has(Pairing("#{entity => \"va\", role => true, credential => \"a\"}"),
+        "an identity needs entity (text, not empty) and role (agent or avatar)"),
+    has(Pairing("#{entity => \"va\", role => agent, credential => \"\"}"),
+        "pairings entry 1 (home): identities entry 1 (va): credential must be a secret"),
+    has(Pairing("#{entity => \"va\", role => agent, credential => 42}"),
+        "identities entry 1 (va): credential must be a secret"),
+    has(Pairing("\"va\""), "identities entry 1: an identity is a map"),
+    has("{pairings, [#{id => \"home\", identities => #{}}]}.", "identities must be a list"),
+    has("{pairings, [#{id => \"home\", agent_credential => \"a\", avatar_credential => \"b\", "
+        "unlisted_ids => true}]}.", "unlisted_ids must be refuse or role_credential"),
+    has("{pairings, [#{id => \"home\"}]}.",
+        "agent_credential, avatar_credential required (no default credentials: choose a secret), "
+        "unless the pairing lists identities"),
+    %% A role that is not a word of the file is refused without becoming an atom.
+    Word = "zz_role_" ++ integer_to_list(erlang:unique_integer([positive])),
+    has(Pairing("#{entity => \"va\", role => " ++ Word ++ ", credential => \"a\"}"),
+        "unknown word " ++ Word),
+    ?assertError(badarg, list_to_existing_atom(Word)),
+    %% An MQTT Avatar its pairing would refuse.
+    has(Pairing("#{entity => \"va\", role => agent, credential => \"a\"}") ++ ?AVATAR(""),
+        "mqtt_avatars entry 1 (house): pairing \"home\" would refuse it: \"house\" is not in its "
+        "identities"),
+    has(Pairing("#{entity => \"house\", role => agent, credential => \"a\"}") ++ ?AVATAR(""),
+        "lists \"house\" in its identities with role agent"),
+    has(Pairing("#{entity => \"house\", role => avatar, cert_sha256 => \"" ++ lists:duplicate(64, $a)
+                ++ "\"}") ++ ?AVATAR(""),
+        "credential => \"...\" required: the identity of \"house\" in pairing \"home\" has no plain "
+        "credential"),
+    %% An Avatar of a pairing with a mistake names the pairing, once.
+    has(Pairing("#{entity => \"va\", role => agent}") ++ ?AVATAR(""),
+        "mqtt_avatars entry 1 (house): pairing \"home\" has a mistake").
+
 %% Removes the `%% ' of the example sections (from `%% {' to `]}.').
 uncomment(Bin) ->
     Lines = string:split(binary_to_list(Bin), "\n", all),
@@ -151,7 +245,7 @@ missing_and_undeclared_test() ->
     has("{pairings, [#{id => \"h\", agent_credential => \"a\"}]}.",
         "avatar_credential required (no default credentials"),
     has("{pairings, [#{id => \"h\", agent_credential => \"\", avatar_credential => \"b\"}]}.",
-        "agent_credential required"),
+        "agent_credential must be a secret in double quotes, not empty"),
     has("{pairings, [#{agent_credential => \"a\", avatar_credential => \"b\"}]}.", "id (text"),
     has(?AVATAR(""), "pairing \"home\" is not declared"),
     has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\"}]}.", "mqtt required"),
