@@ -263,6 +263,11 @@ setup(#d{opts = Opts, ctx = Ctx} = D) ->
     AvatarCred = binary:encode_hex(crypto:strong_rand_bytes(16)),
     %% Long feedback timeout: the hardware's own answers may take simulated
     %% seconds; the VA's pairing has the timeout that matters.
+    %% create_pairing, not ensure_pairing: the id carries this start's nonce
+    %% and the credentials are this start's, so an existing pairing of that
+    %% id is not ours to reuse (its credentials would refuse us), and the
+    %% hardware link below needs it running now, which ensure_pairing does
+    %% not promise. terminate/3 deletes it.
     case evatar:create_pairing(D#d.hw_pairing, #{agent_credential => AgentCred,
                                                  avatar_credential => AvatarCred,
                                                  feedback_timeout => 600000}) of
