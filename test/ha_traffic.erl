@@ -17,7 +17,7 @@
 -module(ha_traffic).
 -behaviour(gen_server).
 
--export([start_pair/3, start_entity/1, pairing_opts/0, stop_traffic/1, burst/2, dump/2, settle/2, settle_accepted/2,
+-export([start_pair/3, start_entity/1, pairing_opts/0, stop_traffic/1, burst/2, dump/2, settle/2, settle/3, settle_accepted/2,
          history/1, close/1,
          status/1, await_bound/2, round_trip/2, va_description/1, avatar_description/1]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
@@ -115,12 +115,26 @@ stop_traffic(#{va := Va, av := Av}) ->
 %% every signal the other accepted has arrived; `{error, ...}' after
 %% Timeout ms (the checker then says what is missing).
 -spec settle(pair(), pos_integer()) -> ok | {error, term()}.
-settle(#{va := Va, av := Av} = Pair, Timeout) ->
+settle(Pair, Timeout) ->
+    settle(Pair, [], Timeout).
+
+%% @doc As settle/2 for a run with power cuts at `Cuts' (as for
+%% ha_checker:check_pairs/2): waits for every accepted signal to arrive
+%% except those the checker counts as in flight at a cut, which never do
+%% (docs/ha.md section 6). Reading the histories once the Acks are in
+%% would race the deliveries still under way (a feedback acknowledged to
+%% the Avatar a moment before the read, not yet at the VA) and count them
+%% lost.
+-spec settle(pair(), [integer()], pos_integer()) -> ok | {error, term()}.
+settle(#{va := Va, av := Av} = Pair, Cuts, Timeout) ->
     ha_cluster:await(
       fun() ->
-              #{va := HVa, av := HAv} = histories(Pair),
+              %% histories/1 reads the VA, then the Avatar: a signal the
+              %% Avatar's read shows accepted counts as arrived only if the
+              %% earlier read of the VA had it already.
+              #{va := HVa, av := HAv} = H = histories(Pair),
               acked(HVa) andalso acked(HAv)
-                  andalso arrived(HVa, HAv) andalso arrived(HAv, HVa)
+                  andalso maps:get(lost, ha_checker:check_pairs([H], Cuts)) =:= []
                   andalso is_process_alive(Va) andalso is_process_alive(Av)
       end, Timeout, {settle, maps:get(pairing, Pair)}).
 
@@ -140,9 +154,6 @@ settle_accepted(#{va := Va, av := Av} = Pair, Timeout) ->
 
 acked(#{sent := Sent, accepted := Acc}) ->
     ordsets:subtract(ordsets:from_list(Sent), ordsets:from_list(Acc)) =:= [].
-
-arrived(#{accepted := Acc}, #{received := Rec}) ->
-    ordsets:subtract(ordsets:from_list(Acc), ordsets:from_list([I || {I, _} <- Rec])) =:= [].
 
 %% @doc Both entities' histories.
 -spec history(pair()) -> #{va := history(), av := history()}.

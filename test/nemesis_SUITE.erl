@@ -141,13 +141,9 @@ random_faults(Config) ->
     Healthy = [{Id, ha_pairing:await_healthy(C, Id, 1000)} || Id <- Ids],
     _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
     Cuts = [At || {_, {power_cut, At}} <- Log],
-    %% After a power cut, signals in flight at it never arrive: wait only
-    %% for the Acks then.
-    Settle = case Cuts of
-                 [] -> fun ha_traffic:settle/2;
-                 _ -> fun ha_traffic:settle_accepted/2
-             end,
-    Settled = pmap(fun(P) -> {maps:get(pairing, P), Settle(P, 45000)} end, Pairs),
+    %% Signals in flight at a power cut never arrive: wait for all others.
+    Settled = pmap(fun(P) -> {maps:get(pairing, P), ha_traffic:settle(P, Cuts, 45000)} end,
+                   Pairs),
     Histories = [ha_traffic:history(P) || P <- Pairs],
     Result = ha_checker:check_pairs(Histories, Cuts),
     _ = [ct:pal("~s: ~s; history in ~s", [maps:get(pairing, P), ha_checker:format(R),
