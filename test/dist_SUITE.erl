@@ -286,6 +286,8 @@ node_env(Config, Name, Extra, Host) ->
     Base = [{"HOME", Home},
             {"RELX_OUT_FILE_PATH", Dir},
             {"RUNNER_LOG_DIR", filename:join(Dir, "log")},
+            %% Its own catalogue: a data directory belongs to one node name.
+            {"EVATAR_DATA_DIR", filename:join(Dir, "data")},
             {"EVATAR_NODE", "ds" ++ Name ++ os:getpid() ++ "@" ++ Host},
             {"EVATAR_PORT", integer_to_list(Bridge)},
             {"EVATAR_DIST_PORT_MIN", integer_to_list(Dist)},

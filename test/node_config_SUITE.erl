@@ -16,7 +16,8 @@
          node_restart_brings_everything_back/1, malformed_files_stop_the_start/1,
          identities_from_the_file/1,
          bad_broker_is_a_reported_crash_loop/1, init_per_group/2, end_per_group/2,
-         release_daemon_runs_the_file/1, release_refuses_a_bad_file/1]).
+         release_daemon_runs_the_file/1, release_refuses_a_bad_file/1,
+         release_refuses_another_nodes_data_dir/1]).
 %% Run on the peer nodes.
 -export([collect/0, log/2, events/0]).
 
@@ -35,7 +36,8 @@ groups() ->
                       identities_from_the_file]},
      %% The release as shipped (rebar3 release, bin/evatar): its boot order
      %% and its applications, driven only through bin/evatar.
-     {release, [], [release_daemon_runs_the_file, release_refuses_a_bad_file]}].
+     {release, [], [release_daemon_runs_the_file, release_refuses_a_bad_file,
+                    release_refuses_another_nodes_data_dir]}].
 
 init_per_group(release, Config) ->
     Root = ha_cluster:repo_root(),
@@ -265,16 +267,69 @@ release_refuses_a_bad_file(Config) ->
     %% The daemon did not start.
     ?assertNotEqual(nomatch, string:find(evatar_cmd(Config, Env, "ping"), "not running")).
 
+%% A data directory (EVATAR_DATA_DIR) made by one node name, given to a
+%% node of another name: that node does not start, and its console log
+%% names the directory and the node it belongs to. The first node, started
+%% again on it, runs.
+release_refuses_another_nodes_data_dir(Config) ->
+    {File, _Port} = home_file(Config, #{}),
+    First = release_env(Config, File),
+    Data = env("EVATAR_DATA_DIR", First),
+    Other = release_env(Config, File, Data),
+    try
+        _ = evatar_cmd(Config, First, "daemon"),
+        ok = await_eval(Config, First, "joined", "house_joined()"),
+        _ = evatar_cmd(Config, First, "stop"),
+        ok = await_not_running(Config, First),
+        _ = evatar_cmd(Config, Other, "daemon"),
+        ok = await_not_running(Config, Other),
+        Log = console_log(Other),
+        ?assertNotEqual(nomatch, string:find(Log, "data_dir_of_another_node"), Log),
+        ?assertNotEqual(nomatch, string:find(Log, Data), Log),
+        ?assertNotEqual(nomatch, string:find(Log, env("EVATAR_NODE", First)), Log),
+        _ = evatar_cmd(Config, First, "daemon"),
+        ok = await_eval(Config, First, "joined", "house_joined()")
+    after
+        _ = evatar_cmd(Config, First, "stop"),
+        _ = evatar_cmd(Config, Other, "stop")
+    end.
+
 %% ---------------------------------------------------------------------------
 %% Helpers
 %% ---------------------------------------------------------------------------
 
+%% One node of the release: its own name, data directory (the catalogue's
+%% mnesia directory belongs to one node name, docs/ha.md section 1) and
+%% console log directory, so no case, and no other suite that starts the
+%% release, leaves it a directory of another node.
 release_env(Config, File) ->
+    release_env(Config, File, none).
+
+release_env(Config, File, Data0) ->
     Name = "nc" ++ integer_to_list(erlang:unique_integer([positive])) ++ "_" ++ os:getpid(),
+    Dir = filename:join(?config(priv_dir, Config), Name),
+    Data = case Data0 of
+               none -> filename:join(Dir, "data");
+               _ -> Data0
+           end,
     Dist = integer_to_list(free_port()),
     [{"EVATAR_CONFIG", File}, {"EVATAR_NODE", Name ++ "@127.0.0.1"},
      {"HOME", ?config(home, Config)}, {"ERL_EPMD_PORT", ?config(epmd_port, Config)},
+     {"EVATAR_DATA_DIR", Data}, {"RUNNER_LOG_DIR", filename:join(Dir, "log")},
      {"EVATAR_DIST_PORT_MIN", Dist}, {"EVATAR_DIST_PORT_MAX", Dist}].
+
+env(Name, Env) ->
+    {Name, Value} = lists:keyfind(Name, 1, Env),
+    Value.
+
+await_not_running(Config, Env) ->
+    ha_cluster:await(fun() -> string:find(evatar_cmd(Config, Env, "ping"), "not running") =/= nomatch
+                     end, 90000, not_running).
+
+%% The node's console log (run_erl's erlang.log.N files), read anew.
+console_log(Env) ->
+    Files = filelib:wildcard(filename:join(env("RUNNER_LOG_DIR", Env), "erlang.log.*")),
+    lists:append([binary_to_list(B) || F <- lists:sort(Files), {ok, B} <- [file:read_file(F)]]).
 
 evatar_cmd(Config, Env, Args) ->
     Exports = [[K, "='", V, "' "] || {K, V} <- Env],
@@ -289,8 +344,14 @@ eval(Config, Env, Expr0) ->
     Expr = string:replace(Expr0, "house_joined()", Joined, all),
     string:trim(evatar_cmd(Config, Env, ["eval '", Expr, ".'"])).
 
+%% On a timeout, the node's console log says why (e.g. it did not start).
 await_eval(Config, Env, Expected, Expr) ->
-    ha_cluster:await(fun() -> eval(Config, Env, Expr) =:= Expected end, 90000, {eval, Expr}).
+    case ha_cluster:await(fun() -> eval(Config, Env, Expr) =:= Expected end, 90000, {eval, Expr}) of
+        ok -> ok;
+        {error, _} = Error ->
+            ct:log("~s console log:~n~s", [env("EVATAR_NODE", Env), console_log(Env)]),
+            Error
+    end.
 
 %% A file with a listener on a free port, the pairing "home" and the MQTT
 %% Avatar "house" on the suite's broker, discovering under the case's prefix.

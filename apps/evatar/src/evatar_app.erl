@@ -11,10 +11,14 @@
 %% @private
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
-    {ok, Sup} = evatar_sup:start_link(),
-    case start_configured(application:get_env(evatar, pairings, [])) of
-        ok -> {ok, Sup};
-        {error, _} = Error -> Error
+    case evatar_sup:start_link() of
+        {ok, Sup} ->
+            case start_configured(application:get_env(evatar, pairings, [])) of
+                ok -> {ok, Sup};
+                {error, _} = Error -> Error
+            end;
+        {error, _} = Error ->
+            Error
     end.
 
 %% @private

@@ -105,13 +105,41 @@ sync_now() ->
 %% ---------------------------------------------------------------------------
 
 %% @private
--spec init([]) -> {ok, #s{}}.
+-spec init([]) -> {ok, #s{}} | {stop, {data_dir_of_another_node, file:filename(), [node()]}}.
 init([]) ->
-    Durable = ensure_storage(),
-    self() ! tick,
-    Now = now_ms(),
-    ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
-    {ok, #s{durable = Durable, started = Now, last_sync = Now}}.
+    case foreign_data_dir() of
+        {Dir, Owners} ->
+            ?LOG_ERROR(#{what => data_dir_of_another_node, dir => Dir, owners => Owners,
+                         hint => "EVATAR_DATA_DIR belongs to another node name: give this node "
+                                 "its own (an empty directory; it gets the catalogue from the "
+                                 "other nodes), or start it under its old name"}),
+            {stop, {data_dir_of_another_node, Dir, Owners}};
+        none ->
+            Durable = ensure_storage(),
+            self() ! tick,
+            Now = now_ms(),
+            ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
+            {ok, #s{durable = Durable, started = Now, last_sync = Now}}
+    end.
+
+%% mnesia's directory keeps the schema of the node that made it. Another
+%% node name reads it as a schema of which it holds no copy: its tables
+%% would never load here (and the schema cannot be made this node's), so
+%% the node says so instead of crashing or waiting for ever.
+foreign_data_dir() ->
+    case application:get_env(mnesia, dir) of
+        undefined ->
+            none;
+        {ok, Dir} ->
+            case mnesia:table_info(schema, disc_copies) of
+                [] -> none;
+                Owners ->
+                    case lists:member(node(), Owners) of
+                        true -> none;
+                        false -> {Dir, Owners}
+                    end
+            end
+    end.
 
 %% Disc copies when mnesia was given a directory (it then keeps its schema
 %% there: made on the first start, read on the next ones). Else an
