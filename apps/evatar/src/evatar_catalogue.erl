@@ -301,11 +301,17 @@ reconcile(S0) ->
                                                               R =:= active orelse R =:= fenced])),
     Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
     S = S0#s{stopping = Stopping, ran = Ran},
-    case ready(lists:usort(Alive ++ connected()), S) of
+    Peers = lists:usort(Alive ++ connected()),
+    case ready(Peers, S) of
         false ->
             S;
         true ->
-            View = {evatar_cluster:configured(), [node() | Alive]},
+            %% A connected peer whose catalogue this node has (ready/2)
+            %% runs and starts what it owns, even before its heartbeats
+            %% are heard: after a power cut a home node not yet heard but
+            %% restoring its pairings would otherwise meet a second
+            %% instance at the same epoch started by the next node.
+            View = {evatar_cluster:configured(), [node() | Peers]},
             case evatar_catalogue_rules:to_start(Entries, node(), View, Local) of
                 [] ->
                     S;
