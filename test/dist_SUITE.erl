@@ -305,12 +305,31 @@ home(Env) -> env("HOME", Env).
 
 node_name(Env) -> env("EVATAR_NODE", Env).
 
-%% bin/evatar daemon, remembered for end_per_testcase.
+%% bin/evatar daemon, remembered for end_per_testcase. daemon returns once
+%% the node answers a ping, before its applications have started: wait
+%% until evatar runs, so that a node that dies while it boots (as every
+%% node but the first did on the release's shared data directory) fails
+%% here, not as an attacker refused by a node that is not there or a
+%% remote_console that finds no node.
 start_node(Config, Env) ->
     true = ets:insert(?config(nodes, Config), {node, Env}),
     case rel(Config, Env, ["daemon"]) of
-        {0, _} -> ok;
-        {Rc, Out} -> {error, {daemon, Rc, Out}}
+        {0, _} ->
+            Running = "lists:keymember(evatar, 1, application:which_applications()).",
+            case ha_cluster:await(fun() ->
+                                          case rel(Config, Env, ["eval", Running]) of
+                                              {0, Out} -> string:trim(Out) =:= "true";
+                                              _ -> false
+                                          end
+                                  end, ?WAIT, {evatar_running, node_name(Env)}) of
+                ok ->
+                    ok;
+                {error, _} = Error ->
+                    ct:log("~s console log:~n~s", [node_name(Env), (console_log(Env))()]),
+                    Error
+            end;
+        {Rc, Out} ->
+            {error, {daemon, Rc, Out}}
     end.
 
 stop_node(Env, Config) ->
