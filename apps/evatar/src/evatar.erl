@@ -227,12 +227,15 @@ start_pairing(PairingId, Config) ->
 %% gets to it (and the deletion is recorded already).
 -spec delete_pairing(pairing_id()) -> ok | {error, not_found | busy}.
 delete_pairing(PairingId) ->
-    Catalogued = evatar_catalogue:remove(PairingId),
     Target = case evatar_registry:role(PairingId) of
                  %% Deleting through the standby's node deletes at the active.
                  #{role := standby, peer := Active} when is_pid(Active) -> Active;
                  _ -> evatar_registry:whereis_name(PairingId)
              end,
+    %% An instance here is proof the pairing exists, even when its
+    %% catalogue entry has not reached this node yet: the deletion is
+    %% recorded all the same, so that entry cannot bring it back.
+    Catalogued = evatar_catalogue:remove(PairingId, Target =/= undefined),
     case {Target, Catalogued} of
         {undefined, ok} ->
             ok;

@@ -24,7 +24,7 @@
 
 -include_lib("kernel/include/logger.hrl").
 
--export([start_link/0, create/2, remove/1, ensure/2, lookup/1, entries/0, durable/0,
+-export([start_link/0, create/2, remove/2, ensure/2, lookup/1, entries/0, durable/0,
          sync_now/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
@@ -63,11 +63,15 @@ create(Id, Config) ->
     gen_server:call(?MODULE, {create, Id, Config}, infinity).
 
 %% @doc Records a pairing's deletion (a tombstone), and tells the alive
-%% peers, whose instances of it stop. `not_found' when the catalogue has no
-%% live entry of that id.
--spec remove(evatar:pairing_id()) -> ok | not_found.
-remove(Id) ->
-    gen_server:call(?MODULE, {remove, Id}, infinity).
+%% peers, whose instances of it stop. `Running': this node holds an
+%% instance of it; the tombstone is then written even when this node's
+%% catalogue has no live entry of that id (its creation has not reached
+%% this node yet), else the creation would come back later and undo the
+%% deletion. `not_found' when the catalogue has no live entry of that id
+%% and `Running' is false.
+-spec remove(evatar:pairing_id(), Running :: boolean()) -> ok | not_found.
+remove(Id, Running) ->
+    gen_server:call(?MODULE, {remove, Id, Running}, infinity).
 
 %% @doc Records a pairing unless the catalogue already has it (live):
 %% then nothing changes, whatever `Config' says. The pairing is started
@@ -182,13 +186,13 @@ handle_call({create, Id, Config}, _From, S) ->
                     {reply, Error, S}
             end
     end;
-handle_call({remove, Id}, _From, S) ->
-    case lookup(Id) of
-        {ok, _} ->
+handle_call({remove, Id, Running}, _From, S) ->
+    case {lookup(Id), Running} of
+        {none, false} ->
+            {reply, not_found, S};
+        _ ->
             ok = write_new(Id, deleted, S),
-            {reply, ok, S};
-        none ->
-            {reply, not_found, S}
+            {reply, ok, S}
     end;
 handle_call({ensure, Id, Config}, _From, S) ->
     case lookup(Id) of
@@ -247,7 +251,9 @@ write_new(Id, Value, #s{alive = Alive} = S) ->
     Entry = {Id, evatar_catalogue_rules:next_version(Current, erlang:system_time(millisecond),
                                                      node()), Value},
     ok = write([Entry], S),
-    _ = [send(N, {entries, node(), [Entry], false}) || N <- Alive],
+    %% Connected peers too: one not yet heard (just started) would
+    %% otherwise learn this write only at the next full exchange.
+    _ = [send(N, {entries, node(), [Entry], false}) || N <- lists:usort(Alive ++ connected())],
     ok.
 
 %% Committed, then the log forced to disc: a pairing the caller was told

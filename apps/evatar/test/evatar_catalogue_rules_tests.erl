@@ -35,6 +35,21 @@ merge_partition_test() ->
                  ?R:changed(Ours, Theirs)),
     ?assertEqual([], ?R:changed(Merged, Ours)).
 
+%% A node that runs an instance of a pairing whose creation has not
+%% reached its catalogue yet (it took over from the home node that created
+%% it and died) deletes it with the first version it can write. That
+%% tombstone, written after the creation, wins over the live entry when it
+%% arrives later, in either order, and on the node that comes back with the
+%% live entry on disc (ha_SUITE restart_with_changed_catalogue).
+blind_deletion_test() ->
+    Created = live(<<"p">>, ?R:next_version(none, 1000, c@h)),
+    Deleted = {<<"p">>, ?R:next_version(none, 1100, a@h), deleted},
+    ?assertEqual([Deleted], ?R:merge([Created], [Deleted])),
+    ?assertEqual([Deleted], ?R:merge([Deleted], [Created])),
+    ?assertEqual([Deleted], ?R:changed([Created], [Deleted])),
+    ?assertEqual([], ?R:changed([Deleted], [Created])),
+    ?assertEqual([<<"p">>], ?R:to_stop(?R:merge([Created], [Deleted]), [<<"p">>])).
+
 %% The home node restores its pairing; without it, the next alive node of
 %% the ring after the home does; nobody when nobody is alive.
 owner_test() ->
