@@ -13,6 +13,7 @@
          sensor_stream_in_order/1, feedback_timeout/1, progress_then_feedback/1,
          reregister_rebinds/1, not_bound_and_bad_sender/1, join_timeout_drops/1,
          join_refusals/1, describe_refusals/1, pairing_management/1,
+         delete_uncatalogued_instance/1,
          entity_crash_unregisters/1, agent_leaves_and_returns/1,
          crashed_pairing_is_isolated/1, crash_loop_gives_up/1,
          configured_pairings/1, inspection/1, lifecycle_model/1]).
@@ -36,7 +37,7 @@ groups() ->
                      sensor_stream_in_order, feedback_timeout, progress_then_feedback,
                      reregister_rebinds, not_bound_and_bad_sender, join_timeout_drops,
                      join_refusals, describe_refusals, pairing_management,
-                     entity_crash_unregisters, agent_leaves_and_returns,
+                     delete_uncatalogued_instance, entity_crash_unregisters, agent_leaves_and_returns,
                      configured_pairings, inspection]},
      {faults, [], [crashed_pairing_is_isolated, crash_loop_gives_up]}].
 
@@ -260,6 +261,20 @@ describe_refusals(Config) ->
     %% The registrations are unchanged: routing still works.
     ok = evatar:send(Va, ?E:signal(<<"r1">>, request, ?EMU, ?LIGHT)),
     #{id := <<"r1">>} = ?E:recv(?AV, signal).
+
+%% @doc Deleting a pairing through a node that runs an instance of it but
+%% whose catalogue has not learned its creation yet (it took over from the
+%% home node, which died before its write got here) records the deletion:
+%% a tombstone, so the creation arriving later cannot bring it back
+%% (ha_SUITE restart_with_changed_catalogue once failed so).
+delete_uncatalogued_instance(Config) ->
+    Id = ?config(pairing, Config),
+    {ok, _} = evatar_pairings_sup:start_pairing(Id, opts(#{})),
+    none = evatar_catalogue:lookup(Id),
+    ok = evatar:delete_pairing(Id),
+    ?assertMatch([{Id, _, deleted}], [E || {I, _, _} = E <- evatar_catalogue:entries(), I =:= Id]),
+    undefined = evatar_registry:whereis_name(Id),
+    {error, not_found} = evatar:delete_pairing(Id).
 
 %% @doc Pairings are created and deleted at run time; deleting one tells
 %% its entities and frees the id.
