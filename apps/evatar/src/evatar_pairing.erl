@@ -107,7 +107,9 @@
                held = [] :: [{gen_statem:from(), term(), integer()}],
                held_armed = false :: boolean(),
                asks = 0 :: non_neg_integer(),
-               answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}]}).
+               answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}],
+               %% The live tail's watchers (evatar_tap): [] costs nothing.
+               watchers = [] :: [evatar_tap:watcher()]}).
 
 %% @doc Starts a new pairing (the active), registered as
 %% `{via, evatar_registry, PairingId}'.
@@ -231,6 +233,27 @@ handle_event(info, {evatar_register_retry, Claim}, State, #data{reg = #{claim :=
     {keep_state, send_register(Data)};
 handle_event(info, {evatar_register_retry, _}, _State, _Data) ->
     keep_state_and_data;
+handle_event({call, From}, {tap_watch, Pid, Filter}, State, #data{id = Id} = Data)
+  when is_pid(Pid), is_map(Filter), (State =:= waiting orelse State =:= bound) ->
+    case evatar_tap:add(Pid, Filter, Data#data.watchers, Id) of
+        {ok, Ref, Watchers} ->
+            {keep_state, Data#data{watchers = Watchers}, [{reply, From, {ok, Ref}}]};
+        {error, _} = Error ->
+            {keep_state_and_data, [{reply, From, Error}]}
+    end;
+handle_event({call, From}, {tap_watch, _, _}, standby, #data{active = Active}) ->
+    {keep_state_and_data, [{reply, From, {redirect, Active}}]};
+handle_event({call, From}, {tap_watch, _, _}, fenced, _Data) ->
+    {keep_state_and_data, [{reply, From, {error, busy}}]};
+handle_event(info, {evatar_tap_ack, Ref, N}, _State, #data{watchers = Watchers} = Data)
+  when is_integer(N), N >= 0 ->
+    {keep_state, Data#data{watchers = evatar_tap:acked(Ref, N, Watchers)}};
+handle_event(info, {evatar_tap_unwatch, Ref}, _State, #data{watchers = Watchers} = Data) ->
+    _ = erlang:demonitor(Ref, [flush]),
+    {keep_state, Data#data{watchers = evatar_tap:down(Ref, Watchers)}};
+handle_event(info, {evatar_tap_down, Ref, process, _, _}, _State,
+             #data{watchers = Watchers} = Data) ->
+    {keep_state, Data#data{watchers = evatar_tap:down(Ref, Watchers)}};
 handle_event(info, evatar_flush, _State, Data) ->
     {keep_state, flush(Data)};
 handle_event(info, evatar_held_check, standby, Data) ->
@@ -351,6 +374,7 @@ inspect(What, State, #data{logic = Logic} = Data) ->
         bindings -> evatar_pairing_logic:bindings(Logic);
         registry -> evatar_pairing_logic:registration_list(Logic);
         stats -> evatar_pairing_logic:stats(Logic);
+        watchers -> length(Data#data.watchers);
         state -> Logic;
         %% One read of both: a state compared with another instance's
         %% only at the same version (tests).
@@ -459,7 +483,14 @@ run(Event, Data) ->
 step(Event, #data{logic = Logic, version = V} = Data) ->
     Now = erlang:system_time(millisecond),
     {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
-    Data1 = Data#data{logic = Logic1, version = V + 1},
+    Data1 = case Data#data.watchers of
+                [] ->
+                    Data#data{logic = Logic1, version = V + 1};
+                Watchers ->
+                    Data#data{logic = Logic1, version = V + 1,
+                              watchers = evatar_tap:emit(Data#data.id, Event, Effects, Now,
+                                                         Watchers)}
+            end,
     case Data1#data.standby of
         undefined when not Data1#data.hold ->
             execute(Effects, ok, Data1);
@@ -718,7 +749,11 @@ publish(#data{id = Id, role = Role, logic = Logic} = Data) ->
                _ -> Data#data.standby
            end,
     ok = evatar_registry:set_role(Id, self(), Role, Epoch, Peer),
-    Data.
+    case Data of
+        #data{watchers = []} -> Data;
+        #data{role = active} -> Data;
+        #data{watchers = Watchers} -> Data#data{watchers = evatar_tap:moved(Id, Role, Watchers)}
+    end.
 
 stop_instance(Why, #data{id = Id} = Data) ->
     ?LOG_INFO(#{what => instance_stopped, pairing => Id, reason => Why}),
