@@ -14,6 +14,9 @@
 # it also opens two TLS listeners on free ports of 127.0.0.1 and prints,
 # before EVATAR_PORT, EVATAR_TLS_PORT=<port> (server certificate only) and
 # EVATAR_MTLS_PORT=<port> (client certificates signed by ca.pem required).
+# EVATAR_HANDSHAKE_RATE=N|infinity sets the plain listener's handshake rate
+# per address (docs/protocol.md section 7.1; default 20/s after a burst of
+# 100), for tests that open many connections in a tight loop.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BASE=${REBAR_BASE_DIR:-_build}
@@ -29,6 +32,11 @@ for arg in "$@"; do
 done
 specs="[${specs%,}]"
 TLS_DIR=${EVATAR_TLS_DIR:-}
+RATE=${EVATAR_HANDSHAKE_RATE:-}
+if ! [[ "$RATE" =~ ^([1-9][0-9]*|infinity)?$ ]]; then
+  echo "test-node.sh: EVATAR_HANDSHAKE_RATE is a positive integer or infinity" >&2
+  exit 2
+fi
 exec erl -noshell -kernel logger_level warning \
   -pa "$BASE"/default/lib/*/ebin -config config/test.config \
   -eval "
@@ -52,8 +60,13 @@ exec erl -noshell -kernel logger_level warning \
         [begin {ok, {_, TP}} = agent_bridge:address(L), io:format(\"~s=~b~n\", [Var, TP]) end
          || {L, Var} <- [{test_tls, \"EVATAR_TLS_PORT\"}, {test_mtls, \"EVATAR_MTLS_PORT\"}]]
     end,
-    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127,0,0,1}, port => $PORT,
-                                                       conn => Hb500}),
+    Handshake = case \"$RATE\" of
+                  \"\" -> #{};
+                  \"infinity\" -> #{handshake => #{rate => infinity}};
+                  R -> #{handshake => #{rate => list_to_integer(R)}}
+                end,
+    {ok, _} = agent_bridge:start_listener(test_node, Handshake#{ip => {127,0,0,1}, port => $PORT,
+                                                                conn => Hb500}),
     {ok, {_, P}} = agent_bridge:address(test_node),
     io:format(\"EVATAR_PORT=~b~n\", [P]),
     WaitEof = fun Loop() -> case io:get_line('') of eof -> ok; {error, _} -> ok; _ -> Loop() end end,

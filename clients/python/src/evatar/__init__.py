@@ -8,10 +8,11 @@ emulators, :mod:`evatar.bil` the documents, :mod:`evatar.frame` the framing.
 
 from .bil import (Ack, Binding, Bound, Bye, Component, Description, Entry, Hello, Refused,
                   Resume, Signal, Unbound, Welcome, encode, parse_frame)
-from .client import (STDIO, Client, Closed, ClosedError, ConnectError, EvatarError,
-                     FeedbackTimeout, Reconnected, RefusedError, SignalError)
-from .emulators import (Actuator, ActuatorEmulator, NotBoundError, Sensor, SensorEmulator,
-                        describe)
+from .client import (CLOSE_TIMEOUT, STDIO, AckTimeout, AlreadyConnectedError, Client, Closed,
+                     ClosedError, ConnectError, EvatarError, FeedbackTimeout, Reconnected,
+                     RefusedError, SignalError)
+from .emulators import (Actuator, ActuatorEmulator, NotBoundError, NotConsumedError, Sensor,
+                        SensorEmulator, describe)
 from .frame import FrameDecoder, FrameError, encode_frame
 from .sync import SyncClient
 from .tls import PinMismatch, Tls, TlsError
@@ -25,5 +26,6 @@ __all__ = [
     "Closed", "ClosedError", "ConnectError", "EvatarError", "FeedbackTimeout", "Reconnected",
     "RefusedError", "SignalError", "Actuator", "ActuatorEmulator", "NotBoundError", "Sensor",
     "SensorEmulator", "describe", "FrameDecoder", "FrameError", "encode_frame", "SyncClient",
-    "BilError", "Tls", "TlsError", "PinMismatch",
+    "BilError", "Tls", "TlsError", "PinMismatch", "AlreadyConnectedError", "AckTimeout",
+    "NotConsumedError", "CLOSE_TIMEOUT",
 ]

@@ -41,7 +41,8 @@ from .tls import Tls
 from .xml import BilError
 
 __all__ = ["Client", "Endpoint", "Closed", "Reconnected", "EvatarError", "ConnectError",
-           "RefusedError", "ClosedError", "FeedbackTimeout", "SignalError", "STDIO"]
+           "RefusedError", "ClosedError", "FeedbackTimeout", "SignalError", "AlreadyConnectedError",
+           "AckTimeout", "STDIO", "CLOSE_TIMEOUT"]
 
 #: The endpoint naming the program's own stdin/stdout (port connector).
 STDIO = "stdio"
@@ -56,6 +57,10 @@ RETRY_CODES = frozenset(["NotActive", "Fenced", "StaleEpoch", "PairingDown", "Un
 LOG = logging.getLogger("evatar.client")
 ACK_DELAY = 0.005
 ACK_EVERY = 32
+#: Seconds :meth:`Client.close` waits for EVATAR's Bye by default.
+CLOSE_TIMEOUT = 5.0
+#: How many accepted SignalIDs :meth:`Client.accepted` remembers.
+ACCEPTED_MEMORY = 4096
 
 
 class EvatarError(Exception):
@@ -91,6 +96,17 @@ class FeedbackTimeout(EvatarError):
     """No answer to a request within the caller's timeout."""
 
 
+class AlreadyConnectedError(EvatarError):
+    """:meth:`Client.connect` was called on a client that is connected or
+    connecting; a client holds one session. Make another client for a
+    second one."""
+
+
+class AckTimeout(EvatarError):
+    """EVATAR did not accept a signal within the caller's timeout (it may
+    still accept it later; with ``ha`` the client keeps sending it)."""
+
+
 class SignalError(EvatarError):
     """An Error signal answered a request; ``signal`` is it."""
 
@@ -113,10 +129,13 @@ class Reconnected:
 
 @dataclass
 class Closed:
-    """The last event: the session is over."""
+    """The last event: the session is over. After :meth:`Client.close`,
+    ``confirmed`` says whether EVATAR's Bye came (EVATAR had unregistered
+    the entity) before the close returned."""
 
     reason: str
     refused: Optional[Refused] = None
+    confirmed: bool = False
 
 
 class _Link:
@@ -245,6 +264,13 @@ class Client:
         self._next = 0
         self._connected = asyncio.Event()
         self.reconnects = 0
+        self._connecting = False
+        # The last accepted SignalIDs, so accepted() answers at once for a
+        # signal accepted before it was called.
+        self._accepted_ids: "OrderedDict[str, None]" = OrderedDict()
+        # Acceptance (version 2): futures by SignalID and listeners.
+        self._ack_waiters: Dict[str, "asyncio.Future[None]"] = {}
+        self._ack_listeners: List[Callable[[str], None]] = []
 
     # ------------------------------------------------------------------ API
 
@@ -252,7 +278,31 @@ class Client:
         """Joins the pairing. Without ``ha``: tries each endpoint in order and
         raises :class:`RefusedError` at the first refusal or
         :class:`ConnectError` when none answers. With ``ha``: goes round the
-        endpoints with back-off until ``reconnect_limit``."""
+        endpoints with back-off until ``reconnect_limit``.
+
+        A client holds one session: calling it again while connected or
+        connecting raises :class:`AlreadyConnectedError`, and after
+        :meth:`close` :class:`ClosedError` (make a new client instead)."""
+        if self._closed is not None:
+            raise ClosedError("this client is closed (%s): make a new Client to connect again"
+                              % self._closed.reason)
+        if self._connecting or self.welcome is not None:
+            raise AlreadyConnectedError(
+                "this client is already %s (entity %s in pairing %s): close it, or make "
+                "another Client, for a second session"
+                % ("connected" if self.welcome is not None else "connecting",
+                   self.entity_id, self.pairing))
+        self._connecting = True
+        try:
+            await self._connect()
+        except BaseException:
+            self._connecting = False
+            raise
+        self._connecting = False
+        assert self.welcome is not None
+        return self.welcome
+
+    async def _connect(self) -> None:
         if self.ha:
             await self._attempt_ring("connect")
         else:
@@ -268,8 +318,6 @@ class Client:
                     failures.append((e, _describe(why)))
             else:
                 raise ConnectError(failures)
-        assert self.welcome is not None
-        return self.welcome
 
     def on(self, component_id: str, handler: Handler) -> None:
         """Passes signals addressed to ``component_id`` to ``handler``
@@ -293,10 +341,49 @@ class Client:
         ``Request``), ``in_reply_to``. Returns the signal as sent. With
         ``ha`` it returns once the signal is queued (sent now if connected,
         again after a reconnect until acknowledged); it waits while the
-        window of unacknowledged signals is full."""
+        window of unacknowledged signals is full.
+
+        Returning means sent, not accepted: to learn that EVATAR accepted
+        it (``ha`` only), ``await client.accepted(s)`` or register
+        :meth:`on_ack`."""
         s = self._complete(signal, fields, "Request")
         await self._emit(s)
         return s
+
+    def on_ack(self, listener: Callable[[str], None]) -> None:
+        """Calls ``listener(signal_id)`` for each signal EVATAR accepts
+        (``ha`` only), in the order they were sent, once each; like the
+        Erlang client's ``notify_acks``. It runs on the client's loop and
+        must not block."""
+        if not self.ha:
+            raise EvatarError("acceptance is reported only with ha=True (protocol version 2)")
+        self._ack_listeners.append(listener)
+
+    async def accepted(self, signal: Union[Signal, str], timeout: Optional[float] = 10.0) -> None:
+        """Returns once EVATAR has accepted ``signal`` (a signal returned by
+        :meth:`send`, or its id): it holds it and will not lose it even if
+        this connection or the node goes. ``ha`` only. Raises
+        :class:`AckTimeout` after ``timeout`` seconds (the client keeps
+        sending it), :class:`ClosedError` when the session ends before, and
+        :class:`EvatarError` for a signal this client did not send or a
+        client without ``ha`` (protocol version 1 has no acknowledgements)."""
+        if not self.ha:
+            raise EvatarError("acceptance is reported only with ha=True (protocol version 2)")
+        sid = signal.id if isinstance(signal, Signal) else signal
+        if sid not in self._unacked:
+            if sid in self._accepted_ids:
+                return
+            if self._closed is not None:
+                raise ClosedError(self._closed.reason)
+            raise EvatarError("%s is not a signal this client sent" % sid)
+        fut = self._ack_waiters.get(sid)
+        if fut is None:
+            fut = asyncio.get_running_loop().create_future()
+            self._ack_waiters[sid] = fut
+        try:
+            await asyncio.wait_for(asyncio.shield(fut), timeout)
+        except asyncio.TimeoutError:
+            raise AckTimeout("EVATAR did not accept %s within %s s" % (sid, timeout)) from None
 
     async def request(self, signal: Optional[Signal] = None, *, timeout: float = 10.0,
                       **fields: Any) -> Signal:
@@ -404,21 +491,30 @@ class Client:
     def endpoint(self) -> Optional[Endpoint]:
         return self._link.endpoint if self._link else None
 
-    async def close(self) -> None:
-        """Says Bye, waits briefly for EVATAR's Bye, and closes."""
+    async def close(self, timeout: float = CLOSE_TIMEOUT) -> None:
+        """Says Bye and waits, at most ``timeout`` seconds (default
+        :data:`CLOSE_TIMEOUT`, 5 s), for EVATAR's Bye, which EVATAR sends
+        once it has unregistered this entity: after ``close()`` returns, a
+        new client with the same EntityID is not refused ``EntityExists``
+        (unless the wait timed out, when the connection is cut instead).
+        Calling it again, or on a client never connected, does nothing."""
         if self._closed is not None:
             return
         link = self._link
         self._finish("normal")
+        reader = self._reader_task
         if link is not None:
             try:
                 link.write(encode(Bye()))
-                await asyncio.wait_for(link.writer.drain(), 1.0)
-                link.writer.close()
+                await asyncio.wait_for(link.writer.drain(), timeout)
             except (OSError, asyncio.TimeoutError, ConnectionError):
                 link.abort()
-        if self._reader_task is not None and self._reader_task is not asyncio.current_task():
-            self._reader_task.cancel()
+            if reader is not None and reader is not asyncio.current_task():
+                # The reader ends at EVATAR's Bye or at the end of the stream.
+                await asyncio.wait([reader], timeout=timeout)
+            link.abort()
+        if reader is not None and reader is not asyncio.current_task() and not reader.done():
+            reader.cancel()
 
     def drop_connection(self) -> None:
         """Breaks the current connection as a network failure would (for
@@ -486,6 +582,11 @@ class Client:
         if self.ha and not doc.ha:
             link.abort()
             raise RefusedError("BadHandshake", "the server does not speak ProtocolVersion 2")
+        if self._closed is not None:
+            # close() was called while the handshake went on.
+            link.write(encode(Bye()))
+            link.abort()
+            raise ClosedError(self._closed.reason)
         self._welcomed(doc, link)
 
     def _hello(self) -> Union[Hello, Resume]:
@@ -514,9 +615,10 @@ class Client:
             self._window = max(1, w.dedup_window or 1)
             self._heartbeat = w.heartbeat / 1000.0
             self._last_rx = time.monotonic()
-            described = not w.resumed and self._description is not None
-            if described:
-                link.write(self._description)
+            description = None if w.resumed else self._description
+            described = description is not None
+            if description is not None:
+                link.write(description)
             self._held = again and described
             if not self._held:
                 for doc in self._unacked.values():
@@ -587,6 +689,8 @@ class Client:
                     break
                 if isinstance(doc, Bye):
                     reason = "bye" + (": " + doc.reason if doc.reason else "")
+                    if self._closed is not None:
+                        self._closed.confirmed = True
                     break
                 await self._incoming(doc)
         except asyncio.IncompleteReadError:
@@ -702,6 +806,17 @@ class Client:
             return
         while self._unacked:
             k, _ = self._unacked.popitem(last=False)
+            self._accepted_ids[k] = None
+            if len(self._accepted_ids) > ACCEPTED_MEMORY:
+                self._accepted_ids.popitem(last=False)
+            fut = self._ack_waiters.pop(k, None)
+            if fut is not None and not fut.done():
+                fut.set_result(None)
+            for listener in self._ack_listeners:
+                try:
+                    listener(k)
+                except Exception:
+                    LOG.exception("an on_ack listener failed on %s", k)
             if k == signal_id:
                 break
         asyncio.ensure_future(self._notify_room())
@@ -772,9 +887,10 @@ class Client:
         self._closed_event.set()
         self._cancel_ack_timer()
         self._connected.clear()
-        for fut in self._pending.values():
+        for fut in list(self._pending.values()) + list(self._ack_waiters.values()):
             if not fut.done():
                 fut.set_exception(ClosedError(reason))
+        self._ack_waiters.clear()
         self._events.put_nowait(self._closed)
         self._binding_changed.set()
         asyncio.ensure_future(self._notify_room())

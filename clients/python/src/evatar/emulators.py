@@ -26,11 +26,27 @@ from .bil import Component, Description, Entry, ParamsLike, Signal
 from .client import Client, ClosedError, EvatarError
 
 __all__ = ["Emulator", "ActuatorEmulator", "SensorEmulator", "Actuator", "Sensor", "describe",
-           "NotBoundError"]
+           "NotBoundError", "NotConsumedError"]
 
 
 class NotBoundError(EvatarError):
-    """The component has no provider bound for that service (yet)."""
+    """The component has no provider bound for that service (yet): read the
+    client's latest Binding report (``client.binding.unbound``) for why."""
+
+
+class NotConsumedError(EvatarError, ValueError):
+    """:meth:`ActuatorEmulator.act` was asked for a service the emulator
+    does not consume (its description has no such ``Consumes`` entry, so
+    EVATAR could never bind it). ``component`` is the emulator,
+    ``service`` the ServiceType asked for, ``consumed`` the ServiceTypes
+    it does consume. Nothing was sent."""
+
+    def __init__(self, component: str, service: str, consumed: List[str]) -> None:
+        super().__init__("%s does not consume %s; it consumes %s" % (
+            component, service, ", ".join(consumed) if consumed else "nothing"))
+        self.component = component
+        self.service = service
+        self.consumed = consumed
 
 
 class Emulator:
@@ -85,10 +101,12 @@ class ActuatorEmulator(Emulator):
     async def act(self, type: str, parameters: ParamsLike = None,
                   timeout: float = 10.0) -> Signal:
         """Requests the action ``type`` of the bound Avatar actuator and
-        returns its feedback (see :meth:`Client.request`)."""
+        returns its feedback (see :meth:`Client.request`). Raises
+        :class:`NotConsumedError` for a ``type`` this emulator does not
+        consume and :class:`NotBoundError` while nothing provides it."""
         entry = next((e for e in self.consumes if e.type == type), None)
         if entry is None:
-            raise ValueError("%s does not consume %s" % (self.id, type))
+            raise NotConsumedError(self.id, type, [e.type for e in self.consumes])
         return await self.client.request(sender=self.id, receiver=self.provider_of(type),
                                          category=entry.category, type=type,
                                          parameters=parameters, timeout=timeout)
