@@ -146,7 +146,13 @@ state(Now, H) ->
       emails => lists:reverse(H#h.emails), sms => lists:reverse(H#h.sms),
       photos => lists:reverse(H#h.photos), keypad => lists:reverse(H#h.keypad),
       listening => H#h.listening, script_left => length(H#h.script),
-      spool => maps:get(spool, H#h.cfg)}.
+      spool => maps:get(spool, H#h.cfg),
+      %% For the dashboard's floor plan: each room's devices, its last motion.
+      rooms => lists:foldl(fun(#{kind := K, room := R}, Acc) ->
+                                   Acc#{R => lists:usort([K | maps:get(R, Acc, [])])}
+                           end, #{}, maps:values(H#h.comps)),
+      motion => maps:map(fun(_, #{last := Last}) -> Last end, H#h.motion),
+      attempts => H#h.attempts}.
 
 %% ---------------------------------------------------------------------------
 %% Requests

@@ -154,7 +154,7 @@ state(Now, #m{arena = A, robots = Robots}) ->
                   zone => avatar_sim_arena:zone_of(A, BX, BY)}
                 || #{colour := C, held_by := HB} = B0 <- Balls,
                    {BX, BY} <- [ball_position(B0, A)]],
-      zones => Zones}.
+      zones => Zones, width => maps:get(width, A), height => maps:get(height, A)}.
 
 track_name(#{track := none}) -> none;
 track_name(#{track := {motors, _}}) -> motors;

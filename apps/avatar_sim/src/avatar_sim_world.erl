@@ -123,6 +123,8 @@ handle_event(cast, {incoming, Entity, Signal}, _State, _D) ->
     keep_state_and_data;
 handle_event({call, From}, state, _State, #d{model = M} = D) ->
     {keep_state_and_data, [{reply, From, M:state(now(D), D#d.state)}]};
+handle_event({call, From}, scene, _State, #d{model = M} = D) ->
+    {keep_state_and_data, [{reply, From, {M, M:state(now(D), D#d.state)}}]};
 handle_event({call, From}, log, _State, D) ->
     {keep_state_and_data, [{reply, From, lists:reverse(D#d.log)}]};
 handle_event({call, From}, clock, _State, D) ->

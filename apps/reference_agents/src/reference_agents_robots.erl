@@ -7,6 +7,7 @@
 -module(reference_agents_robots).
 
 -export([start/1, run_to_end/2, outcome/1, stop/1, run/1, default_targets/0]).
+-export([anchors/0]).
 
 -export_type([opts/0]).
 
@@ -74,6 +75,8 @@ start(Opts) ->
     ok = reference_agents_va:introduce(Coordinator, Vas),
     S6 = reference_agents_scenario:add(coordinator, Coordinator,
                                        reference_agents_scenario:add(robot_vas, Vas, S5)),
+    %% For the dashboard (anchors/0): the robot VAs of the running story.
+    ok = application:set_env(reference_agents, robot_vas, Vas),
     Embodied = [reference_agents_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
                 || {Name, Va} <- maps:to_list(Vas)],
     case [E || {error, _} = E <- Embodied] of
@@ -106,7 +109,31 @@ outcome(S) ->
       story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))}.
 
 -spec stop(reference_agents_scenario:scenario()) -> ok.
-stop(S) -> reference_agents_scenario:stop(S).
+stop(S) ->
+    ok = application:unset_env(reference_agents, robot_vas),
+    reference_agents_scenario:stop(S).
+
+%% @doc The names the robot VAs of the running story anchored, as a scene
+%% for the dashboard (docs/dashboard.md; named in the application
+%% environment's `dashboard_scenes', so evatar_web need not depend on this
+%% application): each VA's symbols with the colour and place it last saw.
+-spec anchors() -> [map()].
+anchors() ->
+    Vas = lists:sort(maps:to_list(application:get_env(reference_agents, robot_vas, #{}))),
+    Agents = [#{name => Name,
+                anchors => [#{symbol => Sym, colour => C, x => X, y => Y, seen => N}
+                            || #{symbol := Sym, colour := C, position := {X, Y}, seen := N}
+                                   <- maps:get(anchors, Mind, [])]}
+              || {Name, Va} <- Vas, #{mind := Mind} <- [inspect(Va)]],
+    case Agents of
+        [] -> [];
+        _ -> [#{kind => <<"anchors">>, agents => Agents}]
+    end.
+
+inspect(Va) ->
+    try reference_agents_va:inspect(Va)
+    catch exit:_ -> #{}
+    end.
 
 %% @doc Start, wait for the end (10 minutes of real time at most), outcome,
 %% stop.
