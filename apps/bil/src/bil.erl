@@ -10,7 +10,7 @@
 
 -export([parse_description/1, parse_description/2, encode_description/1,
          parse_signal/1, parse_signal/2, encode_signal/1,
-         bind/1, format_error/1, namespace/0, signal_contexts/0]).
+         bind/1, explain_unbound/2, format_error/1, namespace/0, signal_contexts/0]).
 
 -export_type([description/0, entity_type/0, component/0, entry/0, parameter/0,
               signal/0, signal_context/0, limits/0, error_reason/0, error_code/0,
@@ -120,6 +120,15 @@
 %% ---------------------------------------------------------------------------
 %% API
 %% ---------------------------------------------------------------------------
+
+%% @doc Why an unbound entry (of {@link bind/1}'s result for the same
+%% descriptions) bound nothing: each provider of its category and type with
+%% the consumer's parameters it does not satisfy (`{Name, Wanted,
+%% Offered}'); `[]' when no entity offers that category and type.
+-spec explain_unbound(unbound(), [description()]) ->
+          [#{provider := endpoint(), failed := [{binary(), binary(), [binary()]}]}].
+explain_unbound(Unbound, Descriptions) ->
+    bil_binding:explain(Unbound, Descriptions).
 
 %% @doc The XML namespace of BIL documents.
 -spec namespace() -> binary().

@@ -12,7 +12,7 @@
 %% bound on the shapes homes produce (the old nested loops were P x C).
 -module(bil_binding).
 
--export([bind/1, keyword/1]).
+-export([bind/1, keyword/1, explain/2]).
 
 %% A provider after normalisation: where it lives, and its parameters'
 %% value keywords by name keyword.
@@ -296,6 +296,38 @@ binding(Consumer, #{category := Category, type := Type}, Provider, Score, Count)
 
 unbound(Consumer, #{category := Category, type := Type}, Reason) ->
     #{consumer => Consumer, category => Category, type => Type, reason => Reason}.
+
+%% @doc Why an unbound entry of the Body Mapping Registry bound nothing,
+%% for a person: each provider of its category and type (of the other
+%% entity type, in tie-break order) with the consumer's parameters it does
+%% not satisfy, as `{Name, Wanted, Offered}' in the consumer's spelling
+%% and the provider's. `no_provider' entries have no candidates: `[]'.
+%% Linear in the descriptions; meant for one entry shown on a page.
+-spec explain(bil:unbound(), [bil:description()]) ->
+          [#{provider := bil:endpoint(),
+             failed := [{Name :: binary(), Wanted :: binary(), Offered :: [binary()]}]}].
+explain(#{consumer := #{entity := E, component := C}, category := Cat, type := Type},
+        Descriptions) ->
+    Key = {keyword(Cat), keyword(Type)},
+    case [{T, Entry} || #{entity_id := E1, entity_type := T, components := Cs} <- Descriptions,
+                        E1 =:= E, #{id := C1, consumes := Us} <- Cs, C1 =:= C,
+                        #{category := Ca, type := Ty} = Entry <- Us,
+                        {keyword(Ca), keyword(Ty)} =:= Key] of
+        [{ConsumerType, Entry} | _] ->
+            Wants = [{N, V, keyword(V)} || {N, V} <- maps:get(parameters, Entry)],
+            [#{provider => #{entity => PE, component => PC},
+               failed => [{N, V, [PV || {PN, PV} <- Ps, keyword(PN) =:= keyword(N)]}
+                          || {N, V, K} <- Wants,
+                             not satisfied(K, [keyword(PV) || {PN, PV} <- Ps,
+                                                              keyword(PN) =:= keyword(N)])]}
+             || #{entity_id := PE, entity_type := PT, components := Cs} <- Descriptions,
+                PT =:= other(ConsumerType),
+                #{id := PC, services := Ss} <- Cs,
+                #{category := Ca, type := Ty, parameters := Ps} <- Ss,
+                {keyword(Ca), keyword(Ty)} =:= Key];
+        [] ->
+            []
+    end.
 
 other(agent) -> avatar;
 other(avatar) -> agent.
