@@ -10,7 +10,9 @@
 %% starting with OK or ERROR. It halts when stdin closes.
 %%
 %% Arguments: PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL[:FEEDBACK_TIMEOUT_MS]...
-%%            [--home PAIRING:AVATAR_CREDENTIAL:SPOOL_DIR] [--cluster N]
+%%            [--home PAIRING:AVATAR_CREDENTIAL:SPOOL_DIR] [--script holiday|none|FILE]
+%%            [--robots PAIRING1:CREDENTIAL1,PAIRING2:CREDENTIAL2] [--speed N]
+%%            [--home-start YYYY-MM-DDTHH:MM] [--control SOCKET] [--no-stdin] [--cluster N]
 %% --cluster N starts instead N EVATAR nodes in a cluster (separate OS
 %% processes, peer nodes on 127.0.0.1), each with a listener; the pairings
 %% are created on node 1 (active) with their standby on node 2, and the
@@ -21,7 +23,18 @@
 %% to PAIRING, on a clock at 17:55 on 2024-11-15 running at speed 2, with the
 %% holiday evening's script (an intruder at 21:40), as
 %% reference_agents_holiday does; --home-start YYYY-MM-DDTHH:MM starts the
-%% clock at another date and time.
+%% clock at another date and time. --script chooses the people's script:
+%% holiday (the default), none, or a script file (docs/avatars.md section
+%% 4.3). --robots starts instead the LEGO arena with two robots, each
+%% joined to its pairing. --speed sets the clock's speed (default 2).
+%% --control SOCKET also takes commands, one per connection, on a Unix
+%% domain socket at that path (make its directory private: anyone who can
+%% open the socket can drive the simulation); --no-stdin stops reading
+%% stdin, so the node runs until the `stop' command. Answers go back on the
+%% connection that asked. scripts/sim-node.sh wraps both for users;
+%% `test-node-ctl.sh --send SOCKET COMMAND...' is its client: it prints the
+%% answer's lines and exits 0 on OK, 1 on ERROR (printed to stderr), 3 when
+%% nothing answers on SOCKET.
 %%
 %% Commands:
 %%   port NAME PROGRAM [ARG...]   start PROGRAM under a port connector
@@ -34,8 +47,16 @@
 %%   kill I                       (cluster) kill -9 node I (1-based)
 %%   freeze I                     (cluster) kill -STOP node I: a node that hangs
 %%   ha PAIRING                   (cluster) HA I ROLE EPOCH per node holding the pairing
+%%   mute COMPONENT, unmute COMPONENT, disconnect ENTITY [MS], reconnect ENTITY,
+%%   detach COMPONENT, attach COMPONENT
+%%                                the failure hooks of docs/avatars.md section 5
+%%   links                        LINK ENTITY PAIRING STATE routes=N muted=C,.. detached=C,..
+%%   pause, resume                stop and restart the simulated clock
+%%   stop                         answers OK, then halts the node
 -mode(compile).
 
+main(["--send", Path | Words]) ->
+    send(Path, Words);
 main(Args0) ->
     %% Stdout carries the command protocol (lines up to OK or ERROR); log
     %% reports, such as a killed peer's, go to stderr so a reader never
@@ -47,15 +68,9 @@ main(Args0) ->
         {Args, []} -> single(Args)
     end.
 
-single(Args0) ->
-    {Args, Start} = case lists:splitwith(fun(A) -> A =/= "--home-start" end, Args0) of
-                        {Before, ["--home-start", When | After]} ->
-                            {Before ++ After, datetime(When)};
-                        {_, []} ->
-                            {Args0, reference_agents_holiday:start_datetime()}
-                    end,
-    put(home_start, Start),
-    {Pairings, Home} = args(Args, [], none),
+single(Args) ->
+    {Opts, Specs} = options(Args, #{}, []),
+    Pairings = [pairing(Spec) || Spec <- Specs],
     %% EVATAR_LOG_LEVEL=notice shows what port programs write on stderr.
     Level = list_to_existing_atom(os:getenv("EVATAR_LOG_LEVEL", "warning")),
     logger:set_primary_config(level, Level),
@@ -63,126 +78,265 @@ single(Args0) ->
     application:set_env(agent_bridge, listeners, []),
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
-    [{ok, _} = evatar:create_pairing(Id, Opts) || {Id, Opts} <- Pairings],
+    [{ok, _} = evatar:create_pairing(Id, O) || {Id, O} <- Pairings],
     Port = case os:getenv("EVATAR_PORT") of false -> 0; P -> list_to_integer(P) end,
     %% Heartbeat 500: the value in the shared vectors' Welcome, which the
     %% SDKs' transcript tests replay against this node.
     {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127, 0, 0, 1}, port => Port,
                                                        conn => #{heartbeat => 500}}),
     {ok, {_, Bound}} = agent_bridge:address(test_node),
-    State = start_home(Home, Bound),
+    State = start_sim(Opts, Bound),
+    Main = self(),
+    _ = [spawn_link(fun() -> control(Path, Main) end) || #{control := Path} <- [Opts]],
+    _ = [receive {control, listening, Path} -> put(control, Path) after 5000 -> error(no_control) end
+         || #{control := Path} <- [Opts]],
+    _ = [spawn_link(fun() -> read_stdin(Main) end) || maps:get(stdin, Opts, true)],
     io:format("EVATAR_PORT=~b~n", [Bound]),
     loop(State).
 
-args([], Acc, Home) -> {lists:reverse(Acc), Home};
-args(["--home", Spec | Rest], Acc, _) ->
+options([], O, Acc) -> {O, lists:reverse(Acc)};
+options(["--home", Spec | Rest], O, Acc) -> options(Rest, O#{home => Spec}, Acc);
+options(["--robots", Spec | Rest], O, Acc) -> options(Rest, O#{robots => Spec}, Acc);
+options(["--home-start", When | Rest], O, Acc) -> options(Rest, O#{start => datetime(When)}, Acc);
+options(["--script", Script | Rest], O, Acc) -> options(Rest, O#{script => Script}, Acc);
+options(["--speed", N | Rest], O, Acc) -> options(Rest, O#{speed => list_to_integer(N)}, Acc);
+options(["--control", Path | Rest], O, Acc) -> options(Rest, O#{control => Path}, Acc);
+options(["--no-stdin" | Rest], O, Acc) -> options(Rest, O#{stdin => false}, Acc);
+options(["--" ++ _ = Bad | _], _, _) ->
+    io:format(standard_error, "unknown option ~s~n", [Bad]),
+    halt(2);
+options([Spec | Rest], O, Acc) -> options(Rest, O, [Spec | Acc]).
+
+pairing(Spec) ->
+    case string:split(Spec, ":", all) of
+        [Id, A, V] when Id =/= "", A =/= "", V =/= "" ->
+            {list_to_binary(Id), #{agent_credential => list_to_binary(A),
+                                   avatar_credential => list_to_binary(V)}};
+        [Id, A, V, T] when Id =/= "", A =/= "", V =/= "" ->
+            {list_to_binary(Id), #{agent_credential => list_to_binary(A),
+                                   avatar_credential => list_to_binary(V),
+                                   feedback_timeout => list_to_integer(T)}};
+        _ ->
+            io:format(standard_error, "bad pairing ~s~n", [Spec]),
+            halt(2)
+    end.
+
+start_sim(#{home := Spec} = Opts, Port) ->
     [Pairing, Cred | SpoolParts] = string:split(Spec, ":", all),
-    args(Rest, Acc, {list_to_binary(Pairing), list_to_binary(Cred), lists:join(":", SpoolParts)});
-args([Spec | Rest], Acc, Home) ->
-    Opts = case string:split(Spec, ":", all) of
-               [Id, A, V] when Id =/= "", A =/= "", V =/= "" ->
-                   {Id, #{agent_credential => list_to_binary(A),
-                          avatar_credential => list_to_binary(V)}};
-               [Id, A, V, T] when Id =/= "", A =/= "", V =/= "" ->
-                   {Id, #{agent_credential => list_to_binary(A),
-                          avatar_credential => list_to_binary(V),
-                          feedback_timeout => list_to_integer(T)}};
-               _ ->
-                   io:format(standard_error, "bad pairing ~s~n", [Spec]),
+    {ok, _} = application:ensure_all_started(avatar_sim),
+    Clock = start_clock(Opts),
+    Script = case maps:get(script, Opts, "holiday") of
+                 "holiday" -> #{script => reference_agents_holiday:default_script()};
+                 "none" -> #{script => []};
+                 File -> #{script_file => File}
+             end,
+    Home = case avatar_sim:start_home(Script#{clock => Clock, seed => 1,
+                                             endpoints => [{{127, 0, 0, 1}, Port}],
+                                             spool => lists:join(":", SpoolParts),
+                                             gateways => [#{pairing => list_to_binary(Pairing),
+                                                            credential => list_to_binary(Cred)}]}) of
+               {ok, H} -> H;
+               {error, Why} ->
+                   io:format(standard_error, "cannot start the home: ~0p~n", [Why]),
                    halt(2)
            end,
-    {Id1, O} = Opts,
-    args(Rest, [{list_to_binary(Id1), O} | Acc], Home).
-
-start_home(none, _Port) ->
-    #{};
-start_home({Pairing, Cred, Spool}, Port) ->
+    #{clock => Clock, home => Home, avatar => Home};
+start_sim(#{robots := Spec} = Opts, Port) ->
+    Robots = [case string:split(R, ":") of
+                  [P, C] when P =/= "" -> #{pairing => list_to_binary(P),
+                                            credential => list_to_binary(C)};
+                  _ -> io:format(standard_error, "bad robot ~s~n", [R]), halt(2)
+              end || R <- string:split(Spec, ",", all)],
     {ok, _} = application:ensure_all_started(avatar_sim),
-    {ok, Clock} = avatar_sim:start_clock(#{speed => 2, tick => 500,
-                                           start => get(home_start)}),
-    {ok, Home} = avatar_sim:start_home(#{clock => Clock, seed => 1,
-                                         endpoints => [{{127, 0, 0, 1}, Port}],
-                                         spool => Spool,
-                                         script => reference_agents_holiday:default_script(),
-                                         gateways => [#{pairing => Pairing,
-                                                        credential => Cred}]}),
-    #{clock => Clock, home => Home}.
+    Clock = start_clock(Opts),
+    {ok, Arena} = avatar_sim:start_arena(#{clock => Clock, seed => 1, robots => Robots,
+                                           endpoints => [{{127, 0, 0, 1}, Port}]}),
+    #{clock => Clock, arena => Arena, avatar => Arena};
+start_sim(_, _Port) ->
+    #{}.
+
+start_clock(Opts) ->
+    Start = maps:get(start, Opts, reference_agents_holiday:start_datetime()),
+    {ok, Clock} = avatar_sim:start_clock(#{speed => maps:get(speed, Opts, 2), tick => 500,
+                                           start => Start}),
+    Clock.
+
+read_stdin(Main) ->
+    case io:get_line('') of
+        eof -> Main ! stdin_closed;
+        {error, _} -> Main ! stdin_closed;
+        Line -> Main ! {command, stdio, Line}, read_stdin(Main)
+    end.
+
+%% The control socket: a Unix domain socket, one command per connection,
+%% served one connection at a time (the commands run one at a time anyway).
+control(Path, Main) ->
+    case gen_tcp:connect({local, Path}, 0, [local], 1000) of
+        {ok, Other} ->
+            ok = gen_tcp:close(Other),
+            io:format(standard_error, "a node already answers on ~s~n", [Path]),
+            halt(2);
+        {error, _} ->
+            _ = file:delete(Path)
+    end,
+    {ok, L} = gen_tcp:listen(0, [local, {ifaddr, {local, Path}}, binary, {packet, line},
+                                 {packet_size, 4096}, {active, false}]),
+    Main ! {control, listening, Path},
+    accept(L, Main).
+
+accept(L, Main) ->
+    {ok, S} = gen_tcp:accept(L),
+    _ = case gen_tcp:recv(S, 0, 5000) of
+            {ok, Line} ->
+                Main ! {command, {socket, self()}, binary_to_list(Line)},
+                receive {reply, Text} -> gen_tcp:send(S, Text) end,
+                Main ! {replied, self()};
+            {error, _} ->
+                ok
+        end,
+    _ = gen_tcp:close(S),
+    accept(L, Main).
 
 loop(S) ->
-    case io:get_line('') of
-        eof -> stop();
-        {error, _} -> stop();
-        Line ->
+    receive
+        stdin_closed ->
+            stop();
+        {command, From, Line} ->
             Words = string:lexemes(string:trim(Line), " "),
-            try command(Words, S) of
-                S1 -> loop(S1)
-            catch C:R ->
-                    io:format("ERROR ~0p~n", [{C, R}]),
-                    loop(S)
+            {Text, S1} = try command(Words, S) of
+                             {ok, Lines, S2} -> {[[L, $\n] || L <- Lines] ++ ["OK\n"], S2};
+                             {error, Why} -> {["ERROR ", Why, $\n], S}
+                         catch C:R ->
+                                 {io_lib:format("ERROR ~0p~n", [{C, R}]), S}
+                         end,
+            reply(From, Text),
+            case S1 of
+                #{stopping := true} -> stop();
+                _ -> loop(S1)
             end
     end.
+
+reply(stdio, Text) ->
+    io:put_chars(Text);
+reply({socket, Pid}, Text) ->
+    Pid ! {reply, Text},
+    receive {replied, Pid} -> ok after 5000 -> ok end.
 
 command(["port", Name, Program | Args], S) ->
     {ok, _} = agent_bridge:start_port(list_to_binary(Name),
                                       #{command => Program, args => Args,
                                         backoff_min => 100, backoff_max => 2000}),
-    ok(S);
+    {ok, [], S};
 command(["stop_port", Name], S) ->
     ok = agent_bridge:stop_port(list_to_binary(Name)),
-    ok(S);
+    {ok, [], S};
 command(["runs", Name], S) ->
     [Pid] = [P || {{agent_bridge_port, N}, P, _, _} <- supervisor:which_children(agent_bridge_port_sup),
                   N =:= list_to_binary(Name)],
-    io:format("RUNS ~b~n", [agent_bridge_port:runs(Pid)]),
-    ok(S);
+    {ok, [io_lib:format("RUNS ~b", [agent_bridge_port:runs(Pid)])], S};
 command(["entities", Pairing], S) ->
     {ok, Registry} = evatar:registry(list_to_binary(Pairing)),
-    io:format("ENTITIES ~s~n", [lists:join(" ", [Id || #{entity := Id} <- Registry])]),
-    ok(S);
+    {ok, [["ENTITIES ", lists:join(" ", [Id || #{entity := Id} <- Registry])]], S};
 command(["speed", N], #{clock := Clock} = S) ->
     ok = avatar_sim:pause(Clock),
     ok = avatar_sim:set_speed(Clock, list_to_integer(N)),
-    ok(S);
+    {ok, [], S};
+command(["pause"], #{clock := Clock} = S) ->
+    ok = avatar_sim:pause(Clock),
+    {ok, [], S};
+command(["resume"], #{clock := Clock} = S) ->
+    ok = avatar_sim:resume(Clock),
+    {ok, [], S};
 command(["run_until", HHMM], #{clock := Clock} = S) ->
     Target = target_ms(avatar_sim:now(Clock), HHMM),
     ok = avatar_sim:resume(Clock),
     wait_clock(Clock, Target),
     ok = avatar_sim:pause(Clock),
-    ok(S);
+    {ok, [], S};
 command(["outcome"], #{home := Home} = S) ->
     #{light_log := Log, emails := Emails, photos := Photos, played := Played} =
         avatar_sim:state(Home),
-    [io:format("LIGHT ~s ~s ~s~n", [hhmm(T), R, St]) || #{time := T, room := R, state := St} <- Log],
-    [io:format("EMAIL ~s\t~s\t~s~n", [F, Sub, lists:join(",", A)])
-     || #{file := F, subject := Sub, attachments := A} <- Emails],
-    [io:format("PHOTO ~s\t~s\t~s~n", [I, R, F]) || #{id := I, room := R, file := F} <- Photos],
-    [io:format("PLAYED ~s\t~b\t~s~n", [K, V, W])
-     || #{kind := K, volume := V, what := W} <- Played],
-    ok(S);
+    {ok, [io_lib:format("LIGHT ~s ~s ~s", [hhmm(T), R, St])
+          || #{time := T, room := R, state := St} <- Log]
+         ++ [io_lib:format("EMAIL ~s\t~s\t~s", [F, Sub, lists:join(",", A)])
+             || #{file := F, subject := Sub, attachments := A} <- Emails]
+         ++ [io_lib:format("PHOTO ~s\t~s\t~s", [I, R, F])
+             || #{id := I, room := R, file := F} <- Photos]
+         ++ [io_lib:format("PLAYED ~s\t~b\t~s", [K, V, W])
+             || #{kind := K, volume := V, what := W} <- Played], S};
+command([Hook, Id | Ms], #{avatar := Avatar} = S)
+  when Hook =:= "mute"; Hook =:= "unmute"; Hook =:= "disconnect"; Hook =:= "reconnect";
+       Hook =:= "detach"; Hook =:= "attach" ->
+    case hook(Hook, Avatar, list_to_binary(Id), Ms) of
+        ok -> {ok, [], S};
+        {error, Why} -> {error, io_lib:format("~s ~s: ~0p", [Hook, Id, Why])}
+    end;
+command(["links"], #{avatar := Avatar} = S) ->
+    {ok, [io_lib:format("LINK ~s ~s ~s routes=~b muted=~s detached=~s",
+                        [E, P, St, R, lists:join(",", M), lists:join(",", D)])
+          || #{entity := E, pairing := P, state := St, routes := R, muted := M,
+               detached := D} <- avatar_sim:links(Avatar)], S};
+command(["stop"], S) ->
+    {ok, [], S#{stopping => true}};
 command(["kill", I], #{ospids := OsPids} = S) ->
     _ = os:cmd("kill -9 " ++ lists:nth(list_to_integer(I), OsPids)),
-    ok(S);
+    {ok, [], S};
 command(["freeze", I], #{ospids := OsPids} = S) ->
     OsPid = lists:nth(list_to_integer(I), OsPids),
     _ = os:cmd("kill -STOP " ++ OsPid),
     %% kill -9 when this script ends: a stopped node would not see its
     %% control connection close.
     put(frozen, [OsPid | case get(frozen) of undefined -> []; F -> F end]),
-    ok(S);
+    {ok, [], S};
 command(["ha", Pairing], #{nodes := Nodes} = S) ->
     Id = list_to_binary(Pairing),
-    [case catch peer:call(P, evatar, ha_status, [Id], 2000) of
-         {ok, #{role := Role, epoch := Epoch}} -> io:format("HA ~b ~s ~b~n", [I, Role, Epoch]);
-         _ -> ok
-     end || {I, {P, _}} <- lists:zip(lists:seq(1, length(Nodes)), Nodes)],
-    ok(S);
-command(Other, S) ->
-    io:format("ERROR unknown command ~0p~n", [Other]),
-    S.
+    {ok, [io_lib:format("HA ~b ~s ~b", [I, Role, Epoch])
+          || {I, {P, _}} <- lists:zip(lists:seq(1, length(Nodes)), Nodes),
+             {ok, #{role := Role, epoch := Epoch}} <- [catch peer:call(P, evatar, ha_status,
+                                                                      [Id], 2000)]], S};
+command(["outcome"], _S) ->
+    {error, "outcome needs the home (--home)"};
+command([Hook | _], _S)
+  when Hook =:= "mute"; Hook =:= "unmute"; Hook =:= "disconnect"; Hook =:= "reconnect";
+       Hook =:= "detach"; Hook =:= "attach"; Hook =:= "links" ->
+    {error, "no simulated Avatar on this node (--home or --robots)"};
+command(Other, _S) ->
+    {error, io_lib:format("unknown command ~0p", [lists:join(" ", Other)])}.
 
-ok(S) -> io:format("OK~n"), S.
+hook("mute", A, C, []) -> avatar_sim:mute(A, C);
+hook("unmute", A, C, []) -> avatar_sim:unmute(A, C);
+hook("disconnect", A, E, []) -> avatar_sim:disconnect(A, E);
+hook("disconnect", A, E, [Ms]) -> avatar_sim:disconnect(A, E, list_to_integer(Ms));
+hook("reconnect", A, E, []) -> avatar_sim:reconnect(A, E);
+hook("detach", A, C, []) -> avatar_sim:detach_device(A, C);
+hook("attach", A, C, []) -> avatar_sim:attach_device(A, C);
+hook(_, _, _, _) -> {error, too_many_arguments}.
+
+%% The client of the control socket (sim-node.sh COMMAND).
+send(Path, Words) ->
+    case gen_tcp:connect({local, Path}, 0, [local, binary, {packet, line}, {active, false}],
+                         5000) of
+        {ok, S} ->
+            ok = gen_tcp:send(S, [lists:join(" ", Words), $\n]),
+            answer(S);
+        {error, Why} ->
+            io:format(standard_error, "no simulated node answers on ~s (~0p): start one with "
+                      "scripts/sim-node.sh start~n", [Path, Why]),
+            halt(3)
+    end.
+
+answer(S) ->
+    case gen_tcp:recv(S, 0) of
+        {ok, <<"OK\n">>} -> halt(0);
+        {ok, <<"ERROR", _/binary>> = E} -> io:format(standard_error, "~s", [E]), halt(1);
+        {ok, Line} -> io:format("~s", [Line]), answer(S);
+        {error, Why} ->
+            io:format(standard_error, "the node closed the connection (~0p)~n", [Why]),
+            halt(1)
+    end.
 
 stop() ->
+    _ = [file:delete(Path) || Path <- [get(control)], Path =/= undefined],
     _ = [os:cmd("kill -9 " ++ OsPid) || OsPid <- case get(frozen) of
                                                      undefined -> [];
                                                      F -> F
@@ -191,7 +345,7 @@ stop() ->
 
 %% A cluster of N peer nodes, set up as apps/evatar/test/evatar_ha_SUITE does.
 cluster(N, Args) ->
-    {Pairings, none} = args(Args, [], none),
+    Pairings = [pairing(Spec) || Spec <- Args],
     Unique = os:getpid(),
     Names = [list_to_atom("evatar_ctl" ++ integer_to_list(I) ++ "_" ++ Unique)
              || I <- lists:seq(1, N)],
@@ -228,6 +382,8 @@ cluster(N, Args) ->
     io:format("EVATAR_PORTS=~s~n", [lists:join(",", [integer_to_list(Pt) || Pt <- Ports])]),
     io:format("EVATAR_PORT=~b~n", [hd(Ports)]),
     OsPids = [peer:call(P, os, getpid, []) || {P, _} <- Started],
+    Main = self(),
+    _ = spawn_link(fun() -> read_stdin(Main) end),
     loop(#{nodes => Started, ospids => OsPids}).
 
 setup_peer(P, Nodes) ->
