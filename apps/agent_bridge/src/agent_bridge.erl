@@ -4,7 +4,7 @@
 %% can be started and stopped at run time.
 -module(agent_bridge).
 
--export([start_listener/2, stop_listener/1, address/1, listeners/0,
+-export([start_listener/2, stop_listener/1, address/1, listeners/0, metrics/0,
          start_port/2, stop_port/1, publish/2, check_listener/1]).
 
 -export_type([listener_opts/0, handshake_opts/0, port_opts/0]).
@@ -159,6 +159,16 @@ listeners() ->
     [{Name, Address}
      || {{agent_bridge_listener, Name}, Pid, _, _} <- supervisor:which_children(agent_bridge_sup),
         is_pid(Pid), {ok, Address} <- [address(Name)]].
+
+%% @doc The bridge's gauges for evatar_metrics: the connections every
+%% listener's guard holds now.
+-spec metrics() -> [evatar_metrics:sample()].
+metrics() ->
+    Guards = [agent_bridge_listener_sup:guard(Sup)
+              || {{agent_bridge_listener, _}, Sup, _, _} <- supervisor:which_children(agent_bridge_sup),
+                 is_pid(Sup)],
+    Open = lists:sum([maps:get(connections, agent_bridge_guard:info(G)) || G <- Guards]),
+    [{evatar_bridge_connections_open, [], Open}].
 
 %% @doc Internal: records a listener's bound address.
 -spec publish(term(), {inet:ip_address(), inet:port_number()}) -> ok.

@@ -29,7 +29,14 @@ start_link(Name, ListenerOpts) ->
 -spec admit(guard(), inet:ip_address() | term()) ->
           ok | {refuse, agent_bridge_guard_logic:refusal(), non_neg_integer()}.
 admit(Guard, Ip) ->
-    gen_server:call(Guard, {admit, agent_bridge_guard_logic:key(Ip)}, infinity).
+    case gen_server:call(Guard, {admit, agent_bridge_guard_logic:key(Ip)}, infinity) of
+        ok ->
+            ok = evatar_metrics:inc(evatar_bridge_connections_accepted_total),
+            ok;
+        {refuse, Code, _} = Refuse ->
+            ok = evatar_metrics:inc(evatar_bridge_connections_refused_total, Code),
+            Refuse
+    end.
 
 %% @doc The connection process that holds an admitted socket.
 -spec attach(guard(), pid()) -> ok.
@@ -54,9 +61,13 @@ locked(Guard, Ip) -> gen_server:call(Guard, {locked, agent_bridge_guard_logic:ke
 %% @doc Logs (or counts for a summary) the refusal of Code to Ip; Details
 %% (pairing, entity) go into the first line of an interval, cut to 64 bytes.
 -spec refused(guard() | undefined, inet:ip_address() | term(), binary(), map()) -> ok.
-refused(undefined, Ip, Code, Details) ->
-    log({log, agent_bridge_guard_logic:key(Ip), Code, 1, first}, Details, undefined);
 refused(Guard, Ip, Code, Details) ->
+    ok = evatar_metrics:inc(evatar_bridge_handshakes_refused_total, Code),
+    refused1(Guard, Ip, Code, Details).
+
+refused1(undefined, Ip, Code, Details) ->
+    log({log, agent_bridge_guard_logic:key(Ip), Code, 1, first}, Details, undefined);
+refused1(Guard, Ip, Code, Details) ->
     %% A call, so the line is written before the client sees the close.
     gen_server:call(Guard, {refused, agent_bridge_guard_logic:key(Ip), Code, Details}, infinity).
 

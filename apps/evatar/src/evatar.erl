@@ -315,6 +315,24 @@ resume(_PairingId, _Role, _EntityId, _Credential, _Opts) ->
 %% fingerprint): the PBKDF2 cost is the joining client's, and only the
 %% verdict reaches the pairing.
 join_call(PairingId, EntityId, Role, Auth, Request) ->
+    Result = join_call1(PairingId, EntityId, Role, Auth, Request),
+    ok = count_join(Role, Request, Result),
+    Result.
+
+count_join(Role, Request, {ok, _}) ->
+    Kind = case {Role, element(1, Request(authenticated))} of
+               {agent, join} -> agent_join;
+               {avatar, join} -> avatar_join;
+               {agent, resume} -> agent_resume;
+               {avatar, resume} -> avatar_resume
+           end,
+    evatar_metrics:inc(evatar_joins_total, Kind);
+count_join(_Role, _Request, {error, {not_active, _}}) ->
+    evatar_metrics:inc(evatar_join_refusals_total, not_active);
+count_join(_Role, _Request, {error, Reason}) ->
+    evatar_metrics:inc(evatar_join_refusals_total, Reason).
+
+join_call1(PairingId, EntityId, Role, Auth, Request) ->
     case evatar_registry:whereis_name(PairingId) of
         undefined ->
             {error, unknown_pairing};

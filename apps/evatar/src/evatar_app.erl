@@ -11,6 +11,7 @@
 %% @private
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
+    ok = evatar_metrics:init_counters(),
     case evatar_sup:start_link() of
         {ok, Sup} ->
             case start_configured(application:get_env(evatar, pairings, [])) of

@@ -109,7 +109,9 @@
                asks = 0 :: non_neg_integer(),
                answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}],
                %% The live tail's watchers (evatar_tap): [] costs nothing.
-               watchers = [] :: [evatar_tap:watcher()]}).
+               watchers = [] :: [evatar_tap:watcher()],
+               %% This pairing's own counters once active here (evatar_metrics).
+               metrics = undefined :: evatar_metrics:pairing_ref()}).
 
 %% @doc Starts a new pairing (the active), registered as
 %% `{via, evatar_registry, PairingId}'.
@@ -420,9 +422,15 @@ join1(Event, EntityId, Pid, From, #data{pids = Pids, refs = Refs} = Data) ->
     Ref = erlang:monitor(process, Pid),
     Data1 = Data#data{pids = Pids#{EntityId => {Pid, Ref}}, refs = Refs#{Ref => EntityId}},
     case step(Event, Data1) of
-        {ok, Data2} -> joined(Event, Pid, From, Old, ok, Data2);
-        {{ok, _, _} = Ok, Data2} -> joined(Event, Pid, From, Old, Ok, Data2);
+        {ok, Data2} ->
+            ok = evatar_metrics:pairing_inc(Data2#data.metrics, evatar_pairing_joins_total, none),
+            joined(Event, Pid, From, Old, ok, Data2);
+        {{ok, _, _} = Ok, Data2} ->
+            ok = evatar_metrics:pairing_inc(Data2#data.metrics, evatar_pairing_joins_total, none),
+            joined(Event, Pid, From, Old, Ok, Data2);
         {Error, Data2} ->
+            ok = evatar_metrics:pairing_inc(Data2#data.metrics,
+                                            evatar_pairing_join_refusals_total, none),
             true = erlang:demonitor(Ref, [flush]),
             Pids2 = case Old of
                         undefined -> maps:remove(EntityId, Data2#data.pids);
@@ -483,6 +491,7 @@ run(Event, Data) ->
 step(Event, #data{logic = Logic, version = V} = Data) ->
     Now = erlang:system_time(millisecond),
     {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
+    ok = evatar_metrics:pairing_step(Data#data.metrics, Event, Effects),
     Data1 = case Data#data.watchers of
                 [] ->
                     Data#data{logic = Logic1, version = V + 1};
@@ -679,7 +688,8 @@ arm_timers(#data{logic = Logic} = Data) ->
 become_active(new, #data{id = Id, config = Config} = Data) ->
     Logic = evatar_pairing_logic:new(Id, Config),
     ?LOG_INFO(#{what => pairing_started, pairing => Id}),
-    Data1 = publish(Data#data{logic = Logic, role = active, gen = evatar_cluster:stall_gen()}),
+    Data1 = publish(Data#data{logic = Logic, role = active, gen = evatar_cluster:stall_gen(),
+                              metrics = evatar_metrics:pairing(Id)}),
     {next_state, evatar_pairing_logic:phase(Logic), Data1,
      [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
 
@@ -694,7 +704,8 @@ take_over(Why, Epoch, #data{id = Id, active_mon = Mon, standby_mon = SMon} = Dat
     _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
     ?LOG_WARNING(#{what => takeover, pairing => Id, epoch => Epoch, reason => Why,
                    version => Data#data.version}),
-    Data1 = Data#data{role = active, active = undefined, active_mon = undefined,
+    ok = evatar_metrics:inc(evatar_takeovers_total, takeover_reason(Why)),
+    Data1 = Data#data{role = active, metrics = evatar_metrics:pairing(Id), active = undefined, active_mon = undefined,
                       active_lost = false, standby = undefined, standby_mon = undefined,
                       synced = false, repl = [], election = undefined, hold = true,
                       conf = {Epoch, 1}, gen = evatar_cluster:stall_gen(), held = []},
@@ -702,6 +713,9 @@ take_over(Why, Epoch, #data{id = Id, active_mon = Mon, standby_mon = SMon} = Dat
     {_, Data3} = step({takeover, Epoch}, Data2),
     Data4 = arm_silent(publish(send_register(Data3))),
     next(Data4, [{next_event, {call, From}, Request} || {From, Request, _} <- lists:reverse(Data#data.held)]).
+
+takeover_reason({Why, _}) -> Why;
+takeover_reason(Why) -> Why.
 
 become_standby(_Epoch, Version, State, Claim, #data{id = Id, active = Active} = Data) ->
     ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(State), Version),
@@ -762,6 +776,7 @@ stop_instance(Why, #data{id = Id} = Data) ->
 %% A newer active exists: close the clients (they resume there) and go.
 step_down(Why, #data{id = Id} = Data) ->
     ?LOG_WARNING(#{what => stepping_down, pairing => Id, reason => Why}),
+    ok = evatar_metrics:inc(evatar_step_downs_total),
     Data1 = disconnect_all(stale_epoch, <<"a newer instance of this pairing is active">>, Data),
     {stop, {shutdown, Why}, Data1}.
 
@@ -1153,6 +1168,7 @@ maybe_fence(#data{standby = Standby} = Data) ->
 %% the pairing again at once (an election in which its standby may win).
 fence_now(#data{id = Id} = Data, Actions) ->
     ?LOG_WARNING(#{what => fenced, pairing => Id}),
+    ok = evatar_metrics:inc(evatar_fenced_total),
     Data1 = disconnect_all(fenced, <<"this node lost the majority of the cluster">>,
                            Data#data{role = fenced}),
     Data2 = case evatar_cluster:majority_now() of
@@ -1239,6 +1255,7 @@ silent_check(#data{logic = Logic, id = Id} = Data) ->
     Data1 = lists:foldl(
               fun(E, D) ->
                       ?LOG_WARNING(#{what => silent_link, pairing => Id, entity => E}),
+                      ok = evatar_metrics:inc(evatar_entities_dropped_total, silent_link),
                       ok = tell(E, {dropped, silent_link,
                                     <<"delivered signals were not acknowledged in time">>}, D),
                       run({detach, E}, forget(E, D))

@@ -1,4 +1,5 @@
-%% @doc Internal. The top supervisor of evatar: the pairing registry, the
+%% @doc Internal. The top supervisor of evatar: the owner of the per-pairing
+%% metrics (evatar_metrics), the pairing registry, the
 %% cluster membership process, the supervisor of all pairings, then the
 %% catalogue of pairings (which starts pairings, so it comes after their
 %% supervisor; its own crash restarts only itself).
@@ -19,7 +20,12 @@ start_link() ->
 -spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
 init([]) ->
     Flags = #{strategy => rest_for_one, intensity => 3, period => 10},
-    Children = [#{id => evatar_registry,
+    Children = [#{id => evatar_metrics,
+                  start => {evatar_metrics, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_registry,
                   start => {evatar_registry, start_link, []},
                   restart => permanent,
                   shutdown => 5000,
