@@ -1,0 +1,287 @@
+%% Common Test suite of the node's metrics (docs/metrics.md): real clients
+%% over real TCP join, are refused, send signals and wait for a feedback
+%% timeout; the counters scraped before and after, read by the reference
+%% parser of the Prometheus text format (Debian's python3-prometheus-client),
+%% moved by exactly what happened.
+-module(metrics_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-compile([export_all, nowarn_export_all]).
+
+-define(VA_CRED, agent_bridge_test_node:va_credential()).
+-define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(PYTHON, "/usr/bin/python3").
+
+suite() -> [{timetrap, {seconds, 60}}].
+
+all() ->
+    [traffic_moves_counters, label_values_are_escaped, pairing_series_are_capped].
+
+init_per_suite(Config) ->
+    case os:cmd(?PYTHON " -c 'import prometheus_client' 2>&1; echo rc=$?") of
+        "rc=0\n" ->
+            ok = agent_bridge_test_node:start([]),
+            Addr = agent_bridge_test_node:listen(metrics_test,
+                                                 #{conn => #{handshake_timeout => 2000,
+                                                             linger => 200}}),
+            [{addr, Addr} | Config];
+        Out ->
+            {skip, "python3-prometheus-client is not installed (scripts/ensure-deps.sh): " ++ Out}
+    end.
+
+end_per_suite(_Config) ->
+    ok = agent_bridge_test_node:stop([metrics_test], [agent_bridge]).
+
+init_per_testcase(Case, Config) ->
+    Pairing = atom_to_binary(Case),
+    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 5000,
+                                                               feedback_timeout => 300}),
+    [{pairing, Pairing} | Config].
+
+end_per_testcase(_Case, Config) ->
+    ok = application:unset_env(evatar, metrics_max_pairings),
+    _ = evatar:delete_pairing(?config(pairing, Config)),
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% Two joins, two refused joins, a round trip, five sensor readings, a
+%% refused signal and a feedback timeout move the node's and the pairing's
+%% counters by exactly that much; the output parses.
+traffic_moves_counters(Config) ->
+    P = ?config(pairing, Config),
+    Before = scrape(Config),
+    %% Joins (two accepted connections).
+    {Va, Av} = bound_pair(Config),
+    %% Refused joins (two more accepted connections, refused handshakes).
+    refused_hello(Config, hello(P, agent, <<"va2">>, <<"wrong">>), <<"BadCredential">>),
+    refused_hello(Config, hello(<<"no-such-pairing">>, agent, <<"va">>, ?VA_CRED),
+                  <<"UnknownPairing">>),
+    %% A request and its feedback.
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
+    %% Five sensor readings, all received.
+    Av ! {stream, 5},
+    5 = length(collect_sensor(Va, 5)),
+    %% A signal refused: NotBound.
+    {error, #{body := #{type := <<"NotBound">>}}} =
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>}, 5000),
+    %% A feedback timeout.
+    Av ! mute,
+    {ok, #{body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
+        agent_bridge_client:request(Va, light_request(), 5000),
+    %% The refused sockets are closed: two connections held.
+    ok = agent_bridge_test_node:wait_until(
+           fun() -> gauge(scrape(Config), evatar_bridge_connections_open, []) =:= 2 end, 500),
+    After = scrape(Config),
+    Expected = #{{evatar_joins_total, [{kind, agent_join}]} => 1,
+                 {evatar_joins_total, [{kind, avatar_join}]} => 1,
+                 {evatar_join_refusals_total, [{reason, bad_credential}]} => 1,
+                 {evatar_join_refusals_total, [{reason, unknown_pairing}]} => 1,
+                 {evatar_bridge_connections_accepted_total, []} => 4,
+                 {evatar_bridge_handshakes_refused_total, [{reason, 'BadCredential'}]} => 1,
+                 {evatar_bridge_handshakes_refused_total, [{reason, 'UnknownPairing'}]} => 1,
+                 {evatar_signals_routed_total, [{kind, request}]} => 2,
+                 {evatar_signals_routed_total, [{kind, feedback}]} => 1,
+                 {evatar_signals_routed_total, [{kind, sensor_data}]} => 5,
+                 {evatar_signals_refused_total, [{code, 'NotBound'}]} => 1,
+                 {evatar_feedback_timeouts_total, []} => 1,
+                 {evatar_pairing_signals_routed_total, [{kind, request}, {pairing, P}]} => 2,
+                 {evatar_pairing_signals_routed_total, [{kind, feedback}, {pairing, P}]} => 1,
+                 {evatar_pairing_signals_routed_total, [{kind, sensor_data}, {pairing, P}]} => 5,
+                 {evatar_pairing_signals_refused_total, [{pairing, P}]} => 1,
+                 {evatar_pairing_feedback_timeouts_total, [{pairing, P}]} => 1,
+                 {evatar_pairing_joins_total, [{pairing, P}]} => 2,
+                 {evatar_pairing_join_refusals_total, [{pairing, P}]} => 1},
+    Moved = moved(Before, After),
+    ?assertEqual(Expected, Moved),
+    %% The families carry their type.
+    #{evatar_signals_routed := counter, evatar_pairing_instances := gauge,
+      evatar_bridge_connections_open := gauge} = families(After),
+    ?assertEqual(1, gauge(After, evatar_pairing_instances, [{role, active}])),
+    ok = agent_bridge_client:close(Va),
+    exit(Av, shutdown).
+
+%% A pairing id with a quote, a backslash and a newline is escaped in its
+%% label: the reference parser reads the id back unchanged.
+label_values_are_escaped(Config) ->
+    Id = <<"odd \"pairing\" \\ with\nnewline">>,
+    {ok, _} = agent_bridge_test_node:create_pairing(Id, #{}),
+    try
+        Samples = scrape(Config),
+        ?assertEqual(0, maps:get({evatar_pairing_joins_total, [{pairing, Id}]}, Samples))
+    after
+        ok = evatar:delete_pairing(Id)
+    end.
+
+%% Beyond metrics_max_pairings a pairing has no series of its own, and the
+%% gauge of unlabelled pairings counts it.
+pairing_series_are_capped(Config) ->
+    P = ?config(pairing, Config),
+    ok = application:set_env(evatar, metrics_max_pairings, 1),
+    Over = <<"over-the-cap">>,
+    {ok, _} = agent_bridge_test_node:create_pairing(Over, #{}),
+    try
+        Samples = scrape(Config),
+        ?assert(is_map_key({evatar_pairing_joins_total, [{pairing, P}]}, Samples)),
+        ?assertNot(is_map_key({evatar_pairing_joins_total, [{pairing, Over}]}, Samples)),
+        ?assertEqual(1, gauge(Samples, evatar_metrics_pairings_unlabelled, []))
+    after
+        ok = evatar:delete_pairing(Over)
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Scraping and parsing
+%% ---------------------------------------------------------------------------
+
+%% The metrics as the reference parser reads them: #{{Name, Labels} =>
+%% Value}, labels sorted, names and label values as the parser gives them
+%% (atoms for our own names, binaries for pairing ids).
+scrape(Config) ->
+    Text = fetch(Config),
+    {Families, Samples} = parse(Text, Config),
+    put(families, Families),
+    Samples.
+
+families(_Samples) ->
+    get(families).
+
+fetch(_Config) ->
+    iolist_to_binary(evatar_metrics:render()).
+
+parse(Text, Config) ->
+    In = filename:join(?config(priv_dir, Config), "scrape.txt"),
+    ok = file:write_file(In, Text),
+    Script = filename:join(?config(data_dir, Config), "parse_metrics.py"),
+    Out = os:cmd(?PYTHON " " ++ Script ++ " < " ++ In ++ " 2>&1; echo rc=$?"),
+    Lines = string:split(string:trim(Out, trailing), "\n", all),
+    case lists:last(Lines) of
+        "rc=0" -> ok;
+        _ -> ct:fail({unparsable_metrics, Out})
+    end,
+    lists:foldl(fun(Line, {F, S}) -> parse_line(Line, F, S) end, {#{}, #{}},
+                lists:droplast(Lines)).
+
+parse_line("# family\t" ++ Rest, F, S) ->
+    [Name, Type] = string:split(Rest, "\t", all),
+    {F#{list_to_atom(Name) => list_to_atom(Type)}, S};
+parse_line(Line, F, S) ->
+    [Name, LabelText, Value] = string:split(Line, "\t", all),
+    Labels = [label(string:split(L, "=")) || L <- string:lexemes(LabelText, ",")],
+    {F, S#{{list_to_atom(Name), Labels} => round(list_to_float(Value))}}.
+
+%% Pairing ids as binaries, our own label values as atoms.
+label(["pairing", Hex]) -> {pairing, binary:decode_hex(list_to_binary(Hex))};
+label([K, Hex]) -> {list_to_atom(K), binary_to_atom(binary:decode_hex(list_to_binary(Hex)))}.
+
+%% Samples whose value differs, with the difference; a sample missing
+%% before counts from 0.
+moved(Before, After) ->
+    maps:filter(fun(_, V) -> V =/= 0 end,
+                maps:map(fun(K, V) -> V - maps:get(K, Before, 0) end,
+                         maps:filter(fun({Name, _}, _) -> is_counter(Name) end, After))).
+
+is_counter(Name) ->
+    lists:suffix("_total", atom_to_list(Name)).
+
+gauge(Samples, Name, Labels) ->
+    maps:get({Name, Labels}, Samples).
+
+%% ---------------------------------------------------------------------------
+%% Clients
+%% ---------------------------------------------------------------------------
+
+client_opts(Config, Role, Entity) ->
+    #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
+      credential => case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end}.
+
+client(Config, Role, Entity) ->
+    agent_bridge_client:connect([?config(addr, Config)], client_opts(Config, Role, Entity)).
+
+hello(Pairing, Role, Entity, Cred) ->
+    bil_control:encode({hello, #{pairing => Pairing, role => Role, entity_id => Entity,
+                                 credential => Cred, protocol_version => 1}}).
+
+refused_hello(Config, Hello, Code) ->
+    {Ip, Port} = ?config(addr, Config),
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
+    ok = gen_tcp:send(S, Hello),
+    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
+    {ok, {control, {refused, #{code := Code}}}} = bil_control:parse_frame(Frame, #{}),
+    {error, closed} = gen_tcp:recv(S, 0, 10000),
+    ok.
+
+bound_pair(Config) ->
+    Av = start_responder(Config, <<"av">>),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
+    {Va, Av}.
+
+collect_sensor(Va, N) ->
+    [receive
+         {agent_bridge, Va, {signal, #{context := sensor_data} = S}} -> S
+     after 10000 -> ct:fail(sensor_data_missing)
+     end || _ <- lists:seq(1, N)].
+
+start_responder(Config, Entity) ->
+    Self = self(),
+    Pid = spawn(fun() ->
+                        {ok, C} = client(Config, avatar, Entity),
+                        ok = agent_bridge_client:describe(C, avatar_description(Entity)),
+                        Self ! {responder, self()},
+                        responder(C, true)
+                end),
+    receive {responder, Pid} -> Pid after 10000 -> ct:fail(responder_not_started) end.
+
+responder(C, Answer) ->
+    receive
+        {agent_bridge, C, {signal, #{context := request, id := Id, sender := From,
+                                     receiver := To, body := Body}}} when Answer ->
+            ok = agent_bridge_client:send(C, #{context => feedback, sender => To,
+                                               receiver => From, in_reply_to => Id,
+                                               body => Body#{parameters => []}}),
+            responder(C, Answer);
+        mute ->
+            responder(C, false);
+        {stream, N} ->
+            [ok = agent_bridge_client:send(C, sensor(I)) || I <- lists:seq(1, N)],
+            responder(C, Answer);
+        {agent_bridge, C, {closed, _}} ->
+            ok;
+        _ ->
+            responder(C, Answer)
+    end.
+
+light_request() ->
+    #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
+      body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
+                parameters => [{<<"Light">>, <<"yes">>}]}}.
+
+sensor(I) ->
+    #{context => sensor_data, sender => <<"Thermo01">>, receiver => <<"ThermoEmulator01">>,
+      body => #{category => <<"SENSOR">>, type => <<"Temperature">>,
+                parameters => [{<<"Value">>, <<"21.5">>}, {<<"N">>, integer_to_binary(I)}]}}.
+
+entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+
+va_description(Id) ->
+    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent,
+      context => <<"EmulatorDescription">>,
+      components => [#{id => <<"LightEmulator01">>,
+                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
+                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]},
+                     #{id => <<"ThermoEmulator01">>,
+                       services => [entry(<<"SENSOR">>, <<"Temperature">>)],
+                       consumes => []}]}.
+
+avatar_description(Id) ->
+    #{entity_id => Id, api_name => <<"TEST AVATAR">>, entity_type => avatar,
+      context => <<"ActuatorDescription">>,
+      components => [#{id => <<"Light01">>, services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
+                       consumes => []},
+                     #{id => <<"Thermo01">>, services => [entry(<<"SENSOR">>, <<"Reading">>)],
+                       consumes => [entry(<<"SENSOR">>, <<"Temperature">>)]}]}.
