@@ -33,7 +33,7 @@
 
 %% A pairing's own counters, or `undefined' (not active here, or over the
 %% cap).
--opaque pairing_ref() :: {counters:counters_ref(), #{term() => pos_integer()}} | undefined.
+-type pairing_ref() :: {counters:counters_ref(), #{term() => pos_integer()}} | undefined.
 %% A gauge sample from a collector: name, label pairs, value.
 -type sample() :: {atom(), [{atom(), binary()}], number()}.
 -type metric_type() :: counter | gauge.
