@@ -31,9 +31,12 @@
 -define(TABLE, evatar_metrics_pairings).
 -define(DEFAULT_MAX_PAIRINGS, 1000).
 
-%% A pairing's own counters, or `undefined' (not active here, or over the
-%% cap).
--type pairing_ref() :: {counters:counters_ref(), #{term() => pos_integer()}} | undefined.
+%% Counters and where each (metric, label value) is in them.
+-type slots() :: {counters:counters_ref(), #{atom() => #{term() => pos_integer()}}}.
+%% What a pairing counts on: the node's counters and its own (`undefined'
+%% over the cap), held by the pairing so that counting reads no table;
+%% `undefined' before it is active here.
+-type pairing_ref() :: {slots(), slots() | undefined} | undefined.
 %% A gauge sample from a collector: name, label pairs, value.
 -type sample() :: {atom(), [{atom(), binary()}], number()}.
 -type metric_type() :: counter | gauge.
@@ -139,7 +142,7 @@ init_counters() ->
     case persistent_term:get(?NODE_KEY, undefined) of
         undefined ->
             Index = index(definitions()),
-            Ref = counters:new(map_size(Index), [write_concurrency]),
+            Ref = counters:new(slot_count(definitions()), [write_concurrency]),
             persistent_term:put(?NODE_KEY, {Ref, Index});
         _ ->
             ok
@@ -159,24 +162,29 @@ inc(Name, Label) ->
         undefined -> ok
     end.
 
+%% Two small maps (metric, then label value): found without hashing.
 add(Ref, Index, Name, Label) ->
     case Index of
-        #{{Name, Label} := I} -> counters:add(Ref, I, 1);
-        #{{Name, other} := I} -> counters:add(Ref, I, 1);
+        #{Name := #{Label := I}} -> counters:add(Ref, I, 1);
+        #{Name := #{other := I}} -> counters:add(Ref, I, 1);
         #{} -> ok
     end.
+
+slot(Index, Name, Label) ->
+    #{Name := #{Label := I}} = Index,
+    I.
 
 %% @doc A node counter's value (tests, operators).
 -spec value(atom(), term()) -> non_neg_integer().
 value(Name, Label) ->
     {Ref, Index} = persistent_term:get(?NODE_KEY),
-    counters:get(Ref, maps:get({Name, Label}, Index)).
+    counters:get(Ref, slot(Index, Name, Label)).
 
 %% @doc A pairing's counter's value on this node, or 0 when it has none.
 -spec pairing_value(evatar:pairing_id(), atom(), term()) -> non_neg_integer().
 pairing_value(PairingId, Name, Label) ->
     case ets:lookup(?TABLE, PairingId) of
-        [{_, _Pid, Ref}] -> counters:get(Ref, maps:get({Name, Label}, pairing_index()));
+        [{_, _Pid, Ref}] -> counters:get(Ref, slot(pairing_index(), Name, Label));
         [] -> 0
     end.
 
@@ -185,10 +193,15 @@ pairing_value(PairingId, Name, Label) ->
 %% `undefined' beyond `metrics_max_pairings'.
 -spec pairing(evatar:pairing_id()) -> pairing_ref().
 pairing(PairingId) ->
-    case whereis(?MODULE) =/= undefined andalso
-        gen_server:call(?MODULE, {pairing, PairingId, self()}) of
-        {ok, Ref} -> {Ref, pairing_index()};
-        _ -> undefined
+    case persistent_term:get(?NODE_KEY, undefined) of
+        undefined ->
+            undefined;
+        Node ->
+            case whereis(?MODULE) =/= undefined andalso
+                gen_server:call(?MODULE, {pairing, PairingId, self()}) of
+                {ok, Ref} -> {Node, {Ref, pairing_index()}};
+                _ -> {Node, undefined}
+            end
     end.
 
 %% @doc Counts one step of a pairing: its event and the effects its logic
@@ -196,12 +209,9 @@ pairing(PairingId) ->
 %% the pairing's own.
 -spec pairing_step(pairing_ref(), evatar_pairing_logic:event(),
                    [evatar_pairing_logic:effect()]) -> ok.
-pairing_step(PRef, Event, Effects) when element(1, Event) =:= signal;
-                                        element(1, Event) =:= timeout ->
-    case persistent_term:get(?NODE_KEY, undefined) of
-        {Ref, Index} -> count_effects(Effects, Ref, Index, PRef);
-        undefined -> ok
-    end;
+pairing_step({{Ref, Index}, Own}, Event, Effects) when element(1, Event) =:= signal;
+                                                       element(1, Event) =:= timeout ->
+    count_effects(Effects, Ref, Index, Own);
 pairing_step(_PRef, _Event, _Effects) ->
     ok.
 
@@ -210,15 +220,15 @@ count_effects([{deliver, _, #{origin := _}} | Rest], Ref, Index, PRef) ->
     count_effects(Rest, Ref, Index, PRef);
 count_effects([{deliver, _, #{context := Kind}} | Rest], Ref, Index, PRef) ->
     add(Ref, Index, evatar_signals_routed_total, Kind),
-    ok = pairing_inc(PRef, evatar_pairing_signals_routed_total, Kind),
+    ok = own_inc(PRef, evatar_pairing_signals_routed_total, Kind),
     count_effects(Rest, Ref, Index, PRef);
 count_effects([{log, _, #{what := signal_refused, code := Code}} | Rest], Ref, Index, PRef) ->
     add(Ref, Index, evatar_signals_refused_total, Code),
-    ok = pairing_inc(PRef, evatar_pairing_signals_refused_total, none),
+    ok = own_inc(PRef, evatar_pairing_signals_refused_total, none),
     count_effects(Rest, Ref, Index, PRef);
 count_effects([{log, _, #{what := feedback_timeout}} | Rest], Ref, Index, PRef) ->
     add(Ref, Index, evatar_feedback_timeouts_total, none),
-    ok = pairing_inc(PRef, evatar_pairing_feedback_timeouts_total, none),
+    ok = own_inc(PRef, evatar_pairing_feedback_timeouts_total, none),
     count_effects(Rest, Ref, Index, PRef);
 count_effects([{log, _, #{what := late_feedback}} | Rest], Ref, Index, PRef) ->
     add(Ref, Index, evatar_late_feedback_total, none),
@@ -233,12 +243,14 @@ count_effects([], _Ref, _Index, _PRef) ->
 
 %% @doc Adds one to a pairing's own counter (nothing for `undefined').
 -spec pairing_inc(pairing_ref(), atom(), term()) -> ok.
-pairing_inc({Ref, Index}, Name, Label) ->
-    case Index of
-        #{{Name, Label} := I} -> counters:add(Ref, I, 1);
-        #{} -> ok
-    end;
+pairing_inc({_Node, Own}, Name, Label) ->
+    own_inc(Own, Name, Label);
 pairing_inc(undefined, _Name, _Label) ->
+    ok.
+
+own_inc({Ref, Index}, Name, Label) ->
+    add(Ref, Index, Name, Label);
+own_inc(undefined, _Name, _Label) ->
     ok.
 
 %% @doc Registers a module whose `Function()' returns gauge samples
@@ -261,14 +273,14 @@ add_collector({M, F} = MF) when is_atom(M), is_atom(F) ->
 render() ->
     {Ref, Index} = persistent_term:get(?NODE_KEY),
     Node = [family(Name, Type, Help,
-                   [{labels(Label, V), counters:get(Ref, maps:get({Name, V}, Index))}
+                   [{labels(Label, V), counters:get(Ref, slot(Index, Name, V))}
                     || V <- Values])
             || {Name, Type, Help, Label, Values} <- definitions()],
     Pairings = lists:sort([{Id, R} || {Id, _Pid, R} <- ets:tab2list(?TABLE)]),
     PIndex = pairing_index(),
     PerPairing = [family(Name, Type, Help,
                          [{[{pairing, Id} | labels(Label, V)],
-                           counters:get(R, maps:get({Name, V}, PIndex))}
+                           counters:get(R, slot(PIndex, Name, V))}
                           || {Id, R} <- Pairings, V <- Values])
                   || {Name, Type, Help, Label, Values} <- pairing_definitions()],
     Samples = gauges(),
@@ -334,8 +346,16 @@ collect({M, F}) ->
     end.
 
 index(Definitions) ->
-    Keys = [{Name, V} || {Name, _, _, _, Values} <- Definitions, V <- Values],
-    maps:from_list(lists:zip(Keys, lists:seq(1, length(Keys)))).
+    {Index, _Next} =
+        lists:foldl(fun({Name, _, _, _, Values}, {Acc, N}) ->
+                            Slots = maps:from_list(lists:zip(Values,
+                                                             lists:seq(N, N + length(Values) - 1))),
+                            {Acc#{Name => Slots}, N + length(Values)}
+                    end, {#{}, 1}, Definitions),
+    Index.
+
+slot_count(Definitions) ->
+    lists:sum([length(Values) || {_, _, _, _, Values} <- Definitions]).
 
 pairing_index() ->
     index(pairing_definitions()).
@@ -368,7 +388,7 @@ handle_call({pairing, Id, Pid}, _From, Mons) ->
             Max = application:get_env(evatar, metrics_max_pairings, ?DEFAULT_MAX_PAIRINGS),
             case Found =/= [] orelse ets:info(?TABLE, size) < Max of
                 true ->
-                    Ref = counters:new(map_size(pairing_index()), []),
+                    Ref = counters:new(slot_count(pairing_definitions()), []),
                     true = ets:insert(?TABLE, {Id, Pid, Ref}),
                     Mon = erlang:monitor(process, Pid),
                     {reply, {ok, Ref}, Mons#{Mon => Id}};
