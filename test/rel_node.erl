@@ -1,0 +1,154 @@
+%% @doc Test support, not a suite: release nodes for the suites that drive
+%% the release as an operator does (dist_SUITE, release_commands_SUITE). The
+%% release that `rebar3 release' builds (or EVATAR_REL); each node with a
+%% HOME of its own (so a cookie of its own), its own data directory, free
+%% ports and the case's epmd; `bin/evatar' run with its output in a file.
+%% The suites' Config holds `rel', `dir' (the case's directory),
+%% `epmd_port' and `nodes' (an ETS bag of the nodes started, for the end of
+%% the case).
+-module(rel_node).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([release/1, clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
+         start_node/2, stop_node/2, kill_by_name/1, rel/3, run/4, quote/1, console_log/1]).
+
+-define(WAIT, 60000).
+
+%% The release under test: EVATAR_REL, or the one `rebar3 release' builds
+%% (under REBAR_BASE_DIR or _build).
+release(Priv) ->
+    case os:getenv("EVATAR_REL") of
+        Dir when is_list(Dir), Dir =/= "" ->
+            Dir;
+        _ ->
+            Root = ha_cluster:repo_root(),
+            Log = filename:join(Priv, "rebar3-release.log"),
+            Cmd = "cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo rc=$?",
+            Out = os:cmd(Cmd),
+            ?assertEqual("rc=0\n", Out, Log),
+            Base = case os:getenv("REBAR_BASE_DIR") of
+                       B when is_list(B), B =/= "" -> B;
+                       _ -> filename:join(Root, "_build")
+                   end,
+            filename:join([Base, "default", "rel", "evatar"])
+    end.
+
+%% Variables a caller's environment might hold that would change what is
+%% tested; unset for every command.
+clean_env() ->
+    [{V, false} || V <- ["EVATAR_COOKIE", "ERL_FLAGS", "ERL_AFLAGS", "ERL_ZFLAGS",
+                         "ERL_EPMD_ADDRESS", "RELX_COOKIE", "EVATAR_DIST", "EVATAR_DIST_IP",
+                         "EVATAR_PEERS", "USE_NODETOOL", "EVATAR_NODE", "EVATAR_PORT",
+                         "EVATAR_IP"]].
+
+node_env(Config, Name, Extra) ->
+    node_env(Config, Name, Extra, "127.0.0.1").
+
+%% The environment of one node: its own HOME (so its own cookie), output
+%% directory, name, ports and the case's epmd.
+node_env(Config, Name, Extra, Host) ->
+    Dir = filename:join(?config(dir, Config), Name),
+    Home = filename:join(Dir, "home"),
+    ok = filelib:ensure_path(Home),
+    [Bridge, Dist] = ha_cluster:free_ports(2),
+    Base = [{"HOME", Home},
+            {"RELX_OUT_FILE_PATH", Dir},
+            {"RUNNER_LOG_DIR", filename:join(Dir, "log")},
+            %% Its own catalogue: a data directory belongs to one node name.
+            {"EVATAR_DATA_DIR", filename:join(Dir, "data")},
+            {"EVATAR_NODE", "ds" ++ Name ++ os:getpid() ++ "@" ++ Host},
+            {"EVATAR_PORT", integer_to_list(Bridge)},
+            {"EVATAR_DIST_PORT_MIN", integer_to_list(Dist)},
+            {"EVATAR_DIST_PORT_MAX", integer_to_list(Dist)},
+            {"ERL_EPMD_PORT", integer_to_list(?config(epmd_port, Config))}],
+    lists:ukeymerge(1, lists:ukeysort(1, Extra),
+                    lists:ukeysort(1, Base ++ [V || {K, _} = V <- clean_env(),
+                                                    not lists:keymember(K, 1, Base)])).
+
+env(Name, Env) ->
+    {Name, Value} = lists:keyfind(Name, 1, Env),
+    Value.
+
+home(Env) -> env("HOME", Env).
+
+node_name(Env) -> env("EVATAR_NODE", Env).
+
+%% bin/evatar daemon, remembered for end_per_testcase. daemon returns once
+%% the node answers a ping, before its applications have started: wait
+%% until evatar runs, so that a node that dies while it boots (as every
+%% node but the first did on the release's shared data directory) fails
+%% here, not as an attacker refused by a node that is not there or a
+%% remote_console that finds no node.
+start_node(Config, Env) ->
+    true = ets:insert(?config(nodes, Config), {node, Env}),
+    case rel(Config, Env, ["daemon"]) of
+        {0, _} ->
+            Running = "lists:keymember(evatar, 1, application:which_applications()).",
+            case ha_cluster:await(fun() ->
+                                          case rel(Config, Env, ["eval", Running]) of
+                                              {0, Out} -> string:trim(Out) =:= "true";
+                                              _ -> false
+                                          end
+                                  end, ?WAIT, {evatar_running, node_name(Env)}) of
+                ok ->
+                    ok;
+                {error, _} = Error ->
+                    ct:log("~s console log:~n~s", [node_name(Env), (console_log(Env))()]),
+                    Error
+            end;
+        {Rc, Out} ->
+            {error, {daemon, Rc, Out}}
+    end.
+
+stop_node(Env, Config) ->
+    case rel(Config, Env, ["stop"]) of
+        {0, _} -> ok;
+        _ -> kill_by_name(node_name(Env))
+    end.
+
+%% kill -9 of the OS process whose command line names the node (a node
+%% that bin/evatar cannot reach, when a case fails).
+kill_by_name(Node) ->
+    Arg = <<0, (list_to_binary(Node))/binary, 0>>,
+    _ = [os:cmd("kill -9 " ++ Pid)
+         || Pid <- filelib:wildcard("[0-9]*", "/proc"),
+            {ok, Cmd} <- [file:read_file("/proc/" ++ Pid ++ "/cmdline")],
+            binary:match(Cmd, <<0, "-name", Arg/binary>>) =/= nomatch],
+    ok.
+
+%% Runs bin/evatar with Args in Env: {ExitStatus, Output}.
+rel(Config, Env, Args) ->
+    run(Config, Env, filename:join([?config(rel, Config), "bin", "evatar"]), Args).
+
+%% Runs a program with its output in a file (a daemon's children keep no
+%% pipe of ours open) and its input from /dev/null.
+run(Config, Env, Prog, Args) ->
+    Out = filename:join(?config(dir, Config),
+                        "cmd-" ++ integer_to_list(erlang:unique_integer([positive])) ++ ".out"),
+    Cmd = "exec " ++ lists:join(" ", [quote(A) || A <- [Prog | Args]])
+        ++ " > " ++ quote(Out) ++ " 2>&1 < /dev/null",
+    Port = open_port({spawn_executable, "/bin/sh"},
+                     [{args, ["-c", lists:flatten(Cmd)]}, {env, Env}, exit_status]),
+    receive
+        {Port, {exit_status, Status}} ->
+            {ok, Bin} = file:read_file(Out),
+            {Status, binary_to_list(Bin)}
+    after ?WAIT ->
+            ct:fail({no_exit, Prog, Args})
+    end.
+
+quote(S) ->
+    "'" ++ lists:flatten(string:replace(S, "'", "'\\''", all)) ++ "'".
+
+%% The node's console log (run_erl's, in RUNNER_LOG_DIR), read anew.
+console_log(Env) ->
+    File = filename:join(env("RUNNER_LOG_DIR", Env), "erlang.log.1"),
+    fun() ->
+            case file:read_file(File) of
+                {ok, Bin} -> Bin;
+                {error, enoent} -> <<>>
+            end
+    end.
+
