@@ -41,7 +41,7 @@ clean_env() ->
     [{V, false} || V <- ["EVATAR_COOKIE", "ERL_FLAGS", "ERL_AFLAGS", "ERL_ZFLAGS",
                          "ERL_EPMD_ADDRESS", "RELX_COOKIE", "EVATAR_DIST", "EVATAR_DIST_IP",
                          "EVATAR_PEERS", "USE_NODETOOL", "EVATAR_NODE", "EVATAR_PORT",
-                         "EVATAR_IP"]].
+                         "EVATAR_IP", "EVATAR_HTTP", "EVATAR_HTTP_IP", "EVATAR_HTTP_TOKEN_FILE"]].
 
 node_env(Config, Name, Extra) ->
     node_env(Config, Name, Extra, "127.0.0.1").
@@ -60,6 +60,8 @@ node_env(Config, Name, Extra, Host) ->
             {"EVATAR_DATA_DIR", filename:join(Dir, "data")},
             {"EVATAR_NODE", "ds" ++ Name ++ os:getpid() ++ "@" ++ Host},
             {"EVATAR_PORT", integer_to_list(Bridge)},
+            %% The HTTP API on a port of its own (suites run side by side).
+            {"EVATAR_HTTP_PORT", "0"},
             {"EVATAR_DIST_PORT_MIN", integer_to_list(Dist)},
             {"EVATAR_DIST_PORT_MAX", integer_to_list(Dist)},
             {"ERL_EPMD_PORT", integer_to_list(?config(epmd_port, Config))}],
