@@ -104,6 +104,44 @@ def test_close_twice_and_before_connect(endpoint) -> None:  # type: ignore[no-un
     run(main())
 
 
+def test_close_during_connect(endpoint) -> None:  # type: ignore[no-untyped-def]
+    """close() while connect() goes on: connect raises ClosedError (or had
+    just finished, and the session is closed); a session the handshake made
+    meanwhile is left with a Bye, so the same EntityID joins at once; no
+    socket is left open."""
+    dead = dead_endpoint()
+
+    async def main() -> None:
+        fds = open_fds()
+        # Version 2 going round endpoints that do not answer.
+        c = Client([dead], pairing="twice", role="agent", entity_id="va-d", credential="w-va",
+                   ha=True, reconnect_backoff=(0.05, 0.1))
+        task = asyncio.ensure_future(c.connect())
+        await asyncio.sleep(0.3)
+        await c.close()
+        with pytest.raises(ClosedError):
+            await asyncio.wait_for(task, 10)
+        # A handshake under way with a live node, closed at each step of it.
+        for delay in (0, 0.001, 0.005, 0.02):
+            c = Client([endpoint], pairing="twice", role="agent", entity_id="va-d",
+                       credential="w-va")
+            task = asyncio.ensure_future(c.connect())
+            await asyncio.sleep(delay)
+            await c.close()
+            try:
+                await task
+            except ClosedError:
+                pass
+            assert c.closed is not None and not c.connected
+            again = Client([endpoint], pairing="twice", role="agent", entity_id="va-d",
+                           credential="w-va")
+            await again.connect()  # not refused EntityExists
+            assert again.connected
+            await again.close()
+        assert open_fds() == fds
+    run(main())
+
+
 def test_refused_connects_leave_nothing(endpoint) -> None:  # type: ignore[no-untyped-def]
     """Refused and unreachable connects in a loop, with and without
     ``with``: afterwards as many threads and open file descriptors as

@@ -311,7 +311,7 @@ class Client:
                 try:
                     await self._try_endpoint(e)
                     break
-                except RefusedError:
+                except (RefusedError, ClosedError):
                     raise
                 except (OSError, asyncio.TimeoutError, asyncio.IncompleteReadError,
                         FrameError, BilError, EvatarError) as why:
@@ -583,11 +583,26 @@ class Client:
             link.abort()
             raise RefusedError("BadHandshake", "the server does not speak ProtocolVersion 2")
         if self._closed is not None:
-            # close() was called while the handshake went on.
+            # close() was called while the handshake went on: leave as
+            # close() does, waiting for EVATAR's Bye (bounded).
             link.write(encode(Bye()))
+            try:
+                await asyncio.wait_for(self._await_bye(link), self.handshake_timeout)
+            except (OSError, asyncio.TimeoutError, asyncio.IncompleteReadError, FrameError):
+                pass
             link.abort()
             raise ClosedError(self._closed.reason)
         self._welcomed(doc, link)
+
+    @staticmethod
+    async def _await_bye(link: _Link) -> None:
+        await link.writer.drain()
+        while True:
+            try:
+                if isinstance(parse_frame(await link.read()), Bye):
+                    return
+            except BilError:
+                pass
 
     def _hello(self) -> Union[Hello, Resume]:
         v = 2 if self.ha else 1
