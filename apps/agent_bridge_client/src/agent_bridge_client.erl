@@ -3,7 +3,8 @@
 %% and passes what EVATAR sends to an owner process as messages:
 %% `{agent_bridge, Client, {signal, Signal}}',
 %% `{agent_bridge, Client, {binding, Report}}' and, last,
-%% `{agent_bridge, Client, {closed, Reason}}'.
+%% `{agent_bridge, Client, {closed, Reason}}' (only a client that had
+%% connected sends it: a failed connect is the caller's error).
 %%
 %% With `ha => true' it speaks protocol version 2 (docs/protocol.md section
 %% 9): it keeps every signal until EVATAR acknowledges it, acknowledges what
@@ -17,28 +18,38 @@
 %% also gets `{agent_bridge, Client, {reconnected, Info}}' and, with
 %% `notify_acks => true', `{agent_bridge, Client, {accepted, [SignalID]}}'.
 %%
+%% `close/1' works in every state and any number of times: while
+%% connecting it stops the attempt (the `connect/1' caller gets `{error,
+%% closed}'), once connected it says Bye and waits for EVATAR's Bye (at
+%% most `close_timeout' ms), so the same EntityID can connect again at
+%% once. The TCP (and TLS) connect runs in a short-lived helper process, so
+%% the client answers `close/1' while it waits.
+%%
 %% ```
-%%  connecting --TCP up, Hello/Resume sent--> handshaking --Welcome--> connected
-%%      ^   | all endpoints failed               | Refused        | closed, Refused, Bye
-%%      |   v                                    v                v
-%%      +-- next endpoint (ha: with back-off, until reconnect_limit) <--+ (ha)
-%%          (stop)                             (stop)           (stop, not ha)
+%%  idle --connect/1--> connecting --TCP up, Hello/Resume sent--> handshaking --Welcome--> connected
+%%                       ^   | all endpoints failed                | Refused      | closed, Refused, Bye
+%%                       |   v                                     v              v
+%%                       +-- next endpoint (ha: with back-off, until reconnect_limit) <--+ (ha)
+%%                           (stop)                              (stop)         (stop, not ha)
+%%  connected --close/1: Bye--> closing --EVATAR's Bye, closed or close_timeout--> (stop)
+%%  any other state --close/1--> (stop)
 %% '''
 -module(agent_bridge_client).
 -behaviour(gen_statem).
 
--export([connect/2, describe/2, send/2, request/3, close/1, session/1,
-         status/1, await_acks/2]).
+-export([connect/2, start/2, connect/1, describe/2, send/2, request/3, close/1,
+         session/1, status/1, await_acks/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
--export_type([opts/0, endpoint/0, close_reason/0, partial_signal/0]).
+-export_type([opts/0, endpoint/0, close_reason/0, partial_signal/0, connect_error/0]).
 
 -type endpoint() :: {inet:socket_address() | inet:hostname(), inet:port_number()}.
 %% `ha' (default false) turns on protocol version 2; `reconnect_backoff'
 %% (ms, doubling, default {20, 500}) and `reconnect_limit' (ms without a
 %% session before giving up, default 600000: longer than a machine's
 %% reboot, so clients outlast a power cut) apply to it, and so does
-%% `notify_acks' (default false). `tls' (default false: plain TCP) connects
+%% `notify_acks' (default false). `close_timeout' (ms, default 5000) bounds
+%% how long close/1 waits for EVATAR's Bye. `tls' (default false: plain TCP) connects
 %% with TLS and checks the server (agent_bridge_client_sock:tls_opts(),
 %% docs/clients.md, "TLS").
 -type opts() :: #{pairing := binary(),
@@ -49,6 +60,7 @@
                   owner => pid(),
                   connect_timeout => timeout(),
                   handshake_timeout => timeout(),
+                  close_timeout => timeout(),
                   max_frame => pos_integer(),
                   active_n => pos_integer(),
                   ha => boolean(),
@@ -73,6 +85,15 @@
                       | {socket_error, term()}
                       | {gave_up, term()}.
 
+%% Why connect/1,2 failed: EVATAR refused (`{refused, Code, Message}'), no
+%% endpoint answered (`{unreachable, [{Endpoint, Why}]}'), close/1 was
+%% called meanwhile or the client had stopped (`closed'), the client is
+%% connected already (`already_connected') or another process is
+%% connecting it (`connecting').
+-type connect_error() :: {refused, binary(), binary()}
+                       | {unreachable, [{endpoint(), term()}]}
+                       | closed | already_connected | connecting.
+
 %% Refusals after which a version 2 client tries the next endpoint.
 -define(RETRY_CODES, [<<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>, <<"PairingDown">>,
                       <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
@@ -88,6 +109,10 @@
             current :: endpoint() | undefined,
             sock :: agent_bridge_client_sock:sock() | undefined,
             waiter :: gen_statem:from() | undefined,
+            %% The helper process making the TCP (TLS) connection.
+            connector :: {pid(), reference()} | undefined,
+            %% close/1 callers waiting for EVATAR's Bye.
+            closers = [] :: [gen_statem:from()],
             welcome :: bil_control:welcome() | undefined,
             nonce :: binary(),
             counter = 0 :: non_neg_integer(),
@@ -127,17 +152,39 @@
 %% ---------------------------------------------------------------------------
 
 %% @doc Connects to the first endpoint that answers and completes the
-%% handshake. A Refused ends the attempt at once: the same credential would
-%% be refused elsewhere too (with `ha', a refusal meaning "not here", such as
-%% NotActive, moves on to the next endpoint instead, with back-off, for up to
-%% `reconnect_limit' ms).
--spec connect([endpoint()], opts()) ->
-          {ok, pid()} | {error, {refused, binary(), binary()}
-                                | {unreachable, [{endpoint(), term()}]}}.
+%% handshake: start/2 then connect/1. A Refused ends the attempt at once:
+%% the same credential would be refused elsewhere too (with `ha', a refusal
+%% meaning "not here", such as NotActive, moves on to the next endpoint
+%% instead, with back-off, for up to `reconnect_limit' ms). On an error the
+%% client's process is gone when this returns, and so is its socket.
+-spec connect([endpoint()], opts()) -> {ok, pid()} | {error, connect_error()}.
 connect(Endpoints, Opts) ->
+    {ok, Pid} = start(Endpoints, Opts),
+    case connect(Pid) of
+        {ok, Pid} ->
+            {ok, Pid};
+        {error, _} = Error ->
+            Ref = monitor(process, Pid),
+            receive {'DOWN', Ref, process, Pid, _} -> Error end
+    end.
+
+%% @doc A client that has not connected yet: connect/1 connects it, and
+%% close/1 (from any process) stops it, also while connect/1 runs. Its
+%% owner is `owner' (default the caller); it stops when the owner does.
+-spec start([endpoint()], opts()) -> {ok, pid()}.
+start(Endpoints, Opts) ->
     Owner = maps:get(owner, Opts, self()),
-    {ok, Pid} = gen_statem:start(?MODULE, {Endpoints, Opts, Owner}, []),
-    gen_statem:call(Pid, await_welcome).
+    gen_statem:start(?MODULE, {Endpoints, Opts, Owner}, []).
+
+%% @doc Connects a client made by start/2 and returns once EVATAR welcomed
+%% it. Fails locally, without a connection, with `{error,
+%% already_connected}' for a client connected before (with `ha', also one
+%% that is reconnecting) and `{error, connecting}' while another process
+%% connects it; `{error, closed}' when close/1 stopped it meanwhile or it
+%% had stopped. After any other error the client stops.
+-spec connect(pid()) -> {ok, pid()} | {error, connect_error()}.
+connect(Client) ->
+    call(Client, connect).
 
 %% @doc Sends a description; returns once written (with `ha': once queued;
 %% it is sent again after a reconnect that did not resume the session). The
@@ -165,13 +212,22 @@ send(Client, Signal) ->
 request(Client, Signal, Timeout) ->
     call(Client, {request, Signal, Timeout}).
 
-%% @doc Says Bye and closes.
+%% @doc Closes the client, in any state, and returns `ok' once it has
+%% stopped, also when it had stopped already. Connected, it says Bye and
+%% waits for EVATAR's Bye or the end of the connection, at most
+%% `close_timeout' ms (default 5000): EVATAR has then let go of the
+%% EntityID, and a new connection with it is not refused EntityExists.
+%% Waiting callers get `{error, closed}'; the owner gets `{closed, normal}'
+%% when the client had connected.
 -spec close(pid()) -> ok.
 close(Client) ->
+    Ref = monitor(process, Client),
     case call(Client, close) of
         ok -> ok;
         {error, closed} -> ok
-    end.
+    end,
+    %% The reply comes before terminate/3: wait for the socket to be closed.
+    receive {'DOWN', Ref, process, Client, _} -> ok end.
 
 %% @doc The Welcome of the current session.
 -spec session(pid()) -> {ok, bil_control:welcome()} | {error, closed}.
@@ -206,21 +262,26 @@ call(Client, Request) ->
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
--spec init({[endpoint()], opts(), pid()}) -> gen_statem:init_result(connecting).
+-spec init({[endpoint()], opts(), pid()}) -> gen_statem:init_result(idle).
 init({Endpoints, Opts, Owner}) ->
     monitor(process, Owner),
     D = #d{opts = Opts, owner = Owner, endpoints = Endpoints, all = Endpoints,
            ha = maps:get(ha, Opts, false) =:= true,
            nonce = binary:encode_hex(crypto:strong_rand_bytes(4))},
-    {ok, connecting, D}.
+    {ok, idle, D}.
 
 -spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
           gen_statem:event_handler_result(atom()).
-handle_event({call, From}, await_welcome, connected, _D) ->
-    {keep_state_and_data, [{reply, From, {ok, self()}}]};
-handle_event({call, From}, await_welcome, connecting, #d{waiter = undefined} = D) ->
+handle_event({call, From}, connect, idle, D) ->
     %% Connecting starts only now, so the outcome always has a caller to go to.
-    {keep_state, D#d{waiter = From, lost_at = now_ms()}, [{next_event, internal, connect}]};
+    {next_state, connecting, D#d{waiter = From, lost_at = now_ms()},
+     [{next_event, internal, connect}]};
+handle_event({call, From}, connect, State, #d{waiter = W, ever_connected = Ever}) ->
+    Why = if State =:= closing -> closed;
+             W =/= undefined, not Ever -> connecting;
+             true -> already_connected
+          end,
+    {keep_state_and_data, [{reply, From, {error, Why}}]};
 handle_event(internal, connect, connecting, #d{ha = true} = D) ->
     attempt(D);
 handle_event({timeout, retry}, retry, connecting, D) ->
@@ -229,6 +290,8 @@ handle_event(internal, connect, connecting, #d{endpoints = []} = D) ->
     fail({unreachable, lists:reverse(D#d.failures)}, D);
 handle_event(internal, connect, connecting, #d{endpoints = [E | Rest]} = D) ->
     try_endpoint(E, D#d{endpoints = Rest});
+handle_event(info, {connected, Ref, Result}, connecting, #d{connector = {_, Ref}} = D) ->
+    connected_to(Result, D#d{connector = undefined});
 %% A TLS socket's messages, read as a TCP socket's.
 handle_event(info, {ssl, Sock, Frame}, State, D) ->
     handle_event(info, {tcp, Sock, Frame}, State, D);
@@ -326,52 +389,123 @@ handle_event({call, From}, await_acks, _State, #d{unacked_n = 0, blocked = B} = 
     end;
 handle_event({call, From}, await_acks, _State, D) ->
     {keep_state, D#d{ack_waiters = [From | D#d.ack_waiters]}};
-handle_event({call, From}, close, connected, #d{sock = Sock} = D) ->
-    %% The server answers Bye and closes at once, so either call may find
-    %% the socket already closed.
-    _ = agent_bridge_client_sock:send(Sock, bil_control:encode({bye, <<>>})),
-    _ = agent_bridge_client_sock:shutdown(Sock),
-    {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
-handle_event({call, From}, close, _State, #d{ha = true} = D) ->
-    {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)};
+handle_event({call, From}, close, connected, #d{sock = Sock, opts = Opts} = D) ->
+    %% EVATAR answers Bye once the entity has left: waiting for it lets the
+    %% same EntityID connect again at once. Its Bye, the end of the
+    %% connection or the timeout ends the wait.
+    case agent_bridge_client_sock:send(Sock, bil_control:encode({bye, <<>>})) of
+        ok ->
+            _ = agent_bridge_client_sock:setopts(Sock, [{active, true}]),
+            {next_state, closing, finish_quietly(D#d{closers = [From]}),
+             [{state_timeout, maps:get(close_timeout, Opts, 5000), close},
+              {{timeout, silence}, cancel}, {{timeout, ack}, cancel}]};
+        {error, _} ->
+            {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)}
+    end;
+handle_event({call, From}, close, closing, D) ->
+    {keep_state, D#d{closers = [From | D#d.closers]}};
+handle_event({call, From}, close, State, D) ->
+    %% Not connected: an attempt in progress stops here (terminate/3 ends
+    %% the helper and the socket), and its caller is told.
+    reply_waiter({error, closed}, D),
+    Event = case State of
+                idle -> none;
+                _ -> {closed, normal}
+            end,
+    D1 = case D#d.ever_connected of
+             true when Event =/= none -> finish(Event, D);
+             _ -> finish_quietly(D)
+         end,
+    {stop_and_reply, normal, [{reply, From, ok}], D1#d{waiter = undefined}};
+handle_event(info, {tcp, Sock, Frame}, closing, #d{sock = Sock} = D) ->
+    case bil_control:parse_frame(Frame, #{}) of
+        {ok, {control, {bye, _}}} -> closed(D);
+        _ -> keep_state_and_data
+    end;
+handle_event(info, {tcp_passive, Sock}, closing, #d{sock = Sock}) ->
+    _ = agent_bridge_client_sock:setopts(Sock, [{active, true}]),
+    keep_state_and_data;
+handle_event(info, {tcp_closed, Sock}, closing, #d{sock = Sock} = D) ->
+    closed(D);
+handle_event(info, {tcp_error, Sock, _}, closing, #d{sock = Sock} = D) ->
+    closed(D);
+handle_event(state_timeout, close, closing, D) ->
+    closed(D);
 handle_event({call, From}, _Request, _State, _D) ->
     {keep_state_and_data, [{reply, From, {error, closed}}]};
 handle_event(info, {'DOWN', _, process, Owner, _}, _State, #d{owner = Owner} = D) ->
-    {stop, normal, D};
+    reply_waiter({error, closed}, D),
+    _ = [gen_statem:reply(F, ok) || F <- D#d.closers],
+    {stop, normal, finish_quietly(D#d{waiter = undefined})};
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
 -spec terminate(term(), atom(), #d{}) -> ok.
-terminate(_Why, _State, #d{sock = undefined}) -> ok;
-terminate(_Why, _State, #d{sock = Sock}) -> agent_bridge_client_sock:close(Sock).
+terminate(_Why, _State, #d{sock = Sock, connector = Connector}) ->
+    _ = [agent_bridge_client_sock:close(Sock) || Sock =/= undefined],
+    case Connector of
+        undefined ->
+            ok;
+        {Pid, _} ->
+            %% Gone with its socket before the client is.
+            Ref = monitor(process, Pid),
+            exit(Pid, kill),
+            receive {'DOWN', Ref, process, Pid, _} -> ok end
+    end.
+
+%% The end of close/1 on a connected client.
+closed(#d{closers = Closers} = D) ->
+    {stop_and_reply, normal, [{reply, F, ok} || F <- Closers],
+     notify({closed, normal}, D#d{closers = []})}.
 
 %% ---------------------------------------------------------------------------
 %% Connecting
 %% ---------------------------------------------------------------------------
 
+%% The TCP (TLS) connect runs in a helper, so that close/1 is answered
+%% meanwhile; the helper hands the socket over and ends. Killed with the
+%% client, it takes a socket it still owns with it.
 try_endpoint({Host, Port} = E, D) ->
     Opts = D#d.opts,
     SockOpts = [binary, {packet, 4}, {packet_size, maps:get(max_frame, Opts, 1048576)},
-                {active, once}, {nodelay, true}],
-    case agent_bridge_client_sock:connect(Host, Port, SockOpts,
-                                          #{tls => maps:get(tls, Opts, false),
-                                            timeout => maps:get(connect_timeout, Opts, 5000)}) of
-        {ok, Sock} ->
-            case agent_bridge_client_sock:send(Sock, bil_control:encode(hello(D))) of
-                Sent when Sent =:= ok; not is_port(Sock) ->
-                    %% With TLS 1.3 a server refuses a client certificate
-                    %% after the client's handshake is done: the send may
-                    %% fail, and the reason (the TLS alert) follows as a
-                    %% message.
-                    {next_state, handshaking, D#d{sock = Sock, current = E},
-                     [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
-                {error, Why} ->
-                    agent_bridge_client_sock:close(Sock),
-                    next_endpoint(E, Why, D)
-            end;
+                {active, false}, {nodelay, true}],
+    How = #{tls => maps:get(tls, Opts, false),
+            timeout => maps:get(connect_timeout, Opts, 5000)},
+    Self = self(),
+    Ref = make_ref(),
+    Pid = spawn(fun() -> connector(Self, Ref, Host, Port, SockOpts, How) end),
+    {next_state, connecting, D#d{connector = {Pid, Ref}, current = E}}.
+
+connector(Client, Ref, Host, Port, SockOpts, How) ->
+    Result = case agent_bridge_client_sock:connect(Host, Port, SockOpts, How) of
+                 {ok, Sock} ->
+                     case agent_bridge_client_sock:controlling_process(Sock, Client) of
+                         ok -> {ok, Sock};
+                         {error, _} = Error -> Error
+                     end;
+                 {error, _} = Error ->
+                     Error
+             end,
+    Client ! {connected, Ref, Result},
+    ok.
+
+connected_to({ok, Sock}, #d{current = E, opts = Opts} = D) ->
+    %% Passive until here: nothing the server sent went to the helper.
+    ok = agent_bridge_client_sock:setopts(Sock, [{active, once}]),
+    case agent_bridge_client_sock:send(Sock, bil_control:encode(hello(D))) of
+        Sent when Sent =:= ok; not is_port(Sock) ->
+            %% With TLS 1.3 a server refuses a client certificate
+            %% after the client's handshake is done: the send may
+            %% fail, and the reason (the TLS alert) follows as a
+            %% message.
+            {next_state, handshaking, D#d{sock = Sock},
+             [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
         {error, Why} ->
+            agent_bridge_client_sock:close(Sock),
             next_endpoint(E, Why, D)
-    end.
+    end;
+connected_to({error, Why}, #d{current = E} = D) ->
+    next_endpoint(E, Why, D).
 
 hello(#d{opts = Opts, ha = Ha, session_id = Session} = D) ->
     Hello = #{pairing => maps:get(pairing, Opts), role => maps:get(role, Opts),

@@ -5,7 +5,8 @@
 %% server passed every check.
 -module(agent_bridge_client_sock).
 
--export([connect/4, send/2, shutdown/1, close/1, setopts/2, getopts/2, fingerprint/1]).
+-export([connect/4, send/2, close/1, setopts/2, getopts/2, fingerprint/1,
+         controlling_process/2]).
 
 -export_type([sock/0, tls_opts/0]).
 
@@ -88,13 +89,15 @@ fingerprint(Der) ->
 send(S, Data) when is_port(S) -> gen_tcp:send(S, Data);
 send(S, Data) -> ssl:send(S, Data).
 
--spec shutdown(sock()) -> ok | {error, term()}.
-shutdown(S) when is_port(S) -> gen_tcp:shutdown(S, write);
-shutdown(S) -> ssl:shutdown(S, write).
-
 -spec close(sock()) -> ok.
 close(S) when is_port(S) -> gen_tcp:close(S);
 close(S) -> _ = ssl:close(S), ok.
+
+%% @doc Makes Pid the socket's owner: its messages go to Pid, and it
+%% closes when Pid exits.
+-spec controlling_process(sock(), pid()) -> ok | {error, term()}.
+controlling_process(S, Pid) when is_port(S) -> gen_tcp:controlling_process(S, Pid);
+controlling_process(S, Pid) -> ssl:controlling_process(S, Pid).
 
 -spec setopts(sock(), [gen_tcp:option()]) -> ok | {error, term()}.
 setopts(S, Opts) when is_port(S) -> inet:setopts(S, Opts);
