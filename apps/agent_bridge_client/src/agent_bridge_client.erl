@@ -354,7 +354,12 @@ handle_event({timeout, silence}, check, connected, #d{heartbeat = Hb, last_rx = 
 handle_event({timeout, silence}, check, _State, _D) ->
     keep_state_and_data;
 
-%% Requests from the owner.
+%% Requests from the owner. Once close/1 has said Bye, nothing more is
+%% taken (with `ha' it would be queued and lost).
+handle_event({call, From}, close, closing, D) ->
+    {keep_state, D#d{closers = [From | D#d.closers]}};
+handle_event({call, From}, Request, closing, _D) when Request =/= status ->
+    {keep_state_and_data, [{reply, From, {error, closed}}]};
 handle_event({call, From}, {describe, Doc}, State, #d{ha = true} = D) ->
     _ = [write(Doc, D) || State =:= connected],
     {keep_state, D#d{description = Doc}, [{reply, From, ok}]};
@@ -402,8 +407,6 @@ handle_event({call, From}, close, connected, #d{sock = Sock, opts = Opts} = D) -
         {error, _} ->
             {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)}
     end;
-handle_event({call, From}, close, closing, D) ->
-    {keep_state, D#d{closers = [From | D#d.closers]}};
 handle_event({call, From}, close, State, D) ->
     %% Not connected: an attempt in progress stops here (terminate/3 ends
     %% the helper and the socket), and its caller is told.
