@@ -17,6 +17,9 @@
 # EVATAR_HANDSHAKE_RATE=N|infinity sets the plain listener's handshake rate
 # per address (docs/protocol.md section 7.1; default 20/s after a burst of
 # 100), for tests that open many connections in a tight loop.
+# EVATAR_TEST_NO_GUARD=1 also refuses a wrong credential at once and never
+# locks an address out (and implies rate infinity), for tests of many
+# refused handshakes from 127.0.0.1 in seconds.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BASE=${REBAR_BASE_DIR:-_build}
@@ -33,6 +36,7 @@ done
 specs="[${specs%,}]"
 TLS_DIR=${EVATAR_TLS_DIR:-}
 RATE=${EVATAR_HANDSHAKE_RATE:-}
+NO_GUARD=${EVATAR_TEST_NO_GUARD:-}
 if ! [[ "$RATE" =~ ^([1-9][0-9]*|infinity)?$ ]]; then
   echo "test-node.sh: EVATAR_HANDSHAKE_RATE is a positive integer or infinity" >&2
   exit 2
@@ -60,10 +64,12 @@ exec erl -noshell -kernel logger_level warning \
         [begin {ok, {_, TP}} = agent_bridge:address(L), io:format(\"~s=~b~n\", [Var, TP]) end
          || {L, Var} <- [{test_tls, \"EVATAR_TLS_PORT\"}, {test_mtls, \"EVATAR_MTLS_PORT\"}]]
     end,
-    Handshake = case \"$RATE\" of
-                  \"\" -> #{};
-                  \"infinity\" -> #{handshake => #{rate => infinity}};
-                  R -> #{handshake => #{rate => list_to_integer(R)}}
+    Handshake = case {\"$NO_GUARD\", \"$RATE\"} of
+                  {[_ | _], _} -> #{handshake => #{rate => infinity, failure_delay => 0,
+                                                   max_failures => 1000000}};
+                  {_, \"\"} -> #{};
+                  {_, \"infinity\"} -> #{handshake => #{rate => infinity}};
+                  {_, R} -> #{handshake => #{rate => list_to_integer(R)}}
                 end,
     {ok, _} = agent_bridge:start_listener(test_node, Handshake#{ip => {127,0,0,1}, port => $PORT,
                                                                 conn => Hb500}),

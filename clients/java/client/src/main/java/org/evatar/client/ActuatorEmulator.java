@@ -24,17 +24,33 @@ public class ActuatorEmulator {
         return component;
     }
 
-    /** The provider component bound to this emulator for {@code category}/{@code type}. */
-    public String provider(String category, String type) throws IOException {
+    /**
+     * The provider component bound to this emulator for {@code category}/{@code type}.
+     *
+     * @throws NotBoundException nothing to address, nothing sent: the component does not consume the
+     *     service in the description this client sent ({@code NOT_CONSUMED}), no Binding report
+     *     came yet ({@code NO_BINDING_REPORT}), or the last one binds no provider ({@code UNBOUND})
+     */
+    public String provider(String category, String type) throws NotBoundException {
+        Description d = client.description();
+        if (d != null && d.component(component).map(c -> c.consumes().stream()
+                .noneMatch(e -> keyword(e.category()).equals(keyword(category))
+                        && keyword(e.type()).equals(keyword(type)))).orElse(true)) {
+            throw new NotBoundException(NotBoundException.Why.NOT_CONSUMED, component, category, type,
+                    component + " does not consume " + category + "/" + type + " in the description of "
+                    + client.entityId());
+        }
         Control.Binding b = client.binding();
         if (b == null) {
-            throw new IOException("not bound yet: no Binding report received");
+            throw new NotBoundException(NotBoundException.Why.NO_BINDING_REPORT, component, category, type,
+                    "not bound yet: no Binding report received");
         }
         List<Control.Bound> rows = b.consumedBy(client.entityId(), component).stream()
                 .filter(r -> keyword(r.category()).equals(keyword(category))
                         && keyword(r.type()).equals(keyword(type))).toList();
         if (rows.isEmpty()) {
-            throw new IOException(component + " is not bound for " + category + "/" + type);
+            throw new NotBoundException(NotBoundException.Why.UNBOUND, component, category, type,
+                    component + " is not bound for " + category + "/" + type);
         }
         return rows.get(0).providerComponent();
     }

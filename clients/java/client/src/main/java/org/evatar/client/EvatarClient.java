@@ -3,6 +3,7 @@ package org.evatar.client;
 import java.io.EOFException;
 import java.io.IOException;
 import java.net.InetSocketAddress;
+import java.net.Socket;
 import java.net.SocketTimeoutException;
 import java.time.Duration;
 import java.util.ArrayList;
@@ -31,6 +32,14 @@ import java.util.function.Predicate;
  * <p>Incoming signals go to the {@link Listener}; without one they wait in an
  * inbox read with {@link #receive(Duration)}. Feedback answering a
  * {@link #request} completes that request instead.
+ *
+ * <p>{@link #connect(Options, Listener)} connects at once. {@link #create}
+ * makes a client that {@link #connect()} connects later, so another thread
+ * can {@link #close()} it while it connects. {@link #close()} may be called
+ * at any time, any number of times: it stops a connect in progress, says Bye
+ * and waits (at most {@link Options#closeTimeout(Duration)}, 5 s by default)
+ * for EVATAR's Bye, so the same EntityID can connect again at once, and
+ * returns once the client's threads and socket are gone.
  */
 public final class EvatarClient implements AutoCloseable {
 
@@ -45,6 +54,13 @@ public final class EvatarClient implements AutoCloseable {
 
         /** The client is closed for good: {@code reason} is {@code bye}, {@code closed}, a Refused code... */
         default void onClosed(String reason, Throwable cause) {}
+
+        /**
+         * Version 2: EVATAR accepted these signals (their SignalIDs, in the
+         * order they were sent), each told once. A signal accepted is kept
+         * by EVATAR; one never told here may be lost when the client closes.
+         */
+        default void onAccepted(List<String> signalIds) {}
     }
 
     /** Options of a connection; {@code pairing}, {@code role}, {@code entityId} are required. */
@@ -57,6 +73,7 @@ public final class EvatarClient implements AutoCloseable {
         boolean ha;
         int connectTimeoutMs = 5000;
         int handshakeTimeoutMs = 5000;
+        int closeTimeoutMs = 5000;
         int backoffMinMs = 20;
         int backoffMaxMs = 500;
         long reconnectLimitMs = 600000;
@@ -78,6 +95,8 @@ public final class EvatarClient implements AutoCloseable {
             backoffMaxMs = (int) max.toMillis();
             return this;
         }
+        /** How long {@link EvatarClient#close()} waits for EVATAR's Bye (default 5 s). */
+        public Options closeTimeout(Duration d) { closeTimeoutMs = (int) d.toMillis(); return this; }
         /** Connect with TLS and check the server ({@link Tls}); default plain TCP. */
         public Options tls(Tls v) { tls = v; return this; }
         /** How long to go without a session before giving up ({@code gave_up}). */
@@ -127,6 +146,13 @@ public final class EvatarClient implements AutoCloseable {
     private boolean closing;
     private String closedReason;
     private int reconnects;
+    /* The socket being connected or in its handshake, for close() to end. */
+    private Socket opening;
+    /* A thread is in connect(); connectedOnce: a Welcome came once. */
+    private boolean connecting;
+    private boolean connectedOnce;
+    /* SignalIDs accepted, not told to the listener yet. */
+    private final List<String> acceptedToTell = new ArrayList<>();
 
     private final Thread reader;
     private final Thread acker;
@@ -144,36 +170,123 @@ public final class EvatarClient implements AutoCloseable {
 
     /**
      * Connects over TCP to the first endpoint that welcomes the client (each
-     * is tried in order) and returns once the Welcome arrived.
+     * is tried in order) and returns once the Welcome arrived:
+     * {@link #create} then {@link #connect()}.
      *
      * @throws RefusedException EVATAR refused (BadCredential, Occupied...)
      * @throws IOException no endpoint could be reached
      */
     public static EvatarClient connect(Options opts, Listener listener) throws IOException, ProtocolException {
+        EvatarClient c = create(opts, listener);
+        c.connect();
+        return c;
+    }
+
+    /** A client that is not connected yet: {@link #connect()} connects it. */
+    public static EvatarClient create(Options opts, Listener listener) {
         opts.check();
         if (opts.endpoints.isEmpty()) {
             throw new IllegalArgumentException("no endpoint");
         }
-        EvatarClient c = new EvatarClient(opts, listener, false);
-        Exception last = null;
-        for (int i = 0; i < opts.endpoints.size(); i++) {
-            try {
-                c.open(i, false);
-                c.start();
-                return c;
-            } catch (RefusedException e) {
-                if (!opts.ha || !RETRY_CODES.contains(e.code()) || i == opts.endpoints.size() - 1) {
+        return new EvatarClient(opts, listener, false);
+    }
+
+    /**
+     * Connects this client (made by {@link #create}) to the first endpoint
+     * that welcomes it. After a failure the client is closed and holds no
+     * thread or socket.
+     *
+     * @throws IllegalStateException the client is connected already, or another thread is connecting it
+     * @throws ClosedException {@link #close()} was called before or meanwhile
+     * @throws RefusedException EVATAR refused (BadCredential, Occupied...)
+     * @throws IOException no endpoint could be reached
+     */
+    public void connect() throws IOException, ProtocolException {
+        synchronized (lock) {
+            if (closing || closedReason != null) {
+                throw new ClosedException(closedReason == null ? "closed" : closedReason,
+                        "client closed: " + (closedReason == null ? "closed" : closedReason));
+            }
+            if (connectedOnce) {
+                throw new IllegalStateException("already connected (as " + opts.entityId + ")");
+            }
+            if (connecting) {
+                throw new IllegalStateException("already connecting (as " + opts.entityId + ")");
+            }
+            connecting = true;
+        }
+        boolean ok = false;
+        try {
+            Exception last = null;
+            for (int i = 0; i < opts.endpoints.size(); i++) {
+                try {
+                    open(i, false);
+                    last = null;
+                    break;
+                } catch (RefusedException e) {
+                    if (!opts.ha || !RETRY_CODES.contains(e.code()) || i == opts.endpoints.size() - 1) {
+                        throw e;
+                    }
+                    last = e;
+                } catch (ClosedException e) {
                     throw e;
+                } catch (IOException | ProtocolException e) {
+                    last = e;
                 }
-                last = e;
-            } catch (IOException | ProtocolException e) {
-                last = e;
+            }
+            if (last instanceof ProtocolException pe) {
+                throw pe;
+            }
+            if (last != null) {
+                throw (IOException) last;
+            }
+            synchronized (lock) {
+                // Welcomed: the reader runs even when close() came meanwhile,
+                // so that close() gets EVATAR's answer to its Bye.
+                connectedOnce = true;
+                start();
+            }
+            ok = true;
+        } catch (IOException | ProtocolException | RuntimeException e) {
+            synchronized (lock) {
+                if (transport != null) {
+                    try {
+                        transport.close();
+                    } catch (IOException ignored) {
+                        // Closing what failed.
+                    }
+                    transport = null;
+                }
+            }
+            if (closingNow() && !(e instanceof ClosedException)) {
+                throw new ClosedException("closed", "client closed during connect (" + e.getMessage() + ")");
+            }
+            throw e;
+        } finally {
+            synchronized (lock) {
+                connecting = false;
+                if (!ok && closedReason == null) {
+                    closedReason = closing ? "closed" : "connect_failed";
+                }
+                lock.notifyAll();
             }
         }
-        if (last instanceof ProtocolException pe) {
-            throw pe;
+        if (closingNow()) {
+            throw new ClosedException("closed", "client closed during connect");
         }
-        throw (IOException) last;
+    }
+
+    /** For tests: a socket is being connected or is in its handshake. */
+    boolean isOpening() {
+        synchronized (lock) {
+            return opening != null;
+        }
+    }
+
+    private boolean closingNow() {
+        synchronized (lock) {
+            return closing;
+        }
     }
 
     /** Connects over this program's stdin/stdout, for a program EVATAR started (the port connector). */
@@ -181,7 +294,10 @@ public final class EvatarClient implements AutoCloseable {
         opts.check();
         EvatarClient c = new EvatarClient(opts, listener, true);
         c.open(0, false);
-        c.start();
+        synchronized (c.lock) {
+            c.connectedOnce = true;
+            c.start();
+        }
         return c;
     }
 
@@ -196,9 +312,26 @@ public final class EvatarClient implements AutoCloseable {
 
     /** Opens endpoint {@code i}, says Hello (or Resume), reads the Welcome. */
     private void open(int i, boolean resume) throws IOException, ProtocolException {
-        Transport t = stdio ? Transport.stdio()
-                : opts.tls != null ? Transport.tls(opts.endpoints.get(i), opts.connectTimeoutMs, opts.tls)
-                : Transport.tcp(opts.endpoints.get(i), opts.connectTimeoutMs);
+        Transport t;
+        if (stdio) {
+            t = Transport.stdio();
+        } else {
+            Socket s = new Socket();
+            synchronized (lock) {
+                if (closing) {
+                    throw new ClosedException("closed", "client closed during connect");
+                }
+                opening = s;
+            }
+            try {
+                t = opts.tls != null ? Transport.tls(s, opts.endpoints.get(i), opts.connectTimeoutMs, opts.tls)
+                        : Transport.tcp(s, opts.endpoints.get(i), opts.connectTimeoutMs);
+            } catch (IOException | RuntimeException e) {
+                forgetOpening(s);
+                s.close();
+                throw e;
+            }
+        }
         try {
             Control hello;
             synchronized (lock) {
@@ -241,6 +374,10 @@ public final class EvatarClient implements AutoCloseable {
             }
             t.readTimeout(opts.ha ? (int) Math.max(3 * w.heartbeat(), 1000) : 0);
             synchronized (lock) {
+                if (closing) {
+                    throw new ClosedException("closed", "client closed during the handshake");
+                }
+                opening = null;
                 transport = t;
                 endpointIndex = i;
                 welcome = w;
@@ -251,8 +388,19 @@ public final class EvatarClient implements AutoCloseable {
                 sessionId = w.sessionId();
             }
         } catch (IOException | ProtocolException | RuntimeException e) {
+            synchronized (lock) {
+                opening = null;
+            }
             t.close();
             throw e;
+        }
+    }
+
+    private void forgetOpening(Socket s) {
+        synchronized (lock) {
+            if (opening == s) {
+                opening = null;
+            }
         }
     }
 
@@ -289,11 +437,27 @@ public final class EvatarClient implements AutoCloseable {
         while (it.hasNext()) {
             String k = it.next();
             it.remove();
+            acceptedToTell.add(k);
             if (k.equals(id)) {
                 break;
             }
         }
         lock.notifyAll();
+    }
+
+    /** Tells the listener of the signals accepted since last time (not holding the lock). */
+    private void tellAccepted() {
+        List<String> ids;
+        synchronized (lock) {
+            if (acceptedToTell.isEmpty()) {
+                return;
+            }
+            ids = List.copyOf(acceptedToTell);
+            acceptedToTell.clear();
+        }
+        if (listener != null) {
+            listener.onAccepted(ids);
+        }
     }
 
     // ------------------------------------------------------------------ API
@@ -307,6 +471,13 @@ public final class EvatarClient implements AutoCloseable {
 
     public String entityId() {
         return opts.entityId;
+    }
+
+    /** The description last given to {@link #describe}, or null. */
+    public Description description() {
+        synchronized (lock) {
+            return description;
+        }
     }
 
     /** Sends (and remembers, to send again after a new session) this entity's description. */
@@ -334,6 +505,7 @@ public final class EvatarClient implements AutoCloseable {
         Signal s = b.build();
         byte[] bytes = s.toBytes();
         synchronized (lock) {
+            checkUsable();
             if (opts.ha) {
                 long window = welcome == null ? 1024 : welcome.dedupWindow();
                 while (unacked.size() >= window - 1 && closedReason == null) {
@@ -372,7 +544,7 @@ public final class EvatarClient implements AutoCloseable {
         f.whenComplete((r, e) -> pending.remove(id));
         try {
             send(b);
-        } catch (IOException e) {
+        } catch (IOException | RuntimeException e) {
             pending.remove(id);
             throw e;
         }
@@ -476,26 +648,54 @@ public final class EvatarClient implements AutoCloseable {
         }
     }
 
-    /** Says Bye, waits (at most 2 s) for EVATAR to close, and closes. */
+    /**
+     * Closes the client, in any state and any number of times (from any
+     * thread; a second call waits like the first). A connect in progress
+     * ends with a {@link ClosedException}. Connected, it says Bye and waits
+     * for EVATAR's Bye or the end of the connection, at most
+     * {@link Options#closeTimeout(Duration)} (5 s by default): EVATAR has
+     * then let go of the EntityID, and a new connection with it is not
+     * refused {@code EntityExists}. Returns once the client's threads have
+     * ended and its socket is closed; pending requests fail, the listener
+     * gets {@code onClosed("closed", null)} if the client was connected.
+     */
     @Override
     public void close() {
         Transport t;
+        Socket o;
+        long end = System.nanoTime() + TimeUnit.MILLISECONDS.toNanos(opts.closeTimeoutMs);
         synchronized (lock) {
-            if (closedReason != null) {
-                return;
-            }
+            boolean first = !closing;
             closing = true;
             t = transport;
-            try {
-                if (t != null) {
+            o = opening;
+            if (first && t != null && closedReason == null) {
+                try {
                     write(new Control.Bye(null).toBytes());
+                } catch (IOException e) {
+                    // Closed already: nothing to say Bye on.
                 }
+            }
+            lock.notifyAll();
+        }
+        if (o != null) {
+            try {
+                o.close();  // ends a connect or a handshake in progress
             } catch (IOException e) {
-                // Closed already: nothing to say Bye on.
+                // Nothing more to do.
             }
         }
         try {
-            reader.join(2000);
+            synchronized (lock) {
+                while (connecting) {
+                    long left = TimeUnit.NANOSECONDS.toMillis(end - System.nanoTime());
+                    if (left <= 0) {
+                        break;
+                    }
+                    lock.wait(left);
+                }
+            }
+            join(reader, end);
         } catch (InterruptedException e) {
             Thread.currentThread().interrupt();
         }
@@ -506,10 +706,41 @@ public final class EvatarClient implements AutoCloseable {
                 // Nothing more to do.
             }
         }
+        try {
+            join(reader, System.nanoTime() + TimeUnit.SECONDS.toNanos(1));
+        } catch (InterruptedException e) {
+            Thread.currentThread().interrupt();
+        }
         finish("closed", null);
+        try {
+            join(acker, System.nanoTime() + TimeUnit.SECONDS.toNanos(1));
+        } catch (InterruptedException e) {
+            Thread.currentThread().interrupt();
+        }
+    }
+
+    /** Waits for {@code th} to end until {@code end} (nanoTime); not for the calling thread itself. */
+    private static void join(Thread th, long end) throws InterruptedException {
+        if (th == Thread.currentThread() || !th.isAlive()) {
+            return;
+        }
+        long left = TimeUnit.NANOSECONDS.toMillis(end - System.nanoTime());
+        if (left > 0) {
+            th.join(left);
+        }
     }
 
     // ------------------------------------------------------------------ writing
+
+    /** Holding the lock: a ClosedException once closed, an IllegalStateException before connect(). */
+    private void checkUsable() throws ClosedException {
+        if (closedReason != null) {
+            throw new ClosedException(closedReason, "client closed: " + closedReason);
+        }
+        if (!connectedOnce) {
+            throw new IllegalStateException("not connected: call connect() first");
+        }
+    }
 
     private void write(byte[] doc) throws IOException {
         if (doc.length > maxFrame) {
@@ -520,9 +751,7 @@ public final class EvatarClient implements AutoCloseable {
 
     /** Writes now; in version 2, a failed write is left for the reconnect when {@code keep}. */
     private void writeOrQueue(byte[] doc, boolean keep) throws IOException {
-        if (closedReason != null) {
-            throw new IOException("client closed: " + closedReason);
-        }
+        checkUsable();
         if (transport == null || (keep && held)) {
             if (keep) {
                 return;
@@ -620,6 +849,7 @@ public final class EvatarClient implements AutoCloseable {
                     synchronized (lock) {
                         dropAcceptedUpTo(a.accepted());
                     }
+                    tellAccepted();
                 }
             } else if (d instanceof Control.Refused r) {
                 throw new RefusedException(r.code(), r.message());
@@ -733,6 +963,7 @@ public final class EvatarClient implements AutoCloseable {
             idx = (idx + 1) % n;
             try {
                 open(idx, true);
+                tellAccepted();
                 Control.Welcome w;
                 synchronized (lock) {
                     reconnects++;
@@ -753,7 +984,11 @@ public final class EvatarClient implements AutoCloseable {
             }
             if (++tried % n == 0) {
                 try {
-                    Thread.sleep(pause);
+                    synchronized (lock) {
+                        if (!closing) {
+                            lock.wait(pause);  // close() wakes it
+                        }
+                    }
                 } catch (InterruptedException e) {
                     Thread.currentThread().interrupt();
                     return false;
@@ -779,11 +1014,18 @@ public final class EvatarClient implements AutoCloseable {
             closedReason = reason;
             lock.notifyAll();
         }
-        IOException gone = new IOException("client closed: " + reason, cause);
+        ClosedException gone = new ClosedException(reason, "client closed: " + reason);
+        if (cause != null) {
+            gone.initCause(cause);
+        }
         for (CompletableFuture<Signal> f : pending.values()) {
             f.completeExceptionally(gone);
         }
-        if (listener != null) {
+        boolean wasConnected;
+        synchronized (lock) {
+            wasConnected = connectedOnce;
+        }
+        if (listener != null && wasConnected) {
             listener.onClosed(reason, cause);
         }
     }

@@ -65,6 +65,15 @@ public final class LocalNode implements AutoCloseable {
                 pairings);
     }
 
+    /**
+     * Starts {@code scripts/test-node.sh} whose listener refuses a wrong
+     * credential at once, never locks out and has no handshake rate limit
+     * ({@code EVATAR_TEST_NO_GUARD}): for tests of many handshakes.
+     */
+    public static LocalNode startWithoutGuard(String... pairings) throws IOException {
+        return start(repo().resolve("scripts/test-node.sh"), Map.of("EVATAR_TEST_NO_GUARD", "1"), pairings);
+    }
+
     /** Starts a node script and waits (at most 120 s) for its EVATAR_PORT line. */
     public static LocalNode start(Path script, String... pairings) throws IOException {
         return start(script, Map.of(), pairings);

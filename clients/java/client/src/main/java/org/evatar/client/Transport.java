@@ -28,7 +28,14 @@ public interface Transport extends Closeable {
 
     /** Opens a TCP connection to an endpoint. */
     static Transport tcp(InetSocketAddress endpoint, int connectTimeoutMs) throws IOException {
-        Socket s = new Socket();
+        return tcp(new Socket(), endpoint, connectTimeoutMs);
+    }
+
+    /**
+     * Opens a TCP connection on {@code s}, a new unconnected socket: closing
+     * it from another thread ends the connect at once.
+     */
+    static Transport tcp(Socket s, InetSocketAddress endpoint, int connectTimeoutMs) throws IOException {
         try {
             s.setTcpNoDelay(true);
             s.connect(endpoint, connectTimeoutMs);
@@ -44,7 +51,11 @@ public interface Transport extends Closeable {
      * the handshake is done when this returns.
      */
     static Transport tls(InetSocketAddress endpoint, int connectTimeoutMs, Tls tls) throws IOException {
-        Socket raw = new Socket();
+        return tls(new Socket(), endpoint, connectTimeoutMs, tls);
+    }
+
+    /** The same on {@code raw}, a new unconnected socket (closing it ends the connect and the TLS handshake). */
+    static Transport tls(Socket raw, InetSocketAddress endpoint, int connectTimeoutMs, Tls tls) throws IOException {
         SSLSocket s;
         try {
             raw.setTcpNoDelay(true);

@@ -28,11 +28,7 @@ class NodeClientTest {
 
     @BeforeAll
     static void startNode() throws IOException {
-        List<String> specs = new ArrayList<>();
-        for (String p : List.of("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied")) {
-            specs.add(p + ":va-" + p + ":av-" + p);
-        }
-        node = LocalNode.start(specs.toArray(String[]::new));
+        node = LocalNode.start(Pairings.specs("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied"));
     }
 
     @AfterAll
@@ -43,9 +39,7 @@ class NodeClientTest {
     }
 
     static EvatarClient.Options opts(String pairing, String role, String entity) {
-        return new EvatarClient.Options().pairing(pairing).role(role).entityId(entity)
-                .credential((role.equals("agent") ? "va-" : "av-") + pairing)
-                .endpoint(node.host(), node.port());
+        return Pairings.opts(node, pairing, role, entity);
     }
 
     /** An Avatar that answers TurnLightOn/TurnLightOff (unless {@code silent}). */
