@@ -25,7 +25,10 @@ class HaGiveUpTest {
         try {
             va = EvatarClient.connect(new EvatarClient.Options().pairing("gone").role("agent").entityId("va-g")
                     .credential("va-gone").endpoint(node.host(), node.port()).ha(true)
-                    .handshakeTimeout(Duration.ofMillis(500)).reconnectLimit(Duration.ofSeconds(2)),
+                    // The handshake timeout only bounds this first connect (once the node has
+                    // stopped, its port refuses at once): 500 ms failed it under load
+                    // (HandshakeTimeout before the Welcome of a busy node).
+                    .handshakeTimeout(Duration.ofSeconds(30)).reconnectLimit(Duration.ofSeconds(2)),
                     new EvatarClient.Listener() {
                         @Override
                         public void onClosed(String reason, Throwable cause) {
