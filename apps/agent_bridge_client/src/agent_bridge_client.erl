@@ -227,7 +227,7 @@ close(Client) ->
         {error, closed} -> ok
     end,
     %% The reply comes before terminate/3: wait for the socket to be closed.
-    receive {'DOWN', Ref, process, Client, _} -> ok end.
+    receive {'DOWN', Ref, process, _, _} -> ok end.
 
 %% @doc The Welcome of the current session.
 -spec session(pid()) -> {ok, bil_control:welcome()} | {error, closed}.
