@@ -13,7 +13,8 @@
 #
 # Node I is ${EVATAR_NAME:-evatar}I@${EVATAR_HOST:-127.0.0.1}, its bridge
 # listens on EVATAR_BASE_PORT+I (default 7400+I) and its distribution on the
-# single port EVATAR_DIST_BASE+I (default 9100+I). Also honoured:
+# single port EVATAR_DIST_BASE+I (default 9100+I), its HTTP API on
+# EVATAR_HTTP_BASE+I (default 7480+I). Also honoured:
 #   EVATAR_REL          the release directory (default: the one `rebar3
 #                       release` builds under REBAR_BASE_DIR or _build;
 #                       built when missing)
@@ -37,6 +38,7 @@ NAME=${EVATAR_NAME:-evatar}
 HOST=${EVATAR_HOST:-127.0.0.1}
 BASE_PORT=${EVATAR_BASE_PORT:-7400}
 DIST_BASE=${EVATAR_DIST_BASE:-9100}
+HTTP_BASE=${EVATAR_HTTP_BASE:-7480}
 DIST=${EVATAR_DIST:-inet_tcp}
 if [ -z "${EVATAR_DIST_IP:-}" ]; then
   if [[ $HOST =~ ^[0-9]+\.[0-9]+\.[0-9]+\.[0-9]+$ ]]; then DIST_IP=${HOST//./,}; else DIST_IP=127,0,0,1; fi
@@ -66,6 +68,7 @@ node_env() {
   echo "export EVATAR_NODE=$NAME$i@$HOST"
   echo "export EVATAR_PEERS=$(peers "$n")"
   echo "export EVATAR_PORT=$((BASE_PORT + i))"
+  echo "export EVATAR_HTTP_PORT=$((HTTP_BASE + i))"
   echo "export EVATAR_DIST_PORT_MIN=$((DIST_BASE + i))"
   echo "export EVATAR_DIST_PORT_MAX=$((DIST_BASE + i))"
   echo "export EVATAR_DIST=$DIST"

@@ -15,4 +15,5 @@ exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interfa
   -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
+  -evatar_web port 0 \
   -eval "ok = reference_agents_demo:main($args), init:stop()."

@@ -316,7 +316,9 @@ release_env(Config, File, Data0) ->
     [{"EVATAR_CONFIG", File}, {"EVATAR_NODE", Name ++ "@127.0.0.1"},
      {"HOME", ?config(home, Config)}, {"ERL_EPMD_PORT", ?config(epmd_port, Config)},
      {"EVATAR_DATA_DIR", Data}, {"RUNNER_LOG_DIR", filename:join(Dir, "log")},
-     {"EVATAR_DIST_PORT_MIN", Dist}, {"EVATAR_DIST_PORT_MAX", Dist}].
+     {"EVATAR_DIST_PORT_MIN", Dist}, {"EVATAR_DIST_PORT_MAX", Dist},
+     %% The HTTP API on a free port (suites run side by side).
+     {"EVATAR_HTTP_PORT", "0"}].
 
 env(Name, Env) ->
     {Name, Value} = lists:keyfind(Name, 1, Env),

@@ -14,8 +14,8 @@
          send/2, ack/2, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
--export([ha_status/1, ha_locate/1, cluster_status/0]).
--export([hash_credential/1, hash_credential/2]).
+-export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0]).
+-export([hash_credential/1, hash_credential/2, verify_credential/2]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
               pairing_summary/0, drop_code/0, session_info/0, join_error/0,
@@ -422,6 +422,13 @@ hash_credential(Plain) when is_binary(Plain) -> evatar_auth:hash(Plain).
 -spec hash_credential(binary(), pos_integer()) -> evatar_auth:hashed().
 hash_credential(Plain, Iterations) when is_binary(Plain) -> evatar_auth:hash(Plain, Iterations).
 
+%% @doc Whether `Plain' is the credential `Stored' (as {@link
+%% hash_credential/1} made it) was made from; compared in constant time.
+%% For other secrets kept the same way (the HTTP API's operator token).
+-spec verify_credential(evatar_auth:hashed(), binary()) -> boolean().
+verify_credential(Stored, Plain) when is_binary(Plain) ->
+    evatar_auth:verify(#{credential => Stored}, Plain) =:= authenticated.
+
 %% @doc The pid of the pairing process the session belongs to.
 -spec session_pid(session()) -> pid().
 session_pid(#session{pid = Pid}) -> Pid.
@@ -506,6 +513,12 @@ ha_locate(PairingId) ->
 -spec cluster_status() -> #{configured := [node()], up := [node()], suspected := [node()],
                             quorum := boolean()}.
 cluster_status() -> evatar_cluster:status().
+
+%% @doc The ids of the pairings the cluster's catalogue has (as this node
+%% knows it), running or not, sorted.
+-spec catalogued() -> [pairing_id()].
+catalogued() ->
+    [Id || {Id, _Version, {live, _, _}} <- evatar_catalogue:entries()].
 
 %% @doc Prints {@link pairings/0} as a table.
 -spec print_pairings() -> ok.

@@ -44,7 +44,7 @@ release_root() ->
 %% default an MQTT Avatar joins when the file declares no listeners.
 -spec load(file:filename()) -> {ok, config()} | {error, {bad_config, file:filename(), [binary()]}}.
 load(File) ->
-    Apps = [agent_bridge, evatar, mqtt_avatar, mqtt_client, ssl],
+    Apps = [agent_bridge, evatar, mqtt_avatar, mqtt_client, ssl, evatar_web],
     _ = [application:load(A) || A <- Apps],
     %% Their checks run before they start; the words their options use
     %% exist as atoms once their code is loaded (a listener limit, a TLS
@@ -67,9 +67,20 @@ load(File) ->
 %% declares: agent_bridge's `listeners' (when the file has a listeners
 %% section: they replace the release's EVATAR_IP/EVATAR_PORT listener),
 %% evatar's `pairings' (added to any already there; the file's win on the
-%% same id) and mqtt_avatar's `avatars'.
+%% same id), mqtt_avatar's `avatars', and evatar_web's options the http
+%% section gives (they win over the EVATAR_HTTP* variables; an
+%% operator_token_hash there replaces EVATAR_HTTP_TOKEN_FILE).
 -spec apply_env(config()) -> ok.
-apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatars}) ->
+apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatars} = Config) ->
+    Http = maps:get(http, Config, #{}),
+    Http1 = case Http of
+                #{operator_token_hash := _} when not is_map_key(token_file, Http) ->
+                    Http#{token_file => ""};
+                _ ->
+                    Http
+            end,
+    _ = [ok = application:set_env(evatar_web, K, V, [{persistent, true}])
+         || {K, V} <- maps:to_list(Http1)],
     case Listeners of
         undefined -> ok;
         _ -> ok = application:set_env(agent_bridge, listeners, Listeners, [{persistent, true}])

@@ -11,11 +11,15 @@
 
 -type config() :: #{listeners := [agent_bridge:listener_opts()] | undefined,
                     pairings := [#{id := binary(), atom() => term()}],
-                    mqtt_avatars := [mqtt_avatar:opts()]}.
+                    mqtt_avatars := [mqtt_avatar:opts()],
+                    http => evatar_web:opts()}.
 %% `listeners' is `undefined' when the file has no listeners section: the
-%% agent_bridge environment's listeners then stay.
+%% agent_bridge environment's listeners then stay. `http' is there only
+%% when the file has an http section (the HTTP API's listener and operator
+%% token, evatar_web).
 
--define(SECTIONS, [listeners, pairings, mqtt_avatars]).
+-define(SECTIONS, [listeners, pairings, mqtt_avatars, http]).
+-define(HTTP_KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients]).
 -define(PAIRING_KEYS, [id, agent_credential, avatar_credential, identities, unlisted_ids]).
 -define(IDENTITY_KEYS, [entity, role, credential, cert_sha256]).
 -define(PAIRING_INT, [join_timeout, feedback_timeout, max_avatars, resume_timeout, dedup_window,
@@ -34,7 +38,7 @@
 -spec known_words() -> [atom()].
 known_words() ->
     ?SECTIONS ++ ?PAIRING_KEYS ++ ?IDENTITY_KEYS ++ ?PAIRING_INT ++ ?AVATAR_KEYS ++ ?MQTT_TEXT ++ ?MQTT_OTHER
-        ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS
+        ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS ++ ?HTTP_KEYS ++ [pbkdf2_sha256]
         ++ [name, ip, acceptors, backlog, conn, homeassistant, zigbee2mqtt, v311, v5, min_ms,
             max_ms, true, false, none, infinity].
 
@@ -45,12 +49,14 @@ known_words() ->
 -spec check([node_config_file:section()], #{listeners := list(), dir => file:filename()}) ->
           {ok, config()} | {error, [binary()]}.
 check(Sections, Defaults) ->
-    Problems0 = [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars)",
+    Problems0 = [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars, "
+                        "http)",
                      [Name])
                  || {Name, L, _} <- Sections, not lists:member(Name, ?SECTIONS)]
         ++ [msg(L, "~ts: the section appears a second time (write all its entries in one list)", [Name])
             || {Name, L, _} <- Sections -- lists:ukeysort(1, Sections)],
     {Listeners, P1} = section(listeners, Sections, fun listener/1),
+    {Http, P5} = http(lists:keyfind(http, 1, Sections)),
     {Pairings, P2} = section(pairings, Sections, fun pairing/1),
     ListenerList = case lists:keymember(listeners, 1, Sections) of
                        true -> Listeners;
@@ -66,14 +72,14 @@ check(Sections, Defaults) ->
                                                       end)
         ++ duplicates(pairings, Sections, Pairings, fun(#{id := Id}) -> {id, Id} end)
         ++ duplicates(mqtt_avatars, Sections, Avatars, fun(#{entity_id := Id}) -> {entity_id, Id} end),
-    case Problems0 ++ P1 ++ P2 ++ P3 ++ P4 of
+    case Problems0 ++ P1 ++ P2 ++ P3 ++ P4 ++ P5 of
         [] ->
-            {ok, #{listeners => case lists:keymember(listeners, 1, Sections) of
-                                    true -> Listeners;
-                                    false -> undefined
-                                end,
-                   pairings => Pairings,
-                   mqtt_avatars => Avatars}};
+            {ok, Http#{listeners => case lists:keymember(listeners, 1, Sections) of
+                                        true -> Listeners;
+                                        false -> undefined
+                                    end,
+                       pairings => Pairings,
+                       mqtt_avatars => Avatars}};
         Problems ->
             {error, [M || {_, M} <- lists:keysort(1, Problems)]}
     end.
@@ -164,6 +170,44 @@ check_listener(E) ->
         ok -> {ok, E};
         {error, Why} -> {error, Why}
     end.
+
+%% ---------------------------------------------------------------------------
+%% The HTTP API (evatar_web checks the options it takes): one map,
+%% {http, #{ip => "127.0.0.1", port => 7480, operator_token_hash => {...}}}.
+%% ---------------------------------------------------------------------------
+
+http(false) ->
+    {#{}, []};
+http({http, L, {not_a_list, E}}) when is_map(E) ->
+    Checked = chain([fun(X) -> unknown(X, ?HTTP_KEYS) end,
+                     fun(X) -> texts([token_file], X) end,
+                     fun(#{ip := Ip} = X) ->
+                             case text(Ip) of
+                                 {ok, B} ->
+                                     case inet:parse_strict_address(binary_to_list(B)) of
+                                         {ok, Addr} -> {ok, X#{ip => Addr}};
+                                         {error, _} -> {error, io_lib:format("ip \"~ts\" is not an IP "
+                                                                             "address", [B])}
+                                     end;
+                                 error ->
+                                     {error, "ip must be an address in double quotes, for example "
+                                             "\"127.0.0.1\""}
+                             end;
+                        (X) -> {ok, X}
+                     end,
+                     fun(X) ->
+                             case evatar_web:check_opts(X) of
+                                 ok -> {ok, X};
+                                 {error, {K, Why}} -> {error, io_lib:format("~0tp: ~ts", [K, Why])}
+                             end
+                     end], E),
+    case Checked of
+        {ok, Http} -> {#{http => Http}, []};
+        {error, Why} -> {#{}, [msg(L, "http: ~ts", [Why])]}
+    end;
+http({http, L, _}) ->
+    {#{}, [msg(L, "http: the value must be one map #{ip => \"127.0.0.1\", port => 7480, "
+                  "operator_token_hash => {pbkdf2_sha256, ...}}", [])]}.
 
 %% ---------------------------------------------------------------------------
 %% Pairings: evatar checks the options it takes.

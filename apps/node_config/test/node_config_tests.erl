@@ -84,7 +84,26 @@ shipped_example_is_inert_and_valid_when_uncommented_test() ->
                              "evatar.config"]),
     {ok, Bin} = file:read_file(Example),
     {ok, #{listeners := undefined, pairings := [], mqtt_avatars := []}} = load(Bin),
-    {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_]}} = load(uncomment(Bin)).
+    {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_],
+           http := #{ip := {127, 0, 0, 1}, port := 7480}}} = load(uncomment(Bin)).
+
+%% The http section: the address becomes a tuple, a hashed operator token
+%% is checked by evatar_web, and each mistake names the key.
+http_section_test() ->
+    Hash = node_config:hashed_credential(<<"operator-token">>),
+    {ok, #{http := #{ip := {0, 0, 0, 0}, port := 0, operator_token_hash := {pbkdf2_sha256, _, _, _},
+                     enabled := true}}} =
+        load(["{http, #{ip => \"0.0.0.0\", port => 0, enabled => true, operator_token_hash => ",
+              Hash, "}}.\n"]),
+    {ok, Config} = load("%% none\n"),
+    false = maps:is_key(http, Config),
+    has("{http, #{ip => \"localhost:80\"}}.\n", "http: ip \"localhost:80\" is not an IP address"),
+    has("{http, #{port => 70000}}.\n", "http: port: must be a port number"),
+    has("{http, #{port => 7480, colour => 1}}.\n", "http: unknown key colour"),
+    has("{http, #{operator_token_hash => \"plain\"}}.\n",
+        "http: operator_token_hash: must be a hashed credential"),
+    has("{http, #{enabled => yes}}.\n", "http: enabled: must be true or false"),
+    has("{http, [#{port => 1}]}.\n", "http: the value must be one map").
 
 %% Per-device identities: text becomes binaries, roles stay the two
 %% words, fingerprints and hashed credentials pass to evatar, which accepts

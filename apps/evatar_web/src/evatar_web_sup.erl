@@ -1,0 +1,27 @@
+%% @doc Internal. The supervisor of evatar_web: one child, the HTTP server
+%% (inets httpd started stand-alone, evatar_web_server), absent when the
+%% environment's `enabled' is false. The server is `permanent' with a low
+%% intensity: a listener that cannot open (the port taken, a bad address)
+%% stops the application's start with the reason, like the bridge's.
+-module(evatar_web_sup).
+-behaviour(supervisor).
+
+-export([start_link/0, init/1]).
+
+-spec start_link() -> {ok, pid()} | {error, term()}.
+start_link() ->
+    supervisor:start_link({local, ?MODULE}, ?MODULE, []).
+
+%% @private
+-spec init([]) -> {ok, {supervisor:sup_flags(), [supervisor:child_spec()]}}.
+init([]) ->
+    Children = case application:get_env(evatar_web, enabled, true) of
+                   true ->
+                       [#{id => evatar_web_server,
+                          start => {evatar_web_server, start_link, []},
+                          type => supervisor,
+                          restart => permanent}];
+                   _ ->
+                       []
+               end,
+    {ok, {#{strategy => one_for_one, intensity => 3, period => 10}, Children}}.

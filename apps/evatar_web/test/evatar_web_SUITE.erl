@@ -1,0 +1,141 @@
+%% Common Test: the HTTP server of evatar_web over real TCP (httpc as the
+%% client): routing, static files, JSON errors, limits and the operator
+%% credential.
+-module(evatar_web_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1,
+         init_per_group/2, end_per_group/2]).
+-export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
+         method_not_allowed/1, loopback_reads_check_host/1, body_limit/1,
+         bad_env_refuses_start/1, listen_failure_is_an_error/1]).
+
+-define(T, evatar_web_test).
+
+suite() -> [{timetrap, {minutes, 2}}].
+
+all() -> [{group, server}, {group, startup}].
+
+groups() ->
+    [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
+                   method_not_allowed, loopback_reads_check_host, body_limit]},
+     {startup, [], [bad_env_refuses_start, listen_failure_is_an_error]}].
+
+init_per_suite(Config) ->
+    ?T:start(#{}),
+    Config.
+
+end_per_suite(_Config) ->
+    ?T:stop().
+
+init_per_group(_, Config) -> Config.
+end_per_group(_, _Config) -> ok.
+
+%% GET /api/cluster answers this node, up, and the quorum.
+cluster_read(_Config) ->
+    {200, #{<<"node">> := Node, <<"quorum">> := true, <<"nodes">> := Nodes,
+            <<"pairings">> := Ps}} = ?T:get("/api/cluster"),
+    ?assertEqual(atom_to_binary(node()), Node),
+    ?assert(lists:any(fun(#{<<"node">> := N, <<"up">> := true, <<"self">> := true}) -> N =:= Node;
+                         (_) -> false
+                      end, Nodes)),
+    true = is_list(Ps).
+
+%% The page's files come from priv/www with their content type; / is index.html.
+static_files(_Config) ->
+    {200, Headers, Body} = ?T:raw(get, "/", [], none),
+    "text/html; charset=utf-8" = proplists:get_value("content-type", Headers),
+    "nosniff" = proplists:get_value("x-content-type-options", Headers),
+    {ok, Index} = file:read_file(filename:join([code:priv_dir(evatar_web), "www", "index.html"])),
+    Index = list_to_binary(Body),
+    {200, _, Body} = ?T:raw(get, "/index.html", [], none).
+
+%% No file outside priv/www is served: `..' (raw or percent-encoded), a
+%% directory, a file of an unknown type.
+no_path_escapes(_Config) ->
+    [{404, #{<<"error">> := <<"not_found">>}} = ?T:get(P)
+     || P <- ["/../../../../../etc/passwd", "/%2e%2e/%2e%2e/%2e%2e/etc/passwd",
+              "/..%2f..%2f..%2fvm.args", "/www/", "/www", "/index.html%00.txt",
+              "/nope.html"]],
+    %% The raw request line, not normalised by a client.
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
+    ok = gen_tcp:send(S, "GET /../../../../etc/passwd HTTP/1.1\r\nHost: localhost\r\n\r\n"),
+    {ok, Reply} = gen_tcp:recv(S, 0, 10000),
+    ok = gen_tcp:close(S),
+    nomatch = binary:match(Reply, <<"root:">>),
+    {match, _} = re:run(Reply, "^HTTP/1.1 4\\d\\d").
+
+%% An unknown /api route is a JSON 404.
+unknown_route(_Config) ->
+    {404, #{<<"error">> := <<"not_found">>, <<"field">> := null, <<"message">> := _}} =
+        ?T:get("/api/nothing/here").
+
+%% A known path with another method is a JSON 405 naming the allowed ones.
+method_not_allowed(_Config) ->
+    {405, #{<<"error">> := <<"method_not_allowed">>, <<"message">> := <<"allowed: GET">>}} =
+        ?T:request(delete, "/api/cluster", [], none).
+
+%% On a loopback listener reads need no token, but only for a loopback
+%% Host: a page of another origin rebinding its name to 127.0.0.1 is refused.
+loopback_reads_check_host(_Config) ->
+    [{200, _} = ?T:request(get, "/api/cluster", [{"host", H}], none)
+     || H <- ["localhost", "localhost:7480", "127.0.0.1", "127.0.0.2:1", "[::1]:80"]],
+    [{403, #{<<"error">> := <<"bad_host">>}} = ?T:request(get, "/api/cluster", [{"host", H}], none)
+     || H <- ["evil.example", "evil.example:7480", "localhost.evil.example", "10.0.0.1"]].
+
+%% A body over max_body is refused with 413 before it is read: the
+%% headers alone get the answer. A chunked one is cut off when it passes
+%% the limit.
+body_limit(_Config) ->
+    Max = application:get_env(evatar_web, max_body, 1048576),
+    Reply = ?T:raw_tcp(["POST /api/cluster HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+                        "Content-Length: ", integer_to_list(Max + 1), "\r\n\r\n"]),
+    {match, _} = re:run(Reply, "^HTTP/1.1 413"),
+    Chunk = binary:copy(<<"a">>, 65536),
+    Chunked = ?T:raw_tcp(["POST /api/cluster HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+                          "Transfer-Encoding: chunked\r\n\r\n",
+                          [["10000\r\n", Chunk, "\r\n"] || _ <- lists:seq(1, Max div 65536 + 2)],
+                          "0\r\n\r\n"]),
+    case Chunked of
+        <<>> -> ok;                             % closed without an answer
+        _ -> {match, _} = re:run(Chunked, "^HTTP/1.1 413")
+    end.
+
+%% A mistake in the environment stops the start with the key named.
+bad_env_refuses_start(_Config) ->
+    ok = application:stop(evatar_web),
+    try
+        [begin
+             ok = application:set_env(evatar_web, K, V),
+             {error, {{shutdown, {failed_to_start_child, evatar_web_server,
+                                      {bad_http_option, K, Why}}}, _}} =
+                 application:start(evatar_web),
+             true = is_binary(Why),
+             ok = application:set_env(evatar_web, K, Good)
+         end || {K, V, Good} <- [{port, -1, 0}, {ip, "localhost", {127, 0, 0, 1}}, {max_body, 0, 1048576},
+                                 {operator_token_hash, <<"plain">>, undefined}]],
+        ok = application:set_env(evatar_web, token_file, "/nonexistent/token"),
+        {error, {{shutdown, {failed_to_start_child, evatar_web_server,
+                                 {token_file, _}}}, _}} = application:start(evatar_web)
+    after
+        ok = application:set_env(evatar_web, token_file, ""),
+        ok = application:start(evatar_web)
+    end.
+
+%% A port in use is an error of the start naming it, not a crash loop.
+listen_failure_is_an_error(_Config) ->
+    Taken = evatar_web:port(),
+    ok = application:stop(evatar_web),
+    {ok, Holder} = gen_tcp:listen(Taken, [{ip, {127, 0, 0, 1}}, {reuseaddr, false}]),
+    try
+        ok = application:set_env(evatar_web, port, Taken),
+        {error, {{shutdown, {failed_to_start_child, evatar_web_server,
+                                 {http_listen_failed, {127, 0, 0, 1}, Taken, _}}}, _}} =
+            application:start(evatar_web)
+    after
+        ok = gen_tcp:close(Holder),
+        ok = application:set_env(evatar_web, port, 0),
+        ok = application:start(evatar_web)
+    end.
