@@ -63,7 +63,7 @@ private_dir() {
   local owner mode
   read -r owner mode < <(stat -c '%u %a' "$DIR")
   [ "$owner" = "$(id -u)" ] || die "$DIR belongs to another user"
-  [ "$mode" = 700 ] || die "$DIR is mode $mode; make it 700 (chmod 700 $DIR) or use --dir"
+  [ "$mode" = 700 ] || die "$DIR is mode $mode, not 700: others could drive the node; give --dir a private directory (one this script creates is)"
 }
 
 if [ "${1:-}" = "--dir" ]; then

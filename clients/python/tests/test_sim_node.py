@@ -232,3 +232,14 @@ def test_avatars_doc_lists_every_device_as_described() -> None:
     assert sorted(tables) == sorted(want)
     for k in want:
         assert tables[k] == want[k], k
+
+
+def test_control_directory_must_be_private(tmp_path: Path) -> None:
+    """A control directory others can enter is refused before anything
+    starts: whoever can open the socket can drive the simulation."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    r = sim(shared, "start", "home", "--port", "0")
+    assert r.returncode == 2 and "not 700" in r.stderr
+    assert not (shared / "node.sock").exists()
