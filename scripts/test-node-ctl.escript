@@ -82,8 +82,19 @@ single(Args) ->
     Port = case os:getenv("EVATAR_PORT") of false -> 0; P -> list_to_integer(P) end,
     %% Heartbeat 500: the value in the shared vectors' Welcome, which the
     %% SDKs' transcript tests replay against this node.
-    {ok, _} = agent_bridge:start_listener(test_node, #{ip => {127, 0, 0, 1}, port => Port,
-                                                       conn => #{heartbeat => 500}}),
+    case agent_bridge:start_listener(test_node, #{ip => {127, 0, 0, 1}, port => Port,
+                                                  conn => #{heartbeat => 500}}) of
+        {ok, _} ->
+            ok;
+        {error, Why} ->
+            Text = lists:flatten(io_lib:format("~0p", [Why])),
+            Reason = case string:find(Text, "eaddrinuse") of
+                         nomatch -> Text;
+                         _ -> "the port is in use (port 0 picks a free one)"
+                     end,
+            io:format(standard_error, "cannot listen on 127.0.0.1:~b: ~s~n", [Port, Reason]),
+            halt(2)
+    end,
     {ok, {_, Bound}} = agent_bridge:address(test_node),
     State = start_sim(Opts, Bound),
     Main = self(),

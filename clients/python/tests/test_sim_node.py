@@ -243,3 +243,12 @@ def test_control_directory_must_be_private(tmp_path: Path) -> None:
     r = sim(shared, "start", "home", "--port", "0")
     assert r.returncode == 2 and "not 700" in r.stderr
     assert not (shared / "node.sock").exists()
+
+
+def test_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
+    import socket
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        r = sim(tmp_path / "c", "start", "home", "--port", str(taken.getsockname()[1]))
+    assert r.returncode == 2 and "the port is in use" in r.stderr
