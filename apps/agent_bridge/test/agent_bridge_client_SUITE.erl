@@ -21,7 +21,8 @@ all() ->
     [close_twice, close_before_connect, close_during_tcp_connect,
      close_during_silent_handshake, close_during_late_welcome, connect_connected_client,
      refused_loop_leaves_nothing, reconnect_same_id_after_close,
-     reconnect_same_id_after_close_ha, accepted_signals_notified].
+     reconnect_same_id_after_close_ha, accepted_signals_notified, bad_signal_keeps_session,
+     bad_signal_keeps_session_ha].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -203,6 +204,30 @@ accepted_signals_notified(Config) ->
     Ids = accepted(Av, length(Ids), []),
     ok = agent_bridge_client:close(Va),
     ok = agent_bridge_client:close(Av).
+
+%% A signal that cannot be encoded (no body, a receiver that is not a
+%% binary, a parameter name that is not an XML name, not a map) is the
+%% caller's {error, {bad_signal, _}}; the client and its session go on.
+bad_signal_keeps_session(Config) ->
+    bad_signals(Config, #{}).
+
+%% The same with protocol version 2 (the signal would be kept for resending).
+bad_signal_keeps_session_ha(Config) ->
+    bad_signals(Config, #{ha => true}).
+
+bad_signals(Config, Extra) ->
+    {ok, C} = agent_bridge_client:connect([?config(addr, Config)],
+                                          maps:merge(opts(Config, <<"va">>), Extra)),
+    {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
+    Good = light_request(),
+    Bad = [maps:remove(body, Good), Good#{receiver => 42},
+           Good#{body => (maps:get(body, Good))#{parameters => [{<<"bad name">>, <<"v">>}]}}],
+    [{error, {bad_signal, _}} = agent_bridge_client:send(C, B) || B <- Bad],
+    {error, {bad_signal, _}} = agent_bridge_client:send(C, not_a_map),
+    {error, {bad_signal, _}} = agent_bridge_client:request(C, hd(Bad), 1000),
+    {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
+    ok = agent_bridge_client:send(C, Good),
+    ok = agent_bridge_client:close(C).
 
 %% ---------------------------------------------------------------------------
 %% Helpers

@@ -132,7 +132,8 @@
             ack_timer = false :: boolean(),
             unacked = queue:new() :: queue:queue({binary(), iodata()}),
             unacked_n = 0 :: non_neg_integer(),
-            blocked = queue:new() :: queue:queue({gen_statem:from(), bil:signal(), signal | request}),
+            blocked = queue:new() :: queue:queue({gen_statem:from(), {binary(), iodata()},
+                                                   signal | request}),
             ack_waiters = [] :: [gen_statem:from()],
             description :: iodata() | undefined,
             heartbeat = 0 :: non_neg_integer(),
@@ -196,8 +197,11 @@ describe(Client, Description) ->
 %% @doc Sends a signal, filling in what the caller left out. With `ha' it
 %% returns once the signal is queued: it is kept, and sent again after a
 %% reconnect, until EVATAR acknowledges it; at most the session's
-%% DedupWindow signals wait for an Ack, beyond that the call waits.
--spec send(pid(), partial_signal()) -> ok | {error, closed}.
+%% DedupWindow signals wait for an Ack, beyond that the call waits. A
+%% signal that cannot be encoded (a missing or ill-typed field, a parameter
+%% name that is not an XML name) is `{error, {bad_signal, Why}}': nothing
+%% is sent and the client and its session go on (request/3 alike).
+-spec send(pid(), partial_signal()) -> ok | {error, closed | {bad_signal, term()}}.
 send(Client, Signal) ->
     call(Client, {signal, Signal}).
 
@@ -208,7 +212,7 @@ send(Client, Signal) ->
 %% signals reach the owner as usual. With `ha' the wait goes on across
 %% reconnects.
 -spec request(pid(), partial_signal(), timeout()) ->
-          {ok, bil:signal()} | {error, timeout | closed | bil:signal()}.
+          {ok, bil:signal()} | {error, timeout | closed | {bad_signal, term()} | bil:signal()}.
 request(Client, Signal, Timeout) ->
     call(Client, {request, Signal, Timeout}).
 
@@ -368,18 +372,24 @@ handle_event({call, From}, {describe, Doc}, connected, D) ->
 handle_event({call, From}, {signal, Partial}, State, #d{ha = true} = D) ->
     ha_send(From, {signal, Partial}, State, D);
 handle_event({call, From}, {signal, Partial}, connected, D) ->
-    {Signal, D1} = complete(Partial, D),
-    {keep_state, D1, [{reply, From, write(bil:encode_signal(Signal), D1)}]};
+    case encode(Partial, D) of
+        {ok, _Id, Frame, D1} -> {keep_state, D1, [{reply, From, write(Frame, D1)}]};
+        {error, _} = Error -> {keep_state_and_data, [{reply, From, Error}]}
+    end;
 handle_event({call, From}, {request, _, _} = Request, State, #d{ha = true} = D) ->
     ha_send(From, Request, State, D);
 handle_event({call, From}, {request, Partial, Timeout}, connected, D) ->
-    {#{id := Id} = Signal, D1} = complete(Partial#{context => request}, D),
-    case write(bil:encode_signal(Signal), D1) of
-        ok ->
-            {keep_state, D1#d{pending = maps:put(Id, From, D1#d.pending)},
-             [{{timeout, {request, Id}}, Timeout, Id}]};
+    case encode(Partial#{context => request}, D) of
+        {ok, Id, Frame, D1} ->
+            case write(Frame, D1) of
+                ok ->
+                    {keep_state, D1#d{pending = maps:put(Id, From, D1#d.pending)},
+                     [{{timeout, {request, Id}}, Timeout, Id}]};
+                {error, _} = Error ->
+                    {keep_state, D1, [{reply, From, Error}]}
+            end;
         {error, _} = Error ->
-            {keep_state, D1, [{reply, From, Error}]}
+            {keep_state_and_data, [{reply, From, Error}]}
     end;
 handle_event({timeout, {request, Id}}, Id, _State, D) ->
     answer(Id, {error, timeout}, D);
@@ -751,16 +761,23 @@ unblock(D) ->
 %% The signal is completed (id, time) at once; it waits in `blocked' while
 %% the window of unacknowledged signals is full. A request's timer runs from
 %% the call.
-ha_send(From, Request, State, #d{unacked_n = N, window = W, blocked = B} = D) ->
-    {Signal, Timers, D1} = case Request of
-                               {signal, Partial} ->
-                                   {S, D0} = complete(Partial, D),
-                                   {S, [], D0};
-                               {request, Partial, Timeout} ->
-                                   {#{id := Id} = S, D0} = complete(Partial#{context => request},
-                                                                     D),
-                                   {S, [{{timeout, {request, Id}}, Timeout, Id}], D0}
-                           end,
+ha_send(From, Request, State, D) ->
+    Partial = case Request of
+                  {signal, P} -> P;
+                  {request, P, _} -> P#{context => request}
+              end,
+    case encode(Partial, D) of
+        {ok, Id, Frame, D1} ->
+            Timers = case Request of
+                         {signal, _} -> [];
+                         {request, _, Timeout} -> [{{timeout, {request, Id}}, Timeout, Id}]
+                     end,
+            ha_keep(From, Request, State, {Id, Frame}, Timers, D1);
+        {error, _} = Error ->
+            {keep_state_and_data, [{reply, From, Error}]}
+    end.
+
+ha_keep(From, Request, State, Signal, Timers, #d{unacked_n = N, window = W, blocked = B} = D1) ->
     case N >= W orelse not queue:is_empty(B) of
         true ->
             {keep_state, D1#d{blocked = queue:in({From, Signal, element(1, Request)}, B)},
@@ -778,8 +795,7 @@ ha_send(From, Request, State, #d{unacked_n = N, window = W, blocked = B} = D) ->
 %% Keeps the signal until it is acknowledged and writes it when connected.
 %% `Waiter' is the request/3 caller awaiting the feedback, or `none' for a
 %% signal given to send/2: its feedback goes to the owner like any signal.
-keep(Waiter, #{id := Id} = Signal, #d{unacked = Q, unacked_n = N} = D) ->
-    Frame = bil:encode_signal(Signal),
+keep(Waiter, {Id, Frame}, #d{unacked = Q, unacked_n = N} = D) ->
     _ = [write(Frame, D) || D#d.welcome =/= undefined, not D#d.held],
     D1 = D#d{unacked = queue:in({Id, Frame}, Q), unacked_n = N + 1},
     case Waiter of
@@ -845,6 +861,18 @@ write(Doc, #d{sock = Sock}) ->
         ok -> ok;
         {error, _} -> {error, closed}
     end.
+
+%% The signal completed and encoded, or why it cannot be: bad input from
+%% the caller is its error, not the end of the client and its session.
+encode(Partial, D) when is_map(Partial) ->
+    {#{id := Id} = Signal, D1} = complete(Partial, D),
+    try bil:encode_signal(Signal) of
+        Frame -> {ok, Id, Frame, D1}
+    catch
+        error:Why -> {error, {bad_signal, Why}}
+    end;
+encode(Partial, _D) ->
+    {error, {bad_signal, {not_a_map, Partial}}}.
 
 complete(Partial, #d{counter = N} = D) ->
     Defaults = #{context => request_no_feedback,
