@@ -6,7 +6,7 @@ set -euo pipefail
 PKGS=(erlang-nox erlang-dev erlang-xmerl erlang-common-test erlang-proper
       erlang-proper-dev erlang-dialyzer erlang-jiffy rebar3 mosquitto libxml2-utils python3 openssl make git
       python3-venv python3-pip openjdk-17-jdk-headless maven
-      python3-prometheus-client)
+      python3-prometheus-client strace)
 
 missing=()
 for p in "${PKGS[@]}"; do

@@ -328,13 +328,14 @@ escape(Text, Quote) ->
 %% The gauges of this application and of the registered collectors; a
 %% collector that fails adds nothing (the scrape still answers).
 gauges() ->
-    Roles = [R || {_Id, Pid, R, _Epoch} <- evatar_registry:roles(), is_process_alive(Pid)],
+    Live = [{Id, Pid, R} || {Id, Pid, R, _Epoch} <- evatar_registry:roles(),
+                            is_process_alive(Pid)],
     Instances = [{evatar_pairing_instances, [{role, R}],
-                  length([x || R1 <- Roles, R1 =:= R])}
+                  length([x || {_, _, R1} <- Live, R1 =:= R])}
                  || R <- [active, standby, fenced, starting]],
-    Active = length([x || R <- Roles, R =:= active]),
     Unlabelled = {evatar_metrics_pairings_unlabelled, [],
-                  max(0, Active - ets:info(?TABLE, size))},
+                  length([x || {Id, Pid, active} <- Live,
+                               ets:match_object(?TABLE, {Id, Pid, '_'}) =:= []])},
     Collected = lists:append([collect(MF) || MF <- persistent_term:get(?COLLECTORS, [])]),
     Instances ++ [Unlabelled | Collected].
 
