@@ -35,7 +35,9 @@
 %% method is a change and needs the operator token. Add a route here.
 -spec routes() -> [route()].
 routes() ->
-    [{<<"GET">>, <<"/api/cluster">>, evatar_web_api, cluster}].
+    [{<<"GET">>, <<"/api/cluster">>, evatar_web_api, cluster},
+     %% The node's counters, Prometheus text format (docs/metrics.md).
+     {<<"GET">>, <<"/metrics">>, evatar_web_metrics, scrape}].
 
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.

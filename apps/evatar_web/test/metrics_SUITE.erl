@@ -1,6 +1,7 @@
 %% Common Test suite of the node's metrics (docs/metrics.md): real clients
 %% over real TCP join, are refused, send signals and wait for a feedback
-%% timeout; the counters scraped before and after, read by the reference
+%% timeout; the counters scraped before and after (GET /metrics of
+%% evatar_web, over TCP), read by the reference
 %% parser of the Prometheus text format (Debian's python3-prometheus-client),
 %% moved by exactly what happened.
 -module(metrics_SUITE).
@@ -23,6 +24,7 @@ init_per_suite(Config) ->
     case os:cmd(?PYTHON " -c 'import prometheus_client' 2>&1; echo rc=$?") of
         "rc=0\n" ->
             ok = agent_bridge_test_node:start([]),
+            ok = evatar_web_test:start(#{}),
             Addr = agent_bridge_test_node:listen(metrics_test,
                                                  #{conn => #{handshake_timeout => 2000,
                                                              linger => 200}}),
@@ -33,6 +35,7 @@ init_per_suite(Config) ->
     end.
 
 end_per_suite(_Config) ->
+    ok = evatar_web_test:stop(),
     ok = agent_bridge_test_node:stop([metrics_test], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
@@ -150,8 +153,11 @@ scrape(Config) ->
 families(_Samples) ->
     get(families).
 
+%% GET /metrics of evatar_web, over TCP.
 fetch(_Config) ->
-    iolist_to_binary(evatar_metrics:render()).
+    {200, Headers, Body} = evatar_web_test:raw(get, "/metrics", [], none),
+    "text/plain; version=0.0.4; charset=utf-8" = proplists:get_value("content-type", Headers),
+    list_to_binary(Body).
 
 parse(Text, Config) ->
     In = filename:join(?config(priv_dir, Config), "scrape.txt"),
