@@ -91,9 +91,16 @@ intruder_window(120000).   // ms: motion and a wrong code this close mean an int
 
 // ---------------------------------------------------------------- the intruder
 
-+!protect(Room)
+// The photos are taken by the camera of the intruder's room, or else by
+// another camera of the body: a motion seen in a room without one (the
+// intruder walked on) must not cost the e-mail.
++!protect(Room) : emulator(_, _, "TakePhoto", F) & .member(param("Room", Room), F)
+   <- !protect(Room, Room).
++!protect(Room) : emulator(_, _, "TakePhoto", F) & .member(param("Room", Camera), F)
+   <- !protect(Room, Camera).
++!protect(Room, Camera)
    <- .print("policy holiday on intruder do photos 3, email \"INTRUSION\" with photos, alarm, say");
-      request(photos(Room), "TakePhoto", [param("Room", Room)], [param("Count", 3), param("Interval", 1000)]);
+      request(photos(Room), "TakePhoto", [param("Room", Camera)], [param("Count", 3), param("Interval", 1000)]);
       request(alarm, "PlaySound", [], [param("Sound", "alarm"), param("Volume", 100), param("Duration", 3000)]);
       request(say, "PlayVoiceMessage", [],
               [param("Message", "You are being recorded. The police have been called."), param("Volume", 100)]).
