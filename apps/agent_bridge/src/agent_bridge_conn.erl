@@ -193,14 +193,18 @@ handle_event(info, {evatar, P, {bound, Report}}, State, #d{pairing = P} = D)
 handle_event(info, {evatar, P, {ack, SignalId}}, State, #d{pairing = P} = D)
   when State =/= closing ->
     send(bil_control:encode({ack, #{accepted => SignalId}}), D);
+%% The check runs every half period: a frame sent just after one check is
+%% followed, if nothing else goes out, by a heartbeat at most one period
+%% later (checking once per period let the gap reach two). A heartbeat
+%% counts as sent, so an idle session gets one per period, not two.
 handle_event({timeout, heartbeat}, beat, State, #d{sent = Sent} = D) when State =/= closing ->
-    Beat = {{timeout, heartbeat}, opt(heartbeat, D), beat},
+    Beat = heartbeat_check(D),
     case Sent of
         true ->
             {keep_state, D#d{sent = false}, [Beat]};
         false ->
             case enqueue(bil_control:encode({ack, #{}}), D) of
-                {ok, D1, Actions} -> {keep_state, D1#d{sent = false}, [Beat | Actions]};
+                {ok, D1, Actions} -> {keep_state, D1#d{sent = true}, [Beat | Actions]};
                 overflow -> slow_consumer(D)
             end
     end;
@@ -324,6 +328,9 @@ document({ok, {control, {bye, _}}}, _State, D) ->
 document({ok, {control, {ack, Ack}}}, _State, #d{version = 2, session = Session}) ->
     _ = [evatar:ack(Session, N) || #{received := N} <- [Ack], Session =/= undefined],
     keep_state_and_data;
+document({ok, {control, {get_binding, _}}}, _State, #d{session = Session}) ->
+    ok = evatar:report_binding(Session),
+    keep_state_and_data;
 document({ok, {control, {ack, Ack}}}, _State, #d{version = 1}) when map_size(Ack) =:= 0 ->
     %% A version 1 client's keepalive (it resets the idle timeout).
     keep_state_and_data;
@@ -385,7 +392,7 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
             ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
             D1a = D1#d{credit = max(1, opt(active_n, D) div 2)},
             Beat = case V of
-                       2 -> [{{timeout, heartbeat}, opt(heartbeat, D), beat}];
+                       2 -> [heartbeat_check(D)];
                        %% A port's program is the operator's, and its exit is seen.
                        1 -> [idle_check(D) || opt(idle_timeout, D) =/= infinity,
                                               element(1, D1#d.transport) =/= port]
@@ -484,6 +491,8 @@ log_refusal({refused, #{code := Code}}, #d{ip = Ip, pairing = P, entity = E} = D
 opt_guard(#d{opts = Opts}) -> maps:get(guard, Opts, undefined).
 
 idle_check(D) -> {{timeout, idle}, opt(idle_timeout, D), check}.
+
+heartbeat_check(D) -> {{timeout, heartbeat}, max(1, opt(heartbeat, D) div 2), beat}.
 
 error_signal(Type, Message, #d{entity = E}) ->
     agent_bridge_frame:error_signal(E, Type, Message, undefined).

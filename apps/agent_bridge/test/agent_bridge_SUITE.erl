@@ -16,7 +16,8 @@
 suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
-    [{group, handshake}, {group, bad_input}, {group, traffic}, {group, backpressure},
+    [{group, handshake}, {group, bad_input}, {group, traffic}, {group, decisions},
+     {group, backpressure},
      {group, busy}, {group, port}].
 
 groups() ->
@@ -29,6 +30,8 @@ groups() ->
                     sent_request_feedback_to_owner_ha, binding_report, sensor_stream, feedback_timeout,
                     not_bound_error, re_register, pairing_deleted,
                     new_session_waits_for_peer]},
+     {decisions, [], [get_binding, resume_sends_binding, request_closed_to_provider,
+                      client_get_binding]},
      {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
      {busy, [], [busy_pairing_refuses_hello, busy_pairing_description,
                   busy_pairing_bye, busy_pairing_operator]},
@@ -324,6 +327,109 @@ not_bound_error(Config) ->
     {error, #{context := error, body := #{type := <<"UnknownReceiver">>}}} =
         agent_bridge_client:request(Va, (light_request())#{receiver => <<"Nobody">>}, 5000),
     ok = agent_bridge_client:close(Va).
+
+%% ---------------------------------------------------------------------------
+%% The behaviours docs/protocol.md decided (its appendix "Decisions")
+%% ---------------------------------------------------------------------------
+
+%% GetBinding is answered with the current Binding report, to the asker
+%% only, and the connection goes on.
+get_binding(Config) ->
+    S = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
+    ok = gen_tcp:send(S, bil:encode_description(va_description(<<"va">>))),
+    {control, {binding, #{entities := [<<"va">>], bound := []} = Report}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil_control:encode({get_binding, #{}})),
+    {control, {binding, Report}} = recv_doc(S),
+    %% Before any description too: the report lists the others.
+    A = joined_raw(Config, avatar, <<"av">>, ?AV_CRED),
+    ok = gen_tcp:send(A, bil_control:encode({get_binding, #{}})),
+    {control, {binding, #{entities := [<<"va">>]}}} = recv_doc(A),
+    ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
+    {control, {bye, _}} = recv_doc(S),
+    ok = gen_tcp:close(A).
+
+%% A resumed version 2 session is sent the current Binding report right
+%% after its Welcome: here it shows the Avatar that described itself while
+%% the VA was detached.
+resume_sends_binding(Config) ->
+    S = raw_connect(Config),
+    Hello = #{pairing => ?config(pairing, Config), role => agent, entity_id => <<"va">>,
+              credential => ?VA_CRED, protocol_version => 2},
+    ok = gen_tcp:send(S, bil_control:encode({hello, Hello})),
+    {control, {welcome, #{session_id := Session}}} = recv_doc(S),
+    ok = gen_tcp:send(S, bil:encode_description(va_description(<<"va">>))),
+    {control, {binding, #{entities := [<<"va">>]}}} = recv_doc_skipping_acks(S),
+    ok = gen_tcp:close(S),
+    Pairing = ?config(pairing, Config),
+    wait_until(fun() ->
+                       {ok, Reg} = evatar:registry(Pairing),
+                       [false] =:= [A || #{entity := <<"va">>, attached := A} <- Reg]
+               end),
+    A = joined_raw(Config, avatar, <<"av">>, ?AV_CRED),
+    ok = gen_tcp:send(A, bil:encode_description(avatar_description(<<"av">>, false))),
+    {control, {binding, #{entities := [<<"va">>, <<"av">>]}}} = recv_doc(A),
+    R = raw_connect(Config),
+    ok = gen_tcp:send(R, bil_control:encode({resume, Hello#{session_id => Session,
+                                                            received => 0, epoch => 1}})),
+    {control, {welcome, #{ha := #{resumed := true}}}} = recv_doc(R),
+    {control, {binding, #{entities := [<<"va">>, <<"av">>], bound := [_ | _]}}} =
+        recv_doc_skipping_acks(R),
+    ok = gen_tcp:close(R),
+    ok = gen_tcp:close(A).
+
+%% A request that times out: the requester gets Feedback Timeout, the
+%% provider an Event RequestClosed, and the provider's late Feedback is
+%% answered with the error NoOpenRequest, not delivered.
+request_closed_to_provider(Config) ->
+    A = joined_raw(Config, avatar, <<"av">>, ?AV_CRED),
+    ok = gen_tcp:send(A, bil:encode_description(avatar_description(<<"av">>, false))),
+    {control, {binding, _}} = recv_doc(A),
+    {ok, Va} = client(Config, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    {control, {binding, #{bound := [_ | _]}}} = recv_doc(A),
+    Self = self(),
+    spawn_link(fun() -> Self ! {answer, agent_bridge_client:request(Va, light_request(), 10000)} end),
+    {signal, #{context := request, id := ReqId}} = recv_doc(A),
+    {signal, #{context := event, sender := <<"EVATAR">>, origin := evatar,
+               receiver := <<"Light01">>, in_reply_to := ReqId,
+               body := #{category := <<"EVATAR">>, type := <<"RequestClosed">>,
+                         parameters := [{<<"Reason">>, <<"Timeout">>}, {<<"Message">>, _}]}}} =
+        recv_doc(A),
+    receive
+        {answer, {ok, #{body := #{type := <<"Timeout">>}}}} -> ok
+    after 10000 -> ct:fail(no_timeout_feedback)
+    end,
+    Late = #{id => <<"late-1">>, context => feedback, sender => <<"Light01">>,
+             receiver => <<"LightEmulator01">>, in_reply_to => ReqId, timestamp => 1,
+             seq => undefined, epoch => undefined,
+             body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>, parameters => []}},
+    ok = gen_tcp:send(A, bil:encode_signal(Late)),
+    {signal, #{context := error, in_reply_to := <<"late-1">>,
+               body := #{type := <<"NoOpenRequest">>}}} = recv_doc(A),
+    ok = agent_bridge_client:close(Va),
+    ok = gen_tcp:close(A).
+
+%% The Erlang client's get_binding/1: the report comes as a message.
+client_get_binding(Config) ->
+    {Va, _Av} = bound_pair(Config),
+    flush_bindings(Va),
+    ok = agent_bridge_client:get_binding(Va),
+    receive
+        {agent_bridge, Va, {binding, #{bound := [_ | _]}}} -> ok
+    after 5000 -> ct:fail(no_binding)
+    end,
+    ok = agent_bridge_client:close(Va).
+
+flush_bindings(Va) ->
+    receive {agent_bridge, Va, {binding, _}} -> flush_bindings(Va)
+    after 0 -> ok
+    end.
+
+recv_doc_skipping_acks(S) ->
+    case recv_doc(S) of
+        {control, {ack, _}} -> recv_doc_skipping_acks(S);
+        Doc -> Doc
+    end.
 
 %% A new description from the Avatar rebinds; the new component is reachable.
 re_register(Config) ->

@@ -37,8 +37,8 @@
 -module(agent_bridge_client).
 -behaviour(gen_statem).
 
--export([connect/2, start/2, connect/1, describe/2, send/2, request/3, close/1,
-         session/1, status/1, await_acks/2]).
+-export([connect/2, start/2, connect/1, describe/2, send/2, request/3, get_binding/1,
+         close/1, session/1, status/1, await_acks/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
 -export_type([opts/0, endpoint/0, close_reason/0, partial_signal/0, connect_error/0]).
@@ -215,6 +215,14 @@ send(Client, Signal) ->
           {ok, bil:signal()} | {error, timeout | closed | {bad_signal, term()} | bil:signal()}.
 request(Client, Signal, Timeout) ->
     call(Client, {request, Signal, Timeout}).
+
+%% @doc Asks EVATAR for the pairing's current Binding report (GetBinding,
+%% docs/protocol.md section 2); it comes as `{agent_bridge, Client,
+%% {binding, Report}}'. With `ha', while reconnecting: `ok', since a resumed
+%% session is sent the report anyway.
+-spec get_binding(pid()) -> ok | {error, closed}.
+get_binding(Client) ->
+    call(Client, get_binding).
 
 %% @doc Closes the client, in any state, and returns `ok' once it has
 %% stopped, also when it had stopped already. Connected, it says Bye and
@@ -393,6 +401,10 @@ handle_event({call, From}, {request, Partial, Timeout}, connected, D) ->
     end;
 handle_event({timeout, {request, Id}}, Id, _State, D) ->
     answer(Id, {error, timeout}, D);
+handle_event({call, From}, get_binding, connected, D) ->
+    {keep_state_and_data, [{reply, From, write(bil_control:encode({get_binding, #{}}), D)}]};
+handle_event({call, From}, get_binding, _State, #d{ha = true}) ->
+    {keep_state_and_data, [{reply, From, ok}]};
 handle_event({call, From}, session, connected, #d{welcome = W}) ->
     {keep_state_and_data, [{reply, From, {ok, W}}]};
 handle_event({call, From}, status, State, D) ->

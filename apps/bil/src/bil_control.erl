@@ -1,5 +1,6 @@
 %% @doc Internal. The control documents of the EVATAR wire protocol
-%% (Hello, Resume, Welcome, Refused, Binding, Ack, Bye: docs/protocol.md) parsed from and
+%% (Hello, Resume, Welcome, Refused, Binding, GetBinding, Ack, Bye:
+%% docs/protocol.md) parsed from and
 %% encoded to BIL XML, and `parse_frame/2', which routes one frame to the
 %% control, signal or description parser by its root element.
 -module(bil_control).
@@ -54,6 +55,7 @@
                  | {ack, ack()}
                  | {refused, refused()}
                  | {binding, binding_report()}
+                 | {get_binding, #{}}
                  | {bye, Reason :: binary()}.
 -type frame() :: {control, control()}
                | {signal, bil:signal()}
@@ -223,9 +225,12 @@ root(<<"Bye">>, Children) ->
                  fun([Reason]) -> {bye, Reason} end);
 root(<<"Binding">>, Children) ->
     binding(Children);
+%% No fields yet; like every reader here, elements in it are ignored.
+root(<<"GetBinding">>, _Children) ->
+    {ok, {get_binding, #{}}};
 root(Local, _) ->
-    err(wrong_root, <<"expected Hello, Resume, Welcome, Refused, Binding, Ack, Bye, Envelope "
-                      "or description">>,
+    err(wrong_root, <<"expected Hello, Resume, Welcome, Refused, Binding, GetBinding, Ack, Bye, "
+                      "Envelope or description">>,
         <<"/", Local/binary>>).
 
 maybe_fields(Children, Path, Spec, Build) ->
@@ -428,6 +433,8 @@ encode({refused, #{code := Code, message := Message}}) ->
     document(<<"Refused">>, [field(<<"Code">>, Code), field(<<"Message">>, Message)]);
 encode({bye, <<>>}) ->
     document(<<"Bye">>, []);
+encode({get_binding, #{}}) ->
+    document(<<"GetBinding">>, []);
 encode({bye, Reason}) ->
     document(<<"Bye">>, [field(<<"Reason">>, Reason)]);
 encode({binding, #{entities := Ids, bound := Bound, unbound := Unbound}}) ->

@@ -11,7 +11,7 @@
 
 -export([check_pairing_opts/1, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
          join/5, resume/5, describe/2, leave_async/1,
-         send/2, ack/2, leave/1, session_pid/1, session_info/1]).
+         send/2, ack/2, report_binding/1, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
 -export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0]).
@@ -385,6 +385,13 @@ describe(#session{pid = Pid, entity = EntityId}, Description) ->
 -spec send(session(), bil:signal()) -> ok.
 send(#session{pid = Pid, entity = EntityId}, Signal) ->
     gen_statem:cast(Pid, {signal, EntityId, Signal}).
+
+%% @doc Asks for the pairing's current Binding report (asynchronous): it
+%% comes to the session's process as `{evatar, Pairing, {bound, Report}}',
+%% in order with the reports of rebindings (docs/protocol.md, GetBinding).
+-spec report_binding(session()) -> ok.
+report_binding(#session{pid = Pid, entity = EntityId}) ->
+    gen_statem:cast(Pid, {report_binding, EntityId}).
 
 %% @doc Acknowledges every signal delivered to a high-availability session
 %% up to Sequence `Seq' (asynchronous, cumulative): the pairing forgets them.

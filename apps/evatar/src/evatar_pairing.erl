@@ -318,6 +318,8 @@ handle_event(cast, {signal, EntityId, Signal}, _State, Data) ->
     {keep_state, flush_maybe(run({signal, EntityId, Signal}, Data))};
 handle_event(cast, {client_ack, EntityId, Seq}, _State, Data) when is_integer(Seq) ->
     {keep_state, flush_maybe(run({client_ack, EntityId, Seq}, Data))};
+handle_event(cast, {report_binding, EntityId}, _State, Data) when is_binary(EntityId) ->
+    {keep_state, report_binding(EntityId, Data)};
 handle_event({call, From}, {join, Role, EntityId, Credential, Pid}, _State, Data) ->
     join({join, Role, EntityId, Credential}, EntityId, Pid, From, Data);
 handle_event({call, From}, {join, Role, EntityId, Credential, Pid, #{session := S}}, _State,
@@ -546,6 +548,23 @@ internal([], Reply, Held, Data) ->
 
 hold(_V, [], Data) -> Data;
 hold(V, Effects, #data{outbox = Q} = Data) -> Data#data{outbox = queue:in({V, Effects}, Q)}.
+
+%% A GetBinding (docs/protocol.md section 2): the current report, to that
+%% entity only. It changes no state, so it is not shipped to the standby;
+%% it waits behind the effects still held for the standby, so that it never
+%% overtakes an older report.
+report_binding(EntityId, #data{logic = Logic, pids = Pids, outbox = Q} = Data) ->
+    {_, Effects} = evatar_pairing_logic:handle({report_binding, EntityId}, 0, Logic),
+    Sends = [{send, Pid, {bound, R}} || {report, E, R} <- Effects,
+                                        {Pid, _} <- [maps:get(E, Pids, {undefined, x})],
+                                        is_pid(Pid)],
+    case queue:is_empty(Q) of
+        true ->
+            {ok, Data1} = execute(Sends, ok, Data),
+            Data1;
+        false ->
+            hold(Data#data.version, Sends, Data)
+    end.
 
 %% A call's reply, held like any other effect while there is a standby.
 reply(From, Reply, #data{standby = undefined, hold = false} = Data) ->

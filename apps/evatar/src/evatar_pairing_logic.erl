@@ -116,6 +116,7 @@
                | {leave, EntityId :: binary(), left | down}
                | {detach, EntityId :: binary()}
                | {client_ack, EntityId :: binary(), Seq :: non_neg_integer()}
+               | {report_binding, EntityId :: binary()}
                | {takeover, Epoch :: pos_integer()}
                | {timeout, timer_key()}.
 -type effect() :: {reply, term()}
@@ -213,6 +214,8 @@ handle1({detach, EntityId}, Now, St) ->
     detach(EntityId, Now, St);
 handle1({client_ack, EntityId, Seq}, _Now, St) ->
     {client_ack(EntityId, Seq, St), []};
+handle1({report_binding, EntityId}, _Now, St) ->
+    {St, report_to(EntityId, St)};
 handle1({takeover, Epoch}, Now, St) ->
     takeover(Epoch, Now, St);
 handle1({timeout, {join, EntityId}}, Now, St) ->
@@ -297,7 +300,7 @@ join_timeout(EntityId, Now, #st{entities = Entities, config = Config} = St) ->
             {Error, St1} = mediator_signal(error, EntityId, undefined, <<"ERROR">>,
                                            <<"JoinTimeout">>, Message, Now, St),
             {St2, Deliver} = stamp(EntityId, Error, Now, St1),
-            {St3, _} = remove_entity(EntityId, St2),
+            {St3, _} = remove_entity(EntityId, Now, St2),
             {count(dropped, St3),
              [Deliver, {drop, EntityId, join_timeout, Message},
               {log, warning, #{what => join_timeout, entity => EntityId}}]};
@@ -484,7 +487,7 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
                             <- lists:sort(maps:to_list(Pending)),
                         not is_map_key({Req, Prov}, Routes)],
     {St1, RevEffects} =
-        lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov}},
+        lists:foldl(fun({{Req, SigId} = Key, #pending{requester = Entity, provider = Prov} = P},
                         {StAcc, Acc}) ->
                             StAcc1 = drop_pending(Key, StAcc),
                             {Sig, StAcc2} = mediator_signal(
@@ -494,10 +497,16 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
                                                 "' is no longer bound; the request is void">>,
                                               Now, StAcc1),
                             {StAcc3, Deliver} = stamp(Entity, Sig, Now, StAcc2),
-                            {count(provider_gone, StAcc3),
-                             [{log, notice, #{what => provider_gone, entity => Entity,
-                                              signal => SigId, provider => Prov}},
-                              Deliver, {cancel_timer, {feedback, Req, SigId}} | Acc]}
+                            {StAcc4, Closed} = request_closed(
+                                                 P, SigId, <<"Unbound">>,
+                                                 <<"your component is no longer bound to the "
+                                                   "requester; the request is void">>,
+                                                 Now, StAcc3),
+                            {count(provider_gone, StAcc4),
+                             lists:reverse(Closed) ++
+                                 [{log, notice, #{what => provider_gone, entity => Entity,
+                                                  signal => SigId, provider => Prov}},
+                                  Deliver, {cancel_timer, {feedback, Req, SigId}} | Acc]}
                     end, {St, []}, Gone),
     {St1, lists:reverse(RevEffects)}.
 
@@ -506,7 +515,7 @@ close_unbound_requests(Now, #st{pending = Pending, routes = Routes} = St) ->
 leave(EntityId, Why, Now, #st{entities = Entities} = St) when is_atom(Why) ->
     case Entities of
         #{EntityId := #entity{description = Description}} ->
-            {St1, Effects} = remove_entity(EntityId, St),
+            {St1, Effects} = remove_entity(EntityId, Now, St),
             Log = {log, info, #{what => entity_left, entity => EntityId, why => Why}},
             case Description of
                 undefined ->
@@ -519,16 +528,17 @@ leave(EntityId, Why, Now, #st{entities = Entities} = St) when is_atom(Why) ->
             {St, []}
     end.
 
-%% Forgets the entity, its components and the requests it was waiting on;
-%% the caller rebinds when the entity had registered.
-remove_entity(EntityId, #st{entities = Entities} = St) ->
+%% Forgets the entity, its components and the requests it was waiting on
+%% (their providers are told RequestClosed); the caller rebinds when the
+%% entity had registered.
+remove_entity(EntityId, Now, #st{entities = Entities} = St) ->
     #entity{role = Role, description = Description} = maps:get(EntityId, Entities),
     St1 = case Role of
               agent -> St#st{agent = undefined};
               avatar -> St#st{avatars = St#st.avatars - 1}
           end,
-    {Mine, Others} = maps:fold(fun(K, #pending{requester = R}, {M, O}) when R =:= EntityId ->
-                                       {[K | M], O};
+    {Mine, Others} = maps:fold(fun(K, #pending{requester = R} = P, {M, O}) when R =:= EntityId ->
+                                       {[{K, P} | M], O};
                                   (K, P, {M, O}) ->
                                        {M, O#{K => P}}
                                end, {[], #{}}, St#st.pending),
@@ -547,7 +557,17 @@ remove_entity(EntityId, #st{entities = Entities} = St) ->
                       #entity{resume_deadline = undefined} -> [];
                       _ -> [{cancel_timer, {resume, EntityId}}]
                   end,
-    {St2, JoinTimer ++ ResumeTimer ++ [{cancel_timer, {feedback, C, S}} || {C, S} <- Mine]}.
+    {St3, Closed} = lists:foldl(
+                      fun({{_, S}, P}, {StAcc, Acc}) ->
+                              {StAcc1, Deliver} = request_closed(
+                                                    P, S, <<"RequesterGone">>,
+                                                    <<"the requester left the pairing">>,
+                                                    Now, StAcc),
+                              {StAcc1, [Deliver | Acc]}
+                      end, {St2, []}, lists:sort(Mine)),
+    {St3, JoinTimer ++ ResumeTimer ++
+         [{cancel_timer, {feedback, C, S}} || {{C, S}, _} <- lists:sort(Mine)] ++
+         lists:append(lists:reverse(Closed))}.
 
 %% --- routing ---------------------------------------------------------------
 
@@ -692,9 +712,10 @@ drop_pending(Key, #st{pending = Pending, open = Open} = St) ->
 
 %% Feedback closes the open request it answers, progress keeps it open and
 %% moves its deadline to a full feedback timeout from now, an error answering
-%% a request closes it like feedback. An answer matching no open request
-%% (late, or never asked) is dropped and counted; an error signal that
-%% answers nothing is delivered as ordinary traffic.
+%% a request closes it like feedback. A Feedback or Progress matching no open
+%% request (late, or never asked) is not delivered: its sender gets the error
+%% NoOpenRequest, and it is counted; an error signal that answers nothing is
+%% delivered as ordinary traffic (docs/protocol.md section 4.3).
 answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = Signal,
        Now, #st{pending = Pending} = St) ->
     InReplyTo = maps:get(in_reply_to, Signal, undefined),
@@ -715,22 +736,39 @@ answer(Target, #{context := Context, sender := Sender, receiver := Receiver} = S
             {St1, Deliver} = stamp(Target, Signal, Now, St),
             {count({routed, error}, St1), [Deliver]};
         #{} ->
-            {count(late_feedback, St),
-             [{log, notice, #{what => late_feedback, entity => maps:get(Sender, St#st.components),
-                              signal => maps:get(id, Signal), in_reply_to => InReplyTo}}]}
+            %% Late (the request timed out or was voided), answered twice,
+            %% or never asked: the sender learns it was not delivered.
+            SenderEntity = maps:get(Sender, St#st.components),
+            {St1, Effects} = refuse(SenderEntity, Signal, <<"NoOpenRequest">>,
+                                    <<"no open request '", (in_reply_to_text(InReplyTo))/binary,
+                                      "' of '", Receiver/binary, "' awaits your answer (it was "
+                                      "answered, timed out or voided); not delivered">>,
+                                    Now, St),
+            {count(late_feedback, St1),
+             Effects ++ [{log, notice, #{what => late_feedback, entity => SenderEntity,
+                                         signal => maps:get(id, Signal),
+                                         in_reply_to => InReplyTo}}]}
     end.
+
+in_reply_to_text(undefined) -> <<"(no InReplyTo)">>;
+in_reply_to_text(Id) -> Id.
 
 feedback_timeout({Requester, SignalId} = Key, Now, #st{pending = Pending} = St) ->
     case Pending of
-        #{Key := #pending{requester = Entity, provider = Provider}} ->
+        #{Key := #pending{requester = Entity, provider = Provider} = P} ->
             St1 = drop_pending(Key, St),
             Message = <<"no feedback from '", Provider/binary, "' within the feedback timeout">>,
             {Sig, St2} = mediator_signal(feedback, Requester, SignalId, ?MEDIATOR,
                                          <<"Timeout">>, Message, Now, St1),
             {St3, Deliver} = stamp(Entity, Sig, Now, St2),
-            {count(timeouts, St3),
-             [Deliver, {log, warning, #{what => feedback_timeout, entity => Entity,
-                                        signal => SignalId, provider => Provider}}]};
+            {St4, Closed} = request_closed(P, SignalId, <<"Timeout">>,
+                                           <<"the requester's feedback timeout passed; "
+                                             "an answer now is refused (NoOpenRequest)">>,
+                                           Now, St3),
+            {count(timeouts, St4),
+             [Deliver | Closed] ++
+                 [{log, warning, #{what => feedback_timeout, entity => Entity,
+                                   signal => SignalId, provider => Provider}}]};
         #{} ->
             {St, []}
     end.
@@ -751,8 +789,12 @@ refuse(EntityId, Signal, Code, Message, Now, St) ->
      [Deliver, {log, notice, #{what => signal_refused, entity => EntityId, code => Code,
                                signal => InReplyTo}}]}.
 
-mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now,
-                #st{next_id = N} = St) ->
+mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now, St) ->
+    mediator_signal(Context, Receiver, InReplyTo, Category, Type,
+                    [{<<"Message">>, Message}], Now, St, params).
+
+mediator_signal(Context, Receiver, InReplyTo, Category, Type, Params, Now,
+                #st{next_id = N} = St, params) ->
     Sig = #{id => <<"evatar-", (integer_to_binary(N))/binary>>,
             context => Context,
             sender => ?MEDIATOR,
@@ -762,9 +804,36 @@ mediator_signal(Context, Receiver, InReplyTo, Category, Type, Message, Now,
             timestamp => max(Now, 0),
             seq => undefined,
             epoch => undefined,
-            body => #{category => Category, type => Type,
-                      parameters => [{<<"Message">>, Message}]}},
+            body => #{category => Category, type => Type, parameters => Params}},
     {Sig, St#st{next_id = N + 1}}.
+
+%% EVATAR closed an open request without its provider's answer: the
+%% provider, when it is still registered, is told by an Event RequestClosed
+%% (docs/protocol.md section 4.3), so it can stop the work; an answer it
+%% sends later is refused NoOpenRequest.
+request_closed(#pending{provider = Prov, provider_entity = PE}, SignalId, Reason, Message,
+               Now, #st{entities = Entities} = St) ->
+    case Entities of
+        #{PE := _} ->
+            {Sig, St1} = mediator_signal(event, Prov, SignalId, ?MEDIATOR,
+                                         <<"RequestClosed">>,
+                                         [{<<"Reason">>, Reason}, {<<"Message">>, Message}],
+                                         Now, St, params),
+            {St2, Deliver} = stamp(PE, Sig, Now, St1),
+            {St2, [Deliver]};
+        #{} ->
+            {St, []}
+    end.
+
+%% The current Binding report, to one joined entity (a GetBinding, a
+%% resumed session), described or not.
+report_to(EntityId, #st{entities = Entities} = St) ->
+    case Entities of
+        #{EntityId := #entity{}} ->
+            [{report, EntityId, bindings(St)}];
+        #{} ->
+            []
+    end.
 
 %% Stamps the receiving entity's next sequence number and the epoch; an HA
 %% entity also keeps the signal until it acknowledges it.
@@ -834,9 +903,13 @@ resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
                                    Received),
                     Redeliver = [{deliver, EntityId, Sig#{epoch => Epoch}}
                                  || {_, Sig, _} <- queue:to_list(Entity1#entity.out)],
-                    {count(resumed, St#st{entities = Entities#{EntityId := Entity1}}),
+                    St1 = St#st{entities = Entities#{EntityId := Entity1}},
+                    %% The Binding report first: bindings may have changed
+                    %% while the session was detached (docs/protocol.md 11.2).
+                    {count(resumed, St1),
                      [{reply, {ok, true, Entity1#entity.last_accepted}},
-                      {cancel_timer, {resume, EntityId}} | Redeliver] ++
+                      {cancel_timer, {resume, EntityId}}] ++ report_to(EntityId, St1) ++
+                         Redeliver ++
                          [{log, info, #{what => resumed, entity => EntityId,
                                         redelivered => length(Redeliver)}}]};
                 #{} ->

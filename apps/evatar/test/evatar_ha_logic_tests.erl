@@ -111,9 +111,13 @@ version_1_entities_have_no_acks_test() ->
 resume_redelivers_unacknowledged_test() ->
     St = run([{signal, ?VA, light(I)} || I <- [<<"a">>, <<"b">>, <<"c">>]], bound()),
     St1 = run([{client_ack, ?AV, 1}, {detach, ?AV}, {takeover, 2}], St),
-    {_, E} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 1, 1}, St1),
+    {St2, E} = h({resume, avatar, ?AV, ?CV, <<"sv">>, 1, 1}, St1),
     ?assertEqual([{ok, true, <<>>}], reply(E)),
     ?assertEqual([{?AV, <<"b">>, 2}, {?AV, <<"c">>, 3}], delivered(E)),
+    %% The current Binding report comes first (docs/protocol.md 11.2).
+    [{report, ?AV, Report} | _] = [X || X <- E, element(1, X) =:= report orelse
+                                           element(1, X) =:= deliver],
+    ?assertEqual(evatar_pairing_logic:bindings(St2), Report),
     ?assertEqual([2, 2], [Ep || {deliver, _, #{epoch := Ep}} <- E]).
 
 %% The resume's Received also trims: nothing at or below it comes again.

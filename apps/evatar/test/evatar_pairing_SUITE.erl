@@ -150,8 +150,9 @@ sensor_stream_in_order(Config) ->
     ?assertEqual([{I, I} || I <- lists:seq(1, N)], Got),
     {ok, #{routed := #{sensor_data := N}, pending := 0}} = evatar:stats(Id).
 
-%% @doc An unanswered request yields a Timeout feedback; a late answer is
-%% dropped and counted.
+%% @doc An unanswered request yields a Timeout feedback to the requester
+%% and an Event RequestClosed to the provider; a late answer is not
+%% delivered: its sender gets NoOpenRequest, and it is counted.
 feedback_timeout(Config) ->
     #{va := Va, av := Av, id := Id, va_pid := VaPid} =
         bound_pairing(Config, #{feedback_timeout => 50}),
@@ -159,7 +160,11 @@ feedback_timeout(Config) ->
     #{id := <<"r1">>} = ?E:recv(?AV, signal),
     #{context := feedback, in_reply_to := <<"r1">>, sender := <<"EVATAR">>,
       body := #{category := <<"EVATAR">>, type := <<"Timeout">>}} = ?E:recv(?VA, signal),
+    #{context := event, in_reply_to := <<"r1">>, receiver := ?LIGHT,
+      body := #{type := <<"RequestClosed">>}} = ?E:recv(?AV, signal),
     ok = evatar:send(Av, ?E:signal(<<"f1">>, feedback, ?LIGHT, ?EMU, <<"r1">>)),
+    #{context := error, in_reply_to := <<"f1">>,
+      body := #{type := <<"NoOpenRequest">>}} = ?E:recv(?AV, signal),
     {ok, #{timeouts := 1, late_feedback := 1, pending := 0}} = evatar:stats(Id),
     ?assertEqual([], ?E:flush([VaPid])).
 
@@ -187,13 +192,17 @@ progress_then_feedback(Config) ->
         evatar:stats(Id).
 
 %% @doc A new description rebinds; a request to a vanished component is
-%% answered ProviderGone and the component is no longer reachable.
+%% answered ProviderGone (its provider told RequestClosed) and the component
+%% is no longer reachable.
 reregister_rebinds(Config) ->
     #{va := Va, av := Av} = bound_pairing(Config, #{}),
     ok = evatar:send(Va, ?E:signal(<<"r1">>, request, ?EMU, ?LIGHT)),
     #{id := <<"r1">>} = ?E:recv(?AV, signal),
     ok = evatar:describe(Av, av_description([thermo])),
     #{in_reply_to := <<"r1">>, body := #{type := <<"ProviderGone">>}} = ?E:recv(?VA, signal),
+    #{in_reply_to := <<"r1">>, body := #{type := <<"RequestClosed">>,
+                                         parameters := [{<<"Reason">>, <<"Unbound">>}, _]}} =
+        ?E:recv(?AV, signal),
     #{bound := [_], unbound := [#{reason := no_provider}]} = ?E:recv(?VA, bound),
     #{bound := [_]} = ?E:recv(?AV, bound),
     ok = evatar:send(Va, ?E:signal(<<"r2">>, request, ?EMU, ?LIGHT)),

@@ -301,15 +301,27 @@ signal_from_a_gone_entity_is_counted_test() ->
     ?assertEqual([], Effects),
     ?assertMatch(#{unknown_entity := 1}, evatar_pairing_logic:stats(St)).
 
+%% The requester gets Feedback Timeout, the provider an Event RequestClosed
+%% (Reason Timeout), and a Feedback after that is refused NoOpenRequest
+%% (docs/protocol.md section 4.3).
 feedback_timeout_then_late_feedback_test() ->
     {St1, _} = h({signal, ?VA, signal(<<"r1">>, request, ?EMU, ?LIGHT)}, bound()),
     {St2, E2} = h({timeout, {feedback, ?EMU, <<"r1">>}}, St1),
-    [{deliver, ?VA, Timeout}] = no_logs(E2),
+    [{deliver, ?VA, Timeout}, {deliver, ?AV, Closed}] = no_logs(E2),
     ?assertMatch(#{context := feedback, in_reply_to := <<"r1">>, receiver := ?EMU,
                    body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}, Timeout),
+    ?assertMatch(#{context := event, in_reply_to := <<"r1">>, receiver := ?LIGHT,
+                   sender := <<"EVATAR">>, origin := evatar,
+                   body := #{category := <<"EVATAR">>, type := <<"RequestClosed">>,
+                             parameters := [{<<"Reason">>, <<"Timeout">>},
+                                            {<<"Message">>, _}]}}, Closed),
     {St3, E3} = h({signal, ?AV, signal(<<"f1">>, feedback, ?LIGHT, ?EMU, <<"r1">>)}, St2),
-    ?assertEqual([], no_logs(E3)),
-    ?assertMatch(#{timeouts := 1, late_feedback := 1, pending := 0},
+    ?assertMatch([{deliver, ?AV, #{context := error, in_reply_to := <<"f1">>,
+                                   receiver := ?LIGHT, origin := evatar,
+                                   body := #{category := <<"ERROR">>,
+                                             type := <<"NoOpenRequest">>}}}], no_logs(E3)),
+    ?assertMatch(#{timeouts := 1, late_feedback := 1, pending := 0,
+                   errors := #{<<"NoOpenRequest">> := 1}},
                  evatar_pairing_logic:stats(St3)),
     %% A timer firing for a closed request changes nothing.
     ?assertEqual({St3, []}, h({timeout, {feedback, ?EMU, <<"r1">>}}, St3)).
@@ -347,7 +359,11 @@ redescription_rebinds_and_voids_requests_test() ->
     {St1, _} = h({signal, ?VA, signal(<<"r1">>, request, ?EMU, ?LIGHT)}, bound()),
     {St2, E2} = h({describe, ?AV, avatar_description([thermo])}, St1),
     ?assertEqual(ok, reply(E2)),
-    [{?VA, Gone}] = delivered(E2),
+    %% The provider's entity is still there: it is told the request is void.
+    [{?VA, Gone}, {?AV, Closed}] = delivered(E2),
+    ?assertMatch(#{context := event, in_reply_to := <<"r1">>, receiver := ?LIGHT,
+                   body := #{type := <<"RequestClosed">>,
+                             parameters := [{<<"Reason">>, <<"Unbound">>}, _]}}, Closed),
     ?assertMatch(#{context := feedback, in_reply_to := <<"r1">>,
                    body := #{category := <<"EVATAR">>, type := <<"ProviderGone">>}}, Gone),
     ?assert(lists:member({cancel_timer, {feedback, ?EMU, <<"r1">>}}, E2)),
@@ -396,9 +412,12 @@ avatar_leaving_unbinds_test() ->
 agent_leaving_keeps_the_pairing_for_a_new_agent_test() ->
     {St1, _} = h({signal, ?VA, signal(<<"r1">>, request, ?EMU, ?LIGHT)}, bound()),
     {St2, E2} = h({leave, ?VA, left}, St1),
-    %% The requester is gone: its request is forgotten, not answered.
+    %% The requester is gone: its request is closed, and its provider told.
     ?assert(lists:member({cancel_timer, {feedback, ?EMU, <<"r1">>}}, E2)),
-    ?assertEqual([], delivered(E2)),
+    ?assertMatch([{?AV, #{context := event, in_reply_to := <<"r1">>,
+                          body := #{type := <<"RequestClosed">>,
+                                    parameters := [{<<"Reason">>, <<"RequesterGone">>}, _]}}}],
+                 delivered(E2)),
     ?assertMatch([{?AV, #{entities := [?AV]}}], reports(E2)),
     ?assertMatch(#{pending := 0}, evatar_pairing_logic:stats(St2)),
     St3 = ok({join, agent, <<"va2">>, <<"agent-secret">>}, St2),
@@ -413,6 +432,34 @@ leaving_before_registering_cancels_the_join_timer_test() ->
 leaving_twice_is_harmless_test() ->
     {St, _} = h({leave, ?AV, left}, bound()),
     ?assertEqual({St, [{reply, ok}]}, h({leave, ?AV, left}, St)).
+
+%% A GetBinding: the current report to that entity alone, no state change.
+report_binding_test() ->
+    St = bound(),
+    ?assertEqual({St, [{report, ?VA, evatar_pairing_logic:bindings(St)}]},
+                 h({report_binding, ?VA}, St)),
+    ?assertEqual({St, []}, h({report_binding, <<"ghost">>}, St)),
+    %% Joined, not described yet: it is told too (Entities lists the others).
+    St1 = ok({join, avatar, <<"7009">>, <<"avatar-secret">>}, St),
+    ?assertMatch({_, [{report, <<"7009">>, #{entities := [?VA, ?AV]}}]},
+                 h({report_binding, <<"7009">>}, St1)).
+
+%% A Progress answering no open request is refused like a late Feedback.
+progress_without_request_is_refused_test() ->
+    {_, E} = h({signal, ?AV, signal(<<"p">>, progress, ?LIGHT, ?EMU, <<"never">>)}, bound()),
+    ?assertMatch([{deliver, ?AV, #{in_reply_to := <<"p">>,
+                                   body := #{type := <<"NoOpenRequest">>}}}], no_logs(E)).
+
+%% Signals go either way along a binding row: the provider may send
+%% SensorData, an Event or a request to its consumer (section 4.2).
+either_direction_along_a_binding_test() ->
+    {St1, E1} = h({signal, ?AV, signal(<<"s">>, sensor_data, ?LIGHT, ?EMU)}, bound()),
+    ?assertMatch([{deliver, ?VA, #{id := <<"s">>}}], no_logs(E1)),
+    {St2, E2} = h({signal, ?AV, signal(<<"q">>, request, ?LIGHT, ?EMU)}, St1),
+    ?assertMatch([{deliver, ?VA, #{id := <<"q">>}}, {start_timer, {feedback, ?LIGHT, <<"q">>}, _}],
+                 no_logs(E2)),
+    {_, E3} = h({signal, ?VA, signal(<<"a">>, feedback, ?EMU, ?LIGHT, <<"q">>)}, St2),
+    ?assertMatch([{cancel_timer, _}, {deliver, ?AV, #{id := <<"a">>}}], no_logs(E3)).
 
 registration_order_survives_redescription_test() ->
     St = ok({describe, ?VA, agent_description()}, bound()),
