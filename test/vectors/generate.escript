@@ -36,7 +36,9 @@ main(_) ->
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = evatar:create_pairing(?PAIRING, #{agent_credential => ?AGENT_CRED,
                                                 avatar_credential => ?AVATAR_CRED}),
-    {ok, _} = agent_bridge:start_listener(vectors, #{ip => {127, 0, 0, 1}, port => 0}),
+    %% Heartbeat 500, as scripts/test-node.sh (test/vectors/README.md section 3).
+    {ok, _} = agent_bridge:start_listener(vectors, #{ip => {127, 0, 0, 1}, port => 0,
+                                                     conn => #{heartbeat => 500}}),
     {ok, {_, Port}} = agent_bridge:address(vectors),
     [begin _ = file:del_dir_r(filename:join(Dir, Sub)), ok = file:make_dir(filename:join(Dir, Sub)) end
      || Sub <- ["documents", "frames"]],
@@ -335,6 +337,8 @@ controls() ->
        "both Ack fields, Accepted first"),
      C("control_ack_heartbeat", {ack, #{}}, "the empty Ack: a heartbeat"),
      C("control_bye", {bye, <<>>}, "Bye without a Reason: reason \"\""),
+     C("control_get_binding", {get_binding, #{}},
+       "GetBinding (revision 3): no fields; EVATAR answers with the current Binding report"),
      C("control_bye_reason", {bye, <<"the pairing was stopped">>},
        "Bye with a Reason"),
      doc("control_hello_pretty", <<"control">>,
@@ -384,7 +388,7 @@ descriptions() ->
 %% ---------------------------------------------------------------------------
 
 transcripts(Port) ->
-    [transcript_v1(Port), transcript_v2(Port)].
+    [transcript_v1(Port), transcript_v2(Port), transcript_requests(Port)].
 
 %% A recorder: connections by name; every frame sent and received is a step.
 -record(rec, {name, port, conns = #{}, steps = [], n = 0, keep_beat = false}).
@@ -499,7 +503,8 @@ transcript_v2(Port) ->
                     {control, {resume, #{pairing => ?PAIRING, role => agent,
                                          entity_id => <<"va-1">>, credential => ?AGENT_CRED,
                                          protocol_version => 2, session_id => Session,
-                                         received => Seq1, epoch => 1}}}, ["agent", "agent_resumed", "agent_resumed"]),
+                                         received => Seq1, epoch => 1}}},
+                    ["agent", "agent_resumed", "agent_resumed", "agent_resumed"]),
     Seq2 = last_sequence(R9, "agent_resumed"),
     true = Seq2 > Seq1,
     R10 = client_doc(R9, "agent_resumed", {control, {ack, #{received => Seq2}}}, []),
@@ -511,8 +516,49 @@ transcript_v2(Port) ->
                 "(Ack Accepted); it acknowledges the Feedback (Ack Received); a SensorData it "
                 "does not acknowledge is delivered again after it resumes the session on a "
                 "second connection (agent_resumed), which makes EVATAR refuse the first with "
-                "SessionResumed; an empty Ack (heartbeat) arrives; Bye. The Avatar speaks "
-                "version 1").
+                "SessionResumed; after the Welcome comes the current Binding report (revision "
+                "3), then the redelivery; an empty Ack (heartbeat) arrives; Bye. The Avatar "
+                "speaks version 1").
+
+%% Revision 3, version 1: GetBinding, a request nobody answers (Feedback
+%% Timeout to the requester, Event RequestClosed to the provider), and the
+%% provider's late Feedback refused NoOpenRequest.
+transcript_requests(Port) ->
+    R0 = #rec{name = "transcript_requests", port = Port},
+    Req = (request())#{id := <<"va-1-000001">>},
+    R1 = client_doc(R0, "agent", {control, hello(agent, <<"va-1">>, ?AGENT_CRED, 1)}, ["agent"]),
+    R2 = client_doc(R1, "avatar", {control, hello(avatar, <<"7008">>, ?AVATAR_CRED, 1)}, ["avatar"]),
+    R3 = client_doc(R2, "agent", {description, agent_description()}, ["agent"]),
+    R4 = client_doc(R3, "avatar", {description, avatar_description()}, ["agent", "avatar"]),
+    R5 = client_doc(R4, "avatar", {control, {get_binding, #{}}}, ["avatar"]),
+    %% Nobody answers: the pairing's feedback timeout (5 s) passes.
+    R6 = client(R5, "agent", agent_bridge_vectors:frame({signal, Req}), ["avatar"]),
+    R7 = await(R6, ["agent", "avatar"], 15000),
+    R8 = client_doc(R7, "avatar",
+                    {signal, Req#{id := <<"av-000001">>, context := feedback,
+                                  sender := <<"HomeLightActuator01">>,
+                                  receiver := <<"LightEmulator01">>,
+                                  in_reply_to := <<"va-1-000001">>, timestamp := ?TS + 6000,
+                                  body := #{category => <<"ACTUATOR">>,
+                                            type => <<"ACTION FEEDBACK">>,
+                                            parameters => [{<<"Feedback">>, <<"yes">>}]}}},
+                    ["avatar"]),
+    R9 = client_doc(R8, "agent", {control, {bye, <<>>}}, ["agent", "avatar"]),
+    R10 = client_doc(R9, "avatar", {control, {bye, <<>>}}, ["avatar"]),
+    finish(R10, "revision 3 recorded from a node, version 1: the Avatar asks GetBinding and gets "
+                "the current Binding report; the VA's request gets no answer, so after the "
+                "pairing's feedback timeout (5 s) the VA gets EVATAR's Feedback Timeout and the "
+                "Avatar the Event RequestClosed (Reason Timeout); the Avatar's Feedback after "
+                "that is answered with the error NoOpenRequest, not delivered; both say Bye").
+
+%% Reads one frame on each connection of Conns, waiting up to Ms for each.
+await(R0, Conns, Ms) ->
+    R = lists:foldl(fun(Conn, Acc) ->
+                            S = maps:get(Conn, Acc#rec.conns),
+                            {ok, F} = agent_bridge_vectors:recv_frame_skipping(S, Ms, false),
+                            step(Acc, <<"server">>, Conn, F)
+                    end, R0, Conns),
+    R.
 
 last_sequence(#rec{steps = Steps}, Conn) ->
     Want = list_to_binary(Conn),
@@ -587,6 +633,47 @@ errors(Port) ->
      E("error_description_refused", none,
        <<Hello/binary, (frame_of({description, (agent_description())#{entity_id := <<"other">>}}))/binary>>,
        "a good Hello, then a description whose EntityID is not the Hello's"),
+     E("error_hello_empty_entity", none,
+       raw_frame(<<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\"><Pairing>vectors</Pairing>"
+                   "<Role>agent</Role><EntityID></EntityID><Credential>va-secret</Credential>"
+                   "<ProtocolVersion>1</ProtocolVersion></bil:Hello>">>),
+       "a Hello with an empty EntityID"),
+     E("error_hello_missing_credential", none,
+       raw_frame(<<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\"><Pairing>vectors</Pairing>"
+                   "<Role>agent</Role><EntityID>va-1</EntityID>"
+                   "<ProtocolVersion>1</ProtocolVersion></bil:Hello>">>),
+       "a Hello without its Credential field (an empty one must be written)"),
+     E("error_hello_fields_out_of_order", none,
+       raw_frame(<<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\"><Role>agent</Role>"
+                   "<Pairing>vectors</Pairing><EntityID>va-1</EntityID><Credential>va-secret"
+                   "</Credential><ProtocolVersion>1</ProtocolVersion></bil:Hello>">>),
+       "a Hello whose fields are not in the documented order"),
+     E("error_hello_version_not_digits", none,
+       raw_frame(<<"<bil:Hello xmlns:bil=\"urn:evatar:bil:1\"><Pairing>vectors</Pairing>"
+                   "<Role>agent</Role><EntityID>va-1</EntityID><Credential>va-secret</Credential>"
+                   "<ProtocolVersion>v1</ProtocolVersion></bil:Hello>">>),
+       "a Hello whose ProtocolVersion is not digits"),
+     E("error_hello_unknown_root", none,
+       raw_frame(<<"<bil:Hi xmlns:bil=\"urn:evatar:bil:1\"></bil:Hi>">>),
+       "a first frame whose root no document of the protocol has"),
+     E("error_bye_first", none, frame_of({control, {bye, <<>>}}),
+       "a Bye before the Hello: a valid document, but not a Hello"),
+     E("error_hello_reserved_id", none,
+       frame_of({control, hello(avatar, <<"e-v-a-t-a-r">>, ?AVATAR_CRED, 1)}),
+       "a Hello whose EntityID reads EVATAR once case and non-alphanumerics are ignored"),
+     E("error_hello_id_too_long", none,
+       frame_of({control, hello(avatar, binary:copy(<<"x">>, 129), ?AVATAR_CRED, 1)}),
+       "a Hello whose EntityID is over max_id_length (128 bytes)"),
+     E("error_second_hello", none,
+       <<Hello/binary, (frame_of({control, hello(agent, <<"va-1">>, ?AGENT_CRED, 1)}))/binary>>,
+       "a good Hello, then a second Hello"),
+     E("error_v1_ack_with_field", none,
+       <<Hello/binary, (frame_of({control, {ack, #{received => 1}}}))/binary>>,
+       "a good version 1 Hello, then an Ack Received (version 2 only)"),
+     E("error_unknown_root_after_welcome", none,
+       <<Hello/binary, (raw_frame(<<"<bil:Hi xmlns:bil=\"urn:evatar:bil:1\"></bil:Hi>">>))/binary>>,
+       "a good Hello, then a document whose root the protocol does not have: Malformed, the "
+       "connection stays"),
      E("error_unexpected_document", none,
        <<Hello/binary, (frame_of({control, {welcome, #{pairing => ?PAIRING, entity_id => <<"va-1">>,
                                                       session_id => <<"00">>, join_timeout => 1,

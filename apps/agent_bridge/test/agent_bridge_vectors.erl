@@ -73,6 +73,8 @@ control({refused, #{code := C, message := M}}) ->
     #{<<"control">> => <<"Refused">>, <<"code">> => C, <<"message">> => M};
 control({bye, Reason}) ->
     #{<<"control">> => <<"Bye">>, <<"reason">> => Reason};
+control({get_binding, #{}}) ->
+    #{<<"control">> => <<"GetBinding">>};
 control({binding, #{entities := Ids, bound := Bound, unbound := Unbound}}) ->
     #{<<"control">> => <<"Binding">>, <<"entities">> => Ids,
       <<"bound">> => [#{<<"consumer_entity">> => CE, <<"consumer_component">> => CC,
@@ -178,6 +180,8 @@ control_term(<<"Refused">>, J) ->
     {refused, #{code => get(<<"code">>, J), message => get(<<"message">>, J)}};
 control_term(<<"Bye">>, J) ->
     {bye, get(<<"reason">>, J)};
+control_term(<<"GetBinding">>, _J) ->
+    {get_binding, #{}};
 control_term(<<"Binding">>, J) ->
     {binding, #{entities => get(<<"entities">>, J),
                 bound => [#{consumer => endpoint(<<"consumer">>, B),
