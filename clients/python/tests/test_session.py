@@ -63,6 +63,21 @@ def test_join_as_va_and_avatar_and_binding(endpoint) -> None:  # type: ignore[no
     run(main())
 
 
+def test_get_binding(endpoint) -> None:  # type: ignore[no-untyped-def]
+    """GetBinding (docs/protocol.md section 2): the current report comes again as an event."""
+    async def main() -> None:
+        va, light = light_va(endpoint, "kitchen", "va-secret", entity="va-gb")
+        await va.connect()
+        await describe(va, [light], "LIGHT VA", "EmulatorDescription")
+        first = await va.next_event(5)
+        assert isinstance(first, Binding) and first.entities == ["va-gb"]
+        await va.get_binding()
+        again = await va.next_event(5)
+        assert again == first
+        await va.close()
+    run(main())
+
+
 def test_request_feedback_round_trip(endpoint) -> None:  # type: ignore[no-untyped-def]
     seen: List[Signal] = []
 

@@ -15,7 +15,7 @@ from .xml import BilError, Element, escape_text, parse, valid_name
 
 __all__ = [
     "NS", "CONTEXTS", "Entry", "Component", "Description", "Signal", "Hello", "Resume",
-    "Welcome", "Ack", "Refused", "Bye", "Bound", "Unbound", "Binding", "Document",
+    "Welcome", "Ack", "Refused", "Bye", "GetBinding", "Bound", "Unbound", "Binding", "Document",
     "parse_frame", "parse_signal", "parse_description", "encode", "BilError",
 ]
 
@@ -267,6 +267,11 @@ class Bye:
 
 
 @dataclass
+class GetBinding:
+    """Asks EVATAR for the current Binding report (docs/protocol.md section 2, revision 3)."""
+
+
+@dataclass
 class Bound:
     consumer_entity: str
     consumer_component: str
@@ -296,8 +301,9 @@ class Binding:
     unbound: List[Unbound] = field(default_factory=list)
 
 
-Control = Union[Hello, Resume, Welcome, Ack, Refused, Bye, Binding]
-Document = Union[Signal, Description, Hello, Resume, Welcome, Ack, Refused, Bye, Binding]
+Control = Union[Hello, Resume, Welcome, Ack, Refused, Bye, GetBinding, Binding]
+Document = Union[Signal, Description, Hello, Resume, Welcome, Ack, Refused, Bye, GetBinding,
+                 Binding]
 
 
 def _f(name: str, value: str) -> str:
@@ -342,6 +348,8 @@ def encode(doc: Document) -> bytes:
         return _doc("Refused", [_f("Code", doc.code), _f("Message", doc.message)])
     if isinstance(doc, Bye):
         return _doc("Bye", [_f("Reason", doc.reason)] if doc.reason else [])
+    if isinstance(doc, GetBinding):
+        return _doc("GetBinding", [])
     if isinstance(doc, Binding):
         fs = ["<Entities>" + "".join(_f("EntityID", e) for e in doc.entities) + "</Entities>"]
         for b in doc.bound:
@@ -482,6 +490,8 @@ def _control(root: Element) -> Document:
             return Bye("")
         v, _ = _fields(ch, [("Reason", "any")], path)
         return Bye(*v)  # type: ignore[arg-type]
+    if name == "GetBinding":
+        return GetBinding()
     if name == "Binding":
         if not ch or isinstance(ch[0], str) or ch[0].name != "Entities":
             raise _err("missing_element", "Entities must come first", path + "/Entities")
@@ -512,8 +522,8 @@ def _control(root: Element) -> Document:
             else:
                 break
         return b
-    raise _err("wrong_root", "expected Hello, Resume, Welcome, Refused, Binding, Ack, Bye, "
-               "Envelope or description", path)
+    raise _err("wrong_root", "expected Hello, Resume, Welcome, Refused, Binding, GetBinding, "
+               "Ack, Bye, Envelope or description", path)
 
 
 def _structural(el: Element, name: str, path: str) -> None:

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 from typing import (Any, Awaitable, Callable, Dict, List, Optional, Sequence, Tuple, Union)
 
 from . import bil
-from .bil import (Ack, Binding, Bye, Description, Entry, Hello, Refused, Resume, Signal,
-                  Welcome, encode, parse_frame)
+from .bil import (Ack, Binding, Bye, Description, Entry, GetBinding, Hello, Refused, Resume,
+                  Signal, Welcome, encode, parse_frame)
 from .frame import MAX_FRAME, FrameError, check_length, encode_frame
 from .tls import Tls
 from .xml import BilError
@@ -332,6 +332,16 @@ class Client:
         self._description = doc
         if self._link is not None:
             self._link.write(doc)
+            await self._drain()
+
+    async def get_binding(self) -> None:
+        """Asks EVATAR for the pairing's current Binding report (GetBinding,
+        docs/protocol.md section 2); it arrives as a :class:`~evatar.bil.Binding`
+        event. With ``ha`` while reconnecting it does nothing: a resumed
+        session is sent the report anyway."""
+        self._check_open()
+        if self._link is not None:
+            self._link.write(encode(GetBinding()))
             await self._drain()
 
     async def send(self, signal: Optional[Signal] = None, **fields: Any) -> Signal:

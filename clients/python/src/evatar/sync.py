@@ -75,6 +75,9 @@ class SyncClient:
     def describe(self, description: Union[Description, bytes]) -> None:
         self._run(self.client.describe(description))
 
+    def get_binding(self) -> None:
+        self._run(self.client.get_binding())
+
     def send(self, signal: Optional[Signal] = None, **fields: Any) -> Signal:
         return self._run(self.client.send(signal, **fields))
 

@@ -8,7 +8,7 @@ import org.w3c.dom.Element;
 /**
  * The control documents of docs/protocol.md section 2: {@code Hello},
  * {@code Resume}, {@code Welcome}, {@code Ack}, {@code Refused},
- * {@code Binding}, {@code Bye}. Fields are read in order; elements after the
+ * {@code Binding}, {@code GetBinding}, {@code Bye}. Fields are read in order; elements after the
  * last known field are ignored (later versions may append fields).
  */
 public sealed interface Control {
@@ -106,6 +106,17 @@ public sealed interface Control {
         }
     }
 
+    /**
+     * Asks EVATAR for the pairing's current Binding report, sent to this entity only
+     * (docs/protocol.md section 2, revision 3). No fields.
+     */
+    record GetBinding() implements Control {
+        @Override
+        public String encode() {
+            return close(open("GetBinding"), "GetBinding");
+        }
+    }
+
     /** One bound relationship of a Binding report. */
     record Bound(String consumerEntity, String consumerComponent, String providerEntity,
                  String providerComponent, String category, String type, long score, long candidates) {}
@@ -186,7 +197,7 @@ public sealed interface Control {
     /** The control document names. */
     static boolean isControl(String localName) {
         return switch (localName) {
-            case "Hello", "Resume", "Welcome", "Ack", "Refused", "Binding", "Bye" -> true;
+            case "Hello", "Resume", "Welcome", "Ack", "Refused", "Binding", "GetBinding", "Bye" -> true;
             default -> false;
         };
     }
@@ -202,6 +213,7 @@ public sealed interface Control {
             case "Ack" -> new Ack(f.optText("Accepted"), f.optNumber("Received"));
             case "Refused" -> new Refused(f.text("Code"), f.text("Message"));
             case "Bye" -> new Bye(f.optText("Reason"));
+            case "GetBinding" -> new GetBinding();
             case "Binding" -> binding(root);
             default -> throw ProtocolException.malformed("wrong_root", "unknown document " + root.getLocalName());
         };

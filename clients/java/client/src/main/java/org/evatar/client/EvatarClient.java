@@ -493,6 +493,18 @@ public final class EvatarClient implements AutoCloseable {
     }
 
     /**
+     * Asks EVATAR for the pairing's current Binding report (GetBinding,
+     * docs/protocol.md section 2, revision 3); it arrives like any report. In
+     * version 2 while reconnecting it does nothing: a resumed session is sent
+     * the report anyway.
+     */
+    public void requestBinding() throws IOException {
+        synchronized (lock) {
+            writeOrQueue(new Control.GetBinding().toBytes(), opts.ha);
+        }
+    }
+
+    /**
      * Sends a signal; fills in SignalID and Timestamp when the builder has
      * none. Returns the SignalID. In version 2 it waits while the window of
      * unacknowledged signals is full, and a signal sent while disconnected is

@@ -28,7 +28,8 @@ class NodeClientTest {
 
     @BeforeAll
     static void startNode() throws IOException {
-        node = LocalNode.start(Pairings.specs("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied"));
+        node = LocalNode.start(Pairings.specs("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied",
+                "getbinding"));
     }
 
     @AfterAll
@@ -94,6 +95,28 @@ class NodeClientTest {
             assertEquals("LightEmulator01", ab.consumedBy("lamp-1", "HomeLightActuator01").get(0).providerComponent());
             // The sensor consumes the VA's MotionDetected: the direction sensor data flows.
             assertEquals("MotionEmulator01", ab.consumedBy("lamp-1", "HallMotionSensor01").get(0).providerComponent());
+        }
+    }
+
+    /** GetBinding (docs/protocol.md section 2): the current report comes again, to this client. */
+    @Test
+    void requestBindingSendsTheReportAgain() throws Exception {
+        List<Control.Binding> reports = new CopyOnWriteArrayList<>();
+        try (EvatarClient va = EvatarClient.connect(opts("getbinding", "agent", "va-gb"),
+                new EvatarClient.Listener() {
+                    @Override
+                    public void onBinding(Control.Binding b) {
+                        reports.add(b);
+                    }
+                })) {
+            va.describe(Bodies.va("va-gb"));
+            Control.Binding first = va.awaitBinding(x -> x.entities().equals(List.of("va-gb")), T);
+            va.requestBinding();
+            long deadline = System.nanoTime() + T.toNanos();
+            while (reports.size() < 2 && System.nanoTime() < deadline) {
+                Thread.sleep(10);
+            }
+            assertEquals(List.of(first, first), reports);
         }
     }
 

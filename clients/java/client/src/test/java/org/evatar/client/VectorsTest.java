@@ -323,6 +323,8 @@ class VectorsTest {
         } else if (c instanceof Control.Bye b) {
             m.addProperty("control", "Bye");
             m.addProperty("reason", b.reason() == null ? "" : b.reason());
+        } else if (c instanceof Control.GetBinding) {
+            m.addProperty("control", "GetBinding");
         } else if (c instanceof Control.Binding b) {
             m.addProperty("control", "Binding");
             JsonArray es = new JsonArray();
@@ -430,6 +432,7 @@ class VectorsTest {
             case "Ack" -> new Control.Ack(s(m, "accepted"), l(m, "received"));
             case "Refused" -> new Control.Refused(s(m, "code"), s(m, "message"));
             case "Bye" -> new Control.Bye(s(m, "reason"));
+            case "GetBinding" -> new Control.GetBinding();
             case "Binding" -> {
                 List<String> es = new ArrayList<>();
                 m.getAsJsonArray("entities").forEach(e -> es.add(e.getAsString()));
