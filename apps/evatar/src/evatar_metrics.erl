@@ -49,8 +49,9 @@
 
 -define(KINDS, [request, feedback, progress, error, sensor_data, request_no_feedback, event]).
 -define(SIGNAL_REFUSALS, [<<"BadSender">>, <<"BadSignal">>, <<"DuplicateRequest">>,
-                          <<"IdTooLong">>, <<"NotBound">>, <<"NotDescribed">>,
-                          <<"TooManyRequests">>, <<"UnknownReceiver">>, other]).
+                          <<"IdTooLong">>, <<"NoOpenRequest">>, <<"NotBound">>,
+                          <<"NotDescribed">>, <<"TooManyRequests">>, <<"UnknownReceiver">>,
+                          other]).
 -define(JOIN_REFUSALS, [unknown_pairing, bad_credential, occupied, entity_exists,
                         too_many_entities, stale_epoch, fenced, not_active, busy, id_too_long,
                         reserved_id, other]).
