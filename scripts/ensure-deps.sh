@@ -6,7 +6,10 @@ set -euo pipefail
 PKGS=(erlang-nox erlang-dev erlang-xmerl erlang-common-test erlang-proper
       erlang-proper-dev erlang-dialyzer erlang-jiffy rebar3 mosquitto libxml2-utils python3 openssl make git
       python3-venv python3-pip openjdk-17-jdk-headless maven
-      python3-prometheus-client strace)
+      python3-prometheus-client strace
+      # The dashboard's browser test (evatar_web_dash_SUITE): Debian's
+      # chromium, driven by playwright-core from npm.
+      chromium nodejs)
 
 missing=()
 for p in "${PKGS[@]}"; do
@@ -14,6 +17,11 @@ for p in "${PKGS[@]}"; do
     missing+=("$p")
   fi
 done
+
+# Debian's nodejs comes without npm; nodejs from elsewhere has its own.
+if ! command -v npm >/dev/null 2>&1; then
+  missing+=(npm)
+fi
 
 if [ ${#missing[@]} -eq 0 ]; then
   echo "ensure-deps: all prerequisites present (${PKGS[*]})"

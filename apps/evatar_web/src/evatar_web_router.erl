@@ -37,7 +37,11 @@
 routes() ->
     [{<<"GET">>, <<"/api/cluster">>, evatar_web_api, cluster},
      %% The node's counters, Prometheus text format (docs/metrics.md).
-     {<<"GET">>, <<"/metrics">>, evatar_web_metrics, scrape}].
+     {<<"GET">>, <<"/metrics">>, evatar_web_metrics, scrape},
+     %% The dashboard's (docs/dashboard.md).
+     {<<"GET">>, <<"/api/events">>, evatar_web_events, stream},
+     {<<"GET">>, <<"/api/scenes">>, evatar_web_scenes, scenes},
+     {<<"GET">>, <<"/api/pairings/:id/graph">>, evatar_web_graph, graph}].
 
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.

@@ -17,7 +17,10 @@ start_link() ->
 init([]) ->
     Children = case application:get_env(evatar_web, enabled, true) of
                    true ->
-                       [#{id => evatar_web_server,
+                       %% The event streams' admission (evatar_web_events).
+                       [#{id => evatar_web_streams,
+                          start => {evatar_web_streams, start_link, []}},
+                        #{id => evatar_web_server,
                           start => {evatar_web_server, start_link, []},
                           type => supervisor,
                           restart => permanent}];

@@ -1,0 +1,191 @@
+// The dashboard: the cluster, a pairing (entities, its Body Mapping
+// Registry as a graph, unbound entries and why, the live signal tail) and
+// the simulation when avatar_sim runs. Plain ES modules, no build step
+// (docs/architecture.md).
+import { getJSON, events, token, setToken } from './api.js';
+import { Graph } from './graph.js';
+import { renderScenes } from './scenes.js';
+
+const $ = sel => document.querySelector(sel);
+const KINDS = ['request', 'feedback', 'progress', 'sensor_data', 'event', 'error', 'refusal',
+  'timeout', 'void', 'late', 'drop', 'entity', 'bindings'];
+const MAX_ROWS = 300;
+
+const graph = new Graph($('#graph'));
+let current = null;       // the pairing shown
+let closeTail = null;
+let paused = false;
+let graphTimer = null;
+
+function h(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === 'class') e.className = v; else e.setAttribute(k, v);
+  }
+  e.append(...children.filter(c => c !== null && c !== undefined));
+  return e;
+}
+
+// --- cluster ----------------------------------------------------------------
+
+async function refreshCluster() {
+  try {
+    const c = await getJSON('/api/cluster');
+    $('#cluster-error').hidden = true;
+    $('#node').textContent = c.node;
+    $('#quorum').textContent = c.quorum ? 'quorum' : 'no quorum';
+    $('#quorum').className = 'badge ' + (c.quorum ? 'ok' : 'bad');
+    $('#nodes').replaceChildren(...c.nodes.map(n =>
+      h('span', { class: 'chip ' + (n.suspected ? 'bad' : n.up ? 'ok' : 'muted') },
+        `${n.node}${n.self ? ' (this node)' : ''} · ${n.suspected ? 'suspected' : n.up ? 'up' : 'down'}`)));
+    $('#pairings tbody').replaceChildren(...c.pairings.map(p =>
+      h('tr', { 'data-pairing': p.id },
+        h('td', {}, h('a', { href: `#/pairing/${encodeURIComponent(p.id)}` }, p.id)),
+        h('td', {}, p.active || '—'), h('td', {}, p.standby || '—'),
+        h('td', {}, String(p.epoch)), h('td', {}, p.standby ? (p.synced ? 'yes' : 'no') : '—'))));
+  } catch (e) {
+    $('#cluster-error').hidden = false;
+    $('#cluster-error').textContent = `cluster: ${e.message}`;
+  }
+}
+
+// --- a pairing ---------------------------------------------------------------
+
+async function refreshGraph() {
+  if (!current) return;
+  try {
+    const g = await getJSON(`/api/pairings/${encodeURIComponent(current)}/graph`);
+    $('#pairing-state').textContent = `${g.state} · node ${g.node}`;
+    $('#entities').replaceChildren(...g.entities.map(e =>
+      h('li', { class: e.attached ? 'attached' : 'detached', 'data-entity': e.id },
+        h('b', {}, e.id), ` ${e.role} · `,
+        e.attached ? 'connected' : 'detached', ' · ',
+        e.registered ? `described (${e.components.length} components)` : 'not described',
+        ` · ${e.delivered} delivered`)));
+    graph.render(g);
+    $('#unbound').replaceChildren(...g.unbound.map(u =>
+      h('li', { 'data-reason': u.reason },
+        h('b', {}, `${u.consumer.component}`), ` (${u.consumer.entity}) consumes `,
+        h('code', {}, `${u.category} / ${u.type}`), ': ',
+        h('span', { class: 'reason' }, u.reason),
+        u.parameters.length ? h('span', {}, ' wanting ',
+          h('code', {}, u.parameters.map(([n, v]) => `${n}=${v}`).join(', '))) : null,
+        u.candidates.length ? h('ul', {}, ...u.candidates.map(c =>
+          h('li', {}, `${c.provider.component} (${c.provider.entity}) offers `,
+            ...c.failed.map(f => h('code', { class: 'mismatch' },
+              `${f.name}: wanted ${f.wanted}, offered ${f.offered.length ? f.offered.join(' | ') : 'nothing'}`))))) : null)));
+  } catch (e) {
+    $('#pairing-state').textContent = e.message;
+  }
+}
+
+function tailRow(i) {
+  const when = new Date(i.at).toISOString().slice(11, 23);
+  let what;
+  switch (i.kind) {
+    case 'entity': what = `${i.from_entity} ${i.what}${i.message ? ' (' + i.message + ')' : ''}`; break;
+    case 'bindings': what = `rebound: ${i.bound} bound, ${i.unbound} unbound`; break;
+    case 'drop': what = `${i.to_entity} dropped: ${i.code} ${i.message || ''}`; break;
+    case 'dropped': what = `${i.count} items not shown (the page was too slow)`; break;
+    case 'moved': what = `the pairing's active moved (${i.role}); following it`; break;
+    case 'attached': what = `watching again on ${i.node}`; break;
+    case 'late': what = `late answer ${i.signal} to ${i.in_reply_to} from ${i.from_entity}, dropped`; break;
+    default:
+      what = `${i.from} → ${i.to} ${i.category || ''}/${i.type || ''}` +
+        (i.signal ? ` #${i.signal}` : '') + (i.in_reply_to ? ` re ${i.in_reply_to}` : '') +
+        (i.message ? ` — ${i.message}` : '') +
+        (i.parameters && i.parameters.length ? ` {${i.parameters.map(([n, v]) => `${n}=${v}`).join(', ')}}` : '');
+  }
+  return h('li', { class: `item kind-${i.kind}`, 'data-kind': i.kind },
+    h('time', {}, when), h('span', { class: 'kind' }, i.kind), h('span', { class: 'what' }, what));
+}
+
+function onItem(i) {
+  if (i.kind === 'hello') { $('#tail-status').textContent = `live on ${i.node}`; return; }
+  if (i.from && i.to) graph.flash(i.from, i.to);
+  if (i.kind === 'bindings' || i.kind === 'entity') scheduleGraph();
+  if (paused) return;
+  const list = $('#tail');
+  list.prepend(tailRow(i));
+  while (list.children.length > MAX_ROWS) list.lastChild.remove();
+}
+
+function scheduleGraph() {
+  clearTimeout(graphTimer);
+  graphTimer = setTimeout(refreshGraph, 150);
+}
+
+function openTail() {
+  if (closeTail) closeTail();
+  const kinds = [...document.querySelectorAll('#kinds input:checked')].map(c => c.value);
+  const params = { pairing: current };
+  if (kinds.length && kinds.length < KINDS.length) params.kind = kinds.join(',');
+  const entity = $('#entity-filter').value.trim();
+  if (entity) params.entity = entity;
+  $('#tail-status').textContent = 'connecting…';
+  closeTail = events(params, onItem, s => {
+    if (s === 'closed') $('#tail-status').textContent = 'stream closed';
+    else if (s instanceof Error) $('#tail-status').textContent = `stream: ${s.message}`;
+  });
+}
+
+function showPairing(id) {
+  current = id;
+  $('#pairing-id').textContent = id;
+  $('#tail').replaceChildren();
+  refreshGraph();
+  openTail();
+}
+
+// --- simulation --------------------------------------------------------------
+
+async function refreshScenes() {
+  try {
+    const { scenes } = await getJSON('/api/scenes');
+    $('#scenes-view').hidden = scenes.length === 0;
+    if (scenes.length) renderScenes($('#scenes'), scenes);
+  } catch (e) {
+    $('#scenes-view').hidden = true;
+  }
+}
+
+// --- routing -----------------------------------------------------------------
+
+function route() {
+  const m = location.hash.match(/^#\/pairing\/(.+)$/);
+  if (m) {
+    $('#pairing-view').hidden = false;
+    const id = decodeURIComponent(m[1]);
+    if (id !== current) showPairing(id);
+  } else {
+    $('#pairing-view').hidden = true;
+    if (closeTail) { closeTail(); closeTail = null; }
+    current = null;
+  }
+}
+
+function setup() {
+  $('#kinds').append(...KINDS.map(k =>
+    h('label', {}, h('input', { type: 'checkbox', value: k, checked: '' }), k)));
+  $('#tail-filters').addEventListener('submit', e => { e.preventDefault(); if (current) openTail(); });
+  $('#tail-pause').addEventListener('click', () => {
+    paused = !paused;
+    $('#tail-pause').textContent = paused ? 'resume' : 'pause';
+  });
+  $('#token-button').addEventListener('click', () => {
+    $('#token-input').value = token();
+    $('#token-dialog').showModal();
+  });
+  $('#token-dialog').addEventListener('close', () => {
+    if ($('#token-dialog').returnValue === 'save') setToken($('#token-input').value.trim());
+  });
+  window.addEventListener('hashchange', route);
+  route();
+  refreshCluster();
+  refreshScenes();
+  setInterval(refreshCluster, 3000);
+  setInterval(refreshScenes, 1000);
+  setInterval(refreshGraph, 5000);
+}
+
+setup();
