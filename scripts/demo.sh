@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# `make demo`: runs the demonstration on one embedded Erlang node, then exits.
+# `make demo`: runs the demonstration on one embedded Erlang node, then exits;
+# it prints the address of the node's dashboard first (port 0: a free one).
 # Arguments are passed to reference_agents_demo:main/1 (see docs/scenarios.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,4 +17,6 @@ exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interfa
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
   -evatar_web port 0 \
-  -eval "ok = reference_agents_demo:main($args), init:stop()."
+  -eval "{ok, _} = application:ensure_all_started(evatar_web),
+         io:format(\"~nDashboard: ~ts  (the page of this node; docs/dashboard.md)~n\", [evatar_web:url()]),
+         ok = reference_agents_demo:main($args), init:stop()."
