@@ -24,7 +24,11 @@
                 | {inflight, pos_integer()}    % W, requests in flight per VA (closed loop)
                 | {idle, non_neg_integer()}    % idle pairings live
                 | {rounds, pos_integer()}      % runs of the target rows (raw, client at N = 1,000)
-                | {out, file:filename()}.      % results directory
+                | {out, file:filename()}       % results directory
+                %% Each size and mode again with W live-tail watchers per
+                %% pairing (evatar_tap), alternated, `rounds' times: the
+                %% dashboard's cost on routing (docs/dashboard.md).
+                | {watch, [non_neg_integer()]}.
 
 -define(TARGET_RATE, 20000).
 -define(TARGET_N, 1000).
@@ -78,12 +82,13 @@ main(Options) ->
                IdleN -> idle(IdleN, Ctx)
            end,
     Targets = targets(Rounds),
-    Text = summary(Cfg1, Env, Costs, Loaded, Idle, Targets, Profile),
+    Watched = watched(Cfg1, Ctx),
+    Text = [summary(Cfg1, Env, Costs, Loaded, Idle, Targets, Profile), watch_table(Watched)],
     io:put_chars(["\n", Text]),
     Results = #{environment => Env,
                 config => Cfg1#{out := unicode:characters_to_binary(maps:get(out, Cfg1))},
                 costs => Costs,
-                loaded => Loaded, idle => Idle, targets => Targets,
+                loaded => Loaded, idle => Idle, targets => Targets, watched => Watched,
                 profile => Profile},
     {Json, Md} = evatar_bench_report:write(maps:get(out, Cfg1), Results,
                                             markdown(Env, Text)),
@@ -271,7 +276,10 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
     gc_all(),
     M1 = erlang:memory(total),
     Groups1 = groups(classify()),
-    io:format("   bound in ~b ms; closed loop...~n", [SetupMs]),
+    Ctx1 = Ctx#{watch_pids => [watcher(Id) || #{id := Id} <- Pairs,
+                                              _ <- lists:seq(1, maps:get(watch, Cfg, 0))]},
+    io:format("   bound in ~b ms (~b tail watchers); closed loop...~n",
+              [SetupMs, length(maps:get(watch_pids, Ctx1))]),
     Closed = closed_loop(Pairs, Cfg, Gen),
     M2 = erlang:memory(total),
     Groups2 = groups(classify()),
@@ -282,13 +290,65 @@ run_size(N, Mode, Cfg, #{addr := Addr, conn_sup := ConnSup, floor := Floor} = Ct
                 true -> #{};
                 false -> pairing_stats(Pairs)
             end,
+    Watchers = maps:get(watch_pids, Ctx1),
+    Tailed = lists:sum([tailed(W) || W <- Watchers]),
     ok = teardown(Pairs, ConnSup),
     io:format("   p50 ~s ms, p99 ~s ms, p99.9 ~s ms~n",
               [ms(maps:get(p50, Open)), ms(maps:get(p99, Open)), ms(maps:get(p999, Open))]),
-    #{mode => Mode, n => N, setup_ms => SetupMs,
+    #{mode => Mode, n => N, setup_ms => SetupMs, watch => maps:get(watch, Cfg, 0),
+      tailed => Tailed,
       closed => Closed, open => Open, pairing_stats => Stats,
       memory => #{after_setup => per_pairing(M1 - M0, Groups1, N),
                   after_load => per_pairing(M2 - M0, Groups2, N)}}.
+
+%% A live-tail watcher of one pairing, as an event stream of the dashboard
+%% is: it takes every item (acknowledging as evatar_tap:handle/2 does) and
+%% counts them.
+watcher(PairingId) ->
+    Parent = self(),
+    Pid = spawn(fun() ->
+                        {ok, Sub} = evatar_tap:watch(PairingId, #{}),
+                        Parent ! {watching, self()},
+                        watch_loop(Sub, 0)
+                end),
+    receive {watching, Pid} -> Pid after 10000 -> error({no_watcher, PairingId}) end.
+
+watch_loop(Sub, N) ->
+    receive
+        {count, From} ->
+            From ! {tailed, self(), N};
+        Msg ->
+            case evatar_tap:handle(Msg, Sub) of
+                {items, Items, Sub1} -> watch_loop(Sub1, N + length(Items));
+                ignore -> watch_loop(Sub, N)
+            end
+    end.
+
+%% The items a watcher took; it ends.
+tailed(Pid) ->
+    Pid ! {count, self()},
+    receive {tailed, Pid, N} -> N after 10000 -> 0 end.
+
+%% The sizes and modes again with and without watchers, alternated.
+watched(#{watch := Ws} = Cfg, Ctx) ->
+    [(run_size(N, Mode, Cfg#{watch => W}, Ctx))#{round => K}
+     || K <- lists:seq(1, maps:get(rounds, Cfg)), N <- maps:get(sizes, Cfg),
+        Mode <- maps:get(modes, Cfg), Mode =/= split,
+        not lists:member(Mode, evatar_bench_floor:kinds()), W <- Ws];
+watched(_Cfg, _Ctx) ->
+    [].
+
+watch_table([]) ->
+    [];
+watch_table(Runs) ->
+    ["\n## The live tail's cost (watchers per pairing, alternated)\n\n",
+     "| mode | N | round | watchers | items tailed | round trips/s | µs per round trip | "
+     "open loop p50 ms | p99 ms |\n|---|---|---|---|---|---|---|---|---|\n",
+     [fmt("| ~s | ~b | ~b | ~b | ~s | ~s | ~.1f | ~s | ~s |~n",
+          [Mode, N, K, W, int(T), int(maps:get(rate, C)), 1.0e6 / max(1.0, maps:get(rate, C)),
+           ms(maps:get(p50, O)), ms(maps:get(p99, O))])
+      || #{mode := Mode, n := N, round := K, watch := W, tailed := T, closed := C, open := O}
+             <- Runs]].
 
 %% Memory per pairing from a node delta and the process groups.
 per_pairing(Delta, Groups, N) ->
