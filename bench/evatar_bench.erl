@@ -342,7 +342,7 @@ watch_table([]) ->
     [];
 watch_table(Runs) ->
     ["\n## The live tail's cost (watchers per pairing, alternated)\n\n",
-     "| mode | N | round | watchers | items tailed | round trips/s | µs per round trip | "
+     "| mode | N | round | watchers | items tailed | round trips/s | 1/rate µs | "
      "open loop p50 ms | p99 ms |\n|---|---|---|---|---|---|---|---|---|\n",
      [fmt("| ~s | ~b | ~b | ~b | ~s | ~s | ~.1f | ~s | ~s |~n",
           [Mode, N, K, W, int(T), int(maps:get(rate, C)), 1.0e6 / max(1.0, maps:get(rate, C)),
