@@ -63,7 +63,8 @@ async function refreshGraph() {
         e.registered ? `described (${e.components.length} components)` : 'not described',
         ` · ${e.delivered} delivered`)));
     graph.render(g);
-    $('#unbound').replaceChildren(...g.unbound.map(u =>
+    if (!g.unbound.length) $('#unbound').replaceChildren(h('li', { class: 'muted' }, 'none: every entry is bound'));
+    else $('#unbound').replaceChildren(...g.unbound.map(u =>
       h('li', { 'data-reason': u.reason },
         h('b', {}, `${u.consumer.component}`), ` (${u.consumer.entity}) consumes `,
         h('code', {}, `${u.category} / ${u.type}`), ': ',

@@ -44,20 +44,30 @@ export class Graph {
     right.forEach((n, i) => node(n, i, COL_W + GAP, 'end'));
     const edges = el('g', { class: 'edges' });
     svg.prepend(edges);
+    // One edge per pair of components, whichever consumes from which; its
+    // label lists every service bound between them.
+    const pairs = new Map();
     for (const b of g.bound) {
-      const a = pos.get(key(b.consumer.entity, b.consumer.component));
-      const p = pos.get(key(b.provider.entity, b.provider.component));
+      const [c1, c2] = [b.consumer.component, b.provider.component].sort();
+      const k = `${c1}\u0000${c2}`;
+      if (!pairs.has(k)) pairs.set(k, { a: b.consumer, p: b.provider, services: [] });
+      const svc = `${b.category} / ${b.type}`;
+      if (!pairs.get(k).services.includes(svc)) pairs.get(k).services.push(svc);
+    }
+    for (const { a: ca, p: cp, services } of pairs.values()) {
+      const a = pos.get(key(ca.entity, ca.component));
+      const p = pos.get(key(cp.entity, cp.component));
       if (!a || !p) continue;
       const [from, to] = a.x < p.x ? [a, p] : [p, a];
       const mid = (from.x + to.x) / 2;
       const path = el('path', { d: `M${from.x},${from.y} C${mid},${from.y} ${mid},${to.y} ${to.x},${to.y}`, class: 'edge' });
       const label = el('text', { x: mid, y: (from.y + to.y) / 2 - 3, class: 'edge-label', 'text-anchor': 'middle' },
-        `${b.category} / ${b.type}`);
-      const group = el('g', { class: 'bound', 'data-consumer': b.consumer.component, 'data-provider': b.provider.component });
-      group.append(path, label);
+        services.join(' · '));
+      const group = el('g', { class: 'bound', 'data-consumer': ca.component, 'data-provider': cp.component });
+      group.append(el('title', {}, services.join('\n')), path, label);
       edges.append(group);
-      this.edges.set(`${b.consumer.component}\u0000${b.provider.component}`, group);
-      this.edges.set(`${b.provider.component}\u0000${b.consumer.component}`, group);
+      this.edges.set(`${ca.component}\u0000${cp.component}`, group);
+      this.edges.set(`${cp.component}\u0000${ca.component}`, group);
     }
     for (const u of g.unbound) {
       const a = pos.get(key(u.consumer.entity, u.consumer.component));
