@@ -22,7 +22,7 @@
 %% peer still sends for a short linger, then stops. Writes never block:
 %% see agent_bridge_outq and docs/protocol.md, "Backpressure".
 %%
-%% A version 2 session (high availability, docs/protocol.md section 9) may
+%% A version 2 session (high availability, docs/protocol.md section 11) may
 %% start with a Resume instead of a Hello; it gets `Ack' documents for the
 %% signals the pairing accepted, passes the client's Acks to the pairing, and
 %% sends an empty Ack as a heartbeat when it has sent nothing for
