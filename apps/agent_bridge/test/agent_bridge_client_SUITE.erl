@@ -19,7 +19,8 @@ suite() -> [{timetrap, {seconds, 120}}].
 
 all() ->
     [close_twice, close_before_connect, close_during_tcp_connect,
-     close_during_silent_handshake, close_during_late_welcome, connect_connected_client,
+     close_during_silent_handshake, close_during_late_welcome, close_during_reconnect,
+     connect_connected_client,
      refused_loop_leaves_nothing, reconnect_same_id_after_close,
      reconnect_same_id_after_close_ha, accepted_signals_notified, bad_signal_keeps_session,
      bad_signal_keeps_session_ha].
@@ -121,6 +122,23 @@ close_during_late_welcome(Config) ->
     {error, closed} = connect_result(Caller),
     receive {Server, peer_closed} -> ok after 10000 -> ct:fail(socket_left_open) end,
     receive {agent_bridge, C, Event} -> ct:fail({event_after_close, Event}) after 200 -> ok end.
+
+%% With ha, close/1 while the client reconnects on its own and waits in a
+%% handshake that never ends (its pairing went, and the next endpoint
+%% accepts and stays silent): the client stops, the owner hears {closed,
+%% normal} and the silent server sees the socket closed.
+close_during_reconnect(Config) ->
+    {Port, Server} = fake_server(silent),
+    {ok, C} = agent_bridge_client:connect([?config(addr, Config), {{127, 0, 0, 1}, Port}],
+                                          (opts(Config, <<"va">>))#{ha => true,
+                                                                    handshake_timeout => infinity}),
+    exit(evatar_registry:whereis_name(?config(pairing, Config)), kill),
+    receive {Server, hello} -> ok after 10000 -> ct:fail(no_reconnect) end,
+    handshaking = state(C),
+    ok = agent_bridge_client:close(C),
+    false = is_process_alive(C),
+    receive {agent_bridge, C, {closed, normal}} -> ok after 5000 -> ct:fail(no_closed) end,
+    receive {Server, peer_closed} -> ok after 10000 -> ct:fail(socket_left_open) end.
 
 %% connect/1 on a connected client fails locally with already_connected, and
 %% while another process connects it with connecting; the session is not

@@ -47,7 +47,8 @@ class LifecycleTest {
 
     @BeforeAll
     static void startNode() throws IOException {
-        node = LocalNode.startWithoutGuard(Pairings.specs("twice", "refused", "cycles", "cycles2", "again", "acks", "bound"));
+        node = LocalNode.startWithoutGuard(Pairings.specs("twice", "refused", "cycles", "cycles2", "again", "acks", "bound",
+                "away"));
     }
 
     @AfterAll
@@ -245,6 +246,34 @@ class LifecycleTest {
             assertEquals("closed", c.closedReason());
             assertNull(c.welcome());
             assertEquals(List.of(), clientThreads());
+        }
+    }
+
+    /**
+     * Version 2: close() while the client reconnects on its own and waits in
+     * a handshake that never ends (the next endpoint accepts and stays
+     * silent): it ends that handshake and returns with no thread left.
+     */
+    @Test
+    void closeDuringReconnect() throws Exception {
+        try (FakeServer srv = new FakeServer(null)) {
+            List<String> closed = new CopyOnWriteArrayList<>();
+            EvatarClient va = EvatarClient.connect(Pairings.opts(node, "away", "agent", "lc-va-w").ha(true)
+                    .endpoint("127.0.0.1", srv.port()).handshakeTimeout(Duration.ofSeconds(600)),
+                    new EvatarClient.Listener() {
+                        @Override
+                        public void onClosed(String reason, Throwable cause) {
+                            closed.add(reason);
+                        }
+                    });
+            va.dropConnection();
+            assertTrue(srv.hello.await(10, TimeUnit.SECONDS));
+            assertNull(va.closedReason());
+            va.close();
+            assertEquals("closed", va.closedReason());
+            assertEquals(List.of("closed"), closed);
+            assertEquals(List.of(), clientThreads());
+            assertTrue(srv.peerClosed.get(10, TimeUnit.SECONDS));
         }
     }
 
