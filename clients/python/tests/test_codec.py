@@ -80,3 +80,23 @@ def test_frames() -> None:
     with pytest.raises(FrameError) as e:
         FrameDecoder().feed(b"\0\0\0\0")
     assert e.value.code == "Malformed"
+
+
+def test_sensor_emulator_ignores_evatar_events() -> None:
+    """A RequestClosed Event from EVATAR (docs/protocol.md 4.3) is not a reading."""
+    import asyncio
+    from evatar import Client, SensorEmulator
+    from evatar.bil import Signal as Sig
+
+    async def main() -> None:
+        c = Client([("127.0.0.1", 1)], pairing="p", role="agent", entity_id="va", credential="")
+        em = SensorEmulator(c, "MotionEmulator01", "MotionDetected")
+        closed = Sig("evatar-1", "Event", "EVATAR", "MotionEmulator01",
+                     Entry("EVATAR", "RequestClosed", {"Reason": "Timeout"}), origin="EVATAR")
+        await em._on_signal(closed)
+        assert em.latest is None
+        reading = Sig("s-1", "Event", "HallSensor", "MotionEmulator01",
+                      Entry("SENSOR", "MotionDetected", {}))
+        await em._on_signal(reading)
+        assert em.latest is reading
+    asyncio.run(main())

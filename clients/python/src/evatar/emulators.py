@@ -158,7 +158,8 @@ class SensorEmulator(Emulator):
         raise asyncio.TimeoutError("no reading within %s s" % timeout)
 
     async def _on_signal(self, signal: Signal) -> None:
-        if signal.context not in ("SensorData", "Event"):
+        # EVATAR's own events (RequestClosed, docs/protocol.md 4.3) are not readings.
+        if signal.context not in ("SensorData", "Event") or signal.from_evatar:
             return
         self.latest = signal
         if self.listener is not None:

@@ -21,9 +21,12 @@ public class SensorEmulator extends ActuatorEmulator {
         super(client, component);
     }
 
-    /** Keeps {@code s} when it is sensor data (or an event) for this component; returns whether it did. */
+    /**
+     * Keeps {@code s} when it is sensor data (or an entity's event) for this component; returns
+     * whether it did. EVATAR's own events (RequestClosed, docs/protocol.md section 4.3) are not readings.
+     */
     public boolean offer(Signal s) {
-        if (s.receiver().equals(component)
+        if (s.receiver().equals(component) && !s.isFromEvatar()
                 && (s.context().equals(Signal.SENSOR_DATA) || s.context().equals(Signal.EVENT))) {
             readings.add(s);
             return true;
