@@ -10,8 +10,9 @@
 # `start' runs the node in the foreground (stop it with Ctrl-C or
 # `sim-node.sh stop'). It listens for clients on 127.0.0.1 only and prints,
 # one per line, EVATAR_PAIRING=<id> (robots: one line per robot),
-# EVATAR_VA_CREDENTIAL=<secret> and, once it accepts connections,
-# EVATAR_PORT=<port>. Options:
+# EVATAR_SPOOL=<dir> (home), EVATAR_VA_CREDENTIAL=<secret>,
+# EVATAR_CONTROL=<socket> and, once it accepts connections,
+# EVATAR_PORT=<port>; then the node's warnings (docs/avatars.md 1.1). Options:
 #   --port P                 the port on 127.0.0.1 (default 7400; 0: a free one)
 #   --pairing ID             home: the pairing (default home); robots: the
 #                            prefix of the two pairings ID1 and ID2 (default robot)
@@ -19,15 +20,19 @@
 #   --script holiday|none|FILE
 #                            home: the people's script (docs/avatars.md 4.3);
 #                            default holiday (an intruder at 21:40)
-#   --start YYYY-MM-DDTHH:MM the simulated start (default 2024-11-15T17:55)
+#   --start YYYY-MM-DDTHH:MM the simulated start, UTC = London's local time
+#                            (default 2024-11-15T17:55: already after sunset)
+#   --paused                 start the clock paused: no simulated time passes
+#                            (no reading, no script step) until `resume'
 #   --speed N                simulated ms per real ms (default 1)
 #   --feedback-timeout MS    the pairings' feedback timeout (default 5000)
 #   --spool DIR              home: where e-mails, SMS and photos go (default DIR/spool)
 #   --stop-on-eof            also stop when stdin closes (for a program that
 #                            starts the node and may die)
 #
-# Commands (they print the node's answer; exit 0 on success, 1 when the node
-# refused the command, 3 when no node runs):
+# Commands (they print the node's answer, or a short confirmation such as
+# `ok muted C' when it has none; exit 0 on success, 1 when the node refused
+# the command, 3 when no node runs):
 #   mute COMPONENT | unmute COMPONENT     the device swallows requests / answers again
 #   disconnect ENTITY [MS] | reconnect ENTITY
 #                                         the gateway or robot drops its connection
@@ -37,6 +42,7 @@
 #   entities PAIRING                      the EntityIDs registered in the pairing
 #   pause | resume | speed N              the simulated clock (speed N also pauses it)
 #   run_until HH:MM                       run the clock to that time, then pause
+#   time                                  TIME YYYY-MM-DD HH:MM:SS running|paused speed=N
 #   outcome                               home: LIGHT, EMAIL, PHOTO, PLAYED lines
 #   stop                                  stop the node
 #
@@ -78,7 +84,7 @@ start() {
   [ "$kind" = home ] || [ "$kind" = robots ] || die "start home or start robots"
   shift
   local port=7400 pairing="" va="" script="" when="2024-11-15T17:55" speed=1 fto=5000
-  local spool="" stdin=--no-stdin
+  local spool="" stdin=--no-stdin paused=()
   while [ $# -gt 0 ]; do
     case "$1" in
       --port) port=${2:?--port needs a value}; shift 2 ;;
@@ -90,6 +96,7 @@ start() {
       --feedback-timeout) fto=${2:?--feedback-timeout needs a value}; shift 2 ;;
       --spool) spool=${2:?--spool needs a value}; shift 2 ;;
       --stop-on-eof) stdin=""; shift ;;
+      --paused) paused=(--paused); shift ;;
       *) die "unknown option $1 (see sim-node.sh --help)" ;;
     esac
   done
@@ -132,7 +139,7 @@ start() {
   echo "EVATAR_CONTROL=$SOCK"
   # +B: Ctrl-C stops the node (no break menu).
   EVATAR_PORT=$port ERL_FLAGS="+B ${ERL_FLAGS:-}" exec "$CTL" "${args[@]}" --home-start "$when" --speed "$speed" \
-    --control "$SOCK" $stdin
+    "${paused[@]}" --control "$SOCK" $stdin
 }
 
 case "${1:-}" in
@@ -146,7 +153,7 @@ case "${1:-}" in
     [[ "$2" =~ ^[A-Za-z0-9_.-]+$ ]] || die "bad entity '$2'"
     [ $# -eq 2 ] || [[ "$3" =~ ^[0-9]+$ ]] || die "MS is a number"
     exec "$CTL" --send "$SOCK" "$@" ;;
-  links|outcome|pause|resume|stop)
+  links|outcome|pause|resume|time|stop)
     [ $# -eq 1 ] || die "$1 takes no argument"
     exec "$CTL" --send "$SOCK" "$1" ;;
   -h|--help|help) usage ;;

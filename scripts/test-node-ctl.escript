@@ -12,7 +12,8 @@
 %% Arguments: PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL[:FEEDBACK_TIMEOUT_MS]...
 %%            [--home PAIRING:AVATAR_CREDENTIAL:SPOOL_DIR] [--script holiday|none|FILE]
 %%            [--robots PAIRING1:CREDENTIAL1,PAIRING2:CREDENTIAL2] [--speed N]
-%%            [--home-start YYYY-MM-DDTHH:MM] [--control SOCKET] [--no-stdin] [--cluster N]
+%%            [--home-start YYYY-MM-DDTHH:MM] [--paused] [--control SOCKET] [--no-stdin]
+%%            [--cluster N]
 %% --cluster N starts instead N EVATAR nodes in a cluster (separate OS
 %% processes, peer nodes on 127.0.0.1), each with a listener; the pairings
 %% are created on node 1 (active) with their standby on node 2, and the
@@ -27,6 +28,8 @@
 %% holiday (the default), none, or a script file (docs/avatars.md section
 %% 4.3). --robots starts instead the LEGO arena with two robots, each
 %% joined to its pairing. --speed sets the clock's speed (default 2).
+%% --paused starts the clock paused: simulated time stands still until the
+%% `resume' (or `run_until') command, so a VA can join and bind first.
 %% --control SOCKET also takes commands, one per connection, on a Unix
 %% domain socket at that path (make its directory private: anyone who can
 %% open the socket can drive the simulation); --no-stdin stops reading
@@ -34,7 +37,9 @@
 %% connection that asked. scripts/sim-node.sh wraps both for users;
 %% `test-node-ctl.sh --send SOCKET COMMAND...' is its client: it prints the
 %% answer's lines and exits 0 on OK, 1 on ERROR (printed to stderr), 3 when
-%% nothing answers on SOCKET.
+%% nothing answers on SOCKET. When the answer has no lines it prints a short
+%% confirmation instead (`ok muted LivingLightSwitch01'; `outcome' with
+%% nothing to show says so), so every command prints something.
 %%
 %% Commands:
 %%   port NAME PROGRAM [ARG...]   start PROGRAM under a port connector
@@ -43,6 +48,8 @@
 %%   entities PAIRING             the EntityIDs registered in the pairing
 %%   speed N                      pause the home's clock and set its speed
 %%   run_until HH:MM              run the clock until that local time, pause
+%%   time                         TIME YYYY-MM-DD HH:MM:SS running|paused speed=N
+%%                                (the simulated time, UTC = the home's local time)
 %%   outcome                      the home's state: LIGHT/EMAIL/PHOTO/PLAYED lines
 %%   kill I                       (cluster) kill -9 node I (1-based)
 %%   freeze I                     (cluster) kill -STOP node I: a node that hangs
@@ -111,6 +118,7 @@ options(["--robots", Spec | Rest], O, Acc) -> options(Rest, O#{robots => Spec}, 
 options(["--home-start", When | Rest], O, Acc) -> options(Rest, O#{start => datetime(When)}, Acc);
 options(["--script", Script | Rest], O, Acc) -> options(Rest, O#{script => Script}, Acc);
 options(["--speed", N | Rest], O, Acc) -> options(Rest, O#{speed => list_to_integer(N)}, Acc);
+options(["--paused" | Rest], O, Acc) -> options(Rest, O#{paused => true}, Acc);
 options(["--control", Path | Rest], O, Acc) -> options(Rest, O#{control => Path}, Acc);
 options(["--no-stdin" | Rest], O, Acc) -> options(Rest, O#{stdin => false}, Acc);
 options(["--" ++ _ = Bad | _], _, _) ->
@@ -169,7 +177,8 @@ start_sim(_, _Port) ->
 start_clock(Opts) ->
     Start = maps:get(start, Opts, reference_agents_holiday:start_datetime()),
     {ok, Clock} = avatar_sim:start_clock(#{speed => maps:get(speed, Opts, 2), tick => 500,
-                                           start => Start}),
+                                           start => Start,
+                                           paused => maps:get(paused, Opts, false)}),
     Clock.
 
 read_stdin(Main) ->
@@ -264,6 +273,13 @@ command(["run_until", HHMM], #{clock := Clock} = S) ->
     wait_clock(Clock, Target),
     ok = avatar_sim:pause(Clock),
     {ok, [], S};
+command(["time"], #{clock := Clock} = S) ->
+    #{now := Now, speed := Speed, paused := Paused} = avatar_sim:clock_info(Clock),
+    {{Y, Mo, D}, {H, Mi, Sec}} = calendar:system_time_to_universal_time(Now, millisecond),
+    {ok, [io_lib:format("TIME ~4..0b-~2..0b-~2..0b ~2..0b:~2..0b:~2..0b ~s speed=~p",
+                        [Y, Mo, D, H, Mi, Sec, case Paused of true -> "paused";
+                                                              false -> "running" end,
+                         Speed])], S};
 command(["outcome"], #{home := Home} = S) ->
     #{light_log := Log, emails := Emails, photos := Photos, played := Played} =
         avatar_sim:state(Home),
@@ -307,6 +323,10 @@ command(["ha", Pairing], #{nodes := Nodes} = S) ->
                                                                       [Id], 2000)]], S};
 command(["outcome"], _S) ->
     {error, "outcome needs the home (--home)"};
+command([Clock | _], _S)
+  when Clock =:= "time"; Clock =:= "pause"; Clock =:= "resume"; Clock =:= "speed";
+       Clock =:= "run_until" ->
+    {error, "no simulated clock on this node (--home or --robots)"};
 command([Hook | _], _S)
   when Hook =:= "mute"; Hook =:= "unmute"; Hook =:= "disconnect"; Hook =:= "reconnect";
        Hook =:= "detach"; Hook =:= "attach"; Hook =:= "links" ->
@@ -329,22 +349,41 @@ send(Path, Words) ->
                          5000) of
         {ok, S} ->
             ok = gen_tcp:send(S, [lists:join(" ", Words), $\n]),
-            answer(S);
+            answer(S, Words, false);
         {error, Why} ->
             io:format(standard_error, "no simulated node answers on ~s (~0p): start one with "
                       "scripts/sim-node.sh start~n", [Path, Why]),
             halt(3)
     end.
 
-answer(S) ->
+answer(S, Words, Printed) ->
     case gen_tcp:recv(S, 0) of
-        {ok, <<"OK\n">>} -> halt(0);
+        {ok, <<"OK\n">>} ->
+            _ = [io:format("~s~n", [confirmation(Words)]) || not Printed],
+            halt(0);
         {ok, <<"ERROR", _/binary>> = E} -> io:format(standard_error, "~s", [E]), halt(1);
-        {ok, Line} -> io:format("~s", [Line]), answer(S);
+        {ok, Line} -> io:format("~s", [Line]), answer(S, Words, true);
         {error, Why} ->
             io:format(standard_error, "the node closed the connection (~0p)~n", [Why]),
             halt(1)
     end.
+
+%% What `sim-node.sh COMMAND' prints when the node's answer has no lines.
+confirmation(["mute", C]) -> ["ok muted ", C, " (it swallows requests until unmute)"];
+confirmation(["unmute", C]) -> ["ok unmuted ", C];
+confirmation(["disconnect", E]) -> ["ok disconnected ", E, " (away until reconnect)"];
+confirmation(["disconnect", E, Ms]) -> ["ok disconnected ", E, " for ", Ms, " ms"];
+confirmation(["reconnect", E]) -> ["ok reconnecting ", E, " (see links)"];
+confirmation(["detach", C]) -> ["ok detached ", C];
+confirmation(["attach", C]) -> ["ok attached ", C];
+confirmation(["pause"]) -> "ok clock paused (resume starts it)";
+confirmation(["resume"]) -> "ok clock running";
+confirmation(["speed", N]) -> ["ok speed ", N, ", clock paused (resume starts it)"];
+confirmation(["run_until", T]) -> ["ok clock ran to ", T, " and is paused (resume starts it)"];
+confirmation(["outcome"]) -> "no outcome yet: no light change, e-mail, photo or sound";
+confirmation(["links"]) -> "no links";
+confirmation(["stop"]) -> "ok stopped";
+confirmation(Words) -> ["ok " | lists:join(" ", Words)].
 
 stop() ->
     _ = [file:delete(Path) || Path <- [get(control)], Path =/= undefined],

@@ -17,7 +17,8 @@ from typing import Dict, Iterator, List, Tuple
 
 import pytest
 
-from evatar import Binding, Client, Entry
+from evatar import (ActuatorEmulator, Binding, Client, Entry, NotBoundError, SensorEmulator,
+                    describe)
 from evatar.bil import parse_description
 
 from conftest import REPO, Node, run
@@ -109,16 +110,20 @@ def test_home_failure_hooks_from_the_shell(home: Tuple[Node, Path]) -> None:
         # answers for it.
         r = sim(control, "mute", "LivingLightSwitch01")
         assert r.returncode == 0, r.stderr
+        # Every command prints something: the hooks a confirmation.
+        assert r.stdout.startswith("ok muted LivingLightSwitch01"), r.stdout
         fb = await turn_on()
         assert fb.is_evatar_timeout
         assert "muted=LivingLightSwitch01" in sim(control, "links").stdout
-        assert sim(control, "unmute", "LivingLightSwitch01").returncode == 0
+        r = sim(control, "unmute", "LivingLightSwitch01")
+        assert r.returncode == 0 and r.stdout == "ok unmuted LivingLightSwitch01\n", r
         fb = await turn_on()
         assert not fb.is_evatar_timeout and fb.param("Light") == "on"
 
         # detach: the kitchen's switch leaves; the report says the
         # kitchen emulator's entries are unbound.
-        assert sim(control, "detach", "KitchenLightSwitch01").returncode == 0
+        r = sim(control, "detach", "KitchenLightSwitch01")
+        assert r.returncode == 0 and r.stdout == "ok detached KitchenLightSwitch01\n", r
         b = await va.wait_binding(lambda b: any(
             u.consumer_component == "KitchenLightEmulator01" and u.type == "TurnLightOn"
             for u in b.unbound), timeout=30)
@@ -144,10 +149,78 @@ def test_home_failure_hooks_from_the_shell(home: Tuple[Node, Path]) -> None:
     r = sim(control, "mute", "a;b")
     assert r.returncode == 2 and "bad argument" in r.stderr
     # stop: the node ends, and a command then finds nothing.
-    assert sim(control, "stop").returncode == 0
+    r = sim(control, "stop")
+    assert r.returncode == 0 and r.stdout == "ok stopped\n", r
     assert node.proc.wait(30) == 0
     r = sim(control, "links")
     assert r.returncode == 3 and "no simulated node" in r.stderr
+
+
+def test_paused_start_night_watch_binding(tmp_path: Path) -> None:
+    """--paused: no simulated time passes until `resume', so a VA binds
+    before the first event; `time' shows it. A VA's own emulators are told
+    bound or not by Binding.is_bound / unbound_for, not by the pairing's
+    entities; the device's answers reach an actuator emulator through the
+    row of its action even when the device's ACTION FEEDBACK entry is bound
+    to another emulator, and `feedback=' binds that entry."""
+    node, control = start(tmp_path, "home", "--script", "none", "--paused", "--speed", "60")
+    try:
+        r = sim(control, "time")
+        assert r.returncode == 0 and r.stdout == "TIME 2024-11-15 17:55:00 paused speed=60\n", r
+        r = sim(control, "outcome")
+        assert r.returncode == 0 and r.stdout.startswith("no outcome yet"), r
+
+        async def main() -> None:
+            va = Client([("127.0.0.1", node.port)], pairing="home", role="agent",
+                        entity_id="night-watch-va", credential="va-sim")
+            socket = [Entry("ACTUATOR", "SwitchSocketOn", {"Appliance": "lamp", "Room": "bedroom"}),
+                      Entry("ACTUATOR", "SwitchSocketOff", {"Appliance": "lamp", "Room": "bedroom"})]
+            # The one whose feedback service matches the socket's Consumes entry.
+            lamp = ActuatorEmulator(va, "LampEmulator", socket,
+                                    feedback={"Feedback": "yes", "Device": "SocketSwitch",
+                                              "Room": "bedroom"})
+            # The default feedback service {"Feedback": "yes"}: no device's entry binds to it.
+            plain = ActuatorEmulator(va, "PlainLampEmulator", socket)
+            wrong = ActuatorEmulator(va, "AtticLampEmulator",
+                                     [Entry("ACTUATOR", "SwitchSocketOn",
+                                            {"Appliance": "lamp", "Room": "attic"})])
+            motion = SensorEmulator(va, "BedroomMotion", "MotionDetected", {"Room": "bedroom"})
+            await va.connect()
+            d = await describe(va, [lamp, plain, wrong, motion], api_name="NIGHT WATCH")
+            assert len(d.components) == 4
+            b = await va.wait_binding(lambda b: b.is_bound("LampEmulator")
+                                      and b.is_bound("BedroomMotion"), timeout=60)
+            assert b.is_bound("PlainLampEmulator") and not b.is_bound("AtticLampEmulator")
+            assert [(u.consumer_component, u.type, u.reason)
+                    for u in b.unbound_for("night-watch-va")] == [
+                ("AtticLampEmulator", "SwitchSocketOn", "ParametersMismatch")]
+            fb_rows = [r for r in b.bound if r.consumer_component == "BedroomSocketSwitch01"
+                       and r.type == "ACTION FEEDBACK"]
+            assert [r.provider_component for r in fb_rows] == ["LampEmulator"]
+            with pytest.raises(NotBoundError) as e:
+                await wrong.act("SwitchSocketOn", {"Appliance": "lamp", "Room": "attic"})
+            assert e.value.reason == "ParametersMismatch"
+            assert "client.binding.unbound" in str(e.value)
+
+            # Still paused: the VA joined and bound, no simulated time passed.
+            assert sim(control, "time").stdout.startswith("TIME 2024-11-15 17:55:00 paused")
+            r = sim(control, "resume")
+            assert r.returncode == 0 and r.stdout == "ok clock running\n", r
+            # Both emulators get the socket's answer, through their own rows.
+            fb = await plain.act("SwitchSocketOn", {"Appliance": "lamp", "Room": "bedroom"},
+                                 timeout=30)
+            assert not fb.is_evatar_timeout and fb.param("Socket") == "on", fb
+            assert fb.sender == "BedroomSocketSwitch01" and fb.timestamp > 0
+            fb = await lamp.act("SwitchSocketOff", {"Appliance": "lamp", "Room": "bedroom"},
+                                timeout=30)
+            assert not fb.is_evatar_timeout and fb.param("Socket") == "off", fb
+            await va.close()
+        run(main())
+        r = sim(control, "outcome")
+        assert r.returncode == 0 and re.search(r"^LIGHT \d\d:\d\d bedroom on$", r.stdout,
+                                               re.M), r
+    finally:
+        node.stop()
 
 
 def test_robots_from_the_shell(tmp_path: Path) -> None:

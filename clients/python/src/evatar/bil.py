@@ -273,6 +273,14 @@ class GetBinding:
 
 @dataclass
 class Bound:
+    """One row of the Body Mapping Registry: the ``Consumes`` entry
+    (``category``/``type``, as the consumer wrote them) of
+    ``consumer_component`` of ``consumer_entity`` is bound to the ``Service``
+    of ``provider_component`` of ``provider_entity``. ``score`` is how many
+    parameter names the two entries share with equal values, ``candidates``
+    how many compatible services there were (docs/bil.md section 4). Signals
+    pass between the two components in either direction."""
+
     consumer_entity: str
     consumer_component: str
     provider_entity: str
@@ -285,6 +293,13 @@ class Bound:
 
 @dataclass
 class Unbound:
+    """A ``Consumes`` entry nothing was bound to: ``reason`` is
+    ``NoProvider`` (no component of the other entity type provides that
+    category and type) or ``ParametersMismatch`` (some do, none with
+    compatible parameters; which parameter differs is not in the report:
+    compare the two descriptions, docs/clients.md "When something is
+    unbound")."""
+
     consumer_entity: str
     consumer_component: str
     category: str
@@ -294,11 +309,38 @@ class Unbound:
 
 @dataclass
 class Binding:
-    """The Body Mapping Registry report EVATAR sends after each binding."""
+    """The Body Mapping Registry report EVATAR sends after each binding:
+    ``entities`` the EntityIDs described in the pairing, ``bound`` and
+    ``unbound`` the rows of the whole pairing (every entity's, not only
+    yours)."""
 
     entities: List[str]
     bound: List[Bound] = field(default_factory=list)
     unbound: List[Unbound] = field(default_factory=list)
+
+    def is_bound(self, component: str, type: Optional[str] = None) -> bool:
+        """True when ``component`` (a ComponentID, unique in the pairing) is
+        in a ``bound`` row, as consumer or as provider, and none of its own
+        ``Consumes`` entries is ``unbound``; with ``type``, only the rows of
+        that ServiceType count. For a VA's actuator emulator: every action it
+        consumes has a device; for a sensor emulator: a device's sensor is
+        bound to it, so its readings reach it."""
+        rows = [r for r in self.bound
+                if component in (r.consumer_component, r.provider_component)
+                and (type is None or r.type == type)]
+        return bool(rows) and not any(
+            u.consumer_component == component and (type is None or u.type == type)
+            for u in self.unbound)
+
+    def bound_for(self, entity: str) -> List[Bound]:
+        """The ``bound`` rows in which ``entity`` is the consumer or the provider."""
+        return [r for r in self.bound if entity in (r.consumer_entity, r.provider_entity)]
+
+    def unbound_for(self, entity: str, component: Optional[str] = None) -> List[Unbound]:
+        """The ``unbound`` rows of ``entity``'s own ``Consumes`` entries (of
+        ``component`` only, if given): what it asked for and got nothing."""
+        return [u for u in self.unbound if u.consumer_entity == entity
+                and (component is None or u.consumer_component == component)]
 
 
 Control = Union[Hello, Resume, Welcome, Ack, Refused, Bye, GetBinding, Binding]

@@ -30,8 +30,37 @@ __all__ = ["Emulator", "ActuatorEmulator", "SensorEmulator", "Actuator", "Sensor
 
 
 class NotBoundError(EvatarError):
-    """The component has no provider bound for that service (yet): read the
-    client's latest Binding report (``client.binding.unbound``) for why."""
+    """The component has no provider bound for that service (yet).
+    ``component`` is the emulator, ``service`` the ServiceType, ``reason``
+    the Binding report's reason for it: ``NoProvider``,
+    ``ParametersMismatch``, or ``None`` when no report has arrived yet or
+    the report has no row for it. The message says what to check;
+    ``client.binding.unbound_for(client.entity_id)`` lists every entry of
+    yours that stayed unbound."""
+
+    def __init__(self, component: str, service: str, reason: Optional[str],
+                 has_report: bool = True) -> None:
+        if not has_report:
+            why = ("no Binding report has arrived yet: describe the body, then wait for one "
+                   "(client.wait_binding)")
+        elif reason == "ParametersMismatch":
+            why = ("ParametersMismatch: a component provides %s, but not with the parameters "
+                   "this Consumes entry asks for (docs/bil.md section 4: each of your values "
+                   "must be no, yes where the service has yes, or the service's value); "
+                   "compare them with the device's Service entry (docs/avatars.md section 7)"
+                   % service)
+        elif reason == "NoProvider":
+            why = ("NoProvider: no component of the other side provides this category and "
+                   "type (is it joined and described? is the ServiceType spelt as the "
+                   "device's?)")
+        else:
+            why = ("the latest Binding report has no row for it (the provider left, or the "
+                   "description changed): wait for the next report")
+        super().__init__("%s has no provider for %s: %s; see client.binding.unbound"
+                         % (component, service, why))
+        self.component = component
+        self.service = service
+        self.reason = reason
 
 
 class NotConsumedError(EvatarError, ValueError):
@@ -71,7 +100,11 @@ class Emulator:
                 if (row.consumer_entity == self.client.entity_id and row.consumer_component == self.id
                         and row.type == type and (category is None or row.category == category)):
                     return row.provider_component
-        raise NotBoundError("%s has no provider for %s" % (self.id, type))
+            reason = next((u.reason for u in b.unbound_for(self.client.entity_id, self.id)
+                           if u.type == type and (category is None or u.category == category)),
+                          None)
+            raise NotBoundError(self.id, type, reason)
+        raise NotBoundError(self.id, type, None, has_report=False)
 
     def is_bound(self, type: str) -> bool:
         try:
@@ -88,8 +121,16 @@ class ActuatorEmulator(Emulator):
     """A VA's actuator emulator. ``actions`` are the Avatar services it
     consumes (e.g. ``Entry("ACTUATOR", "TurnLightOn", {"Light": "yes",
     "Room": "kitchen"})``); ``feedback`` the parameters of the ``ACTION
-    FEEDBACK`` service it provides (give it one telling it apart, such as
-    the room, when there are several)."""
+    FEEDBACK`` service it provides (default ``{"Feedback": "yes"}``).
+
+    The answers to :meth:`act` (Feedback, Progress, Error) reach the
+    emulator through the row binding its action to the device, whatever
+    ``feedback`` says. Give ``feedback`` the parameters of the device's
+    ``ACTION FEEDBACK`` Consumes entry (docs/avatars.md section 7, e.g.
+    ``{"Feedback": "yes", "Device": "SocketSwitch", "Room": "bedroom"}``)
+    so that entry is bound too: it then leaves the Binding report's
+    ``unbound`` rows, and signals the device sends on its own to its
+    feedback consumer reach this emulator."""
 
     def __init__(self, client: Client, component_id: str, actions: Sequence[Entry],
                  feedback: ParamsLike = None) -> None:
@@ -120,16 +161,22 @@ Listener = Callable[[Signal], Union[None, Awaitable[None]]]
 
 
 class SensorEmulator(Emulator):
-    """A VA's sensor emulator: provides ``SENSOR``/``type`` (with
-    ``parameters``, e.g. the room) and keeps what the bound sensor sends
+    """A VA's sensor emulator: provides ``category``/``type`` (``SENSOR``
+    unless ``category`` says otherwise; with ``parameters``, e.g. the room)
+    and keeps what the bound sensor sends
     (``SensorData`` and ``Event`` signals): each reading goes to
     ``listener`` if one is given, else to the queue read by :meth:`reading`.
-    ``reads`` are the Avatar services it consumes, if any."""
+    ``reads`` are the Avatar services it consumes, if any. A reading is a
+    :class:`~evatar.bil.Signal`: ``param(name)``, ``sender`` (the device's
+    ComponentID), ``timestamp`` (the device's time, ms since 1970 UTC:
+    simulated time for avatar_sim), ``context`` (``SensorData`` or
+    ``Event``), ``type``."""
 
     def __init__(self, client: Client, component_id: str, type: str,
                  parameters: ParamsLike = None,
-                 reads: Sequence[Entry] = (), listener: Optional[Listener] = None) -> None:
-        super().__init__(client, component_id, [Entry("SENSOR", type, parameters or [])], reads)
+                 reads: Sequence[Entry] = (), listener: Optional[Listener] = None,
+                 category: str = "SENSOR") -> None:
+        super().__init__(client, component_id, [Entry(category, type, parameters or [])], reads)
         self.readings: "asyncio.Queue[Signal]" = asyncio.Queue()
         self.latest: Optional[Signal] = None
         self.listener = listener
