@@ -178,6 +178,10 @@ item({deliver, To, #{origin := evatar, body := #{type := Type}} = S}, _From) ->
                <<"Timeout">> -> <<"timeout">>;
                <<"JoinTimeout">> -> <<"timeout">>;
                <<"ProviderGone">> -> <<"void">>;
+               %% To a provider: the request it was working on was closed.
+               <<"RequestClosed">> -> <<"void">>;
+               %% An answer to no open request (late, twice, never asked).
+               <<"NoOpenRequest">> -> <<"late">>;
                _ -> <<"refusal">>
            end,
     {true, (signal_fields(S))#{kind => Kind, from_entity => <<"EVATAR">>, to_entity => To,
@@ -191,9 +195,6 @@ item({drop, E, Code, Reason}, _From) ->
 item({report, E, #{bound := B, unbound := U}}, _From) ->
     {true, #{kind => <<"bindings">>, to_entity => E, bound => length(B),
              unbound => length(U)}};
-item({log, _, #{what := late_feedback} = R}, _From) ->
-    {true, #{kind => <<"late">>, from_entity => maps:get(entity, R, null),
-             signal => maps:get(signal, R, null), in_reply_to => maps:get(in_reply_to, R, null)}};
 item({log, _, #{what := What, entity := E} = R}, _From)
   when What =:= entity_joined; What =:= entity_left; What =:= registered;
        What =:= description_refused ->

@@ -102,7 +102,11 @@ tail_shows_traffic(Config) ->
     %% Not bound: the light does not consume the sink's service.
     ok = evatar:send(Av, ?E:signal(<<"x1">>, event, ?LIGHT, ?SINK)),
     ok = evatar:send(Va, ?E:signal(<<"r2">>, request, ?EMU, ?LIGHT)),
-    {Items, _} = collect(Sub, has(<<"timeout">>)),
+    {Items0, Sub1} = collect(Sub, has(<<"timeout">>)),
+    %% The provider answers r2 after EVATAR closed it: refused as late.
+    ok = evatar:send(Av, ?E:signal(<<"f2">>, feedback, ?LIGHT, ?EMU, <<"r2">>)),
+    {Items, _} = collect(Sub1, has(<<"late">>), Items0,
+                         erlang:monotonic_time(millisecond) + 10000),
     ct:log("~p", [Items]),
     [#{kind := <<"entity">>, what := <<"entity_joined">>, from_entity := ?VA, pairing := Id,
        at := At} | _] = Items,
@@ -119,6 +123,10 @@ tail_shows_traffic(Config) ->
        from_entity := <<"EVATAR">>}] = [I || #{kind := <<"refusal">>} = I <- Items],
     [#{code := <<"Timeout">>, in_reply_to := <<"r2">>, to_entity := ?VA}] =
         [I || #{kind := <<"timeout">>} = I <- Items],
+    [#{code := <<"RequestClosed">>, in_reply_to := <<"r2">>, to_entity := ?AV}] =
+        [I || #{kind := <<"void">>} = I <- Items],
+    [#{code := <<"NoOpenRequest">>, in_reply_to := <<"f2">>, to_entity := ?AV}] =
+        [I || #{kind := <<"late">>} = I <- Items],
     ?assert(lists:member(<<"bindings">>, kinds(Items))).
 
 %% @doc Kind and entity filters let through only what they name (the

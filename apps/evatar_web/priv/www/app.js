@@ -90,7 +90,6 @@ function tailRow(i) {
     case 'dropped': what = `${i.count} items not shown (the page was too slow)`; break;
     case 'moved': what = `the pairing's active moved (${i.role}); following it`; break;
     case 'attached': what = `watching again on ${i.node}`; break;
-    case 'late': what = `late answer ${i.signal} to ${i.in_reply_to} from ${i.from_entity}, dropped`; break;
     default:
       what = `${i.from} → ${i.to} ${i.category || ''}/${i.type || ''}` +
         (i.signal ? ` #${i.signal}` : '') + (i.in_reply_to ? ` re ${i.in_reply_to}` : '') +
