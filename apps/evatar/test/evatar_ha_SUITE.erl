@@ -22,8 +22,8 @@
 -export([all/0, groups/0, suite/0, init_per_testcase/2, end_per_testcase/2]).
 -export([replication_keeps_state_equal/1, kill_active_takes_over/1,
          partition_fences_isolated_active/1, two_node_cluster/1,
-         handover_on_silent_link/1, single_node_resume_dedup/1]).
--export([kill_connections/0]).
+         handover_on_silent_link/1, single_node_resume_dedup/1, tail_follows_takeover/1]).
+-export([kill_connections/0, start_tail/1, tail_items/0]).
 
 -define(CRED_VA, <<"va-secret">>).
 -define(CRED_AV, <<"av-secret">>).
@@ -33,7 +33,8 @@ suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
     [single_node_resume_dedup, replication_keeps_state_equal, kill_active_takes_over,
-     partition_fences_isolated_active, two_node_cluster, handover_on_silent_link].
+     partition_fences_isolated_active, two_node_cluster, handover_on_silent_link,
+     tail_follows_takeover].
 
 groups() -> [].
 
@@ -126,6 +127,70 @@ kill_active_takes_over(Config) ->
     {ok, #{role := active, epoch := 2}} = rpc(N2, evatar, ha_status, [Id]),
     ok = wait_synced(N2, Id, N3),
     close_all([Va, Av]).
+
+%% @doc A live-tail watcher on the third node (which holds no instance)
+%% sees the active's traffic; after kill -9 of the active's node it is told
+%% the pairing moved, follows it to the standby that took over, and sees
+%% the traffic routed there.
+tail_follows_takeover(Config) ->
+    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    Id = ?config(pairing, Config),
+    {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
+    ok = wait_synced(N1, Id, N2),
+    ok = rpc(N3, ?MODULE, start_tail, [Id]),
+    {Va, Av, _Sink} = bound_pair(Config, Nodes),
+    {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
+    ok = wait_until(fun() -> tail_has(N3, fun(#{kind := K}) -> K =:= <<"request">> end) end),
+    ok = kill9(N1),
+    #{epoch := 2} = expect_reconnected(Va),
+    Node2 = atom_to_binary(maps:get(node, N2)),
+    ok = wait_until(fun() ->
+                            tail_has(N3, fun(#{kind := K, node := N}) ->
+                                                 K =:= <<"attached">> andalso N =:= Node2;
+                                            (_) -> false
+                                         end)
+                    end),
+    Before = length(rpc(N3, ?MODULE, tail_items, [])),
+    {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
+    ok = wait_until(fun() ->
+                            Items = lists:nthtail(Before, rpc(N3, ?MODULE, tail_items, [])),
+                            lists:any(fun(#{kind := K}) -> K =:= <<"feedback">> end, Items)
+                    end),
+    [#{role := <<"gone">>} | _] = [I || #{kind := <<"moved">>} = I <- rpc(N3, ?MODULE, tail_items, [])],
+    close_all([Va, Av]).
+
+tail_has(N, Pred) ->
+    lists:any(Pred, rpc(N, ?MODULE, tail_items, [])).
+
+%% On a cluster node: a watcher process (registered, so the test can ask it
+%% through peer:call) that keeps every item of the pairing's tail.
+-spec start_tail(binary()) -> ok.
+start_tail(Id) ->
+    Parent = self(),
+    Pid = spawn(fun() ->
+                        {ok, Sub} = evatar_tap:watch(Id, #{}),
+                        Parent ! {tailing, self()},
+                        tail_loop(Sub, [])
+                end),
+    true = register(evatar_ha_suite_tail, Pid),
+    receive {tailing, Pid} -> ok after ?WAIT -> error(no_tail) end.
+
+tail_loop(Sub, Acc) ->
+    receive
+        {items, From} ->
+            From ! {tail_items, lists:reverse(Acc)},
+            tail_loop(Sub, Acc);
+        Msg ->
+            case evatar_tap:handle(Msg, Sub) of
+                {items, Items, Sub1} -> tail_loop(Sub1, lists:reverse(Items, Acc));
+                ignore -> tail_loop(Sub, Acc)
+            end
+    end.
+
+-spec tail_items() -> [map()].
+tail_items() ->
+    evatar_ha_suite_tail ! {items, self()},
+    receive {tail_items, Items} -> Items after ?WAIT -> error(no_tail_items) end.
 
 %% @doc The active's node is cut off from the other two: it fences itself
 %% (its clients are refused with Fenced and move), the majority side takes
