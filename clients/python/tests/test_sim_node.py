@@ -12,6 +12,7 @@ import os
 import re
 import stat
 import subprocess
+import sys
 from pathlib import Path
 from typing import Dict, Iterator, List, Tuple
 
@@ -325,3 +326,23 @@ def test_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
         taken.listen()
         r = sim(tmp_path / "c", "start", "home", "--port", str(taken.getsockname()[1]))
     assert r.returncode == 2 and "the port is in use" in r.stderr
+
+
+def test_clients_md_step_6_runs_as_written(tmp_path: Path) -> None:
+    """docs/clients.md step 6's VA, as written (only the port changed):
+    it waits with Binding.is_bound for its own emulator, then switches the
+    living-room light on."""
+    text = (REPO / "docs" / "clients.md").read_text()
+    step = text[text.index("### 6. The simulated home"):]
+    code = step[step.index("```python\n") + len("```python\n"):]
+    code = code[:code.index("```")]
+    assert 'b.is_bound("LivingLightEmulator01")' in code
+    node, _control = start(tmp_path, "home", "--script", "none", "--speed", "20")
+    try:
+        va = tmp_path / "step6.py"
+        va.write_text(code.replace("7400", str(node.port)).replace('"va-secret"', '"va-sim"'))
+        r = subprocess.run([os.environ.get("PYTHON", sys.executable), str(va)], cwd=str(REPO),
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0 and r.stdout == "the living-room light is on\n", r
+    finally:
+        node.stop()
