@@ -14,7 +14,7 @@
          send/2, ack/2, report_binding/1, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
--export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0]).
+-export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0, stored_options/1]).
 -export([hash_credential/1, hash_credential/2, verify_credential/2]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
@@ -526,6 +526,15 @@ cluster_status() -> evatar_cluster:status().
 -spec catalogued() -> [pairing_id()].
 catalogued() ->
     [Id || {Id, _Version, {live, _, _}} <- evatar_catalogue:entries()].
+
+%% @doc The options a pairing was created with, as the cluster's catalogue
+%% keeps them: defaults filled in, credentials only as hashes.
+-spec stored_options(pairing_id()) -> {ok, pairing_opts()} | {error, not_found}.
+stored_options(PairingId) ->
+    case evatar_catalogue:lookup(PairingId) of
+        {ok, Config} -> {ok, Config};
+        none -> {error, not_found}
+    end.
 
 %% @doc Prints {@link pairings/0} as a table.
 -spec print_pairings() -> ok.

@@ -41,7 +41,19 @@ routes() ->
      %% The dashboard's (docs/dashboard.md).
      {<<"GET">>, <<"/api/events">>, evatar_web_events, stream},
      {<<"GET">>, <<"/api/scenes">>, evatar_web_scenes, scenes},
-     {<<"GET">>, <<"/api/pairings/:id/graph">>, evatar_web_graph, graph}].
+     {<<"GET">>, <<"/api/pairings/:id/graph">>, evatar_web_graph, graph},
+     {<<"GET">>, <<"/api/openapi.json">>, evatar_web_api, openapi},
+     {<<"GET">>, <<"/api/pairings">>, evatar_web_api, pairings},
+     {<<"POST">>, <<"/api/pairings">>, evatar_web_api, create},
+     {<<"GET">>, <<"/api/pairings/:id">>, evatar_web_api, pairing},
+     {<<"PUT">>, <<"/api/pairings/:id">>, evatar_web_api, change},
+     {<<"DELETE">>, <<"/api/pairings/:id">>, evatar_web_api, delete},
+     {<<"GET">>, <<"/api/pairings/:id/bindings">>, evatar_web_api, bindings},
+     {<<"POST">>, <<"/api/pairings/:id/rotate">>, evatar_web_api, rotate},
+     {<<"GET">>, <<"/api/mqtt_avatars">>, evatar_web_api, mqtt_avatars},
+     {<<"GET">>, <<"/api/mqtt_avatars/:id">>, evatar_web_api, mqtt_avatar},
+     {<<"GET">>, <<"/api/mqtt_avatars/:id/problems">>, evatar_web_api, problems},
+     {<<"PUT">>, <<"/api/mqtt_avatars/:id/description">>, evatar_web_api, override_description}].
 
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.
@@ -57,7 +69,9 @@ do(#mod{method = Method, request_uri = Uri} = Mod) ->
                 {error, not_found} when M =:= <<"GET">>, not (Path =:= <<"/api">>) ->
                     case binary:match(Path, <<"/api/">>) of
                         {0, _} -> not_found(Path);
-                        _ -> with_auth(read, Mod, fun() -> static(Path) end)
+                        %% The page's files hold no data: open, even where
+                        %% reads of the API need the token.
+                        _ -> static(Path)
                     end;
                 {error, not_found} ->
                     not_found(Path)

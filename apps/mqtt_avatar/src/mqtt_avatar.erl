@@ -6,7 +6,8 @@
 %% other mqtt_avatar_* module is internal.
 -module(mqtt_avatar).
 
--export([start/1, start_link/1, stop/1, await_ready/2, keep/1, unkeep/1, kept/0, check_opts/1]).
+-export([start/1, start_link/1, stop/1, await_ready/2, keep/1, unkeep/1, kept/0, check_opts/1,
+         reconfigure/2]).
 -export([description/1, public_description/1, description_xml/1, print_description/1,
          problems/1, print_problems/1, status/1]).
 -export([discover/2, generate/2, read_description/1, check/1]).
@@ -86,6 +87,20 @@ unkeep(EntityId) ->
 -spec kept() -> [mqtt_avatar_keeper:status()].
 kept() ->
     [mqtt_avatar_keeper:status(K) || {_, K} <- mqtt_avatar_sup:keepers()].
+
+%% @doc Changes a kept Avatar's `description' (hand-written, replacing
+%% the generated one) or `overrides' (how devices become components): the
+%% options are checked as by check_opts/1, then the Avatar stops (Bye,
+%% DISCONNECT) and starts again with them, describing itself anew. They
+%% last until the node restarts (the configuration file's stay as written).
+-spec reconfigure(binary(), #{description => binary() | bil:description(),
+                              overrides => mqtt_avatar_generate:overrides()}) ->
+          ok | {error, not_found | [problem()]}.
+reconfigure(EntityId, Changes) ->
+    case [K || {E, K} <- mqtt_avatar_sup:keepers(), E =:= EntityId] of
+        [Keeper] -> mqtt_avatar_keeper:reconfigure(Keeper, maps:with([description, overrides], Changes));
+        [] -> {error, not_found}
+    end.
 
 %% @doc Checks options as `start/1' would (the required keys, a
 %% hand-written description and its file) without starting anything.

@@ -16,7 +16,7 @@
 
 -include_lib("kernel/include/logger.hrl").
 
--export([start_link/1, status/1]).
+-export([start_link/1, status/1, reconfigure/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
 -export_type([status/0]).
@@ -42,6 +42,12 @@ start_link(Opts) ->
 -spec status(pid()) -> status().
 status(Keeper) ->
     gen_statem:call(Keeper, status, 15000).
+
+%% @doc New `description' or `overrides' (mqtt_avatar:reconfigure/2):
+%% checked, then the Avatar is started again with them.
+-spec reconfigure(pid(), map()) -> ok | {error, [mqtt_avatar:problem()]}.
+reconfigure(Keeper, Changes) ->
+    gen_statem:call(Keeper, {reconfigure, Changes}, 30000).
 
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
@@ -75,6 +81,21 @@ handle_event({call, From}, status, State, D) ->
      [{reply, From, #{entity_id => D#d.entity, state => State, avatar => D#d.avatar,
                       starts => D#d.starts, crashes => mqtt_avatar_backoff:crashes(D#d.backoff),
                       next_delay_ms => mqtt_avatar_backoff:next_delay(D#d.backoff)}}]};
+handle_event({call, From}, {reconfigure, Changes}, _State, #d{opts = Opts, avatar = Pid} = D) ->
+    New = maps:merge(Opts, Changes),
+    case mqtt_avatar:check_opts(maps:remove(restart, New)) of
+        ok ->
+            ?LOG_NOTICE(#{what => avatar_reconfigured, entity => D#d.entity,
+                          changed => maps:keys(Changes)}),
+            %% Its exit is not a crash: unlinked, and no longer the Avatar
+            %% (a late 'EXIT' falls to the clause below).
+            _ = is_pid(Pid) andalso unlink(Pid),
+            _ = is_pid(Pid) andalso (catch mqtt_avatar:stop(Pid)),
+            {next_state, waiting, D#d{opts = New, avatar = undefined, started = undefined},
+             [{reply, From, ok}, {state_timeout, 0, start}]};
+        {error, _} = Error ->
+            {keep_state_and_data, [{reply, From, Error}]}
+    end;
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 

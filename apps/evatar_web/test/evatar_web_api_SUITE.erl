@@ -1,0 +1,359 @@
+%% Common Test: every /api route of evatar_web over real TCP, with good and
+%% bad input and the operator credential, on a pairing joined by a real VA
+%% and a real Avatar (agent_bridge_client over the bridge's TCP listener).
+%% The last case checks every answer the live server gave against
+%% priv/openapi.json with a real validator (Python's openapi-core).
+-module(evatar_web_api_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([reads_open_on_loopback/1, changes_need_the_token/1, no_token_refuses_changes/1,
+         off_loopback_reads_need_the_token/1, token_file/1,
+         cluster/1, pairings_list/1, pairing_entities/1, bindings_graph/1,
+         create_refusals/1, create_then_delete/1, change_options/1, rotate_role_credential/1,
+         rotate_identity_generated/1, mqtt_avatar_routes/1, openapi_document/1]).
+
+-define(T, evatar_web_test).
+-define(TOKEN, <<"operator-token-for-tests-0123456789">>).
+-define(PAIRING, <<"web-home">>).
+-define(VA_CRED, <<"va-secret-123">>).
+-define(AV_CRED, <<"av-secret-456">>).
+
+suite() -> [{timetrap, {minutes, 3}}].
+
+all() -> [{group, auth}, {group, routes}].
+
+groups() ->
+    [{auth, [], [reads_open_on_loopback, changes_need_the_token, no_token_refuses_changes,
+                 off_loopback_reads_need_the_token, token_file]},
+     {routes, [], [cluster, pairings_list, pairing_entities, bindings_graph, create_refusals,
+                   create_then_delete, change_options, rotate_role_credential,
+                   rotate_identity_generated, mqtt_avatar_routes]}].
+
+init_per_suite(Config) ->
+    ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+    {ok, _} = application:ensure_all_started(evatar),
+    {ok, _} = application:ensure_all_started(agent_bridge),
+    {ok, _} = application:ensure_all_started(mqtt_avatar),
+    {ok, _} = agent_bridge:start_listener(web_api_test, #{port => 0}),
+    {ok, Addr} = agent_bridge:address(web_api_test),
+    ?T:start(#{operator_token_hash => evatar:hash_credential(?TOKEN)}),
+    _ = evatar:delete_pairing(?PAIRING),
+    {201, #{<<"id">> := ?PAIRING}} =
+        change(post, "/api/pairings", #{id => ?PAIRING, agent_credential => ?VA_CRED,
+                                        avatar_credential => ?AV_CRED, join_timeout => 60000}),
+    %% The clients belong to a process that outlives init_per_suite's.
+    Self = self(),
+    Holder = spawn(fun() ->
+                           {ok, Va} = agent_bridge_client:connect(
+                                        [Addr], #{pairing => ?PAIRING, role => agent,
+                                                  entity_id => <<"va">>, credential => ?VA_CRED}),
+                           {ok, Av} = agent_bridge_client:connect(
+                                        [Addr], #{pairing => ?PAIRING, role => avatar,
+                                                  entity_id => <<"av">>, credential => ?AV_CRED}),
+                           ok = agent_bridge_client:describe(Av, avatar_description()),
+                           ok = agent_bridge_client:describe(Va, va_description()),
+                           Self ! joined,
+                           receive stop -> [agent_bridge_client:close(C) || C <- [Va, Av]] end
+                   end),
+    receive joined -> ok after 30000 -> ct:fail(clients_did_not_join) end,
+    wait_until(fun() ->
+                       case ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings") of
+                           {200, #{<<"bound">> := [_ | _], <<"unbound">> := [_, _]}} -> true;
+                           _ -> false
+                       end
+               end),
+    [{addr, Addr}, {holder, Holder} | Config].
+
+end_per_suite(Config) ->
+    ?config(holder, Config) ! stop,
+    _ = evatar:delete_pairing(?PAIRING),
+    ok = agent_bridge:stop_listener(web_api_test),
+    ?T:stop().
+
+%% ---------------------------------------------------------------------------
+%% The operator credential
+%% ---------------------------------------------------------------------------
+
+%% A loopback listener answers reads without a token, and with the right one.
+reads_open_on_loopback(_Config) ->
+    {200, _} = ?T:get("/api/pairings"),
+    {200, _} = ?T:get("/api/pairings", [auth(?TOKEN)]),
+    %% A wrong token sent with a read is checked, not ignored.
+    {401, #{<<"error">> := <<"bad_token">>}} = ?T:get("/api/pairings", [auth(<<"wrong">>)]).
+
+%% Every change needs the token: none, a wrong one, a malformed header.
+changes_need_the_token(_Config) ->
+    Body = json(#{id => <<"nope">>, agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED}),
+    {401, #{<<"error">> := <<"unauthorized">>}} = ?T:request(post, "/api/pairings", [], Body),
+    {401, #{<<"error">> := <<"bad_token">>}} =
+        ?T:request(post, "/api/pairings", [auth(<<"not-the-token">>)], Body),
+    {401, #{<<"error">> := <<"unauthorized">>}} =
+        ?T:request(post, "/api/pairings", [{"authorization", "Basic dXNlcjpwYXNz"}], Body),
+    {401, #{<<"error">> := <<"unauthorized">>}} =
+        ?T:request(delete, "/api/pairings/" ++ binary_to_list(?PAIRING), [], none),
+    {_, Headers, _} = ?T:raw(delete, "/api/pairings/" ++ binary_to_list(?PAIRING), [], none),
+    "Bearer realm=\"evatar\"" = proplists:get_value("www-authenticate", Headers),
+    {404, _} = ?T:get("/api/pairings/nope"),
+    {200, _} = ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING)).
+
+%% Without a configured token every change is refused, saying how to set one.
+no_token_refuses_changes(_Config) ->
+    try
+        ?T:restart(#{}),
+        {403, #{<<"error">> := <<"no_operator_token">>, <<"message">> := M}} =
+            change(post, "/api/pairings", #{id => <<"x">>}),
+        {match, _} = re:run(M, "operator_token_hash"),
+        {403, _} = ?T:request(delete, "/api/pairings/" ++ binary_to_list(?PAIRING),
+                              [auth(?TOKEN)], none),
+        {200, _} = ?T:get("/api/cluster")
+    after
+        ?T:restart(#{operator_token_hash => evatar:hash_credential(?TOKEN)})
+    end.
+
+%% On a listener off loopback (0.0.0.0) reads need the token too.
+off_loopback_reads_need_the_token(_Config) ->
+    try
+        ?T:restart(#{ip => {0, 0, 0, 0}, operator_token_hash => evatar:hash_credential(?TOKEN)}),
+        {401, #{<<"error">> := <<"unauthorized">>}} = ?T:get("/api/cluster"),
+        {401, _} = ?T:get("/api/pairings"),
+        {200, _} = ?T:get("/api/cluster", [auth(?TOKEN)]),
+        %% The page's files hold no data: served without a token.
+        {200, _, _} = ?T:raw(get, "/", [], none),
+        ?T:restart(#{ip => {0, 0, 0, 0}}),
+        {403, #{<<"error">> := <<"no_operator_token">>}} = ?T:get("/api/cluster")
+    after
+        ?T:restart(#{operator_token_hash => evatar:hash_credential(?TOKEN)})
+    end.
+
+%% EVATAR_HTTP_TOKEN_FILE: the file's first line is the token.
+token_file(Config) ->
+    File = filename:join(?config(priv_dir, Config), "token"),
+    ok = file:write_file(File, <<"file-token-abcdefgh\nignored\n">>),
+    try
+        ?T:restart(#{token_file => File}),
+        {404, _} = ?T:request(delete, "/api/pairings/none-such", [auth(<<"file-token-abcdefgh">>)], none),
+        {401, _} = ?T:request(delete, "/api/pairings/none-such", [auth(?TOKEN)], none)
+    after
+        ?T:restart(#{operator_token_hash => evatar:hash_credential(?TOKEN)})
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Routes
+%% ---------------------------------------------------------------------------
+
+%% The cluster: this node, up, quorum, the pairing active here.
+cluster(_Config) ->
+    {200, #{<<"quorum">> := true, <<"pairings">> := Ps}} = ?T:get("/api/cluster"),
+    [#{<<"active">> := Node, <<"standby">> := null, <<"epoch">> := E, <<"synced">> := _}] =
+        [P || #{<<"id">> := Id} = P <- Ps, Id =:= ?PAIRING],
+    Node = atom_to_binary(node()),
+    true = E >= 1.
+
+%% The list has the pairing with its agent, avatars and counts.
+pairings_list(_Config) ->
+    {200, Ps} = ?T:get("/api/pairings"),
+    [#{<<"agent">> := <<"va">>, <<"avatars">> := 1, <<"registered">> := 2, <<"bound">> := B,
+       <<"unbound">> := 2, <<"role">> := <<"active">>}] =
+        [P || #{<<"id">> := Id} = P <- Ps, Id =:= ?PAIRING],
+    true = B >= 1.
+
+%% A pairing's entities with their state and components; options without
+%% any credential.
+pairing_entities(_Config) ->
+    {200, #{<<"entities">> := Es, <<"options">> := Opts, <<"ha">> := #{<<"role">> := <<"active">>},
+            <<"stats">> := #{}}} = ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING)),
+    #{<<"va">> := #{<<"role">> := <<"agent">>, <<"state">> := <<"described">>,
+                    <<"connected">> := true, <<"described">> := true, <<"detached">> := false},
+      <<"av">> := #{<<"role">> := <<"avatar">>, <<"components">> := [_, _]}} =
+        maps:from_list([{E, X} || #{<<"entity">> := E} = X <- Es]),
+    #{<<"agent_credential">> := <<"set">>, <<"join_timeout">> := 60000} = Opts,
+    nomatch = binary:match(evatar_web_json:encode(Opts), [?VA_CRED, ?AV_CRED]),
+    {404, #{<<"error">> := <<"not_found">>, <<"field">> := <<"id">>}} = ?T:get("/api/pairings/nope"),
+    %% A percent-encoded id is decoded, never made an atom.
+    {404, _} = ?T:get("/api/pairings/a%2Fb%20c").
+
+%% The Body Mapping Registry as a graph: both sides' components, the bound
+%% edge with its service, the unbound entries with their reasons and the
+%% parameter that did not match.
+bindings_graph(_Config) ->
+    {200, G} = ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings"),
+    #{<<"agents">> := [#{<<"entity">> := <<"va">>, <<"components">> := [_]}],
+      <<"avatars">> := [#{<<"entity">> := <<"av">>, <<"components">> := [_, _]}],
+      <<"bound">> := Bound, <<"unbound">> := Unbound} = G,
+    [#{<<"consumer">> := #{<<"entity">> := <<"va">>, <<"component">> := <<"LightEmulator01">>},
+       <<"provider">> := #{<<"entity">> := <<"av">>, <<"component">> := <<"Light01">>},
+       <<"category">> := <<"ACTUATOR">>, <<"type">> := <<"TurnLightOn">>}] = Bound,
+    Reasons = maps:from_list([{T, U} || #{<<"type">> := T} = U <- Unbound]),
+    #{<<"OpenDoor">> := #{<<"reason">> := <<"NoProvider">>, <<"candidates">> := []},
+      <<"Dim">> := #{<<"reason">> := <<"ParametersMismatch">>,
+                     <<"candidates">> := [#{<<"provider">> := #{<<"component">> := <<"Dimmer01">>},
+                                            <<"mismatches">> := [#{<<"name">> := <<"Room">>,
+                                                                   <<"wanted">> := <<"kitchen">>}]}]}} =
+        Reasons,
+    {404, _} = ?T:get("/api/pairings/nope/bindings").
+
+%% Bad input to create: each gets a 4xx naming the field; nothing is created.
+create_refusals(_Config) ->
+    Good = #{id => <<"web-new">>, agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED},
+    [{Status, #{<<"error">> := Code, <<"field">> := Field}} = change(post, "/api/pairings", Body)
+     || {Status, Code, Field, Body} <-
+            [{400, <<"bad_request">>, <<"id">>, maps:remove(id, Good)},
+             {400, <<"bad_request">>, <<"id">>, Good#{id => binary:copy(<<"x">>, 129)}},
+             {400, <<"bad_request">>, <<"id">>, Good#{id => 12}},
+             {400, <<"bad_request">>, <<"colour">>, Good#{colour => <<"red">>}},
+             {400, <<"bad_request">>, <<"join_timeout">>, Good#{join_timeout => -1}},
+             {400, <<"bad_request">>, <<"join_timeout">>, Good#{join_timeout => <<"5">>}},
+             {400, <<"bad_request">>, <<"max_avatars">>, Good#{max_avatars => 0}},
+             {400, <<"bad_request">>, <<"agent_credential">>, Good#{agent_credential => <<"short">>}},
+             {400, <<"bad_request">>, <<"avatar_credential">>, maps:remove(avatar_credential, Good)},
+             {400, <<"bad_request">>, <<"unlisted_ids">>, Good#{unlisted_ids => <<"maybe">>}},
+             {400, <<"bad_request">>, <<"standby_node">>, Good#{standby_node => <<"nobody@nowhere">>}},
+             {400, <<"bad_request">>, <<"identities">>,
+              Good#{identities => [#{entity => <<"e">>, role => <<"robot">>, credential => ?VA_CRED}]}},
+             {400, <<"bad_request">>, <<"identities">>,
+              Good#{identities => [#{entity => <<"e">>, role => <<"agent">>}]}},
+             {400, <<"bad_request">>, <<"identities">>,
+              Good#{identities => [#{entity => <<"e">>, role => <<"agent">>, cert_sha256 => <<"zz">>}]}},
+             {409, <<"already_exists">>, <<"id">>, Good#{id => ?PAIRING}}]],
+    {400, #{<<"error">> := <<"bad_json">>}} =
+        ?T:request(post, "/api/pairings", [auth(?TOKEN)], "{\"id\": "),
+    {400, #{<<"error">> := <<"bad_request">>}} =
+        ?T:request(post, "/api/pairings", [auth(?TOKEN)], "[1,2]"),
+    {404, _} = ?T:get("/api/pairings/web-new"),
+    false = lists:member(<<"web-new">>, [Id || #{id := Id} <- evatar:pairings()]).
+
+%% Create, read, delete; a second delete is a 404.
+create_then_delete(_Config) ->
+    {201, #{<<"id">> := <<"web-tmp">>, <<"state">> := _}} =
+        change(post, "/api/pairings", #{id => <<"web-tmp">>,
+                                        identities => [#{entity => <<"cam">>, role => <<"avatar">>,
+                                                         credential => <<"cam-secret-1">>}],
+                                        agent_credential => ?VA_CRED}),
+    {200, #{<<"options">> := #{<<"identities">> := [#{<<"entity">> := <<"cam">>,
+                                                       <<"credential">> := true}]}}} =
+        ?T:get("/api/pairings/web-tmp"),
+    {200, #{<<"deleted">> := true}} = change(delete, "/api/pairings/web-tmp", none),
+    {404, _} = ?T:get("/api/pairings/web-tmp"),
+    {404, _} = change(delete, "/api/pairings/web-tmp", none).
+
+%% PUT replaces the options given and keeps the others; bad input changes nothing.
+change_options(Config) ->
+    {ok, _} = evatar:create_pairing(<<"web-chg">>, #{agent_credential => ?VA_CRED,
+                                                     avatar_credential => ?AV_CRED}),
+    {200, #{<<"options">> := #{<<"feedback_timeout">> := 1234, <<"join_timeout">> := 5000}}} =
+        change(put, "/api/pairings/web-chg", #{feedback_timeout => 1234}),
+    {400, #{<<"field">> := <<"feedback_timeout">>}} =
+        change(put, "/api/pairings/web-chg", #{feedback_timeout => -5}),
+    {200, #{<<"options">> := #{<<"feedback_timeout">> := 1234}}} = ?T:get("/api/pairings/web-chg"),
+    %% The old credentials still join.
+    {ok, C} = agent_bridge_client:connect([?config(addr, Config)],
+                                          #{pairing => <<"web-chg">>, role => agent,
+                                            entity_id => <<"va">>, credential => ?VA_CRED}),
+    ok = agent_bridge_client:close(C),
+    {404, _} = change(put, "/api/pairings/nope", #{feedback_timeout => 1}),
+    ok = evatar:delete_pairing(<<"web-chg">>).
+
+%% Rotating the avatar credential: the new one joins, the old one is refused.
+rotate_role_credential(Config) ->
+    {ok, _} = evatar:create_pairing(<<"web-rot">>, #{agent_credential => ?VA_CRED,
+                                                     avatar_credential => ?AV_CRED}),
+    {200, R} = change(post, "/api/pairings/web-rot/rotate", #{role => <<"avatar">>,
+                                                             credential => <<"new-avatar-secret">>}),
+    false = maps:is_key(<<"credential">>, R),
+    Join = fun(Cred) -> agent_bridge_client:connect([?config(addr, Config)],
+                                                    #{pairing => <<"web-rot">>, role => avatar,
+                                                      entity_id => <<"a1">>, credential => Cred})
+           end,
+    {error, _} = Join(?AV_CRED),
+    {ok, C} = Join(<<"new-avatar-secret">>),
+    ok = agent_bridge_client:close(C),
+    {400, #{<<"field">> := <<"role">>}} = change(post, "/api/pairings/web-rot/rotate", #{role => <<"x">>}),
+    {400, #{<<"field">> := <<"credential">>}} =
+        change(post, "/api/pairings/web-rot/rotate", #{role => <<"agent">>, credential => <<"s">>}),
+    {404, _} = change(post, "/api/pairings/nope/rotate", #{role => <<"agent">>}),
+    ok = evatar:delete_pairing(<<"web-rot">>).
+
+%% Rotating an identity without a credential given: a new random one, shown once.
+rotate_identity_generated(Config) ->
+    {ok, _} = evatar:create_pairing(<<"web-rid">>, #{agent_credential => ?VA_CRED,
+                                                     identities => [#{entity => <<"cam">>, role => avatar,
+                                                                      credential => <<"cam-secret-1">>}]}),
+    {200, #{<<"credential">> := New}} =
+        change(post, "/api/pairings/web-rid/rotate", #{entity => <<"cam">>}),
+    true = byte_size(New) >= 16,
+    {ok, C} = agent_bridge_client:connect([?config(addr, Config)],
+                                          #{pairing => <<"web-rid">>, role => avatar,
+                                            entity_id => <<"cam">>, credential => New}),
+    ok = agent_bridge_client:close(C),
+    {200, #{<<"options">> := Opts}} = ?T:get("/api/pairings/web-rid"),
+    nomatch = binary:match(evatar_web_json:encode(Opts), New),
+    {404, #{<<"field">> := <<"entity">>}} =
+        change(post, "/api/pairings/web-rid/rotate", #{entity => <<"nobody">>}),
+    ok = evatar:delete_pairing(<<"web-rid">>).
+
+%% MQTT Avatars: the list, and an unknown one's routes; bad bodies.
+mqtt_avatar_routes(_Config) ->
+    {200, L} = ?T:get("/api/mqtt_avatars"),
+    true = is_list(L),
+    {404, #{<<"field">> := <<"entity_id">>}} = ?T:get("/api/mqtt_avatars/nope"),
+    {404, _} = ?T:get("/api/mqtt_avatars/nope/problems"),
+    {404, _} = change(put, "/api/mqtt_avatars/nope/description", #{xml => <<"<x/>">>}),
+    {400, #{<<"error">> := <<"bad_request">>}} =
+        change(put, "/api/mqtt_avatars/nope/description", #{colour => 1}),
+    {400, #{<<"field">> := <<"overrides">>}} =
+        change(put, "/api/mqtt_avatars/nope/description", #{overrides => #{<<"d">> => #{skip => 3}}}).
+
+%% The OpenAPI document is served and is JSON.
+openapi_document(_Config) ->
+    {200, #{<<"openapi">> := <<"3.0", _/binary>>, <<"paths">> := Paths}} = ?T:get("/api/openapi.json"),
+    [true = maps:is_key(P, Paths) || {_, P0, _, _} <- evatar_web_router:routes(),
+                                     P <- [openapi_path(P0)]].
+
+%% ---------------------------------------------------------------------------
+
+openapi_path(P) ->
+    iolist_to_binary(lists:join("/", [case S of
+                                          <<":", N/binary>> -> [${, N, $}];
+                                          _ -> S
+                                      end || S <- binary:split(P, <<"/">>, [global])])).
+
+auth(Token) -> {"authorization", "Bearer " ++ binary_to_list(Token)}.
+
+json(Term) -> binary_to_list(evatar_web_json:encode(Term)).
+
+change(Method, Path, none) ->
+    ?T:request(Method, Path, [auth(?TOKEN)], none);
+change(Method, Path, Body) ->
+    ?T:request(Method, Path, [auth(?TOKEN)], json(Body)).
+
+wait_until(Fun) -> wait_until(Fun, 200).
+
+wait_until(Fun, 0) -> ct:fail({timeout, Fun()});
+wait_until(Fun, N) ->
+    case Fun() of
+        true -> ok;
+        false -> timer:sleep(100), wait_until(Fun, N - 1)
+    end.
+
+entry(Cat, Type, Params) -> #{category => Cat, type => Type, parameters => Params}.
+
+va_description() ->
+    #{entity_id => <<"va">>, api_name => <<"TEST VA">>, entity_type => agent,
+      context => <<"EmulatorDescription">>,
+      components => [#{id => <<"LightEmulator01">>,
+                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>, [])],
+                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>, []),
+                                    entry(<<"ACTUATOR">>, <<"Dim">>, [{<<"Room">>, <<"kitchen">>}]),
+                                    entry(<<"ACTUATOR">>, <<"OpenDoor">>, [])]}]}.
+
+avatar_description() ->
+    #{entity_id => <<"av">>, api_name => <<"TEST AVATAR">>, entity_type => avatar,
+      context => <<"ActuatorDescription">>,
+      components => [#{id => <<"Light01">>, services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>, [])],
+                       consumes => []},
+                     #{id => <<"Dimmer01">>,
+                       services => [entry(<<"ACTUATOR">>, <<"Dim">>, [{<<"Room">>, <<"hall">>}])],
+                       consumes => []}]}.
