@@ -126,9 +126,9 @@ bad_env_refuses_start(_Config) ->
 
 %% A port in use is an error of the start naming it, not a crash loop.
 listen_failure_is_an_error(_Config) ->
-    Taken = evatar_web:port(),
+    {ok, Holder} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Taken} = inet:port(Holder),
     ok = application:stop(evatar_web),
-    {ok, Holder} = gen_tcp:listen(Taken, [{ip, {127, 0, 0, 1}}, {reuseaddr, false}]),
     try
         ok = application:set_env(evatar_web, port, Taken),
         {error, {{shutdown, {failed_to_start_child, evatar_web_server,
