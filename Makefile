@@ -13,7 +13,8 @@ deps:
 compile: deps
 	$(REBAR) compile
 
-## Runs the demonstration on one embedded node, then exits.
+## Runs the demonstration on one embedded node, then exits; prints the address of
+## its dashboard first. DEMO_ARGS=--keep leaves the node and the page up.
 demo: compile
 	@bash scripts/demo.sh $(DEMO_ARGS)
 
