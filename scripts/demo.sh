@@ -17,6 +17,10 @@ exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interfa
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
   -evatar_web port 0 \
-  -eval "{ok, _} = application:ensure_all_started(evatar_web),
-         io:format(\"~nDashboard: ~ts  (the page of this node; docs/dashboard.md)~n\", [evatar_web:url()]),
+  -eval "case {application:ensure_all_started(evatar_web), evatar_web:url()} of
+           {{ok, _}, Url} when is_binary(Url) ->
+             io:format(\"~nDashboard: ~ts  (the page of this node; docs/dashboard.md)~n\", [Url]);
+           Other ->
+             io:format(\"~nNo dashboard: ~tp~n\", [Other])
+         end,
          ok = reference_agents_demo:main($args), init:stop()."
