@@ -92,6 +92,15 @@ def test_sensor_emulator_category_and_top_level_exports() -> None:
         assert [(e.category, e.type) for e in touch.component().services] == [("SENSOR", "Touch")]
         assert [(e.category, e.type) for e in beh.component().services] == [
             ("BEHAVIOUR", "Finished")]
+        fwd = ActuatorEmulator(va, "ForwardEmulator",
+                               [Entry("BEHAVIOUR", "Forward", {"Distance": "yes"})],
+                               feedback={"Feedback": "yes", "Behaviour": "Forward"},
+                               feedback_category="BEHAVIOUR")
+        lamp = ActuatorEmulator(va, "LampEmulator", [Entry("ACTUATOR", "TurnLightOn")])
+        assert [(e.category, e.type, e.param("Behaviour")) for e in fwd.component().services] == [
+            ("BEHAVIOUR", "ACTION FEEDBACK", "Forward")]
+        assert [(e.category, e.type, e.param("Feedback")) for e in lamp.component().services] == [
+            ("ACTUATOR", "ACTION FEEDBACK", "yes")]
     run(main())
     # What next_event() returns is importable from the package itself.
     import evatar

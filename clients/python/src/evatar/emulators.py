@@ -130,13 +130,14 @@ class ActuatorEmulator(Emulator):
     ``{"Feedback": "yes", "Device": "SocketSwitch", "Room": "bedroom"}``)
     so that entry is bound too: it then leaves the Binding report's
     ``unbound`` rows, and signals the device sends on its own to its
-    feedback consumer reach this emulator."""
+    feedback consumer reach this emulator. ``feedback_category`` is that
+    service's category: ``BEHAVIOUR`` for the LEGO robots' behaviours."""
 
     def __init__(self, client: Client, component_id: str, actions: Sequence[Entry],
-                 feedback: ParamsLike = None) -> None:
+                 feedback: ParamsLike = None, feedback_category: str = "ACTUATOR") -> None:
         params = feedback if feedback is not None else {"Feedback": "yes"}
         super().__init__(client, component_id,
-                         [Entry("ACTUATOR", "ACTION FEEDBACK", params)], actions)
+                         [Entry(feedback_category, "ACTION FEEDBACK", params)], actions)
         self.progress: "asyncio.Queue[Signal]" = asyncio.Queue()
 
     async def act(self, type: str, parameters: ParamsLike = None,
