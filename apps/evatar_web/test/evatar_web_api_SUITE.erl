@@ -13,7 +13,8 @@
          off_loopback_reads_need_the_token/1, token_file/1,
          cluster/1, pairings_list/1, pairing_entities/1, bindings_graph/1,
          create_refusals/1, create_then_delete/1, change_options/1, rotate_role_credential/1,
-         rotate_identity_generated/1, mqtt_avatar_routes/1, openapi_document/1]).
+         rotate_identity_generated/1, mqtt_avatar_routes/1, openapi_document/1,
+         live_answers_match_openapi/1]).
 
 -define(T, evatar_web_test).
 -define(TOKEN, <<"operator-token-for-tests-0123456789">>).
@@ -30,7 +31,8 @@ groups() ->
                  off_loopback_reads_need_the_token, token_file]},
      {routes, [], [cluster, pairings_list, pairing_entities, bindings_graph, create_refusals,
                    create_then_delete, change_options, rotate_role_credential,
-                   rotate_identity_generated, mqtt_avatar_routes]}].
+                   rotate_identity_generated, mqtt_avatar_routes, openapi_document,
+                   live_answers_match_openapi]}].
 
 init_per_suite(Config) ->
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
@@ -311,6 +313,51 @@ openapi_document(_Config) ->
     {200, #{<<"openapi">> := <<"3.0", _/binary>>, <<"paths">> := Paths}} = ?T:get("/api/openapi.json"),
     [true = maps:is_key(P, Paths) || {_, P0, _, _} <- evatar_web_router:routes(),
                                      P <- [openapi_path(P0)]].
+
+%% The live server's answers, good and bad, checked against
+%% priv/openapi.json by a real validator: Python's openapi-core (from PyPI,
+%% in a venv this test makes under _build, as clients/python/run-tests.sh
+%% does), which also validates the document itself.
+live_answers_match_openapi(Config) ->
+    Python = venv(),
+    Script = filename:join(?config(data_dir, Config), "check_openapi.py"),
+    Spec = filename:join(code:priv_dir(evatar_web), "openapi.json"),
+    {Status, Out} = run(Python, [Script, Spec, ?T:url("/"), binary_to_list(?PAIRING)],
+                        [{"EVATAR_TOKEN", binary_to_list(?TOKEN)}]),
+    ct:pal("~ts", [Out]),
+    0 = Status,
+    {match, _} = re:run(Out, "(\\d+) answers checked.*, 0 not matching").
+
+venv() ->
+    Src = proplists:get_value(source, evatar_web:module_info(compile)),
+    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Venv = case os:getenv("EVATAR_OPENAPI_VENV") of
+               V when is_list(V), V =/= "" -> V;
+               _ -> filename:join([Root, "_build", "openapi-venv"])
+           end,
+    Python = filename:join([Venv, "bin", "python"]),
+    case filelib:is_regular(filename:join([Venv, "bin", "openapi-core.ok"])) of
+        true ->
+            ok;
+        false ->
+            {0, _} = run(os:find_executable("python3"), ["-m", "venv", Venv], []),
+            {0, _} = run(Python, ["-m", "pip", "install", "--quiet", "--disable-pip-version-check",
+                                  "openapi-core"], []),
+            ok = file:write_file(filename:join([Venv, "bin", "openapi-core.ok"]), <<>>)
+    end,
+    Python.
+
+run(Exe, Args, Env) ->
+    Port = open_port({spawn_executable, Exe}, [{args, Args}, {env, Env}, exit_status, binary,
+                                               stderr_to_stdout]),
+    collect(Port, []).
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D]);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after 300000 -> ct:fail({no_exit, iolist_to_binary(Acc)})
+    end.
 
 %% ---------------------------------------------------------------------------
 
