@@ -4,6 +4,7 @@ import java.io.EOFException;
 import java.io.IOException;
 import java.net.InetSocketAddress;
 import java.net.Socket;
+import java.net.SocketException;
 import java.net.SocketTimeoutException;
 import java.time.Duration;
 import java.util.ArrayList;
@@ -21,6 +22,7 @@ import java.util.concurrent.TimeUnit;
 import java.util.concurrent.TimeoutException;
 import java.util.concurrent.atomic.AtomicLong;
 import java.util.function.Predicate;
+import javax.net.ssl.SSLHandshakeException;
 
 /**
  * A VA or an Avatar connected to EVATAR (docs/protocol.md): the handshake,
@@ -342,6 +344,7 @@ public final class EvatarClient implements AutoCloseable {
                                 opts.ha ? 2 : 1);
             }
             t.readTimeout(opts.handshakeTimeoutMs);
+            boolean helloLost = false;
             try {
                 Frames.write(t.out(), hello.toBytes());
             } catch (IOException e) {
@@ -351,6 +354,7 @@ public final class EvatarClient implements AutoCloseable {
                 if (!t.isTls()) {
                     throw e;
                 }
+                helloLost = true;
             }
             byte[] doc;
             try {
@@ -358,6 +362,15 @@ public final class EvatarClient implements AutoCloseable {
             } catch (SocketTimeoutException e) {
                 throw new RefusedException("HandshakeTimeout", "no answer to the Hello within "
                         + opts.handshakeTimeoutMs + " ms");
+            } catch (SocketException e) {
+                if (!helloLost) {
+                    throw e;
+                }
+                // The connection was reset before the alert could be read.
+                SSLHandshakeException h = new SSLHandshakeException("the server ended the TLS connection ("
+                        + e.getMessage() + "): if this client presents a certificate, the server may not trust it");
+                h.initCause(e);
+                throw h;
             }
             if (doc == null) {
                 throw new EOFException("connection closed during the handshake");

@@ -11,6 +11,9 @@ import java.io.InputStream;
 import java.io.OutputStream;
 import java.net.InetSocketAddress;
 import java.net.Socket;
+import java.net.SocketException;
+import javax.net.ssl.SSLException;
+import javax.net.ssl.SSLHandshakeException;
 import javax.net.ssl.SSLParameters;
 import javax.net.ssl.SSLSocket;
 
@@ -77,6 +80,18 @@ public interface Transport extends Closeable {
             s.startHandshake();
             tls.check(s.getSession());
             s.setSoTimeout(0);
+        } catch (SSLException e) {
+            s.close();
+            throw e;
+        } catch (SocketException e) {
+            // A server that refuses our certificate closes at once; when our
+            // last handshake flight is still unread there, its kernel resets
+            // the connection and the alert saying why can be lost.
+            s.close();
+            SSLHandshakeException h = new SSLHandshakeException("the server ended the TLS handshake ("
+                    + e.getMessage() + "): if this client presents a certificate, the server may not trust it");
+            h.initCause(e);
+            throw h;
         } catch (IOException e) {
             s.close();
             throw e;

@@ -156,6 +156,9 @@ class TlsTest {
     void clientWithUntrustedCertificateIsRefused() {
         SSLException e = assertThrows(SSLException.class, () ->
                 EvatarClient.connect(opts("agent", "va", node.mutualTlsPort(), withCert(rogue, "va")), null));
-        assertTrue(e.getMessage().contains("unknown_ca"), e.getMessage());
+        // The server's alert says unknown_ca; when the server's kernel resets
+        // the connection before the alert is read, the SDK says so instead.
+        assertTrue(e.getMessage().contains("unknown_ca")
+                || e.getMessage().contains("the server may not trust it"), e.getMessage());
     }
 }
