@@ -21,6 +21,8 @@
 -define(PAIRING, <<"web-home">>).
 -define(VA_CRED, <<"va-secret-123">>).
 -define(AV_CRED, <<"av-secret-456">>).
+-define(MQTT_AV, <<"web-plug">>).
+-define(MQTT_PAIRING, <<"web-mqtt">>).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
@@ -61,16 +63,31 @@ init_per_suite(Config) ->
                            receive stop -> [agent_bridge_client:close(C) || C <- [Va, Av]] end
                    end),
     receive joined -> ok after 30000 -> ct:fail(clients_did_not_join) end,
+    %% A real MQTT Avatar (mosquitto, a hand-written description) kept by
+    %% this node, joined to the pairing over TCP.
+    %% Its own pairing: the counts of ?PAIRING do not depend on when it joins.
+    Broker = start_mosquitto(?config(priv_dir, Config)),
+    _ = evatar:delete_pairing(?MQTT_PAIRING),
+    {ok, _} = evatar:create_pairing(?MQTT_PAIRING, #{agent_credential => ?VA_CRED,
+                                                     avatar_credential => ?AV_CRED}),
+    {ok, _} = mqtt_avatar:keep(#{entity_id => ?MQTT_AV, mqtt => #{host => "127.0.0.1", port => element(2, Broker)},
+                                 evatar => #{endpoints => [Addr], pairing => ?MQTT_PAIRING,
+                                             credential => ?AV_CRED},
+                                 description => mqtt_xml(<<"Plug01">>), discovery => false}),
     wait_until(fun() ->
                        case ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings") of
                            {200, #{<<"bound">> := [_ | _], <<"unbound">> := [_, _]}} -> true;
                            _ -> false
                        end
                end),
-    [{addr, Addr}, {holder, Holder} | Config].
+    [{addr, Addr}, {holder, Holder}, {broker, Broker} | Config].
 
 end_per_suite(Config) ->
     ?config(holder, Config) ! stop,
+    _ = mqtt_avatar:unkeep(?MQTT_AV),
+    _ = evatar:delete_pairing(?MQTT_PAIRING),
+    %% mosquitto does not end when its port closes: killed by its pid.
+    _ = os:cmd("kill " ++ integer_to_list(element(3, ?config(broker, Config)))),
     _ = evatar:delete_pairing(?PAIRING),
     ok = agent_bridge:stop_listener(web_api_test),
     ?T:stop().
@@ -296,10 +313,39 @@ rotate_identity_generated(Config) ->
         change(post, "/api/pairings/web-rid/rotate", #{entity => <<"nobody">>}),
     ok = evatar:delete_pairing(<<"web-rid">>).
 
-%% MQTT Avatars: the list, and an unknown one's routes; bad bodies.
+%% MQTT Avatars: the list, one shown with its description and problems,
+%% its description overridden (it restarts with the new one; a broken one
+%% is refused naming the problem), and an unknown one's routes.
 mqtt_avatar_routes(_Config) ->
+    Path = "/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV),
+    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
     {200, L} = ?T:get("/api/mqtt_avatars"),
-    true = is_list(L),
+    [#{<<"state">> := <<"running">>, <<"running">> := true}] =
+        [A || #{<<"entity_id">> := E} = A <- L, E =:= ?MQTT_AV],
+    {200, #{<<"components">> := [#{<<"id">> := <<"Plug01">>}], <<"description_xml">> := Xml,
+            <<"problems">> := Ps}} = ?T:get(Path),
+    {match, _} = re:run(Xml, "Plug01"),
+    {200, Ps} = ?T:get(Path ++ "/problems"),
+    {200, #{<<"restarted">> := true}} =
+        change(put, Path ++ "/description", #{xml => mqtt_xml(<<"Plug02">>)}),
+    wait_until(fun() ->
+                       case ?T:get(Path) of
+                           {200, #{<<"components">> := [#{<<"id">> := <<"Plug02">>}]}} -> true;
+                           _ -> false
+                       end
+               end),
+    %% The pairing sees the new component.
+    wait_until(fun() ->
+                       {200, #{<<"entities">> := Es}} = ?T:get("/api/pairings/" ++ binary_to_list(?MQTT_PAIRING)),
+                       [<<"Plug02">>] =:= [C || #{<<"entity">> := E,
+                                                  <<"components">> := [#{<<"id">> := C}]} <- Es,
+                                                E =:= ?MQTT_AV]
+               end),
+    Broken = binary:replace(mqtt_xml(<<"Plug03">>), <<"<MqttExpect>raw:ON</MqttExpect>">>,
+                            <<"<MqttExpect>sometimes</MqttExpect>">>),
+    {400, #{<<"field">> := <<"xml">>, <<"message">> := _}} =
+        change(put, Path ++ "/description", #{xml => Broken}),
+    {200, #{<<"components">> := [#{<<"id">> := <<"Plug02">>}]}} = ?T:get(Path),
     {404, #{<<"field">> := <<"entity_id">>}} = ?T:get("/api/mqtt_avatars/nope"),
     {404, _} = ?T:get("/api/mqtt_avatars/nope/problems"),
     {404, _} = change(put, "/api/mqtt_avatars/nope/description", #{xml => <<"<x/>">>}),
@@ -322,7 +368,8 @@ live_answers_match_openapi(Config) ->
     Python = venv(),
     Script = filename:join(?config(data_dir, Config), "check_openapi.py"),
     Spec = filename:join(code:priv_dir(evatar_web), "openapi.json"),
-    {Status, Out} = run(Python, [Script, Spec, ?T:url("/"), binary_to_list(?PAIRING)],
+    {Status, Out} = run(Python, [Script, Spec, ?T:url("/"), binary_to_list(?PAIRING),
+                                 binary_to_list(?MQTT_AV)],
                         [{"EVATAR_TOKEN", binary_to_list(?TOKEN)}]),
     ct:pal("~ts", [Out]),
     0 = Status,
@@ -384,6 +431,37 @@ wait_until(Fun, N) ->
         true -> ok;
         false -> timer:sleep(100), wait_until(Fun, N - 1)
     end.
+
+start_mosquitto(Dir) ->
+    {ok, L} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(L),
+    ok = gen_tcp:close(L),
+    Conf = filename:join(Dir, "mosquitto.conf"),
+    ok = file:write_file(Conf, io_lib:format("listener ~b 127.0.0.1~nallow_anonymous true~n", [Port])),
+    P = open_port({spawn_executable, os:find_executable("mosquitto", "/usr/sbin:/usr/bin")},
+                  [{args, ["-c", Conf]}, exit_status, stderr_to_stdout]),
+    wait_until(fun() ->
+                       case gen_tcp:connect({127, 0, 0, 1}, Port, []) of
+                           {ok, S} -> ok = gen_tcp:close(S), true;
+                           {error, _} -> false
+                       end
+               end),
+    {os_pid, OsPid} = erlang:port_info(P, os_pid),
+    {P, Port, OsPid}.
+
+mqtt_xml(Component) ->
+    iolist_to_binary(
+      ["<bil:description xmlns:bil=\"urn:evatar:bil:1\"><bil:context>"
+       "<EntityID>", ?MQTT_AV, "</EntityID><APIName>MQTT</APIName><EntityType>Avatar</EntityType>"
+       "<Context>x</Context></bil:context><bil:types><bil:Component>"
+       "<ComponentID>", Component, "</ComponentID>"
+       "<Service><ServiceCategory>ACTUATOR</ServiceCategory><ServiceType>TurnLightOn</ServiceType>"
+       "<ServiceParameters><Light>yes</Light><Room>kitchen</Room>"
+       "<MqttCommandTopic>cmnd/webplug/POWER</MqttCommandTopic>"
+       "<MqttStateTopic>stat/webplug/POWER</MqttStateTopic>"
+       "<MqttCommand>raw:ON</MqttCommand><MqttExpect>raw:ON</MqttExpect>"
+       "<MqttValue>Light=raw</MqttValue><MqttMap>ON=on OFF=off</MqttMap>"
+       "</ServiceParameters></Service></bil:Component></bil:types></bil:description>"]).
 
 entry(Cat, Type, Params) -> #{category => Cat, type => Type, parameters => Params}.
 

@@ -1,6 +1,6 @@
 """Checks a live EVATAR node's HTTP API against its OpenAPI document.
 
-Usage: check_openapi.py OPENAPI_JSON BASE_URL PAIRING  (token in EVATAR_TOKEN)
+Usage: check_openapi.py OPENAPI_JSON BASE_URL PAIRING MQTT_AVATAR  (token in EVATAR_TOKEN)
 
 Validates the document itself (openapi-spec-validator), then sends real
 requests to BASE_URL (good and bad ones, with and without the operator
@@ -17,7 +17,7 @@ import urllib.request
 from openapi_core import OpenAPI
 from openapi_core.testing import MockRequest, MockResponse
 
-spec_path, base, pairing = sys.argv[1], sys.argv[2].rstrip("/"), sys.argv[3]
+spec_path, base, pairing, avatar = sys.argv[1], sys.argv[2].rstrip("/"), sys.argv[3], sys.argv[4]
 token = os.environ["EVATAR_TOKEN"]
 api = OpenAPI.from_file_path(spec_path)  # validates the document first
 
@@ -52,6 +52,12 @@ CASES = [
     ("DELETE", "/api/pairings/oa-tmp", "/api/pairings/{id}", AUTH, None, 404),
     ("DELETE", P, "/api/pairings/{id}", {}, None, 401),
     ("GET", "/api/mqtt_avatars", None, {}, None, 200),
+    ("GET", "/api/mqtt_avatars/" + avatar, "/api/mqtt_avatars/{id}", {}, None, 200),
+    ("GET", "/api/mqtt_avatars/" + avatar + "/problems", "/api/mqtt_avatars/{id}/problems", {}, None, 200),
+    ("PUT", "/api/mqtt_avatars/" + avatar + "/description", "/api/mqtt_avatars/{id}/description", AUTH,
+     {"overrides": {"any device": {"room": "hall"}}}, 200),
+    ("PUT", "/api/mqtt_avatars/" + avatar + "/description", "/api/mqtt_avatars/{id}/description", AUTH,
+     {"xml": "<not-bil/>"}, 400),
     ("GET", "/api/mqtt_avatars/nope", "/api/mqtt_avatars/{id}", {}, None, 404),
     ("GET", "/api/mqtt_avatars/nope/problems", "/api/mqtt_avatars/{id}/problems", {}, None, 404),
     ("PUT", "/api/mqtt_avatars/nope/description", "/api/mqtt_avatars/{id}/description", AUTH,
