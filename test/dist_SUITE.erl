@@ -56,19 +56,10 @@ end_per_suite(_Config) ->
     ok.
 
 init_per_testcase(Case, Config) ->
-    Dir = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
-    ok = filelib:ensure_path(Dir),
-    [EpmdPort] = ha_cluster:free_ports(1),
-    [{dir, Dir}, {epmd_port, EpmdPort}, {nodes, ets:new(nodes, [public, bag])} | Config].
+    rel_node:init_case(Case, Config).
 
-%% Stops what the case started: its nodes (by pid if stop does not work),
-%% then its epmd.
 end_per_testcase(_Case, Config) ->
-    Nodes = ets:tab2list(?config(nodes, Config)),
-    _ = [stop_node(Env, Config) || {node, Env} <- Nodes],
-    _ = os:cmd("ERL_EPMD_PORT=" ++ integer_to_list(?config(epmd_port, Config))
-               ++ " epmd -kill"),
-    ok.
+    rel_node:end_case(Config).
 
 %% ---------------------------------------------------------------------------
 %% Cookie

@@ -11,10 +11,29 @@
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
+-export([init_case/2, end_case/1]).
 -export([release/1, clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
          start_node/2, stop_node/2, kill_by_name/1, rel/3, run/4, quote/1, console_log/1]).
 
 -define(WAIT, 60000).
+
+%% @doc A case's directory, epmd port and table of nodes, in Config.
+-spec init_case(atom(), list()) -> list().
+init_case(Case, Config) ->
+    Dir = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
+    ok = filelib:ensure_path(Dir),
+    [EpmdPort] = ha_cluster:free_ports(1),
+    [{dir, Dir}, {epmd_port, EpmdPort}, {nodes, ets:new(nodes, [public, bag])} | Config].
+
+%% @doc Stops what the case started: its nodes (by pid if stop does not
+%% work), then its epmd.
+-spec end_case(list()) -> ok.
+end_case(Config) ->
+    Nodes = ets:tab2list(?config(nodes, Config)),
+    _ = [stop_node(Env, Config) || {node, Env} <- Nodes],
+    _ = os:cmd("ERL_EPMD_PORT=" ++ integer_to_list(?config(epmd_port, Config))
+               ++ " epmd -kill"),
+    ok.
 
 %% The release under test: EVATAR_REL, or the one `rebar3 release' builds
 %% (under REBAR_BASE_DIR or _build).
