@@ -73,7 +73,7 @@ usage_and_unreachable(Config) ->
 %% new one joins); delete removes the pairing.
 commands_on_a_running_node(Config) ->
     with_facade([{create, 2}, {pairings, 0}, {pairing, 1}, {bindings, 1}, {rotate, 2},
-                 {delete, 1}, {problems, 1}], fun() -> commands(Config) end).
+                 {delete, 1}, {problems, 1}, {mqtt_avatars, 0}], fun() -> commands(Config) end).
 
 commands(Config) ->
     %% create, text: the secrets are shown once, with a warning.

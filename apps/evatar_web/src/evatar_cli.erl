@@ -171,10 +171,10 @@ run(Target, Command) ->
                  {delete, Id} -> {delete, [Id]};
                  {create, Id, Body, _} -> {create, [Id, Body]};
                  {rotate, Id, Who, Body, _} -> {rotate, [Id, who(Who, Body)]};
-                 {mqtt_problems, all} -> {problems, [all]};
+                 {mqtt_problems, all} -> {mqtt_avatars, []};
                  {mqtt_problems, Name} -> {problems, [Name]}
              end,
-    try erpc:call(Target, evatar_ops, F, A, ?TIMEOUT) of
+    try call(Target, Command, F, A) of
         {error, Error} -> {1, Error};
         {ok, Result} -> {0, with_secrets(Command, Result)};
         ok -> {0, with_secrets(Command, #{})};
@@ -197,6 +197,16 @@ run(Target, Command) ->
 
 failed(Message) ->
     #{error => <<"failed">>, field => null, message => iolist_to_binary(Message)}.
+
+call(Target, {mqtt_problems, all}, F, A) ->
+    %% Every kept Avatar with its problems.
+    [Status#{problems => case erpc:call(Target, evatar_ops, problems, [E], ?TIMEOUT) of
+                             {ok, Problems} -> Problems;
+                             {error, _} -> []
+                         end}
+     || #{entity_id := E} = Status <- erpc:call(Target, evatar_ops, F, A, ?TIMEOUT)];
+call(Target, _Command, F, A) ->
+    erpc:call(Target, evatar_ops, F, A, ?TIMEOUT).
 
 who(<<"agent">>, Body) -> Body#{<<"role">> => <<"agent">>};
 who(<<"avatar">>, Body) -> Body#{<<"role">> => <<"avatar">>};
@@ -289,13 +299,28 @@ bindings(Id, R) ->
          _ -> ["\nUnbound\n",
                [["  ", endpoint(maps:get(<<"consumer">>, U, null)), "  ", service(U), "  ",
                  scalar(maps:get(<<"reason">>, U, <<"?">>)), "\n",
+                 [candidate(C) || C <- list(<<"candidates">>, U)],
                  [["      ", K, ": ", inline(V), "\n"]
                   || {K, V} <- lists:sort(maps:to_list(
                                             maps:without([<<"consumer">>, <<"category">>,
-                                                          <<"type">>, <<"reason">>], U)))]]
+                                                          <<"type">>, <<"reason">>,
+                                                          <<"candidates">>], U)))]]
                 || U <- Unbound]]
      end,
      generic(maps:without([<<"bound">>, <<"unbound">>], R))].
+
+%% A provider that could have served an unbound entry, and each parameter
+%% it did not satisfy.
+candidate(#{<<"provider">> := P} = C) ->
+    ["      candidate ", endpoint(P), ": ",
+     case list(<<"mismatches">>, C) of
+         [] -> "no parameter differs";
+         Ms -> lists:join("; ", [[scalar(maps:get(<<"name">>, M, <<"?">>)), " wanted ",
+                                  inline(maps:get(<<"wanted">>, M, null)), ", offered ",
+                                  inline(maps:get(<<"offered">>, M, null))] || M <- Ms])
+     end, "\n"];
+candidate(Other) ->
+    ["      candidate ", inline(Other), "\n"].
 
 list(Key, R) when is_map(R) ->
     case maps:get(Key, R, []) of
