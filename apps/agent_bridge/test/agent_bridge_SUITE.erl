@@ -806,14 +806,31 @@ start_bystander(Addr) ->
     Holder = spawn(fun() ->
                            {Va, Av} = bound_pair(Config),
                            Parent ! {bystander, Va, Av},
-                           receive stop -> ok end
+                           bystander_holder(Va, undefined)
                    end),
     receive {bystander, Va, Av} -> {Va, Av, Holder} after 10000 -> ct:fail(no_bystander) end.
 
+%% Keeps the bystander VA's owner messages: a close names its reason, so a
+%% failed round trip says why the node dropped a healthy client (it once
+%% was the lone node fencing itself under load, fixed in bd99361).
+bystander_holder(Va, Closed) ->
+    receive
+        stop -> ok;
+        {agent_bridge, Va, {closed, Reason}} -> bystander_holder(Va, Reason);
+        {why_closed, From} -> From ! {why_closed, Closed}, bystander_holder(Va, Closed);
+        _ -> bystander_holder(Va, Closed)
+    end.
+
 bystander_round_trip(Config) ->
-    {Va, _Av, _Holder} = ?config(bystander, Config),
-    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
-    ok.
+    {Va, _Av, Holder} = ?config(bystander, Config),
+    case agent_bridge_client:request(Va, light_request(), 5000) of
+        {ok, #{context := feedback}} ->
+            ok;
+        Other ->
+            Holder ! {why_closed, self()},
+            Why = receive {why_closed, W} -> W after 5000 -> unknown end,
+            ct:fail({bystander_round_trip, Other, {closed, Why}})
+    end.
 
 light_request() ->
     #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,

@@ -146,6 +146,7 @@ state(Now, H) ->
       emails => lists:reverse(H#h.emails), sms => lists:reverse(H#h.sms),
       photos => lists:reverse(H#h.photos), keypad => lists:reverse(H#h.keypad),
       listening => H#h.listening, script_left => length(H#h.script),
+      tasks_left => length(H#h.tasks),
       spool => maps:get(spool, H#h.cfg),
       %% For the dashboard's floor plan: each room's devices, its last motion.
       rooms => lists:foldl(fun(#{kind := K, room := R}, Acc) ->

@@ -161,8 +161,15 @@ home_request_without_feedback(Config) ->
                                         body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
                                                   parameters => []}}),
     wait_for(fun() -> maps:get(<<"kitchen">>, maps:get(lights, avatar_sim:state(Home))) =:= on end),
-    timer:sleep(100),                            % 5 s of simulated time: the sound is over
+    %% The sound ends on the clock (a task); once no task is left it has
+    %% ended, and the answer it would have given is behind us.
+    wait_for(fun() ->
+                     #{played := Played, tasks_left := Left} = avatar_sim:state(Home),
+                     Played =/= [] andalso Left =:= 0
+             end),
     [#{kind := sound}] = maps:get(played, avatar_sim:state(Home)),
+    %% A round trip through the same house after that: a feedback sent
+    %% for either request would have reached the VA before this answer.
     {ok, _} = request(Va, <<"KeypadEmulator01">>, <<"DoorKeypad01">>, <<"SENSOR">>, <<"ReadKeypad">>, []),
     [] = [S || #{context := C} = S <- signals(Va), C =:= feedback orelse C =:= progress].
 

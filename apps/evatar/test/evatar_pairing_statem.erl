@@ -309,15 +309,19 @@ leave(Id) ->
 crash(Id) ->
     {_Session, Pid} = erase({entity, Id}),
     ok = ?E:kill(Pid),
-    ok = wait_gone(Id, 500),
+    ok = wait_gone(Id, erlang:monotonic_time(millisecond) + 30000),
     {ok, flush()}.
 
-wait_gone(_Id, 0) ->
-    {error, still_registered};
-wait_gone(Id, N) ->
+%% Polls until the pairing has handled the entity's death; the deadline is
+%% generous for a loaded machine (it once was 500 polls, about 1 s).
+wait_gone(Id, Deadline) ->
     {ok, Registry} = evatar:registry(?PAIRING),
     case lists:any(fun(#{entity := E}) -> E =:= Id end, Registry) of
-        true -> timer:sleep(2), wait_gone(Id, N - 1);
+        true ->
+            case erlang:monotonic_time(millisecond) > Deadline of
+                true -> {error, still_registered};
+                false -> timer:sleep(2), wait_gone(Id, Deadline)
+            end;
         false -> ok
     end.
 

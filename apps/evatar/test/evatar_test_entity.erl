@@ -62,10 +62,11 @@ sync(Pid) ->
         {'DOWN', Ref, process, Pid, _} -> ok
     end.
 
-%% @doc The next message forwarded for `EntityId' (waits up to 5 s): the
+%% @doc The next message forwarded for `EntityId' (waits up to 30 s, a
+%% deadline for a loaded machine that a passing test never reaches): the
 %% signal or binding report, or `{Code, Reason}' for `dropped'.
 -spec recv(binary(), signal | bound | dropped) -> term().
-recv(EntityId, Kind) -> recv(EntityId, Kind, 5000).
+recv(EntityId, Kind) -> recv(EntityId, Kind, 30000).
 
 %% @doc As {@link recv/2} with a wait limit; `timeout' when nothing came.
 -spec recv(binary(), signal | bound | dropped, timeout()) -> term().
