@@ -12,7 +12,8 @@
 
 -export([main/0, main/1, concurrent_only/1]).
 
--type option() :: quick | no_old | no_concurrent | {log, logger:level()}.
+-type option() :: quick | no_old | no_concurrent | {log, logger:level()}
+                | {tables, [void | bind | bind_any | rebind | resume]}.
 
 %% The last commit with the quadratic voiding, the old oracle's source.
 -define(OLD_COMMIT, "ccb6f43").
@@ -39,7 +40,8 @@ main() -> main([]).
 
 %% @doc Runs the benchmark and prints its tables. `quick': sizes 10 times
 %% smaller; `no_old': without the old algorithms; `no_concurrent': without
-%% the round trips of other pairings over TCP.
+%% the round trips of other pairings over TCP; `{tables, Names}': only
+%% those tables (void, bind, bind_any, rebind, resume).
 -spec main([option()]) -> ok.
 main(Options) ->
     ok = logger:set_primary_config(level, warning),
@@ -57,14 +59,23 @@ main(Options) ->
               "quadratic ~~100); exponent k: least-squares fit of time ~~ n^k over the sizes~n"),
     Requests = [N div Scale || N <- [1000, 10000, 100000]],
     Components = [N div Scale || N <- [100, 1000, 10000]],
-    table("Voiding: an Avatar with N open requests to it leaves (its Bye)",
-          "open requests", Requests, fun(N, M) -> void_ms(M, N) end, Old, ?OLD_MAX_VOID),
-    table("Binding: bil:bind/1, N provider components and 1.7 N Consumes in one bucket",
-          "components", Components, fun(N, M) -> bind_ms(M, N) end, Old, ?OLD_MAX_BIND),
-    table("Re-binding: the pairing's describe event (the Avatar re-describes), N components",
-          "components", Components, fun(N, M) -> rebind_ms(M, N) end, Old, ?OLD_MAX_BIND),
-    table("Resuming: an HA session with N delivered signals not acknowledged",
-          "unacked", Requests, fun(N, M) -> resume_ms(M, N) end, Old, ?OLD_MAX_VOID),
+    Tables = proplists:get_value(tables, Options, [void, bind, bind_any, rebind, resume]),
+    Table = fun(Name, Title, Unit, Sizes, Measure, OldMax) ->
+                    _ = [table(Title, Unit, Sizes, Measure, Old, OldMax)
+                         || lists:member(Name, Tables)],
+                    ok
+            end,
+    Table(void, "Voiding: an Avatar with N open requests to it leaves (its Bye)",
+          "open requests", Requests, fun(N, M) -> void_ms(M, N) end, ?OLD_MAX_VOID),
+    Table(bind, "Binding: bil:bind/1, N provider components and 1.7 N Consumes in one bucket",
+          "components", Components, fun(N, M) -> bind_ms(M, N) end, ?OLD_MAX_BIND),
+    Table(bind_any, "Binding, adversarial: N providers, 9 in 10 offering `any' for the parameter; "
+          "1.7 N Consumes each requiring a different value of it",
+          "components", Components, fun(N, M) -> bind_any_ms(M, N) end, 1000),
+    Table(rebind, "Re-binding: the pairing's describe event (the Avatar re-describes), N components",
+          "components", Components, fun(N, M) -> rebind_ms(M, N) end, ?OLD_MAX_BIND),
+    Table(resume, "Resuming: an HA session with N delivered signals not acknowledged",
+          "unacked", Requests, fun(N, M) -> resume_ms(M, N) end, ?OLD_MAX_VOID),
     _ = [concurrent(lists:last(Requests), lists:last(Components))
          || not lists:member(no_concurrent, Options)],
     ok.
@@ -248,6 +259,30 @@ bind_ms(new, N) ->
 bind_ms(#{bind := Bind}, N) ->
     Ds = [av(providers(N)), va(consumers(N))],
     time_ms(fun() -> Bind(Ds) end).
+
+bind_any_ms(new, N) ->
+    Ds = [av(any_providers(N)), va(any_consumers(N))],
+    time_ms(fun() -> bil:bind(Ds) end);
+bind_any_ms(#{bind := Bind}, N) ->
+    Ds = [av(any_providers(N)), va(any_consumers(N))],
+    time_ms(fun() -> Bind(Ds) end).
+
+%% The shape where `any' defeats the value index: most devices accept any
+%% unit, every consumer names its own, so every consumer sees nearly
+%% every provider as a candidate (issue 16's follow-up). A second required
+%% value shared by a fraction f of the providers (a room) is not this
+%% shape: it costs f x P per consumer, see bench/COMPLEXITY.md.
+any_providers(N) ->
+    [{<<"dev", (integer_to_binary(I))/binary>>,
+      [svc(<<"Switch">>, [{<<"Unit">>, case I rem 10 of 0 -> dev(I); _ -> <<"any">> end},
+                          {<<"Room">>, room(I)}])],
+      []} || I <- lists:seq(1, N)].
+
+any_consumers(N) ->
+    [{<<"ctl", (integer_to_binary(I))/binary>>, [],
+      [svc(<<"Switch">>, [{<<"Unit">>, dev(I)}])
+       | [svc(<<"Switch">>, [{<<"Unit">>, dev(N + I)}, {<<"Room">>, <<"no">>}])
+          || I rem 10 < 7]]} || I <- lists:seq(1, N)].
 
 %% The VA consumes; the Avatar described with N components re-describes
 %% itself with one more: the pairing checks it and binds again.

@@ -7,9 +7,13 @@
 %% (parameter, value); a consumer examines only the providers that offer
 %% its most selective required value (or, when it requires none, only
 %% those that could score), and consumers with equal wants share one
-%% result. Binding P services against C consumers costs O((P + C) log P)
-%% plus the candidates examined, which the tests and bench/COMPLEXITY.md
-%% bound on the shapes homes produce (the old nested loops were P x C).
+%% result. When `any' makes every value's providers many, a consumer
+%% examines only the providers offering one of its values and counts the
+%% rest through the providers offering `any' for all its required names,
+%% a set shared by the consumers requiring those names (choose/4). Binding
+%% P services against C consumers costs O((P + C) log P) plus the
+%% candidates examined, which the tests and bench/COMPLEXITY.md bound
+%% (the old nested loops were P x C).
 -module(bil_binding).
 
 -export([bind/1, keyword/1, explain/2]).
@@ -38,6 +42,12 @@
 
 -type choice() :: {bound, #provider{}, Score :: non_neg_integer(), Count :: pos_integer()}
                 | {unbound, no_provider | parameters_mismatch}.
+
+%% Results shared between consumers: a choice per bucket and wants, and
+%% per bucket and set of required names the providers offering `any' for
+%% all of them.
+-type memo() :: #{{bucket_key(), wants()} => choice(),
+                  {any, bucket_key(), [binary()]} => {non_neg_integer(), [pos_integer()]}}.
 
 -define(YES, <<"yes">>).
 -define(NO, <<"no">>).
@@ -198,8 +208,8 @@ bind_entry(#{category := Category, type := Type} = Entry, OtherType, Index, Memo
                 #{{Key, Wants} := Choice} ->
                     {Choice, Memo};
                 #{} ->
-                    Choice = choose(Wants, Bucket),
-                    {Choice, Memo#{{Key, Wants} => Choice}}
+                    {Choice, Memo1} = choose(Wants, Key, Bucket, Memo),
+                    {Choice, Memo1#{{Key, Wants} => Choice}}
             end;
         #{} ->
             {{unbound, no_provider}, Memo}
@@ -210,24 +220,97 @@ bind_entry(#{category := Category, type := Type} = Entry, OtherType, Index, Memo
 %% providers of the required value with the fewest. With no required value
 %% every provider is compatible, and only those offering `no' for a wanted
 %% name can score above zero.
--spec choose(wants(), #bucket{}) -> choice().
-choose(Wants, #bucket{size = Size, providers = Providers} = Bucket) ->
+%%
+%% When `any' makes even the fewest large (many consumers each requiring
+%% a different value that most providers offer as `any'), the providers
+%% are split instead: those offering one of the consumer's values (the
+%% only ones that can score) are examined one by one; the others are
+%% compatible exactly when they offer `any' for every required name, and
+%% score 0, so they count as a whole: the providers offering `any' for
+%% every required name, computed once per bucket and set of names and
+%% shared by every consumer requiring those names.
+-spec choose(wants(), bucket_key(), #bucket{}, memo()) -> {choice(), memo()}.
+choose(Wants, Key, #bucket{size = Size, providers = Providers} = Bucket, Memo) ->
     case [candidates(Name, V, Bucket) || {Name, Values} <- Wants, V <- Values, V =/= ?NO] of
         [] ->
             Scoring = lists:umerge([positions({Name, ?NO}, Bucket) || {Name, _} <- Wants]),
             case best(Wants, Scoring, Providers, none, 0) of
-                {{Provider, Score}, _} when Score > 0 -> {bound, Provider, Score, Size};
-                _ -> {bound, element(1, Providers), 0, Size}
+                {{Provider, Score, _}, _} when Score > 0 -> {{bound, Provider, Score, Size}, Memo};
+                _ -> {{bound, element(1, Providers), 0, Size}, Memo}
             end;
         [First | Sets] ->
-            {_, Fewest} = lists:foldl(fun({N, _} = Set, {Min, _}) when N < Min -> Set;
-                                         (_, Acc) -> Acc
-                                      end, First, Sets),
-            case best(Wants, Fewest, Providers, none, 0) of
-                {_, 0} -> {unbound, parameters_mismatch};
-                {{Provider, Score}, Count} -> {bound, Provider, Score, Count}
+            {Fewest, Merge} = lists:foldl(fun({N, _} = Set, {Min, _}) when N < Min -> Set;
+                                             (_, Acc) -> Acc
+                                          end, First, Sets),
+            Offering = [posting({Name, V}, Bucket) || {Name, Values} <- Wants, V <- Values],
+            case lists:sum([N || {N, _} <- Offering]) < Fewest of
+                true ->
+                    split(Wants, Key, [Ps || {_, Ps} <- Offering], Bucket, Memo);
+                false ->
+                    {chosen(best(Wants, Merge, Providers, none, 0)), Memo}
             end
     end.
+
+chosen({_, 0}) -> {unbound, parameters_mismatch};
+chosen({{Provider, Score, _Pos}, Count}) -> {bound, Provider, Score, Count}.
+
+%% The providers offering one of the consumer's values, one by one; the
+%% rest through the shared `any' set of the required names (none when a
+%% `yes' is required: only its offerers can hold it).
+split(Wants, Key, Offering, #bucket{providers = Providers} = Bucket, Memo) ->
+    Scored = lists:umerge(Offering),
+    {Best, Count} = best(Wants, Scored, Providers, none, 0),
+    Required = [Name || {Name, Values} <- Wants, lists:any(fun(V) -> V =/= ?NO end, Values)],
+    case lists:any(fun({_, Values}) -> lists:member(?YES, Values) end, Wants) of
+        true ->
+            {chosen({Best, Count}), Memo};
+        false ->
+            {{AnyCount, Any}, Memo1} = any_of_all(Key, Required, Bucket, Memo),
+            InScored = maps:from_keys([P || P <- Scored, any_of_all(Required, element(P, Providers))],
+                                      true),
+            Rest = AnyCount - map_size(InScored),
+            Best1 = case Rest of
+                        0 -> Best;
+                        _ -> better(Best, first_not_in(Any, InScored, Providers))
+                    end,
+            {chosen({Best1, Count + Rest}), Memo1}
+    end.
+
+%% The providers of a bucket offering `any' for every name of Names, as a
+%% count and an ascending list; memoised per bucket and names.
+any_of_all(Key, Names, Bucket, Memo) ->
+    case Memo of
+        #{{any, Key, Names} := Any} ->
+            {Any, Memo};
+        #{} ->
+            [First | Rest] = [positions({Name, ?ANY}, Bucket) || Name <- Names],
+            List = lists:foldl(fun intersect/2, First, Rest),
+            Any = {length(List), List},
+            {Any, Memo#{{any, Key, Names} => Any}}
+    end.
+
+any_of_all(Names, #provider{params = Params}) ->
+    lists:all(fun(Name) -> lists:member(?ANY, maps:get(Name, Params, [])) end, Names).
+
+%% Two ascending lists' common elements, ascending.
+intersect([A | As], [A | Bs]) -> [A | intersect(As, Bs)];
+intersect([A | As], [B | _] = Bs) when A < B -> intersect(As, Bs);
+intersect([_ | _] = As, [_ | Bs]) -> intersect(As, Bs);
+intersect(_, _) -> [].
+
+%% The first position of an ascending list not in Skip (there is one: the
+%% list is longer than Skip); at most map_size(Skip) steps.
+first_not_in([P | Ps], Skip, Providers) ->
+    case Skip of
+        #{P := _} -> first_not_in(Ps, Skip, Providers);
+        #{} -> {element(P, Providers), 0, P}
+    end.
+
+%% The higher score wins; among equal scores the earlier position.
+better(none, B) -> B;
+better({_, S1, _} = A, {_, S2, _}) when S1 > S2 -> A;
+better({_, S, P1} = A, {_, S, P2}) when P1 < P2 -> A;
+better(_, B) -> B.
 
 candidates(Name, ?YES, Bucket) ->
     posting({Name, ?YES}, Bucket);
@@ -254,8 +337,8 @@ best(Wants, [Pos | Rest], Providers, Best, Count) ->
         true ->
             Score = score(Wants, Params),
             Best1 = case Best of
-                        {_, BestScore} when BestScore >= Score -> Best;
-                        _ -> {Candidate, Score}
+                        {_, BestScore, _} when BestScore >= Score -> Best;
+                        _ -> {Candidate, Score, Pos}
                     end,
             best(Wants, Rest, Providers, Best1, Count + 1)
     end;

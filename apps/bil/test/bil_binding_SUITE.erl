@@ -16,6 +16,7 @@
          result_order/1, keeps_consumer_spelling/1, empty_input/1,
          prop_matches_reference/1, prop_each_consumer_once/1,
          prop_provider_other_type/1, prop_matches_old/1, prop_matches_old_shared/1,
+         prop_matches_old_any/1,
          old_matches_at_scale/1]).
 
 -define(NUMTESTS_REFERENCE, 600).
@@ -43,7 +44,8 @@ groups() ->
        result_order, keeps_consumer_spelling, empty_input]},
      {properties, [],
       [prop_matches_reference, prop_each_consumer_once, prop_provider_other_type,
-       prop_matches_old, prop_matches_old_shared, old_matches_at_scale]}].
+       prop_matches_old, prop_matches_old_shared, prop_matches_old_any,
+       old_matches_at_scale]}].
 
 %% ---------------------------------------------------------------------------
 %% Keywords (rule 1)
@@ -354,6 +356,16 @@ prop_matches_old_shared(_Config) ->
                                     bil:bind(Ds) =:= bil_binding_old:bind(Ds)))),
           ?NUMTESTS).
 
+%% @doc Same, on the shape where `any' defeats the value index: consumers
+%% each requiring one of many values (and sometimes a second name, `no' or
+%% `yes'), providers mostly offering `any' for them.
+prop_matches_old_any(_Config) ->
+    check(?FORALL(Ds, any_descriptions(),
+                  ?WHENFAIL(ct:pal("got ~p~nold ~p", [bil:bind(Ds), bil_binding_old:bind(Ds)]),
+                            collect(shape(bil_binding_old:bind(Ds)),
+                                    bil:bind(Ds) =:= bil_binding_old:bind(Ds)))),
+          ?NUMTESTS).
+
 %% @doc Old and new agree on a generated pairing of 2,000 components a
 %% side, all in two buckets.
 old_matches_at_scale(_Config) ->
@@ -467,6 +479,31 @@ shared_descriptions() ->
 
 shared_descriptions(Max) ->
     ?LET({NA, NV}, {choose(0, Max), choose(0, Max)}, shared_pairing(NA, NV)).
+
+any_descriptions() ->
+    ?LET({NA, NV}, {choose(0, 40), choose(0, 40)},
+         ?LET({As, Vs}, {vector(NA, any_component(provider)), vector(NV, any_component(consumer))},
+              [shared_entity(<<"av">>, avatar, As), shared_entity(<<"va">>, agent, Vs)])).
+
+any_component(Side) ->
+    ?LET(Entries, vector(1, any_entry(Side)),
+         case Side of
+             provider -> #{id => <<>>, services => Entries, consumes => []};
+             consumer -> #{id => <<>>, services => [], consumes => Entries}
+         end).
+
+any_entry(Side) ->
+    Unit = ?LET(I, choose(1, 12), <<"u", (integer_to_binary(I))/binary>>),
+    Value = case Side of
+                provider -> frequency([{6, <<"any">>}, {2, Unit}, {1, <<"no">>}]);
+                consumer -> frequency([{8, Unit}, {1, <<"no">>}, {1, <<"yes">>}])
+            end,
+    Second = frequency([{3, []},
+                        {1, [{elements([<<"Room">>, <<"Email">>]),
+                              elements([<<"any">>, <<"no">>, <<"kitchen">>, <<"yes">>])}]}]),
+    ?LET({V, Ps}, {Value, Second},
+         #{category => <<"Actuator">>, type => <<"Switch">>,
+           parameters => [{<<"Unit">>, V} | Ps]}).
 
 shared_pairing(NA, NV) ->
     ?LET({As, Vs}, {vector(NA, shared_component()), vector(NV, shared_component())},
