@@ -25,7 +25,8 @@
                            enabled => boolean(),
                            max_connections => pos_integer() | infinity,
                            handshake => handshake_opts(),
-                           conn => agent_bridge_conn:opts()}.
+                           conn => agent_bridge_conn:opts(),
+                           restart => restart_backoff:opts()}.
 -type handshake_opts() :: #{rate => pos_integer() | infinity,
                             burst => pos_integer(),
                             failure_delay => non_neg_integer(),
@@ -40,12 +41,17 @@
 
 %% @doc Starts a listener; port 0 picks a free port (see address/1).
 %% Options that check_listener/1 refuses give `{error, {bad_listener,
-%% Message}}'.
+%% Message}}'; a first start that fails (a port taken) gives its error.
+%% Once it has listened the listener is kept: if it stops it is started
+%% again after 1 s doubling to 60 s (option `restart', restart_backoff),
+%% and a crash loop is logged (`what => crash_loop'). A listener of the
+%% application environment is kept from its first start.
 -spec start_listener(term(), listener_opts()) -> {ok, pid()} | {error, term()}.
 start_listener(Name, Opts) ->
     case check_listener(Opts) of
         ok ->
-            case supervisor:start_child(agent_bridge_sup, agent_bridge_sup:listener_spec(Name, Opts)) of
+            case supervisor:start_child(agent_bridge_sup,
+                                        agent_bridge_sup:listener_spec(Name, Opts, fail)) of
                 {ok, Pid} -> {ok, Pid};
                 {error, _} = Error -> Error
             end;
@@ -91,6 +97,8 @@ check_listener_opt(enabled, B) ->
     expect(enabled, is_boolean(B), "true or false");
 check_listener_opt(transport, _) ->
     ok;
+check_listener_opt(restart, Restart) ->
+    restart_backoff:check(Restart);
 check_listener_opt(tls, _) ->
     ok;
 check_listener_opt(conn, Conn) when is_map(Conn) ->

@@ -18,7 +18,7 @@ suite() -> [{timetrap, {seconds, 60}}].
 all() ->
     [{group, handshake}, {group, bad_input}, {group, traffic}, {group, decisions},
      {group, backpressure},
-     {group, busy}, {group, port}].
+     {group, busy}, {group, port}, {group, keeper}].
 
 groups() ->
     [{handshake, [], [handshake_ok, client_connects, endpoints_in_order, bye_leaves]},
@@ -35,7 +35,8 @@ groups() ->
      {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
      {busy, [], [busy_pairing_refuses_hello, busy_pairing_description,
                   busy_pairing_bye, busy_pairing_operator]},
-     {port, [], [port_round_trip]}].
+     {port, [], [port_round_trip]},
+     {keeper, [], [listener_port_taken_retries]}].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -550,6 +551,44 @@ count_passive(K) ->
     end.
 
 %% ---------------------------------------------------------------------------
+%% Listener keeper
+%% ---------------------------------------------------------------------------
+
+%% A configured listener whose port is taken does not stop the bridge: its
+%% keeper retries with growing delays, reports a crash loop from the third
+%% failure, and listens (clients join) once the port is free.
+listener_port_taken_retries(Config) ->
+    {ok, Taken} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}, {reuseaddr, true}]),
+    {ok, Port} = inet:port(Taken),
+    ok = logger:add_handler(crash_loop_probe, ?MODULE, #{config => #{pid => self()}}),
+    Opts = #{ip => {127, 0, 0, 1}, port => Port,
+             restart => #{min_ms => 50, max_ms => 400, loop_after => 3}},
+    %% As agent_bridge_sup starts a listener of the configuration.
+    {ok, Keeper} = supervisor:start_child(agent_bridge_sup,
+                                          agent_bridge_sup:listener_spec(kept, Opts)),
+    try
+        {error, not_found} = agent_bridge:address(kept),
+        receive
+            {crash_loop, #{listener := kept, crashes := N}} -> true = N >= 3
+        after 30000 -> ct:fail(no_crash_loop_report)
+        end,
+        %% Each failure doubles the delay, up to the maximum.
+        #{state := waiting, failures := Failures, next_delay_ms := Next} =
+            agent_bridge_listener_keeper:status(Keeper),
+        true = Failures >= 3,
+        true = Next >= 400,
+        ok = gen_tcp:close(Taken),
+        ok = agent_bridge_test_node:wait_until(
+               fun() -> agent_bridge:address(kept) =:= {ok, {{127, 0, 0, 1}, Port}} end, 600),
+        #{state := running, starts := 1} = agent_bridge_listener_keeper:status(Keeper),
+        {ok, C} = client([{addr, {{127, 0, 0, 1}, Port}} | Config], agent, <<"va">>),
+        ok = agent_bridge_client:close(C)
+    after
+        ok = logger:remove_handler(crash_loop_probe),
+        _ = agent_bridge:stop_listener(kept)
+    end.
+
+%% ---------------------------------------------------------------------------
 %% Port connector
 %% ---------------------------------------------------------------------------
 
@@ -587,9 +626,12 @@ port_round_trip(Config, Python) ->
     ok = logger:set_primary_config(level, Level),
     ok = agent_bridge_client:close(Va).
 
-%% logger handler callback: forwards the port connector's stderr lines.
+%% logger handler callback: forwards the port connector's stderr lines and
+%% crash loop reports (listener_port_taken_retries).
 log(#{msg := {report, #{what := program_stderr, line := Line}}}, #{config := #{pid := Pid}}) ->
     Pid ! {stderr_line, Line};
+log(#{msg := {report, #{what := crash_loop} = Report}}, #{config := #{pid := Pid}}) ->
+    Pid ! {crash_loop, Report};
 log(_, _) ->
     ok.
 

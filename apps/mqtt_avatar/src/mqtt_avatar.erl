@@ -39,7 +39,7 @@
                   echo_timeout => non_neg_integer(),
                   retry => pos_integer(),
                   timestamp_field => binary(),
-                  restart => mqtt_avatar_backoff:opts(),
+                  restart => restart_backoff:opts(),
                   static_components => [bil:component()]}.
 %% Every problem has `what' (an atom from a fixed set) and `message' (a
 %% sentence); most have `topic' or `component'.
@@ -65,7 +65,7 @@ start(Opts) ->
 %% @doc Keeps an MQTT Avatar running under the application's supervisor:
 %% when it exits it is started again after a delay that doubles from 1 s
 %% to 60 s (`restart' => #{min_ms, max_ms, stable_after_ms, loop_after}
-%% changes the policy, mqtt_avatar_backoff), and a crash loop is logged
+%% changes the policy, restart_backoff), and a crash loop is logged
 %% (`what => crash_loop'). Stopping the Avatar with `stop/1', or
 %% `unkeep/1', ends it for good. One kept Avatar per entity id. Returns the
 %% keeper; `kept/0' tells the Avatar's own pid.

@@ -1,7 +1,7 @@
 %% @doc Internal. Keeps one MQTT Avatar running (started with
 %% {@link mqtt_avatar:keep/1}, or from the `avatars' environment the node
 %% configuration file fills): starts it linked, and when it exits starts
-%% it again after a delay from mqtt_avatar_backoff (1 s doubling to 60 s),
+%% it again after a delay from restart_backoff (1 s doubling to 60 s),
 %% so a broker that refuses or a device that crashes the Avatar costs a
 %% start a minute, not a tight loop, and never gives up. A crash loop is
 %% logged as a warning (`what => crash_loop', with the count).
@@ -33,7 +33,7 @@
             avatar :: pid() | undefined,
             started :: integer() | undefined,
             starts = 0 :: non_neg_integer(),
-            backoff :: mqtt_avatar_backoff:backoff()}).
+            backoff :: restart_backoff:backoff()}).
 
 -spec start_link(mqtt_avatar:opts()) -> {ok, pid()} | {error, term()}.
 start_link(Opts) ->
@@ -57,7 +57,7 @@ init(#{entity_id := Entity} = Opts) ->
     process_flag(trap_exit, true),
     logger:set_process_metadata(#{entity => Entity, domain => [mqtt_avatar]}),
     D = #d{opts = Opts, entity = Entity,
-           backoff = mqtt_avatar_backoff:new(maps:get(restart, Opts, #{}))},
+           backoff = restart_backoff:new(maps:get(restart, Opts, #{}))},
     {ok, waiting, D, [{state_timeout, 0, start}]}.
 
 -spec handle_event(gen_statem:event_type(), term(), waiting | running, #d{}) ->
@@ -79,8 +79,8 @@ handle_event(info, {'EXIT', Pid, Reason}, running, #d{avatar = Pid, started = St
 handle_event({call, From}, status, State, D) ->
     {keep_state_and_data,
      [{reply, From, #{entity_id => D#d.entity, state => State, avatar => D#d.avatar,
-                      starts => D#d.starts, crashes => mqtt_avatar_backoff:crashes(D#d.backoff),
-                      next_delay_ms => mqtt_avatar_backoff:next_delay(D#d.backoff)}}]};
+                      starts => D#d.starts, crashes => restart_backoff:crashes(D#d.backoff),
+                      next_delay_ms => restart_backoff:next_delay(D#d.backoff)}}]};
 handle_event({call, From}, {reconfigure, Changes}, _State, #d{opts = Opts, avatar = Pid} = D) ->
     New = maps:merge(Opts, Changes),
     case mqtt_avatar:check_opts(maps:remove(restart, New)) of
@@ -109,7 +109,7 @@ terminate(_Reason, _State, #d{avatar = Pid}) ->
     ok.
 
 backoff(RanMs, Reason, #d{entity = Entity} = D) ->
-    {Delay, Effect, B} = mqtt_avatar_backoff:exited(RanMs, D#d.backoff),
+    {Delay, Effect, B} = restart_backoff:exited(RanMs, D#d.backoff),
     ?LOG_WARNING(#{what => avatar_exited, entity => Entity, reason => Reason,
                    ran_ms => RanMs, restart_in_ms => Delay}),
     case Effect of

@@ -1,14 +1,16 @@
-%% @doc Internal. Pure restart policy of a kept MQTT Avatar
-%% (mqtt_avatar_keeper): how long to wait before the next start, and when a
-%% run of short-lived starts is a crash loop worth a warning.
+%% @doc Pure restart policy of the node's kept processes (an MQTT Avatar's
+%% mqtt_avatar_keeper, a bridge listener's agent_bridge_listener_keeper):
+%% how long to wait before the next start, and when a run of short-lived
+%% starts is a crash loop worth a warning. A library application of its
+%% own so that both apps share it without depending on each other.
 %%
 %% The delay starts at `min_ms' and doubles after each run shorter than
 %% `stable_after_ms', up to `max_ms'; a run that lasted `stable_after_ms' or
 %% more starts the count over. `loop_after' short runs in a row are a crash
 %% loop: it is reported at that exit and at every further short one.
--module(mqtt_avatar_backoff).
+-module(restart_backoff).
 
--export([new/1, exited/2, crashes/1, next_delay/1, defaults/0]).
+-export([new/1, check/1, exited/2, crashes/1, next_delay/1, defaults/0]).
 
 -export_type([backoff/0, opts/0, effect/0]).
 
@@ -26,6 +28,26 @@
 defaults() ->
     #{min_ms => 1000, max_ms => 60000, stable_after_ms => 60000, loop_after => 3}.
 
+%% @doc Whether Opts is a policy's options: a map of the four keys (each
+%% optional), each a positive integer; the error names the first wrong one.
+-spec check(term()) -> ok | {error, binary()}.
+check(Opts) when is_map(Opts) ->
+    Keys = maps:keys(defaults()),
+    case [K || K <- maps:keys(Opts), not lists:member(K, Keys)] of
+        [Unknown | _] ->
+            {error, iolist_to_binary(io_lib:format("unknown restart option ~0tp (known: ~0tp)",
+                                                   [Unknown, Keys]))};
+        [] ->
+            case [K || {K, V} <- maps:to_list(Opts), not (is_integer(V) andalso V > 0)] of
+                [] -> ok;
+                [Bad | _] -> {error, iolist_to_binary(io_lib:format("restart option ~0tp must be a "
+                                                                    "positive integer", [Bad]))}
+            end
+    end;
+check(_Opts) ->
+    {error, <<"restart must be a map of min_ms, max_ms, stable_after_ms and loop_after">>}.
+
+%% @doc A policy from Opts (missing keys take the defaults).
 -spec new(opts()) -> backoff().
 new(Opts) ->
     #{min_ms := Min, max_ms := Max, stable_after_ms := Stable, loop_after := Loop} =
