@@ -109,21 +109,52 @@ sync_now() ->
 %% ---------------------------------------------------------------------------
 
 %% @private
--spec init([]) -> {ok, #s{}} | {stop, {data_dir_of_another_node, file:filename(), [node()]}}.
+-spec init([]) -> {ok, #s{}} | {stop, {data_dir_of_another_node, file:filename(), [node()]}
+                                       | {data_dir_unusable, file:filename(), term()}}.
 init([]) ->
-    case foreign_data_dir() of
-        {Dir, Owners} ->
+    case {ensure_data_dir(), foreign_data_dir()} of
+        {{error, Dir, Reason}, _} ->
+            ?LOG_ERROR(#{what => data_dir_unusable, dir => Dir, reason => Reason,
+                         hint => "EVATAR_DATA_DIR cannot be made a directory: give a path this "
+                                 "node's user may create (its parents are made as needed)"}),
+            {stop, {data_dir_unusable, Dir, Reason}};
+        {ok, {Dir, Owners}} ->
             ?LOG_ERROR(#{what => data_dir_of_another_node, dir => Dir, owners => Owners,
                          hint => "EVATAR_DATA_DIR belongs to another node name: give this node "
                                  "its own (an empty directory; it gets the catalogue from the "
                                  "other nodes), or start it under its old name"}),
             {stop, {data_dir_of_another_node, Dir, Owners}};
-        none ->
+        {ok, none} ->
             Durable = ensure_storage(),
             self() ! tick,
             Now = now_ms(),
             ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
             {ok, #s{durable = Durable, started = Now, last_sync = Now}}
+    end.
+
+%% mnesia makes its directory but not the directory's parents (it would
+%% fail later, in ensure_storage/0, with a badmatch). A directory made here
+%% is readable by this node's user only: it holds the pairings'
+%% credentials as stored.
+ensure_data_dir() ->
+    case application:get_env(mnesia, dir) of
+        undefined ->
+            ok;
+        {ok, Dir} ->
+            case filelib:is_dir(Dir) of
+                true ->
+                    ok;
+                false ->
+                    case filelib:ensure_dir(filename:join(Dir, "schema.DAT")) of
+                        ok ->
+                            case file:change_mode(Dir, 8#700) of
+                                ok -> ok;
+                                {error, Why} -> {error, Dir, Why}
+                            end;
+                        {error, Why} ->
+                            {error, Dir, Why}
+                    end
+            end
     end.
 
 %% mnesia's directory keeps the schema of the node that made it. Another
