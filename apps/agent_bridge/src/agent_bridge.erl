@@ -173,7 +173,8 @@ listeners() ->
 -spec metrics() -> [evatar_metrics:sample()].
 metrics() ->
     Guards = [agent_bridge_listener_sup:guard(Sup)
-              || {{agent_bridge_listener, _}, Sup, _, _} <- supervisor:which_children(agent_bridge_sup),
+              || {{agent_bridge_listener, _}, Keeper, _, _} <- supervisor:which_children(agent_bridge_sup),
+                 is_pid(Keeper), Sup <- [agent_bridge_listener_keeper:listener_sup(Keeper)],
                  is_pid(Sup)],
     Open = lists:sum([maps:get(connections, agent_bridge_guard:info(G)) || G <- Guards]),
     [{evatar_bridge_connections_open, [], Open}].

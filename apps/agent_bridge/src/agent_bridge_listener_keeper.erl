@@ -24,7 +24,7 @@
 
 -include_lib("kernel/include/logger.hrl").
 
--export([start_link/3, status/1]).
+-export([start_link/3, status/1, listener_sup/1]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
 -export_type([first/0, status/0]).
@@ -58,6 +58,11 @@ start_link(Name, Opts, First) ->
 -spec status(pid()) -> status().
 status(Keeper) ->
     gen_statem:call(Keeper, status, 15000).
+
+%% @doc The listener's supervisor while it runs.
+-spec listener_sup(pid()) -> pid() | undefined.
+listener_sup(Keeper) ->
+    gen_statem:call(Keeper, listener_sup, 15000).
 
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
@@ -95,6 +100,8 @@ handle_event(info, {'EXIT', Sup, Reason}, running, #d{sup = Sup, started = Start
     {D1, Retry} = waiting(erlang:monotonic_time(millisecond) - Started, Reason,
                           D#d{sup = undefined}),
     {next_state, waiting, D1, [Retry]};
+handle_event({call, From}, listener_sup, _State, D) ->
+    {keep_state_and_data, [{reply, From, D#d.sup}]};
 handle_event({call, From}, status, State, D) ->
     {keep_state_and_data,
      [{reply, From, #{state => State, starts => D#d.starts, failures => D#d.failures,

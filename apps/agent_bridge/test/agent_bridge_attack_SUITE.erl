@@ -256,8 +256,9 @@ guard_info(Name, Config) ->
 
 %% @private Runs on the node.
 node_guard_info(Name) ->
-    [LSup] = [P || {{agent_bridge_listener, N}, P, _, _}
-                       <- supervisor:which_children(agent_bridge_sup), N =:= Name],
+    [LSup] = [agent_bridge_listener_keeper:listener_sup(P)
+              || {{agent_bridge_listener, N}, P, _, _}
+                     <- supervisor:which_children(agent_bridge_sup), N =:= Name],
     agent_bridge_guard:info(agent_bridge_listener_sup:guard(LSup)).
 
 %% Open descriptors of the node's OS process.
