@@ -170,10 +170,9 @@ callback_mode() -> handle_event_function.
 init(Opts) ->
     process_flag(trap_exit, true),
     Entity = maps:get(entity_id, Opts, <<"easy-home-mqtt">>),
-    Nonce = binary:encode_hex(crypto:strong_rand_bytes(4)),
     logger:update_process_metadata(#{domain => [avatar_sim, mqtt_home], entity => Entity}),
     D = #d{opts = Opts, entity = Entity, ctx = ctx(Opts),
-           hw_pairing = <<"mqtt-hardware-", Entity/binary, "-", Nonce/binary>>,
+           hw_pairing = <<"mqtt-hardware-", Entity/binary>>,
            hw_entity = <<Entity/binary, "-hardware">>,
            fw_entity = <<Entity/binary, "-firmware">>},
     {ok, starting, D, [{next_event, internal, setup}]}.
@@ -263,14 +262,16 @@ setup(#d{opts = Opts, ctx = Ctx} = D) ->
     AvatarCred = binary:encode_hex(crypto:strong_rand_bytes(16)),
     %% Long feedback timeout: the hardware's own answers may take simulated
     %% seconds; the VA's pairing has the timeout that matters.
-    %% create_pairing, not ensure_pairing: the id carries this start's nonce
-    %% and the credentials are this start's, so an existing pairing of that
-    %% id is not ours to reuse (its credentials would refuse us), and the
-    %% hardware link below needs it running now, which ensure_pairing does
-    %% not promise. terminate/3 deletes it.
-    case evatar:create_pairing(D#d.hw_pairing, #{agent_credential => AgentCred,
-                                                 avatar_credential => AvatarCred,
-                                                 feedback_timeout => 600000}) of
+    %% The id is this Avatar's, the credentials this start's: a pairing of
+    %% that id left by an earlier start is deleted first. terminate/3
+    %% deletes it, but not after a kill -9 of the node, when the durable
+    %% catalogue keeps it and the cluster restores it at every restart: so
+    %% the next start of the scenario removes it instead of leaving a stray.
+    %% create_pairing, not ensure_pairing: the hardware link below needs it
+    %% running now, which ensure_pairing does not promise.
+    case create_hw_pairing(D#d.hw_pairing, #{agent_credential => AgentCred,
+                                             avatar_credential => AvatarCred,
+                                             feedback_timeout => 600000}) of
         {ok, _} ->
             Specs = device_specs(Ctx),
             Devices = maps:from_list(
@@ -288,6 +289,28 @@ setup(#d{opts = Opts, ctx = Ctx} = D) ->
             end;
         {error, Why} ->
             {error, {hardware_pairing, Why}, D}
+    end.
+
+create_hw_pairing(Id, Opts) ->
+    _ = evatar:delete_pairing(Id),
+    create_hw_pairing(Id, Opts, erlang:monotonic_time(millisecond) + 30000).
+
+%% An instance of the old pairing on another node stops when that node
+%% learns of the deletion (its catalogue, within a second): until then the
+%% id exists.
+create_hw_pairing(Id, Opts, Deadline) ->
+    case evatar:create_pairing(Id, Opts) of
+        {error, already_exists} ->
+            case erlang:monotonic_time(millisecond) < Deadline of
+                true ->
+                    timer:sleep(100),
+                    _ = evatar:delete_pairing(Id),
+                    create_hw_pairing(Id, Opts, Deadline);
+                false ->
+                    {error, already_exists}
+            end;
+        Result ->
+            Result
     end.
 
 start_device(Spec, #d{ctx = Ctx, opts = Opts}) ->

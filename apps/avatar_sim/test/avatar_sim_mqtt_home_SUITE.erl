@@ -15,7 +15,7 @@ suite() -> [{timetrap, {seconds, 90}}].
 
 all() ->
     [binds_like_the_tcp_home, request_feedback_round_trip, people_drive_the_sensors,
-     photos_with_progress, device_power_cut, notifier_over_tcp].
+     photos_with_progress, device_power_cut, notifier_over_tcp, stray_hardware_pairing_replaced].
 
 init_per_suite(Config) ->
     agent_bridge_test_node:start_with_broker([avatar_sim], mqtt_home_suite, Config).
@@ -27,6 +27,15 @@ end_per_suite(Config) ->
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
     {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{feedback_timeout => 5000}),
+    Home = start_home(Config, Case, Pairing),
+    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
+                                           #{pairing => Pairing, role => agent,
+                                             entity_id => <<"golem-home-va-01">>,
+                                             credential => ?VA_CRED}),
+    ok = agent_bridge_client:describe(Va, va_body()),
+    [{pairing, Pairing}, {home, Home}, {va, Va} | Config].
+
+start_home(Config, Case, Pairing) ->
     Spool = filename:join(?config(priv_dir, Config), Case),
     {ok, Home} = avatar_sim_mqtt_home:start(
                    #{mqtt => #{host => {127, 0, 0, 1}, port => maps:get(port, ?config(broker, Config))},
@@ -36,22 +45,45 @@ init_per_testcase(Case, Config) ->
                      discovery_prefix => <<"ha-", Pairing/binary>>,
                      clock => #{speed => 20, start => {{2024, 11, 15}, {21, 0, 0}}},
                      spool => Spool}),
-    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
-                                           #{pairing => Pairing, role => agent,
-                                             entity_id => <<"golem-home-va-01">>,
-                                             credential => ?VA_CRED}),
-    ok = agent_bridge_client:describe(Va, va_body()),
-    [{pairing, Pairing}, {home, Home}, {va, Va} | Config].
+    Home.
 
 end_per_testcase(_Case, Config) ->
     _ = agent_bridge_client:close(?config(va, Config)),
-    ok = avatar_sim_mqtt_home:stop(?config(home, Config)),
+    %% A case may have stopped it (and stopped the home it started).
+    _ = [ok = avatar_sim_mqtt_home:stop(H) || H <- [?config(home, Config)], is_process_alive(H)],
     _ = evatar:delete_pairing(?config(pairing, Config)),
     ok.
 
 %% ---------------------------------------------------------------------------
 %% Cases
 %% ---------------------------------------------------------------------------
+
+%% A home killed with its node (kill -9: no terminate) leaves its private
+%% hardware pairing in the durable catalogue, restored at every restart.
+%% The next start of the home deletes it and makes its own: one pairing of
+%% that id, with this start's credentials, and the home works.
+stray_hardware_pairing_replaced(Config) ->
+    Id = <<"mqtt-hardware-easy-home-mqtt">>,
+    ok = avatar_sim_mqtt_home:stop(?config(home, Config)),
+    [] = [I || I <- evatar:catalogued(), I =:= Id],
+    %% What the killed start left: its pairing, with its credentials.
+    {ok, _} = evatar:create_pairing(Id, #{agent_credential => <<"stale-agent">>,
+                                          avatar_credential => <<"stale-avatar">>}),
+    Home = start_home(Config, stray, ?config(pairing, Config)),
+    try
+        %% The house joined the new pairing with this start's credential.
+        ok = agent_bridge_test_node:wait_until(
+               fun() ->
+                       {ok, Registry} = evatar:registry(Id),
+                       lists:member(<<"easy-home-mqtt-hardware">>,
+                                    [E || #{entity := E} <- Registry])
+               end, 1500),
+        [Id] = [I || I <- evatar:catalogued(), I =:= Id],
+        {error, _} = evatar:join(Id, agent, <<"intruder">>, <<"stale-agent">>)
+    after
+        ok = avatar_sim_mqtt_home:stop(Home)
+    end,
+    [] = [I || I <- evatar:catalogued(), I =:= Id].
 
 %% Every consumer of smart_home_va.xml binds, as with the TCP home: the MQTT
 %% devices through their discovered BIL (with the home's overrides), the
