@@ -239,8 +239,11 @@ open_requests_cap_test() ->
     [#{context := request}] = delivered(E4),
     %% A timeout closes one too.
     {St5, E5} = h({timeout, {feedback, <<"Emu">>, <<"2">>}}, St3),
-    [#{context := feedback, sender := <<"EVATAR">>, origin := evatar,
-       body := #{type := <<"Timeout">>}}] = delivered(E5),
+    %% The requester gets Timeout, the provider RequestClosed (protocol.md 4.3).
+    [#{context := feedback, sender := <<"EVATAR">>, origin := evatar, receiver := <<"Emu">>,
+       body := #{type := <<"Timeout">>}},
+     #{context := event, origin := evatar, receiver := <<"Light">>,
+       body := #{type := <<"RequestClosed">>}}] = delivered(E5),
     {_, E6} = h({signal, <<"va">>, request(<<"6">>)}, St5),
     [#{context := request}] = delivered(E6).
 
