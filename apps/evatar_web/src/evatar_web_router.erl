@@ -13,7 +13,7 @@
 -include_lib("inets/include/httpd.hrl").
 -include_lib("kernel/include/logger.hrl").
 
--export([do/1, routes/0, match/3]).
+-export([do/1, routes/0, match/3, max_body/0]).
 
 -export_type([request/0, reply/0]).
 
@@ -57,7 +57,41 @@ routes() ->
 
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.
-do(#mod{method = Method, request_uri = Uri} = Mod) ->
+do(#mod{parsed_header = Headers} = Mod) ->
+    case header(evatar_web_limit:too_large_header(), Headers) of
+        undefined -> route(Mod);
+        Declared -> too_large(Declared, Mod)
+    end.
+
+%% httpd has not read the body (evatar_web_limit renamed its length): the
+%% answer goes out here with `connection: close' and the socket is closed,
+%% so the unread body is never parsed as a next request.
+too_large(Declared, #mod{socket_type = Type, socket = Socket} = Mod) ->
+    Max = max_body(),
+    case string:to_integer(string:trim(Declared)) of
+        {N, []} when is_integer(N), N > Max ->
+            Body = evatar_web_json:encode(body_too_large(Max)),
+            Size = byte_size(Body),
+            Head = ["HTTP/1.1 413 Request Entity Too Large\r\n",
+                    "content-type: application/json\r\n",
+                    "cache-control: no-store\r\n",
+                    "x-content-type-options: nosniff\r\n",
+                    "connection: close\r\n",
+                    "content-length: ", integer_to_list(Size), "\r\n\r\n"],
+            _ = httpd_socket:deliver(Type, Socket, [Head, Body]),
+            _ = httpd_socket:close(Type, Socket),
+            {proceed, [{response, {already_sent, 413, Size}}]};
+        _ ->
+            %% Sent by the client itself, not renamed: it means nothing.
+            route(Mod)
+    end.
+
+body_too_large(Max) ->
+    #{error => <<"body_too_large">>, field => null,
+      message => iolist_to_binary(io_lib:format("the request body is larger than the limit ~b bytes "
+                                                "(http.max_body, docs/api.md)", [Max]))}.
+
+route(#mod{method = Method, request_uri = Uri} = Mod) ->
     {Path, Query} = split_uri(Uri),
     M = list_to_binary(Method),
     Reply = case match(M, Path, routes()) of
@@ -89,9 +123,8 @@ handle(Method, Path, Query, Bindings, Module, Function, Mod) ->
                       Max = max_body(),
                       case byte_size(Body) > Max of
                           true ->
-                              {error, 413, <<"body_too_large">>, null,
-                               iolist_to_binary(io_lib:format("the request body is larger than ~b bytes",
-                                                              [Max]))};
+                              #{message := Message} = body_too_large(Max),
+                              {error, 413, <<"body_too_large">>, null, Message};
                           false ->
                               call(Module, Function,
                                    #{method => Method, path => Path, bindings => Bindings,
@@ -126,6 +159,9 @@ header(Name, Headers) ->
         false -> undefined
     end.
 
+%% @doc The body limit in bytes (`max_body'), of the running server or
+%% else of the environment.
+-spec max_body() -> pos_integer().
 max_body() ->
     case evatar_web_server:info() of
         #{max_body := M} -> M;

@@ -34,6 +34,8 @@ start_httpd(#{ip := Ip, port := Port} = Opts) ->
               {server_root, Priv},
               {document_root, filename:join(Priv, "www")},
               {modules, [evatar_web_router]},
+              %% A declared length over max_body gets the router's JSON 413.
+              {customize, evatar_web_limit},
               {max_clients, maps:get(max_clients, Opts)},
               {max_body_size, MaxBody},
               {max_content_length, MaxBody},
