@@ -187,13 +187,15 @@ bindings(Id) ->
                                type => T, score => S, candidates => N}
                              || #{consumer := C, provider := P, category := Cat, type := T,
                                   score := S, candidates := N} <- Bound],
-                   unbound => [unbound(U, Descriptions) || U <- Unbound]}};
+                   unbound => [unbound(U, Index) || Index <- [evatar_web_explain:index(Descriptions)],
+                                                    U <- Unbound]}};
         {{error, not_found}, _} -> not_found(Id);
         {_, {error, not_found}} -> not_found(Id);
         _ -> busy(Id)
     end.
 
-unbound(#{consumer := C, category := Cat, type := T, reason := R} = U, Descriptions) ->
+unbound(#{consumer := C, category := Cat, type := T, reason := R} = U, Index) ->
+    {Candidates, More} = evatar_web_explain:explain(U, Index),
     #{consumer => endpoint(C), category => Cat, type => T,
       reason => case R of
                     no_provider -> <<"NoProvider">>;
@@ -201,7 +203,8 @@ unbound(#{consumer := C, category := Cat, type := T, reason := R} = U, Descripti
                 end,
       candidates => [#{provider => endpoint(P),
                        mismatches => [#{name => N, wanted => W, offered => O} || {N, W, O} <- F]}
-                     || #{provider := P, failed := F} <- bil:explain_unbound(U, Descriptions)]}.
+                     || #{provider := P, failed := F} <- Candidates],
+      more_candidates => More}.
 
 endpoint(#{entity := E, component := C}) -> #{entity => E, component => C}.
 

@@ -52,7 +52,8 @@ local(Id) ->
             {ok, #{pairing => Id, node => node(), state => State,
                    entities => [entity(E) || E <- Registry],
                    bound => [bound(B) || B <- Bound],
-                   unbound => [unbound(U, Descriptions) || U <- Unbound]}};
+                   unbound => [unbound(U, Index)
+                               || Index <- [evatar_web_explain:index(Descriptions)], U <- Unbound]}};
         {{error, _} = Error, _} ->
             Error;
         {_, {error, _} = Error} ->
@@ -79,8 +80,9 @@ bound(#{consumer := C, provider := P, category := Cat, type := T, score := S,
     #{consumer => C, provider => P, category => Cat, type => T, score => S, candidates => N}.
 
 unbound(#{consumer := #{entity := E, component := C} = Consumer, category := Cat, type := T,
-          reason := Reason} = U, Descriptions) ->
-    Params = [Ps || #{entity_id := E1, components := Cs} <- Descriptions, E1 =:= E,
+          reason := Reason} = U, Index) ->
+    {Candidates, More} = evatar_web_explain:explain(U, Index),
+    Params = [Ps || #{entity_id := E1, components := Cs} <- evatar_web_explain:consumer(E, Index), E1 =:= E,
                     #{id := C1, consumes := Us} <- Cs, C1 =:= C,
                     #{category := Ca, type := Ty, parameters := Ps} <- Us, Ca =:= Cat, Ty =:= T],
     #{consumer => Consumer, category => Cat, type => T,
@@ -91,4 +93,5 @@ unbound(#{consumer := #{entity := E, component := C} = Consumer, category := Cat
       parameters => [[N, V] || {N, V} <- case Params of [P | _] -> P; [] -> [] end],
       candidates => [#{provider => P, failed => [#{name => N, wanted => W, offered => O}
                                                  || {N, W, O} <- F]}
-                     || #{provider := P, failed := F} <- bil:explain_unbound(U, Descriptions)]}.
+                     || #{provider := P, failed := F} <- Candidates],
+      more_candidates => More}.

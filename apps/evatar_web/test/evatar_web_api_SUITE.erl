@@ -206,8 +206,9 @@ bindings_graph(_Config) ->
        <<"provider">> := #{<<"entity">> := <<"av">>, <<"component">> := <<"Light01">>},
        <<"category">> := <<"ACTUATOR">>, <<"type">> := <<"TurnLightOn">>}] = Bound,
     Reasons = maps:from_list([{T, U} || #{<<"type">> := T} = U <- Unbound]),
-    #{<<"OpenDoor">> := #{<<"reason">> := <<"NoProvider">>, <<"candidates">> := []},
-      <<"Dim">> := #{<<"reason">> := <<"ParametersMismatch">>,
+    #{<<"OpenDoor">> := #{<<"reason">> := <<"NoProvider">>, <<"candidates">> := [],
+                          <<"more_candidates">> := 0},
+      <<"Dim">> := #{<<"reason">> := <<"ParametersMismatch">>, <<"more_candidates">> := 0,
                      <<"candidates">> := [#{<<"provider">> := #{<<"component">> := <<"Dimmer01">>},
                                             <<"mismatches">> := [#{<<"name">> := <<"Room">>,
                                                                    <<"wanted">> := <<"kitchen">>}]}]}} =
