@@ -6,7 +6,9 @@ Validates the document itself (openapi-spec-validator), then sends real
 requests to BASE_URL (good and bad ones, with and without the operator
 token) and validates every answer - status, content type and body - with
 openapi-core against the document. Exits 1 when any answer does not match,
-or when an answer's status is not the one the request expects.
+or when an answer's status is not the one the request expects. Then gives
+the same check deliberately wrong answers (real ones, altered) and exits 1
+when any of them is accepted: the checker is shown able to fail.
 """
 import json
 import os
@@ -67,7 +69,28 @@ CASES = [
     ("PATCH", "/api/cluster", None, AUTH, None, 405),
 ]
 
+
+def check(method, path, pattern, headers, data, status, ctype, raw):
+    """The problem with one answer under the document, or None."""
+    request = MockRequest("http://localhost", method.lower(), path, path_pattern=pattern or path,
+                          headers=headers, data=data,
+                          content_type="application/json" if data is not None else None)
+    response = MockResponse(raw, status_code=status, content_type=(ctype or "").split(";")[0])
+    try:
+        api.validate_response(request, response)
+    except Exception as e:  # every validation error: report it, go on
+        problem = "%s: %s" % (type(e).__name__, e)
+        cause = getattr(e, "__cause__", None)
+        if cause is not None:
+            problem += " (%s)" % "; ".join(str(x) for x in getattr(cause, "schema_errors", [cause]))
+        return problem
+    if ctype is None or not ctype.startswith("application/json"):
+        return "content type %r is not JSON" % ctype
+    return None
+
+
 failures = 0
+answers = {}
 for method, path, pattern, headers, body, expected in CASES:
     data = None if body is None else json.dumps(body).encode()
     req = urllib.request.Request(base + path, data=data, method=method, headers=dict(headers))
@@ -78,27 +101,55 @@ for method, path, pattern, headers, body, expected in CASES:
             status, ctype, raw = r.status, r.headers.get("Content-Type"), r.read()
     except urllib.error.HTTPError as e:
         status, ctype, raw = e.code, e.headers.get("Content-Type"), e.read()
+    answers.setdefault((method, path, status), (pattern, headers, data, ctype, raw))
     problem = None
     if status != expected:
         problem = "status %d, expected %d: %s" % (status, expected, raw[:300])
     elif status == 405:
         pass  # not an operation of the document: checked for its JSON error only
     else:
-        request = MockRequest("http://localhost", method.lower(), path, path_pattern=pattern or path,
-                              headers=headers, data=data,
-                              content_type="application/json" if data is not None else None)
-        response = MockResponse(raw, status_code=status, content_type=ctype.split(";")[0])
-        try:
-            api.validate_response(request, response)
-        except Exception as e:  # every validation error: report it, go on
-            problem = "%s: %s" % (type(e).__name__, e)
-            cause = getattr(e, "__cause__", None)
-            if cause is not None:
-                problem += " (%s)" % "; ".join(str(x) for x in getattr(cause, "schema_errors", [cause]))
+        problem = check(method, path, pattern, headers, data, status, ctype, raw)
     if ctype is None or not ctype.startswith("application/json"):
         problem = problem or "content type %r is not JSON" % ctype
     print("%-6s %-45s %d %s" % (method, path, status, "ok" if problem is None else "FAIL " + problem))
     failures += problem is not None
 
 print("%d answers checked against %s, %d not matching" % (len(CASES), spec_path, failures))
-sys.exit(1 if failures else 0)
+
+
+# The checker itself must be able to fail: real answers made wrong on
+# purpose go through the same check() and each must be refused.
+def wrong(key, mutate, ctype=None):
+    pattern, headers, data, real_ctype, raw = answers[key]
+    body = json.loads(raw)
+    return key, pattern, headers, data, ctype or real_ctype, json.dumps(mutate(body)).encode()
+
+
+def bad_reason(b):
+    b["unbound"][0]["reason"] = "Bogus"
+    return b
+
+
+def drop(name):
+    def f(b):
+        del b[name]
+        return b
+    return f
+
+
+WRONG = [
+    wrong(("GET", P + "/bindings", 200), bad_reason),                 # not in the enum
+    wrong(("GET", P + "/bindings", 200), lambda b: dict(b, extra=1)),  # unknown property
+    wrong(("GET", "/api/pairings/nope", 404), drop("error")),         # required field missing
+    wrong(("GET", "/api/cluster", 200), lambda b: [b]),               # wrong type
+    wrong(("GET", "/api/cluster", 200), lambda b: b, "text/html"),    # wrong content type
+]
+accepted = 0
+for (method, path, status), pattern, headers, data, ctype, raw in WRONG:
+    problem = check(method, path, pattern, headers, data, status, ctype, raw)
+    print("wrong  %-6s %-38s %d %s" % (method, path, status,
+                                       "ACCEPTED (the checker cannot fail)" if problem is None
+                                       else "refused: " + problem[:200]))
+    accepted += problem is None
+print("%d wrong answers given to the checker, %d accepted" % (len(WRONG), accepted))
+sys.exit(1 if failures or accepted else 0)
