@@ -2,8 +2,25 @@
 # `make demo`: runs the demonstration on one embedded Erlang node, then exits;
 # it prints the address of the node's dashboard first (port 0: a free one).
 # Arguments are passed to reference_agents_demo:main/1 (see docs/scenarios.md).
+#
+# Stopping it (a kept node, --keep, too): Ctrl-C, or SIGTERM/SIGINT/SIGHUP to
+# this script or to the `make demo' that runs it, or reference_agents_demo:stop().
+# from a remote shell. A signal asks the node to stop (init:stop/0) and kills
+# it if it has not stopped within 10 s.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+case "${1:-}" in
+  -h|--help)
+    cat <<'USAGE'
+usage: make demo [DEMO_ARGS="[home|mqtt|robots|rooms|bil] [--keep]"]
+       scripts/demo.sh [home|mqtt|robots|rooms|bil] [--keep]
+  --keep   keep the node running afterwards, for a remote shell
+Stop it (kept or not) with Ctrl-C, with `kill PID' (SIGTERM) of this script or
+of `make demo', or with reference_agents_demo:stop(). from a remote shell: the
+node gets 10 s to stop cleanly, then it is killed.
+USAGE
+    exit 0;;
+esac
 # printf with no arguments still prints its format once: build the list
 # only from arguments that were given.
 args="[]"
@@ -12,7 +29,7 @@ if [ "$#" -gt 0 ]; then args=$(printf '"%s",' "$@"); args="[${args%,}]"; fi
 # when this starts it), with the cookie of $HOME/.erlang.cookie, which
 # Erlang makes random (mode 0400) when there is none.
 export ERL_EPMD_ADDRESS=${ERL_EPMD_ADDRESS:-127.0.0.1}
-exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{127,0,0,1}' \
+erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{127,0,0,1}' \
   -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \
   -config config/sys.config \
@@ -23,4 +40,28 @@ exec erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interfa
            Other ->
              io:format(\"~nNo dashboard: ~tp~n\", [Other])
          end,
-         ok = reference_agents_demo:main($args), init:stop()."
+         ok = reference_agents_demo:main($args), init:stop()." &
+node=$!
+# The node is a child, not exec'd, so a signal to this script (or make's
+# death) always reaches it: a kept node otherwise outlived a SIGTERM.
+stop_node() {
+  kill -TERM "$node" 2>/dev/null || return 0
+  for _ in $(seq 1 20); do
+    kill -0 "$node" 2>/dev/null || return 0
+    sleep 0.5
+  done
+  echo "demo.sh: the node did not stop within 10 s; killing it" >&2
+  kill -KILL "$node" 2>/dev/null || true
+}
+trap 'stop_node; exit 143' TERM
+trap 'stop_node; exit 130' INT
+trap 'stop_node; exit 129' HUP
+parent=$PPID
+while kill -0 "$node" 2>/dev/null; do
+  # `make demo' killed: its child would otherwise run on, orphaned.
+  if ! kill -0 "$parent" 2>/dev/null; then stop_node; break; fi
+  sleep 1 & wait $! || true
+done
+set +e
+wait "$node"
+exit $?

@@ -51,7 +51,8 @@ usage() ->
     "  robots   two LEGO robots and a coordinator: explore, agree on a lexicon, place the balls\n"
     "  rooms    one VA per room: lights follow the resident, voice commands override\n"
     "  bil      the tour of BIL and EVATAR over TCP\n"
-    "  --keep   keep the node running afterwards, for a remote shell\n".
+    "  --keep   keep the node running afterwards, for a remote shell; Ctrl-C or a SIGTERM\n"
+    "           to make demo stops it (scripts/demo.sh --help)\n".
 
 %% Pairings log a warning for every feedback timeout, and application
 %% starts their info reports: only errors get through while the demo runs.
@@ -157,8 +158,8 @@ keep(true, S) ->
                       "  Then for example:       evatar:print_pairings().  "
                       "reference_agents_demo:inspect().~n", [Node, NameFlag, Host, Node])
     end,
-    io:format("  Stop it with Ctrl-C here (then a), or reference_agents_demo:stop(). from the "
-              "remote shell.~n"),
+    io:format("  Stop it with Ctrl-C here, a SIGTERM to make demo (scripts/demo.sh --help), "
+              "or reference_agents_demo:stop(). from the remote shell.~n"),
     receive
         {?MODULE, stop} ->
             _ = persistent_term:erase(?KEPT),
