@@ -310,8 +310,18 @@ handle_event(internal, connect, connecting, #d{endpoints = []} = D) ->
     fail({unreachable, lists:reverse(D#d.failures)}, D);
 handle_event(internal, connect, connecting, #d{endpoints = [E | Rest]} = D) ->
     try_endpoint(E, D#d{endpoints = Rest});
-handle_event(info, {connected, Ref, Result}, connecting, #d{connector = {_, Ref}} = D) ->
-    connected_to(Result, D#d{connector = undefined});
+handle_event(info, {connected, Ref, Result, Early}, connecting, #d{connector = {_, Ref}} = D) ->
+    %% What the socket said while the connector owned it is read first.
+    with_events(connected_to(Result, D#d{connector = undefined}),
+                [{next_event, info, M} || M <- Early]);
+%% A socket message sent to us before the connector's {connected, ...}:
+%% read once the socket is ours.
+handle_event(info, Msg, connecting, #d{connector = {_, _}})
+  when is_tuple(Msg), tuple_size(Msg) >= 2,
+       (element(1, Msg) =:= ssl orelse element(1, Msg) =:= ssl_error orelse
+        element(1, Msg) =:= ssl_closed orelse element(1, Msg) =:= tcp orelse
+        element(1, Msg) =:= tcp_error orelse element(1, Msg) =:= tcp_closed) ->
+    {keep_state_and_data, [postpone]};
 %% A TLS socket's messages, read as a TCP socket's.
 handle_event(info, {ssl, Sock, Frame}, State, D) ->
     handle_event(info, {tcp, Sock, Frame}, State, D);
@@ -500,8 +510,11 @@ closed(#d{closers = Closers} = D) ->
 %% client, it takes a socket it still owns with it.
 try_endpoint({Host, Port} = E, D) ->
     Opts = D#d.opts,
+    %% Active once from the start: with TLS 1.3 a server refuses a client
+    %% certificate after the client's handshake, and a passive socket
+    %% whose connection has ended that way loses the alert saying why.
     SockOpts = [binary, {packet, 4}, {packet_size, maps:get(max_frame, Opts, 1048576)},
-                {active, false}, {nodelay, true}],
+                {active, once}, {nodelay, true}],
     How = #{tls => maps:get(tls, Opts, false),
             timeout => maps:get(connect_timeout, Opts, 5000)},
     Self = self(),
@@ -510,21 +523,50 @@ try_endpoint({Host, Port} = E, D) ->
     {next_state, connecting, D#d{connector = {Pid, Ref}, current = E}}.
 
 connector(Client, Ref, Host, Port, SockOpts, How) ->
-    Result = case agent_bridge_client_sock:connect(Host, Port, SockOpts, How) of
-                 {ok, Sock} ->
-                     case agent_bridge_client_sock:controlling_process(Sock, Client) of
-                         ok -> {ok, Sock};
-                         {error, _} = Error -> Error
-                     end;
-                 {error, _} = Error ->
-                     Error
-             end,
-    Client ! {connected, Ref, Result},
+    {Result, Early} =
+        case agent_bridge_client_sock:connect(Host, Port, SockOpts, How) of
+            {ok, Sock} ->
+                case agent_bridge_client_sock:controlling_process(Sock, Client) of
+                    ok ->
+                        {{ok, Sock}, early(Sock, [])};
+                    {error, Why} ->
+                        %% The connection ended before the hand-over (a
+                        %% refused client certificate): its error says why.
+                        {{error, ended_with(early(Sock, []), Why)}, []}
+                end;
+            {error, _} = Error ->
+                {Error, []}
+        end,
+    Client ! {connected, Ref, Result, Early},
     ok.
 
+ended_with([{Tag, _, Why} | _], _) when Tag =:= ssl_error; Tag =:= tcp_error ->
+    Why;
+ended_with([_ | Rest], Default) ->
+    ended_with(Rest, Default);
+ended_with([], Default) ->
+    Default.
+
+%% What the socket sent while this process owned it (at most its one
+%% active-once message, and its close): the client reads it before
+%% anything the socket sends it directly.
+early(Sock, Acc) ->
+    receive
+        {Tag, Sock} = Msg when Tag =:= tcp_closed; Tag =:= ssl_closed ->
+            early(Sock, [Msg | Acc]);
+        {Tag, Sock, _} = Msg when Tag =:= tcp; Tag =:= tcp_error; Tag =:= ssl; Tag =:= ssl_error ->
+            early(Sock, [Msg | Acc])
+    after 0 ->
+        lists:reverse(Acc)
+    end.
+
+%% connected_to/2 always answers {next_state, State, D, Actions}.
+with_events({next_state, State, D, Actions}, Events) ->
+    {next_state, State, D, Actions ++ Events}.
+
 connected_to({ok, Sock}, #d{current = E, opts = Opts} = D) ->
-    %% Passive until here: nothing the server sent went to the helper.
-    ok = agent_bridge_client_sock:setopts(Sock, [{active, once}]),
+    %% Active once since the connect; what came before the hand-over
+    %% follows as messages from the connector.
     case agent_bridge_client_sock:send(Sock, bil_control:encode(hello(D))) of
         Sent when Sent =:= ok; not is_port(Sock) ->
             %% With TLS 1.3 a server refuses a client certificate
