@@ -11,6 +11,7 @@ import inspect
 import os
 import socket
 import threading
+import time
 from typing import Iterator, List
 
 import pytest
@@ -37,6 +38,17 @@ def endpoint() -> Iterator[tuple]:
 
 def open_fds() -> int:
     return len(os.listdir("/proc/self/fd"))
+
+
+def assert_nothing_left(threads: int, fds: int) -> None:
+    """Threads and descriptors come back to at most their counts before:
+    fewer is not a leak (a socket the collector closed), and a count still
+    falling is waited for rather than compared once."""
+    deadline = time.monotonic() + 10
+    while (threading.active_count() > threads or open_fds() > fds) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    now = (threading.active_count(), open_fds())
+    assert now[0] <= threads and now[1] <= fds, f"threads, fds: {(threads, fds)} before, {now} after"
 
 
 def dead_endpoint() -> tuple:
@@ -138,7 +150,7 @@ def test_close_during_connect(endpoint) -> None:  # type: ignore[no-untyped-def]
             await again.connect()  # not refused EntityExists
             assert again.connected
             await again.close()
-        assert open_fds() == fds
+        assert_nothing_left(threading.active_count(), fds)
     run(main())
 
 
@@ -170,7 +182,7 @@ def test_refused_connects_leave_nothing(endpoint) -> None:  # type: ignore[no-un
     threads, fds = threading.active_count(), open_fds()
     for _ in range(20):
         refused_once()
-    assert (threading.active_count(), open_fds()) == (threads, fds)
+    assert_nothing_left(threads, fds)
 
 
 def test_connect_twice_fails_locally(endpoint) -> None:  # type: ignore[no-untyped-def]
@@ -182,7 +194,7 @@ def test_connect_twice_fails_locally(endpoint) -> None:  # type: ignore[no-untyp
         with pytest.raises(AlreadyConnectedError) as e:
             await c.connect()
         assert "already connected" in str(e.value)
-        assert open_fds() == fds and c.connected
+        assert open_fds() <= fds and c.connected
         await c.close()
         # Two connects at once: one session, the other fails locally.
         d = Client([endpoint], pairing="twice", role="agent", entity_id="va-t",
