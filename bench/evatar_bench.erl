@@ -127,7 +127,7 @@ start(Cfg) ->
     ok = application:set_env(agent_bridge, listeners, []),
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = application:ensure_all_started(runtime_tools),
-    {ok, LSup} = agent_bridge:start_listener(evatar_bench,
+    {ok, Keeper} = agent_bridge:start_listener(evatar_bench,
                                              #{ip => {127, 0, 0, 1}, port => 0,
                                                acceptors => 8, backlog => 4096,
                                                %% thousands of clients from one
@@ -137,6 +137,7 @@ start(Cfg) ->
                                                conn => maps:get(conn, Cfg, #{})}),
     {ok, Addr} = agent_bridge:address(evatar_bench),
     _ = erlang:system_flag(scheduler_wall_time, true),
+    LSup = agent_bridge_listener_keeper:listener_sup(Keeper),
     #{addr => Addr, conn_sup => agent_bridge_listener_sup:conn_sup(LSup),
       floor => evatar_bench_floor:listen()}.
 
