@@ -23,7 +23,7 @@ all() ->
      connect_connected_client,
      refused_loop_leaves_nothing, reconnect_same_id_after_close,
      reconnect_same_id_after_close_ha, accepted_signals_notified, bad_signal_keeps_session,
-     bad_signal_keeps_session_ha, session_resumed_is_final].
+     bad_signal_keeps_session_ha].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -246,70 +246,6 @@ bad_signals(Config, Extra) ->
     {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
     ok = agent_bridge_client:send(C, Good),
     ok = agent_bridge_client:close(C).
-
-%% A second connection resumes the session of a connected ha client with
-%% its SessionID (a raw socket): the client stops with {closed, {refused,
-%% <<"SessionResumed">>, _}}, said once, and never resumes again. The node
-%% agrees: after several of the client's heartbeat periods the second holder
-%% is still connected, and a signal for the VA's component reaches it.
-session_resumed_is_final(Config) ->
-    {ok, A} = agent_bridge_client:connect([?config(addr, Config)],
-                                          (opts(Config, <<"va">>))#{ha => true}),
-    ok = agent_bridge_client:describe(A, va_description(<<"va">>)),
-    {ok, Av} = agent_bridge_client:connect([?config(addr, Config)],
-                                           opts(Config, avatar, <<"av">>)),
-    ok = agent_bridge_client:describe(Av, avatar_description(<<"av">>)),
-    _ = agent_bridge_test_node:wait_binding(Av, fun(#{bound := B}) -> B =/= [] end, 10000),
-    {ok, #{session_id := Sid, ha := #{epoch := Epoch, heartbeat := Hb}}} =
-        agent_bridge_client:session(A),
-    Mon = erlang:monitor(process, A),
-    {Ip, Port} = ?config(addr, Config),
-    {ok, R} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
-    ok = gen_tcp:send(R, bil_control:encode(
-                           {resume, #{pairing => ?config(pairing, Config), role => agent,
-                                      entity_id => <<"va">>, credential => ?VA_CRED,
-                                      protocol_version => 2, session_id => Sid,
-                                      received => 0, epoch => Epoch}})),
-    {control, {welcome, #{ha := #{resumed := true}}}} = recv_doc(R),
-    %% A's earlier events (its Binding reports) come first; no reconnected.
-    {refused, <<"SessionResumed">>, _} = closed_reason(A),
-    receive {'DOWN', Mon, process, A, normal} -> ok
-    after 10000 -> ct:fail(client_still_running)
-    end,
-    %% Several of A's heartbeat periods: a client that resumed again would
-    %% have taken the session back by then (and the holder would be refused).
-    timer:sleep(4 * max(Hb, 100)),
-    receive {agent_bridge, A, Late} -> ct:fail({event_after_closed, Late}) after 0 -> ok end,
-    ok = agent_bridge_client:send(Av, (sensor(1))#{id => <<"after-takeover">>}),
-    {signal, #{id := <<"after-takeover">>, receiver := <<"ThermoEmulator01">>}} =
-        recv_signal(R),
-    {ok, Reg} = evatar:registry(?config(pairing, Config)),
-    [true] = [At || #{entity := <<"va">>, attached := At} <- Reg],
-    ok = gen_tcp:close(R),
-    ok = agent_bridge_client:close(Av).
-
-closed_reason(C) ->
-    receive
-        {agent_bridge, C, {closed, Reason}} -> Reason;
-        {agent_bridge, C, {binding, _}} -> closed_reason(C);
-        {agent_bridge, C, Other} -> ct:fail({unexpected, Other})
-    after 10000 -> ct:fail(not_closed)
-    end.
-
-%% The next signal on a raw connection, past Acks, Binding reports and
-%% EVATAR's events; anything else (a Refused) fails the match.
-recv_signal(S) ->
-    case recv_doc(S) of
-        {control, {ack, _}} -> recv_signal(S);
-        {control, {binding, _}} -> recv_signal(S);
-        {signal, #{sender := <<"EVATAR">>}} -> recv_signal(S);
-        Doc -> Doc
-    end.
-
-recv_doc(S) ->
-    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
-    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
-    Doc.
 
 %% ---------------------------------------------------------------------------
 %% Helpers

@@ -17,10 +17,6 @@
 %% registered. The owner then
 %% also gets `{agent_bridge, Client, {reconnected, Info}}' and, with
 %% `notify_acks => true', `{agent_bridge, Client, {accepted, [SignalID]}}'.
-%% A `Refused SessionResumed' is final, with or without `ha': another
-%% connection resumed this session with its SessionID and holds it now, so
-%% the client stops (it never resumes again) and the owner gets, once,
-%% `{agent_bridge, Client, {closed, {refused, <<"SessionResumed">>, Message}}}'.
 %%
 %% `close/1' works in every state and any number of times: while
 %% connecting it stops the attempt (the `connect/1' caller gets `{error,
@@ -99,13 +95,9 @@
                        | closed | already_connected | connecting.
 
 %% Refusals after which a version 2 client tries the next endpoint.
-%% `SessionResumed' is not one: another holder of the SessionID took the
-%% session over (docs/protocol.md 11.3 rule 5), and resuming it back would
-%% take it from them again, without end. The client stops with `{closed,
-%% {refused, <<"SessionResumed">>, Message}}'.
 -define(RETRY_CODES, [<<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>, <<"PairingDown">>,
                       <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
-                      <<"TooManyConnections">>, <<"RateLimited">>]).
+                      <<"SessionResumed">>, <<"TooManyConnections">>, <<"RateLimited">>]).
 -define(ACK_DELAY, 5).
 -define(RECONNECT_LIMIT, 600000).
 -define(ACK_EVERY, 32).

@@ -52,7 +52,7 @@ Event = Union[Signal, Binding, "Reconnected", "Closed"]
 
 #: Refusals after which a version 2 client tries the next endpoint (section 11.3).
 RETRY_CODES = frozenset(["NotActive", "Fenced", "StaleEpoch", "PairingDown", "UnknownPairing",
-                         "HandshakeTimeout", "SilentLink", "Busy",
+                         "HandshakeTimeout", "SilentLink", "SessionResumed", "Busy",
                          "TooManyConnections", "RateLimited"])
 LOG = logging.getLogger("evatar.client")
 ACK_DELAY = 0.005

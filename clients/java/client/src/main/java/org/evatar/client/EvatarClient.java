@@ -113,14 +113,9 @@ public final class EvatarClient implements AutoCloseable {
         }
     }
 
-    /**
-     * Refused codes after which a version 2 client tries its next endpoint (section 11.3).
-     * {@code SessionResumed} is not one: another holder of the SessionID took the session
-     * over, and resuming it back would take it from them again, without end; the client
-     * closes with reason {@code SessionResumed}.
-     */
+    /** Refused codes after which a version 2 client tries its next endpoint (section 11.3). */
     private static final List<String> RETRY_CODES = List.of("NotActive", "Fenced", "StaleEpoch",
-            "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink",
+            "PairingDown", "UnknownPairing", "HandshakeTimeout", "SilentLink", "SessionResumed",
             "Busy", "TooManyConnections", "RateLimited");
     private static final int ACK_EVERY = 32;
     private static final long ACK_DELAY_MS = 5;
