@@ -6,25 +6,24 @@
 
 -export([new/1, subscriptions/1, handle/3, devices/1, is_empty/1]).
 
--export_type([state/0, opts/0, device/0, device_info/0, entity/0, problem/0]).
+-export_type([state/0, opts/0, device/0, device_info/0, entity/0, kind/0, problem/0]).
 
 -type opts() :: #{homeassistant => binary() | false, zigbee2mqtt => binary() | false}.
+%% An entity: the keys every family has, and its family's own
+%% (mqtt_avatar_family_*: `on'/`off' for on/off actuators, `press' for
+%% buttons...).
+-type kind() :: light | switch | binary_sensor | sensor | button | text | event | siren | notify.
 -type entity() :: #{uid := binary(),
-                    kind := light | switch | binary_sensor | sensor | button | text | event
-                          | siren | notify,
+                    kind := kind(),
                     name := binary() | undefined,
                     device_class := binary() | undefined,
                     state_topic := binary() | undefined,
                     command_topic := binary() | undefined,
                     value := mqtt_avatar_spec:source(),
-                    json_command := boolean(),
-                    on := binary(), off := binary(),
-                    state_on := binary(), state_off := binary(),
-                    press := binary(),
                     attributes := boolean(),
                     on_change := boolean(),
-                    volume := boolean(), duration := boolean(),
-                    unit := binary() | undefined}.
+                    unit := binary() | undefined,
+                    atom() => term()}.
 -type device_info() :: #{key := binary(),
                          name := binary() | undefined,
                          room := binary() | undefined,

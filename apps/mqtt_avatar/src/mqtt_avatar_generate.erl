@@ -22,6 +22,8 @@
 
 -define(ROOM, <<"Room">>).
 
+-import(mqtt_avatar_part, [entry/3, camel/1, first_name/1, source/1]).
+
 %% @doc A complete description: `Static' components (hand-written, with
 %% their own `Mqtt*' parameters) first, then the generated ones. A generated
 %% component whose ComponentID a static one already has is left out.
@@ -106,7 +108,7 @@ device(#{key := Key, entities := Entities} = D, Overrides, Used) ->
                                 {#{skip := true}, K} ->
                                     {Acc, Ks ++ K};
                                 {Override, K} ->
-                                    {Acc ++ [apply_override(entity(E, Ctx), Override)], Ks ++ K}
+                                    {Acc ++ [apply_override(mqtt_avatar_family:generate(E, Ctx), Override)], Ks ++ K}
                             end
                     end, {[], []}, Entities),
     Services0 = lists:append([S || #{services := S} <- Parts]),
@@ -172,161 +174,8 @@ availability_params(#{topic := T, online := On, offline := Off, value := V}) ->
      {<<"MqttPayloadNotAvailable">>, Off}, {<<"MqttAvailabilityValue">>, source(V)}].
 
 %% ---------------------------------------------------------------------------
-%% Entities
-%% ---------------------------------------------------------------------------
-
-entity(#{kind := light} = E, Ctx) ->
-    on_off(E, Ctx, {<<"TurnLightOn">>, <<"TurnLightOff">>}, [{<<"Light">>, <<"yes">>}],
-           <<"Light">>, <<"LightSwitch">>);
-entity(#{kind := switch, device_class := <<"outlet">>} = E, Ctx) ->
-    on_off(E, Ctx, {<<"SwitchSocketOn">>, <<"SwitchSocketOff">>}, [{<<"Appliance">>, <<"any">>}],
-           <<"Socket">>, <<"SocketSwitch">>);
-entity(#{kind := switch} = E, Ctx) ->
-    Name = camel(first_name([maps:get(name, E), <<"Switch">>])),
-    on_off(E, Ctx, {<<"SwitchOn">>, <<"SwitchOff">>}, [{<<"Switch">>, <<"yes">>}, {<<"Name">>, Name}],
-           <<"Switch">>, <<"Switch">>);
-entity(#{kind := binary_sensor} = E, #{room := Room}) ->
-    {Param, Stream, Read} =
-        case lists:member(maps:get(device_class, E), [<<"motion">>, <<"occupancy">>, <<"presence">>,
-                                                       <<"moving">>]) of
-            true -> {<<"Motion">>, <<"MotionDetected">>, <<"ReadMotion">>};
-            false ->
-                P = camel(first_name([maps:get(name, E), maps:get(device_class, E), <<"State">>])),
-                {P, <<P/binary, "Changed">>, <<"Read", P/binary>>}
-        end,
-    Map = on_off_map(E, <<"yes">>, <<"no">>),
-    stream_part(E, Room, Param, Stream, Read, event, Map);
-entity(#{kind := sensor} = E, #{room := Room}) ->
-    P = camel(first_name([maps:get(name, E), maps:get(device_class, E), <<"Value">>])),
-    stream_part(E, Room, P, P, <<"Read", P/binary>>, sensor_data, []);
-entity(#{kind := event} = E, #{room := Room}) ->
-    P = camel(first_name([maps:get(name, E), <<"Event">>])),
-    Value = case maps:get(value, E) of
-                raw -> {json, [<<"event_type">>]};
-                V -> V
-            end,
-    stream_part(E#{value := Value, attributes := true}, Room, <<"Event">>, P,
-                <<"Read", P/binary>>, event, [], P);
-entity(#{kind := button} = E, Ctx) ->
-    Type = camel(first_name([maps:get(name, E), <<"Press">>])),
-    Params = maps:get(room, Ctx)
-        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-            {<<"MqttCommand">>, <<"raw:", (maps:get(press, E))/binary>>},
-            {<<"MqttExpect">>, <<"none">>}],
-    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
-entity(#{kind := notify} = E, Ctx) ->
-    Type = camel(first_name([maps:get(name, E), <<"Notify">>])),
-    Params = [{<<"Message">>, <<"yes">>}] ++ maps:get(room, Ctx)
-        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Message">>},
-            {<<"MqttExpect">>, <<"none">>}],
-    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
-entity(#{kind := text} = E, Ctx) ->
-    Type = camel(first_name([maps:get(name, E), <<"SetText">>])),
-    Params = [{<<"Text">>, <<"yes">>}] ++ maps:get(room, Ctx)
-        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Text">>}]
-        ++ echo_params(E, <<"any">>),
-    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx);
-entity(#{kind := siren} = E, Ctx) ->
-    Type = camel(first_name([maps:get(name, E), <<"PlaySound">>])),
-    Args = [<<"Sound=tone">>]
-        ++ [<<"Volume=volume_level">> || maps:get(volume, E)]
-        ++ [<<"Duration=duration">> || maps:get(duration, E)],
-    Capabilities = [{<<"Sound">>, <<"yes">>}]
-        ++ [{<<"Volume">>, <<"yes">>} || maps:get(volume, E)]
-        ++ [{<<"Duration">>, <<"yes">>} || maps:get(duration, E)],
-    Command = iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => maps:get(on, E)})),
-    Params = Capabilities ++ maps:get(room, Ctx)
-        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-            {<<"MqttCommand">>, <<"json:", Command/binary>>},
-            {<<"MqttCommandArgs">>, iolist_to_binary(lists:join(" ", Args))}]
-        ++ echo_params(E, <<"any">>),
-    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx).
-
-on_off(E, Ctx, {OnType, OffType}, Capabilities, StateParam, Device) ->
-    #{on := On, off := Off, state_on := SOn, state_off := SOff, value := Value} = E,
-    Room = maps:get(room, Ctx),
-    Command = fun(Payload) ->
-                      case {maps:get(json_command, E), Value} of
-                          {true, {json, [_ | _] = Path}} ->
-                              <<"json:", (json_at(Path, Payload))/binary>>;
-                          {true, _} ->
-                              <<"json:", (json_at([<<"state">>], Payload))/binary>>;
-                          {false, _} ->
-                              <<"raw:", Payload/binary>>
-                      end
-              end,
-    Entry = fun(Type, Payload, Expected) ->
-                    entry(<<"ACTUATOR">>, Type,
-                          Capabilities ++ Room
-                          ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-                              {<<"MqttCommand">>, Command(Payload)}]
-                          ++ echo_params(E, match(Value, Expected))
-                          ++ value_params(E, StateParam, on_off_map(E, <<"on">>, <<"off">>)))
-            end,
-    actuator([Entry(OnType, On, SOn), Entry(OffType, Off, SOff)], Ctx, Device).
-
-%% What confirms a command: a state topic and the value expected on it.
-echo_params(#{state_topic := undefined}, _Expect) ->
-    [{<<"MqttExpect">>, <<"none">>}];
-echo_params(#{state_topic := T} = E, Expect) ->
-    [{<<"MqttStateTopic">>, T}, {<<"MqttExpect">>, Expect}]
-        ++ [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E)].
-
-value_params(#{state_topic := undefined}, _Param, _Map) ->
-    [];
-value_params(#{value := V}, Param, Map) ->
-    [{<<"MqttValue">>, <<Param/binary, "=", (source(V))/binary>>}]
-        ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
-
-match(raw, Expected) -> <<"raw:", Expected/binary>>;
-match({json, Path}, Expected) -> <<"json:", (join_path(Path))/binary, "=", Expected/binary>>.
-
-on_off_map(#{state_on := On, state_off := Off}, ToOn, ToOff) ->
-    case lists:all(fun plain_token/1, [On, Off]) andalso
-        {bool_key(On), bool_key(Off)} =/= {ToOn, ToOff} of
-        true -> <<(bool_key(On))/binary, "=", ToOn/binary, " ", (bool_key(Off))/binary, "=",
-                  ToOff/binary>>;
-        false -> <<>>
-    end.
-
-%% JSON booleans arrive as yes/no (docs/mqtt.md), so map those.
-bool_key(<<"true">>) -> <<"yes">>;
-bool_key(<<"false">>) -> <<"no">>;
-bool_key(V) -> V.
-
-plain_token(<<>>) -> false;
-plain_token(V) -> binary:match(V, [<<" ">>, <<"=">>, <<"\t">>, <<"\n">>]) =:= nomatch.
-
-stream_part(E, Room, Param, Stream, Read, Context, Map) ->
-    stream_part(E, Room, Param, Stream, Read, Context, Map, Param).
-
-stream_part(E, Room, Param, Stream, Read, Context, Map, SensorParam) ->
-    Consumes = entry(<<"SENSOR">>, Stream,
-                     Room ++ [{<<"MqttStateTopic">>, maps:get(state_topic, E)},
-                              {<<"MqttValue">>, <<Param/binary, "=", (source(maps:get(value, E)))/binary>>}]
-                     ++ [{<<"MqttMap">>, Map} || is_binary(Map), Map =/= <<>>]
-                     ++ [{<<"MqttContext">>, <<"Event">>} || Context =:= event]
-                     ++ [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E)]
-                     ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, E)]),
-    Service = entry(<<"SENSOR">>, Read, [{SensorParam, <<"yes">>}] ++ Room),
-    #{services => [Service], consumes => [Consumes], sensor => [SensorParam], feedback => none}.
-
-actuator(Services, Ctx) ->
-    #{device := D} = Ctx,
-    Device = camel(first_name([maps:get(model, D), maps:get(name, D), <<"Device">>])),
-    actuator(Services, Ctx, Device).
-
-actuator(Services, _Ctx, Device) ->
-    #{services => Services, consumes => [], sensor => [], feedback => Device}.
-
-%% ---------------------------------------------------------------------------
 %% Helpers
 %% ---------------------------------------------------------------------------
-
-entry(Category, Type, Params) ->
-    #{category => Category, type => Type, parameters => Params}.
 
 add_params(#{parameters := Ps} = E, Extra) ->
     E#{parameters := Ps ++ [P || {N, _} = P <- Extra, not lists:keymember(N, 1, Ps)]}.
@@ -338,28 +187,12 @@ set_params(#{parameters := Ps} = E, Set) ->
                 end || {N, V} <- Ps],
     E#{parameters := Replaced ++ [P || {N, _} = P <- Set, not lists:keymember(N, 1, Ps)]}.
 
-source(raw) -> <<"raw">>;
-source({json, Path}) -> <<"json:", (join_path(Path))/binary>>.
-
-join_path(Path) -> iolist_to_binary(lists:join(<<".">>, Path)).
-
-json_at(Path, Value) ->
-    Json = lists:foldr(fun(K, Inner) -> #{K => Inner} end, Value, Path),
-    iolist_to_binary(mqtt_avatar_json:encode(Json)).
-
-first_name(Candidates) ->
-    case [C || C <- Candidates, is_binary(C), camel(C) =/= <<>>] of
-        [C | _] -> C;
-        [] -> <<"Device">>
-    end.
-
 first_entity_name(Entities) ->
     case [N || #{name := N} <- Entities, is_binary(N)] of
         [N | _] -> N;
         [] -> undefined
     end.
 
-camel(Name) -> mqtt_avatar_logic:camel(Name).
 
 lower(undefined) -> undefined;
 lower(B) -> string:lowercase(B).

@@ -5,17 +5,15 @@
 -module(mqtt_avatar_ha).
 
 -export([parse/3, template/1, components/0]).
+%% For the families (mqtt_avatar_family_*): reading their keys.
+-export([str/2, str/3, topic/2, source/1, require/3, on_off/1, bool/3, number/3, strings/2]).
 
 -type parsed() :: {entity, mqtt_avatar_discovery:device_info(), mqtt_avatar_discovery:entity()}
                 | remove.
 
-%% The HA components an MQTT Avatar turns into BIL.
--define(COMPONENTS, [<<"light">>, <<"switch">>, <<"binary_sensor">>, <<"sensor">>, <<"button">>,
-                     <<"text">>, <<"event">>, <<"siren">>, <<"notify">>]).
-
 %% @doc The HA components understood.
 -spec components() -> [binary()].
-components() -> ?COMPONENTS.
+components() -> mqtt_avatar_family:components().
 
 %% @doc Parses one discovery message. `ignore' for topics that are not
 %% discovery configs; `{error, Message}' says what is wrong with one that is.
@@ -38,14 +36,14 @@ config_topic(_, _) ->
 config(_Component, _Node, _Object, <<>>) ->
     {ok, remove};
 config(Component, Node, Object, Payload) ->
-    case lists:member(Component, ?COMPONENTS) of
-        false ->
+    case mqtt_avatar_family:module(Component) of
+        error ->
             {error, iolist_to_binary(["component ", printable(Component), " is not supported "
-                                      "(supported: ", lists:join(", ", ?COMPONENTS), "); skipped"])};
-        true ->
+                                      "(supported: ", lists:join(", ", components()), "); skipped"])};
+        {ok, Kind, _Mod} ->
             case mqtt_avatar_json:decode(Payload) of
                 {ok, Json} when is_map(Json) ->
-                    entity(Component, Node, Object, expand(Json));
+                    entity(Component, Kind, Node, Object, expand(Json));
                 {ok, _} ->
                     {error, <<"the config is not a JSON object">>};
                 {error, R} ->
@@ -53,70 +51,82 @@ config(Component, Node, Object, Payload) ->
             end
     end.
 
-entity(Component, Node, Object, C) ->
+%% The keys every family shares; the family reads the rest.
+entity(Component, Kind, Node, Object, C) ->
     Uid = case str(<<"unique_id">>, C) of
               undefined -> iolist_to_binary([Component, "/", [[Node, "/"] || Node =/= undefined],
                                              Object]);
               U -> U
           end,
-    Kind = binary_to_existing_kind(Component),
     Results = [topic(<<"state_topic">>, C), topic(<<"command_topic">>, C),
                topic(<<"json_attributes_topic">>, C), availability(C),
                value_source(C)],
     case [M || {error, M} <- Results] of
         [] ->
             [{ok, State}, {ok, Command}, {ok, Attrs}, {ok, Avail}, {ok, Value}] = Results,
-            required(Kind, State, Command, Uid, Value, Attrs, Avail, C);
+            Base = #{uid => Uid,
+                     kind => Kind,
+                     name => entity_name(C),
+                     device_class => str(<<"device_class">>, C),
+                     state_topic => State,
+                     command_topic => Command,
+                     value => Value,
+                     attributes => Attrs =/= undefined andalso Attrs =:= State,
+                     on_change => false,
+                     unit => str(<<"unit_of_measurement">>, C),
+                     state_class => str(<<"state_class">>, C)},
+            case mqtt_avatar_family:from_ha(Component, C, Base) of
+                {ok, Entity} -> {ok, {entity, device(C, Uid, Avail), Entity}};
+                {error, M} -> {error, <<Uid/binary, ": ", M/binary>>}
+            end;
         [M | _] ->
             {error, iolist_to_binary([Uid, ": ", M])}
     end.
 
-required(Kind, State, Command, Uid, Value, Attrs, Avail, C) ->
-    NeedsState = lists:member(Kind, [binary_sensor, sensor, event]),
-    NeedsCommand = lists:member(Kind, [light, switch, button, text, siren, notify]),
-    if
-        NeedsState, State =:= undefined ->
-            {error, <<Uid/binary, ": a ", (atom_to_binary(Kind))/binary, " needs state_topic">>};
-        NeedsCommand, Command =:= undefined ->
-            {error, <<Uid/binary, ": a ", (atom_to_binary(Kind))/binary, " needs command_topic">>};
-        true ->
-            Json = Kind =:= light andalso str(<<"schema">>, C) =:= <<"json">>,
-            On = str(<<"payload_on">>, C, <<"ON">>),
-            Off = str(<<"payload_off">>, C, <<"OFF">>),
-            Value1 = case {Json, Value} of
-                         {true, raw} -> {json, [<<"state">>]};
-                         _ -> Value
-                     end,
-            Entity = #{uid => Uid,
-                       kind => Kind,
-                       name => entity_name(C),
-                       device_class => str(<<"device_class">>, C),
-                       state_topic => State,
-                       command_topic => Command,
-                       value => Value1,
-                       json_command => Json,
-                       on => On, off => Off,
-                       state_on => str(<<"state_on">>, C, On),
-                       state_off => str(<<"state_off">>, C, Off),
-                       press => str(<<"payload_press">>, C, <<"PRESS">>),
-                       attributes => Attrs =/= undefined andalso Attrs =:= State
-                                     orelse Kind =:= event,
-                       volume => maps:get(<<"support_volume_set">>, C, false) =:= true,
-                       duration => maps:get(<<"support_duration">>, C, false) =:= true,
-                       on_change => false,
-                       unit => str(<<"unit_of_measurement">>, C)},
-            {ok, {entity, device(C, Uid, Avail), Entity}}
+%% @doc `ok' when the entity has topic `Key' (`state_topic' or
+%% `command_topic'), else the error its family gives.
+-spec require(state_topic | command_topic, map(), fun(() -> {ok, map()} | {error, binary()})) ->
+          {ok, map()} | {error, binary()}.
+require(Key, #{kind := Kind} = Base, Then) ->
+    case maps:get(Key, Base) of
+        undefined -> {error, <<"a ", (atom_to_binary(Kind))/binary, " needs ",
+                               (atom_to_binary(Key))/binary>>};
+        _ -> Then()
     end.
 
-binary_to_existing_kind(<<"light">>) -> light;
-binary_to_existing_kind(<<"switch">>) -> switch;
-binary_to_existing_kind(<<"binary_sensor">>) -> binary_sensor;
-binary_to_existing_kind(<<"sensor">>) -> sensor;
-binary_to_existing_kind(<<"button">>) -> button;
-binary_to_existing_kind(<<"text">>) -> text;
-binary_to_existing_kind(<<"event">>) -> event;
-binary_to_existing_kind(<<"siren">>) -> siren;
-binary_to_existing_kind(<<"notify">>) -> notify.
+%% @doc The on/off payloads and states of lights, switches, fans...
+-spec on_off(map()) -> #{on := binary(), off := binary(), state_on := binary(),
+                         state_off := binary()}.
+on_off(C) ->
+    On = str(<<"payload_on">>, C, <<"ON">>),
+    Off = str(<<"payload_off">>, C, <<"OFF">>),
+    #{on => On, off => Off,
+      state_on => str(<<"state_on">>, C, On),
+      state_off => str(<<"state_off">>, C, Off)}.
+
+%% @doc A boolean key.
+-spec bool(binary(), map(), boolean()) -> boolean().
+bool(Key, C, Default) ->
+    case maps:get(Key, C, Default) of
+        B when is_boolean(B) -> B;
+        _ -> Default
+    end.
+
+%% @doc A number key, as text (`Default' when absent or not a number).
+-spec number(binary(), map(), binary() | undefined) -> binary() | undefined.
+number(Key, C, Default) ->
+    case maps:get(Key, C, undefined) of
+        N when is_number(N) -> mqtt_avatar_json:to_text(N);
+        _ -> Default
+    end.
+
+%% @doc A list of strings (`Default' when absent or not one).
+-spec strings(binary(), map()) -> [binary()] | undefined.
+strings(Key, C) ->
+    case maps:get(Key, C, undefined) of
+        L when is_list(L) -> [V || V <- L, is_binary(V)];
+        _ -> undefined
+    end.
 
 entity_name(C) ->
     case maps:get(<<"name">>, C, undefined) of
@@ -190,6 +200,8 @@ value_source(C) ->
                end,
     source(Template).
 
+%% @doc Where a template reads its value (`undefined': the whole payload).
+-spec source(binary() | undefined) -> {ok, mqtt_avatar_spec:source()} | {error, binary()}.
 source(undefined) -> {ok, raw};
 source(Template) ->
     case template(Template) of
@@ -218,6 +230,8 @@ template(Text) ->
             error
     end.
 
+%% @doc A topic key: `undefined' when absent, an error for a bad topic.
+-spec topic(binary(), map()) -> {ok, binary() | undefined} | {error, binary()}.
 topic(Key, C) ->
     case maps:get(Key, C, undefined) of
         undefined -> {ok, undefined};
@@ -232,7 +246,11 @@ topic(Key, C) ->
 valid_topic(<<>>) -> false;
 valid_topic(T) -> binary:match(T, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch.
 
+%% @doc A text key (numbers as text).
+-spec str(binary(), map()) -> binary() | undefined.
 str(Key, C) -> str(Key, C, undefined).
+
+-spec str(binary(), map(), binary() | undefined) -> binary() | undefined.
 
 str(Key, C, Default) ->
     case maps:get(Key, C, undefined) of

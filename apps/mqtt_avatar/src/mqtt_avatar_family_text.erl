@@ -1,0 +1,21 @@
+%% @doc Internal. The `text' family (HA `text'): one service whose request
+%% parameter `Text' is the payload, confirmed on the state topic.
+%% docs/mqtt.md section 2.
+-module(mqtt_avatar_family_text).
+-behaviour(mqtt_avatar_family).
+
+-export([from_ha/2, generate/2]).
+
+-spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
+          {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
+from_ha(_C, Base) ->
+    mqtt_avatar_ha:require(command_topic, Base, fun() -> {ok, Base} end).
+
+-spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
+generate(E, Ctx) ->
+    Type = mqtt_avatar_part:camel(mqtt_avatar_part:first_name([maps:get(name, E), <<"SetText">>])),
+    Params = [{<<"Text">>, <<"yes">>}] ++ maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Text">>}]
+        ++ mqtt_avatar_part:echo_params(E, <<"any">>),
+    mqtt_avatar_part:actuator([mqtt_avatar_part:entry(<<"ACTUATOR">>, Type, Params)], Ctx).
