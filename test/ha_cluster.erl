@@ -483,7 +483,7 @@ start_proxies(Nodes) ->
     {Linked, Proxies}.
 
 code_path() ->
-    Apps = [bil, evatar, agent_bridge, restart_backoff],
+    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff],
     Dirs = [filename:join(code:lib_dir(App), "ebin") || App <- Apps]
         ++ [filename:dirname(code:which(?MODULE))],
     lists:usort(Dirs).

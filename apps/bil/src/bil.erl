@@ -10,11 +10,12 @@
 
 -export([parse_description/1, parse_description/2, encode_description/1,
          parse_signal/1, parse_signal/2, encode_signal/1,
-         bind/1, explain_unbound/2, format_error/1, namespace/0, signal_contexts/0]).
+         bind/1, explain_unbound/2, format_error/1, namespace/0, signal_contexts/0,
+         parse_xml/2, escape_text/1, keyword/1]).
 
 -export_type([description/0, entity_type/0, component/0, entry/0, parameter/0,
               signal/0, signal_context/0, limits/0, error_reason/0, error_code/0,
-              endpoint/0, binding/0, unbound/0, bind_result/0]).
+              endpoint/0, binding/0, unbound/0, bind_result/0, xml_element/0]).
 
 -define(NAMESPACE, <<"urn:evatar:bil:1">>).
 
@@ -117,6 +118,10 @@
                      reason := no_provider | parameters_mismatch}.
 -type bind_result() :: #{bound := [binding()], unbound := [unbound()]}.
 
+%% One element of a parsed XML document: `{{Namespace, LocalName},
+%% Attributes, Children}', children being elements or text.
+-type xml_element() :: bil_xml:element().
+
 %% ---------------------------------------------------------------------------
 %% API
 %% ---------------------------------------------------------------------------
@@ -171,6 +176,25 @@ encode_signal(Signal) -> bil_signal:encode(Signal).
 %% in docs/bil.md, section "Binding".
 -spec bind([description()]) -> bind_result().
 bind(Descriptions) -> bil_binding:bind(Descriptions).
+
+%% @doc Parses one UTF-8 XML document with BIL's own parser: no DTDs, no
+%% entities, the size limit checked before parsing, the root at depth 1.
+%% For documents that are not descriptions or signals but travel with them
+%% (the wire protocol's control documents, app evatar_protocol).
+-spec parse_xml(binary(), #{max_size := pos_integer(), max_depth := pos_integer()}) ->
+          {ok, xml_element()} | {error, error_reason()}.
+parse_xml(Bin, Limits) -> bil_xml:parse(Bin, Limits).
+
+%% @doc Escapes text for use as an element's content, as BIL's encoders do
+%% (`&', `<', `>', and CR as a character reference).
+-spec escape_text(binary()) -> iodata().
+escape_text(Bin) -> bil_xml:escape_text(Bin).
+
+%% @doc The keyword that binding compares (docs/bil.md section 4): Unicode
+%% case folding, then every code point that is not a letter or a decimal
+%% digit removed (`<<"Action Feedback">>' gives `<<"actionfeedback">>').
+-spec keyword(binary()) -> binary().
+keyword(Bin) -> bil_binding:keyword(Bin).
 
 %% @doc One line a person can read, for logs and error signals.
 -spec format_error(error_reason()) -> binary().

@@ -228,7 +228,7 @@ check_id(Id, MaxLength) ->
 %% @doc The bytes `Value' takes as the text of an XML element.
 -spec escaped_size(binary()) -> non_neg_integer().
 escaped_size(Value) ->
-    iolist_size(bil_xml:escape_text(Value)).
+    iolist_size(bil:escape_text(Value)).
 
 %% @doc True for an id that reads `EVATAR' once ASCII case and every
 %% character that is not an ASCII letter or digit are ignored (`evatar',

@@ -68,7 +68,7 @@ consumer(E, #{consumers := Consumers}) ->
         error -> []
     end.
 
-key(Bin) -> bil_binding:keyword(Bin).
+key(Bin) -> bil:keyword(Bin).
 
 other(agent) -> avatar;
 other(avatar) -> agent.

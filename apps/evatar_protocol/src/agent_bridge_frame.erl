@@ -1,4 +1,5 @@
-%% @doc Internal. The frame layer of the wire protocol: a 4-byte big-endian
+%% @doc Public (app evatar_protocol, with bil_control). The frame layer of
+%% the wire protocol: a 4-byte big-endian
 %% length, then that many bytes holding one BIL document. Sockets and ports
 %% use `{packet, 4}' so the runtime splits frames; this module adds the
 %% pure encoder/decoder (for raw byte streams and tests) and the limits.

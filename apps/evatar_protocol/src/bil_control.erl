@@ -1,8 +1,8 @@
-%% @doc Internal. The control documents of the EVATAR wire protocol
-%% (Hello, Resume, Welcome, Refused, Binding, GetBinding, Ack, Bye:
-%% docs/protocol.md) parsed from and
-%% encoded to BIL XML, and `parse_frame/2', which routes one frame to the
-%% control, signal or description parser by its root element.
+%% @doc Public (app evatar_protocol, with agent_bridge_frame). The control
+%% documents of the EVATAR wire protocol (Hello, Resume, Welcome, Refused,
+%% Binding, GetBinding, Ack, Bye: docs/protocol.md) parsed from and encoded
+%% to BIL XML, and `parse_frame/2', which routes one frame to the control,
+%% signal or description parser by its root element. Uses only bil's API.
 -module(bil_control).
 
 -export([parse/2, encode/1, parse_frame/2, root_name/1]).
@@ -147,7 +147,7 @@ parse(Bin, Limits) when is_binary(Bin) ->
     XmlLimits = #{max_size => maps:get(max_size, Limits, ?CONTROL_MAX_SIZE),
                   max_depth => maps:get(max_depth, Limits,
                                         application:get_env(bil, max_depth, 32))},
-    case bil_xml:parse(Bin, XmlLimits) of
+    case bil:parse_xml(Bin, XmlLimits) of
         {ok, {{Ns, Local}, _Attrs, Children}} ->
             case Ns =:= bil:namespace() of
                 true -> root(Local, Children);
@@ -470,4 +470,4 @@ document(Name, Fields) ->
      <<"</bil:">>, Name, <<">">>].
 
 field(Name, Value) ->
-    [$<, Name, $>, bil_xml:escape_text(Value), $<, $/, Name, $>].
+    [$<, Name, $>, bil:escape_text(Value), $<, $/, Name, $>].
