@@ -1,0 +1,62 @@
+%% @doc The shared helpers fail when they should, with the reason their
+%% docs promise: a helper that cannot fail would make every test that
+%% uses it unable to fail.
+-module(evatar_test_kit_tests).
+
+-include_lib("proper/include/proper.hrl").
+-include_lib("eunit/include/eunit.hrl").
+
+until_returns_once_the_probe_holds_test() ->
+    Counter = counters:new(1, []),
+    ok = evatar_test_wait:until(fun() -> counters:add(Counter, 1, 1),
+                                         counters:get(Counter, 1) >= 3 end,
+                                #{interval => 1}),
+    ?assertEqual(3, counters:get(Counter, 1)).
+
+until_fails_with_what_and_the_last_value_test() ->
+    {'EXIT', {{wait_timeout, #{what := answer, last_seen := 42, polls := Polls,
+                               waited_ms := Waited}}, _}} =
+        catch evatar_test_wait:until(fun() -> {false, 42} end,
+                                     #{timeout => 50, interval => 5, what => answer}),
+    ?assert(Polls >= 2),
+    ?assert(Waited >= 50).
+
+until_names_the_probe_without_a_what_test() ->
+    {error, {wait_timeout, #{what := {probe_in, ?MODULE, Name}, last_seen := false}}} =
+        evatar_test_wait:poll(fun() -> false end, #{timeout => 0}),
+    ?assertNotEqual(nomatch, string:find(atom_to_list(Name),
+                                         "until_names_the_probe_without_a_what_test")).
+
+value_returns_the_first_good_value_test() ->
+    Counter = counters:new(1, []),
+    Next = fun() -> counters:add(Counter, 1, 1), counters:get(Counter, 1) end,
+    ?assertEqual(4, evatar_test_wait:value(count, Next, fun(N) -> N >= 4 end)),
+    ?assertError({wait_timeout, #{what := count, last_seen := 7}},
+                 evatar_test_wait:value(count, fun() -> 7 end, fun(N) -> N > 7 end,
+                                        #{timeout => 20})).
+
+proper_check_passes_a_true_property_test() ->
+    ok = evatar_test_proper:check(?FORALL(X, integer(), X + 0 =:= X), 50).
+
+proper_check_fails_with_the_counterexample_test() ->
+    {'EXIT', {test_case_failed, {counterexample, [N]}}} =
+        catch evatar_test_proper:check(?FORALL(X, integer(), X < 10), 500),
+    %% Shrunk to the smallest integer that breaks it.
+    ?assertEqual(10, N).
+
+proper_factor_scales_numtests_test() ->
+    Old = os:getenv("EVATAR_PROPER_FACTOR"),
+    try
+        true = os:putenv("EVATAR_PROPER_FACTOR", "0.5"),
+        ?assertEqual(50, evatar_test_proper:numtests(100)),
+        true = os:putenv("EVATAR_PROPER_FACTOR", "3"),
+        ?assertEqual(300, evatar_test_proper:numtests(100)),
+        true = os:unsetenv("EVATAR_PROPER_FACTOR"),
+        ?assertEqual(100, evatar_test_proper:numtests(100))
+    after
+        Old =:= false orelse os:putenv("EVATAR_PROPER_FACTOR", Old)
+    end.
+
+secrets_differ_test() ->
+    ?assertEqual(48, length(evatar_test_fixtures:secret())),
+    ?assertNotEqual(evatar_test_fixtures:secret(), evatar_test_fixtures:secret()).
