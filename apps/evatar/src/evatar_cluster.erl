@@ -11,7 +11,8 @@
 %% process that connects nodes (`net_kernel:connect_node/1', retried).
 %% Distribution's own tick (`net_ticktime', 45-75 s) is far too slow to be
 %% relied on. Reads for the pairings go to an ETS table, never to this
-%% process. Decisions are in `evatar_ha_rules'.
+%% process. Decisions are in `evatar_ha_rules' (membership) and `evatar_ha_core'
+%% (votes and registrations).
 -module(evatar_cluster).
 -behaviour(gen_server).
 
@@ -21,7 +22,7 @@
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, evatar_cluster_view).
-%% This node's votes: {PairingId, evatar_ha_rules:record()}.
+%% This node's votes: {PairingId, evatar_ha_core:record()}.
 -define(VOTES, evatar_cluster_votes).
 -define(RECONNECT_MS, 500).
 
@@ -127,7 +128,7 @@ heard_after(Node, Since) ->
 
 %% @doc How many nodes must grant a vote or accept a registration.
 -spec quorum_size() -> pos_integer().
-quorum_size() -> evatar_ha_rules:quorum_size(size()).
+quorum_size() -> evatar_ha_core:quorum_size(size()).
 
 %% @doc A number that changes each time this node finds it was itself
 %% stopped or starved for longer than `suspect_ms' (SIGSTOP, a frozen VM):
@@ -244,7 +245,7 @@ handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}}, S)
     Others = [P || P <- lists:usort([maps:get(holder, Record), Active]), is_pid(P),
                    P =/= Cand, not (ActiveDead andalso P =:= Active)],
     Blocked = lists:any(fun serving/1, Others),
-    Result = case evatar_ha_rules:vote(Record, Ec, Cand, Claim, Blocked) of
+    Result = case evatar_ha_core:vote(Record, Ec, Cand, Claim, Blocked) of
                  {granted, R1} -> true = ets:insert(?VOTES, {Id, R1}), granted;
                  {refused, _} = Refused -> Refused
              end,
@@ -252,7 +253,7 @@ handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}}, S)
     {noreply, S};
 handle_info({evatar_ha, 1, {register, Id, E, Seq, From}}, S)
   when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
-    Result = case evatar_ha_rules:register(record(Id), E, Seq, From) of
+    Result = case evatar_ha_core:register(record(Id), E, Seq, From) of
                  {ok, R1} -> true = ets:insert(?VOTES, {Id, R1}), ok;
                  {refused, _} = Refused -> Refused
              end,
@@ -280,7 +281,7 @@ handle_info(_Msg, S) ->
 record(Id) ->
     case ets:lookup(?VOTES, Id) of
         [{_, R}] -> R;
-        [] -> evatar_ha_rules:new_record()
+        [] -> evatar_ha_core:new_record()
     end.
 
 %% Whether an instance may still be serving, as far as this node can tell:

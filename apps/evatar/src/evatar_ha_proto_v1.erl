@@ -30,21 +30,21 @@
                  pos_integer()}
               | {offer, pid(), non_neg_integer()}
               | {snapshot, pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state(),
-                 evatar_ha_rules:claim()}
+                 evatar_ha_core:claim()}
               | {events, pid(), pos_integer(), [repl_event()]}
               | {confirm, pid(), pos_integer(), non_neg_integer()}
               | {resync, pid(), non_neg_integer()}
               | {dismiss, pid()}
               | {stale, pid(), pos_integer()}
               | {handover, pid(), pos_integer(), non_neg_integer()}
-              | {handover_done, pid(), pos_integer(), evatar_ha_rules:claim()}
-              | {vote, evatar:pairing_id(), pos_integer(), pid(), evatar_ha_rules:claim(),
+              | {handover_done, pid(), pos_integer(), evatar_ha_core:claim()}
+              | {vote, evatar:pairing_id(), pos_integer(), pid(), evatar_ha_core:claim(),
                  pid() | undefined, boolean()}
               | {vote_reply, evatar:pairing_id(), pos_integer(), node(),
-                 granted | {refused, evatar_ha_rules:refusal()}}
+                 granted | {refused, evatar_ha_core:refusal()}}
               | {register, evatar:pairing_id(), pos_integer(), non_neg_integer(), pid()}
-              | {register_reply, evatar:pairing_id(), evatar_ha_rules:claim(), node(),
-                 ok | {refused, evatar_ha_rules:refusal()}}
+              | {register_reply, evatar:pairing_id(), evatar_ha_core:claim(), node(),
+                 ok | {refused, evatar_ha_core:refusal()}}
               | {peer_instance, pid(), atom(), pos_integer()}.
 -type message() :: {evatar_ha, 1, body()}.
 
@@ -99,7 +99,7 @@ offer(To, Standby, Version) -> pid(To, {offer, Standby, Version}).
 %% @doc The active's whole state at `Version' (the standby replaces its own),
 %% with the claim the standby holds from now on.
 -spec snapshot(pid(), pos_integer(), non_neg_integer(), evatar_pairing_logic:state(),
-               evatar_ha_rules:claim()) -> ok.
+               evatar_ha_core:claim()) -> ok.
 snapshot(To, Epoch, Version, State, Claim) ->
     pid(To, {snapshot, self(), Epoch, Version, State, Claim}).
 
@@ -131,7 +131,7 @@ handover(To, Epoch, Version) -> pid(To, {handover, self(), Epoch, Version}).
 
 %% @doc The standby took over at `Epoch'; the old active becomes its standby
 %% with `Claim'.
--spec handover_done(pid(), pid(), pos_integer(), evatar_ha_rules:claim()) -> ok.
+-spec handover_done(pid(), pid(), pos_integer(), evatar_ha_core:claim()) -> ok.
 handover_done(To, From, Epoch, Claim) -> pid(To, {handover_done, From, Epoch, Claim}).
 
 %% --- votes: between an instance and every node's evatar_cluster ------------
@@ -140,14 +140,14 @@ handover_done(To, From, Epoch, Claim) -> pid(To, {handover_done, From, Epoch, Cl
 %% epoch `Ec'; `Active' is the active it followed (itself when a fenced
 %% active asks again), `ActiveDead' whether it saw that process die (or
 %% hand the pairing over).
--spec vote(node(), evatar:pairing_id(), pos_integer(), pid(), evatar_ha_rules:claim(),
+-spec vote(node(), evatar:pairing_id(), pos_integer(), pid(), evatar_ha_core:claim(),
            pid() | undefined, boolean()) -> ok.
 vote(To, Id, Ec, Cand, Claim, Active, ActiveDead) ->
     cluster(To, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}).
 
 %% @doc A node's answer to {@link vote/7}.
 -spec vote_reply(pid(), evatar:pairing_id(), pos_integer(), node(),
-                 granted | {refused, evatar_ha_rules:refusal()}) -> ok.
+                 granted | {refused, evatar_ha_core:refusal()}) -> ok.
 vote_reply(To, Id, Ec, Node, Result) -> pid(To, {vote_reply, Id, Ec, Node, Result}).
 
 %% @doc The active `From' of `Id' asks node `To' to record its configuration
@@ -156,8 +156,8 @@ vote_reply(To, Id, Ec, Node, Result) -> pid(To, {vote_reply, Id, Ec, Node, Resul
 register(To, Id, E, Seq, From) -> cluster(To, {register, Id, E, Seq, From}).
 
 %% @doc A node's answer to {@link register/5}.
--spec register_reply(pid(), evatar:pairing_id(), evatar_ha_rules:claim(), node(),
-                     ok | {refused, evatar_ha_rules:refusal()}) -> ok.
+-spec register_reply(pid(), evatar:pairing_id(), evatar_ha_core:claim(), node(),
+                     ok | {refused, evatar_ha_core:refusal()}) -> ok.
 register_reply(To, Id, Claim, Node, Result) ->
     pid(To, {register_reply, Id, Claim, Node, Result}).
 

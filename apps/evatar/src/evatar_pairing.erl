@@ -1,9 +1,13 @@
-%% @doc Internal. The process of one instance of a pairing: runs
-%% `evatar_pairing_logic' and executes its effects (messages to entity
-%% processes, timers, logs). It owns what cannot be replicated: the pids of
-%% the entities' processes, their monitors and the timer references. With a
-%% cluster (docs/architecture.md, section 8) an instance is the `active' one
-%% or the `standby' of an active on another node.
+%% @doc Internal. The process of one instance of a pairing: a shell that
+%% runs three pure modules and executes their effects. `evatar_pairing_logic'
+%% decides the pairing's rules, `evatar_ha_commit' which effects go out
+%% now and which wait for the standby or the cluster, `evatar_ha_core' the
+%% configuration, elections and registrations (docs/architecture.md,
+%% sections 5 and 8). This process owns what cannot be replicated: the pids
+%% of the entities' processes and of the other instance, their monitors,
+%% and one map of timers keyed by what they are for (a logic timer key, or
+%% `{ha, Key}'). An instance is the `active' one or the `standby' of an
+%% active on another node.
 %%
 %% ```
 %%                 start_link
@@ -28,25 +32,19 @@
 %%  +---------+  no majority and no word from the standby's node
 %%  | fenced  |  within the lease, or the cluster refused its configuration
 %%  +---------+  (after a pause of this node, a standby won meanwhile):
-%%               clients closed with Fenced, nothing externalised, timers
-%%               postponed. A pause alone fences nothing (paused/1).
+%%               clients closed with Fenced, nothing externalised, logic
+%%               timers postponed. A pause alone fences nothing.
 %% '''
-%% The active's name is the logic's {@link evatar_pairing_logic:phase/1}
+%% The active's state name is the logic's {@link evatar_pairing_logic:phase/1}
 %% (`waiting' or `bound'); `handing_over' is the short planned-handover
-%% step. While there is a standby, every event is shipped to it with its
-%% time and version, and every effect seen outside (a delivery, a report, a
-%% reply, an Ack) is held until the standby confirms that version: what a
-%% client sees is always in the standby's history. Without one (degraded)
-%% effects go out at once, except after a takeover or the loss of the
-%% standby's node: then they are held until a majority of nodes accepted the
-%% new configuration (elections and registrations: docs/architecture.md
-%% section 8.4). Acks are batched until the mailbox is empty.
+%% step. Acks are batched until the mailbox is empty.
 -module(evatar_pairing).
 -behaviour(gen_statem).
 
 %% A pairing idle this long compacts its heap: a home's pairing is quiet
 %% most of the time.
 -define(HIBERNATE_AFTER, 5000).
+-define(PLACE_RETRY_MS, 1000).
 
 -include_lib("kernel/include/logger.hrl").
 
@@ -57,55 +55,37 @@
 
 -type mode() :: create | {standby_for, pid()}.
 -type role() :: starting | active | standby | fenced.
-
--define(FLUSH_EVERY, 64).
--define(PLACE_RETRY_MS, 1000).
+-type state() :: starting | evatar_pairing_logic:phase() | standby | fenced | handing_over.
+%% The timers of this process, all in one map: the logic's, and the
+%% shell's own (`{ha, Key}').
+-type timer_key() :: evatar_pairing_logic:timer_key()
+                   | {ha, election | register | start | handover | place | held | silent}.
 
 -record(data, {id :: evatar:pairing_id(),
                config :: evatar_pairing_logic:config(),
-               logic :: evatar_pairing_logic:state() | undefined,
-               pids = #{} :: #{binary() => {pid(), reference()}},
-               refs = #{} :: #{reference() => binary()},
-               timers = #{} :: #{evatar_pairing_logic:timer_key() => reference()},
                mode :: mode(),
                role = starting :: role(),
-               version = 0 :: non_neg_integer(),
-               %% Active: the standby and what it has not confirmed yet.
+               logic :: evatar_pairing_logic:state() | undefined,
+               commit = evatar_ha_commit:new(0) :: evatar_ha_commit:state(),
+               core = evatar_ha_core:new() :: evatar_ha_core:state(),
+               pids = #{} :: #{binary() => {pid(), reference()}},
+               refs = #{} :: #{reference() => binary()},
+               timers = #{} :: #{timer_key() => reference()},
+               %% Active: its standby; standby (and starting): its active.
                standby :: pid() | undefined,
                standby_mon :: reference() | undefined,
-               synced = false :: boolean(),
-               confirmed = 0 :: non_neg_integer(),
-               repl = [] :: [{pos_integer(), integer(), evatar_pairing_logic:event()}],
-               outbox = queue:new() :: queue:queue({non_neg_integer(), [term()]}),
-               acks = #{} :: #{binary() => binary()},
-               unflushed = 0 :: non_neg_integer(),
                placing = false :: boolean(),
-               silent_armed = false :: boolean(),
-               %% Standby (and starting): the active.
                active :: pid() | undefined,
                active_mon :: reference() | undefined,
                active_lost = false :: boolean(),
-               %% Every role: the configuration this instance holds (the
-               %% active's current one, a standby's claim), the highest
-               %% promise seen in refusals, a running election, a running
-               %% registration, and whether effects are held without a
-               %% standby until that registration is accepted.
-               conf = {1, 0} :: evatar_ha_rules:claim(),
-               promised = 0 :: non_neg_integer(),
-               election :: undefined | #{epoch := non_neg_integer(), granted := [node()],
-                                         replied := [node()], dead := boolean(),
-                                         why := term(), attempt := non_neg_integer()},
-               reg :: undefined | #{claim := evatar_ha_rules:claim(), ok := [node()],
-                                    no := [node()]},
-               hold = false :: boolean(),
+               %% The stall generation this active began serving at; after a
+               %% pause, inspections wait for the reconfirmation.
                gen = 0 :: non_neg_integer(),
-               %% Active after a pause of its node: asking the cluster
-               %% whether it is still the active; inspections wait for it.
                reconfirming = false :: boolean(),
                inspects = [] :: [{gen_statem:from(), atom()}],
                %% Standby: resumes held until it takes over or hears its active.
                held = [] :: [{gen_statem:from(), term(), integer()}],
-               held_armed = false :: boolean(),
+               %% Starting: the peers asked and their answers.
                asks = 0 :: non_neg_integer(),
                answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}],
                %% The live tail's watchers (evatar_tap): [] costs nothing.
@@ -134,119 +114,32 @@ callback_mode() -> handle_event_function.
 
 %% @private
 -spec init({evatar:pairing_id(), evatar_pairing_logic:config(), mode()}) ->
-          gen_statem:init_result(starting).
+          gen_statem:init_result(state()).
 init({PairingId, Config, Mode}) ->
     logger:set_process_metadata(#{pairing => PairingId, domain => [evatar, pairing]}),
     {ok, starting, #data{id = PairingId, config = Config, mode = Mode},
      [{next_event, internal, load}]}.
 
-%% ---------------------------------------------------------------------------
-%% Starting
-%% ---------------------------------------------------------------------------
-
 %% @private
--spec handle_event(gen_statem:event_type(), term(), atom(), #data{}) ->
-          gen_statem:event_handler_result(atom()).
-handle_event(internal, load, starting, #data{id = Id, mode = Mode} = Data) ->
-    case {Mode, evatar_registry:previous(Id), peers()} of
-        {create, none, _} ->
-            become_active(new, Data);
-        {{standby_for, Active}, none, _} ->
-            offer_to(Active, Data);
-        {_, _Previous, []} ->
-            %% A restart with nobody to ask: start afresh, as a lone node does.
-            become_active(new, Data);
-        {_, Previous, Peers} ->
-            ?LOG_NOTICE(#{what => pairing_restarted, pairing => Id, previous => Previous}),
-            ask_peers(Peers, Data)
+%% Events are sorted by kind first, then by state, in functions of their
+%% own: no clause relies on coming after another of a different state.
+-spec handle_event(gen_statem:event_type(), term(), state(), #data{}) ->
+          gen_statem:event_handler_result(state()).
+handle_event(info, {timeout, TRef, Key}, State, #data{timers = Timers} = Data) ->
+    case Timers of
+        #{Key := TRef} -> timeout(Key, State, Data);
+        #{} -> keep_state_and_data  % cancelled or replaced meanwhile
     end;
-handle_event(info, {evatar_ha, 1, {instance, Id, Node, Info}}, starting,
-             #data{id = Id, answers = Answers, asks = N} = Data) ->
-    Data1 = Data#data{answers = [{Node, Info} | Answers]},
-    case length(Data1#data.answers) >= N of
-        true -> decide_start(Data1);
-        false -> {keep_state, Data1}
-    end;
-handle_event(state_timeout, asked, starting, Data) ->
-    decide_start(Data);
-handle_event(internal, retry_ask, starting, Data) ->
-    ask_peers(peers(), Data);
-handle_event(state_timeout, retry_ask, starting, Data) ->
-    ask_peers(peers(), Data);
-handle_event(info, {evatar_ha, 1, {snapshot, Active, Epoch, Version, State, Claim}}, starting,
-             #data{active = Active} = Data) ->
-    become_standby(Epoch, Version, State, Claim, Data);
-handle_event(info, {evatar_ha, 1, {dismiss, Active}}, starting, #data{active = Active} = Data) ->
-    stop_instance(dismissed, Data);
-handle_event(state_timeout, offered, starting, Data) ->
-    stop_instance(no_snapshot, Data);
-handle_event(info, {'DOWN', Ref, process, _, _}, starting, #data{active_mon = Ref} = Data) ->
-    stop_instance(active_gone, Data);
-handle_event({call, From}, {inspect, ha}, starting, Data) ->
-    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
-handle_event(_Type, _Event, starting, _Data) ->
-    {keep_state_and_data, [postpone]};
-
-%% ---------------------------------------------------------------------------
-%% Messages between instances and from evatar_cluster (every role)
-%% ---------------------------------------------------------------------------
-
+handle_event(Type, Event, starting, Data) ->
+    starting(Type, Event, Data);
 handle_event(info, {evatar_ha, 1, Body}, State, Data) ->
     ha(Body, State, Data);
 handle_event(info, {evatar_cluster, Event}, State, Data) ->
     cluster_event(Event, State, Data);
-handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{standby_mon = Ref} = Data) ->
-    standby_down(Why, State, Data);
-handle_event(info, {'DOWN', Ref, process, _, Why}, State, #data{active_mon = Ref} = Data) ->
-    active_down(Why, State, Data#data{active_mon = undefined});
-handle_event({call, From}, {inspect, What}, State, Data) ->
-    %% An active whose node was paused since it began serving asks the
-    %% cluster whether it is still the active (evatar_ha_rules:after_pause/2)
-    %% and says nothing until it knows: never `active' beside a standby
-    %% that took over meanwhile.
-    Data1 = case stalled_active(State, Data) of
-                true -> paused(Data);
-                false -> Data
-            end,
-    case Data1 of
-        #data{reconfirming = true, inspects = Waiting} ->
-            {keep_state, Data1#data{inspects = [{From, What} | Waiting]}};
-        #data{} ->
-            {keep_state, Data1, [{reply, From, inspect(What, State, Data1)}]}
-    end;
-handle_event({call, From}, {auth, Role, EntityId}, _State, #data{config = Config}) ->
-    %% What a join must present, so that the joining process checks its
-    %% credential itself (evatar:join/4): an id the pairing refuses anyway
-    %% costs no hash.
-    Reply = case evatar_auth:check_id(EntityId, maps:get(max_id_length, Config)) of
-                ok -> {ok, evatar_auth:requirement(Role, EntityId, Config)};
-                {error, _} = Error -> Error
-            end,
-    {keep_state_and_data, [{reply, From, Reply}]};
-handle_event({timeout, place}, place, State, Data) ->
-    {keep_state, place(State, Data#data{placing = false})};
-handle_event(info, {evatar_election_retry, Ec}, State, #data{election = #{epoch := Ec}} = Data)
-  when State =:= standby; State =:= fenced ->
-    {keep_state, elect(Data)};
-handle_event(info, {evatar_election_retry, _}, _State, _Data) ->
-    keep_state_and_data;
-handle_event(info, {evatar_register_retry, Claim}, State, #data{reg = #{claim := Claim}} = Data)
-  when State =/= fenced ->
-    {keep_state, send_register(Data)};
-handle_event(info, {evatar_register_retry, _}, _State, _Data) ->
-    keep_state_and_data;
-handle_event({call, From}, {tap_watch, Pid, Filter}, State, #data{id = Id} = Data)
-  when is_pid(Pid), is_map(Filter), (State =:= waiting orelse State =:= bound) ->
-    case evatar_tap:add(Pid, Filter, Data#data.watchers, Id) of
-        {ok, Ref, Watchers} ->
-            {keep_state, Data#data{watchers = Watchers}, [{reply, From, {ok, Ref}}]};
-        {error, _} = Error ->
-            {keep_state_and_data, [{reply, From, Error}]}
-    end;
-handle_event({call, From}, {tap_watch, _, _}, standby, #data{active = Active}) ->
-    {keep_state_and_data, [{reply, From, {redirect, Active}}]};
-handle_event({call, From}, {tap_watch, _, _}, fenced, _Data) ->
-    {keep_state_and_data, [{reply, From, {error, busy}}]};
+handle_event(info, {'DOWN', Ref, process, _, Why}, State, Data) ->
+    down(Ref, Why, State, Data);
+handle_event(info, evatar_flush, _State, Data) ->
+    {keep_state, flush(Data)};
 handle_event(info, {evatar_tap_ack, Ref, N}, _State, #data{watchers = Watchers} = Data)
   when is_integer(N), N >= 0 ->
     {keep_state, Data#data{watchers = evatar_tap:acked(Ref, N, Watchers)}};
@@ -256,121 +149,205 @@ handle_event(info, {evatar_tap_unwatch, Ref}, _State, #data{watchers = Watchers}
 handle_event(info, {evatar_tap_down, Ref, process, _, _}, _State,
              #data{watchers = Watchers} = Data) ->
     {keep_state, Data#data{watchers = evatar_tap:down(Ref, Watchers)}};
-handle_event(info, evatar_flush, _State, Data) ->
-    {keep_state, flush(Data)};
-handle_event(info, evatar_held_check, standby, Data) ->
-    {keep_state, check_held(Data#data{held_armed = false})};
-handle_event(info, evatar_held_check, _State, Data) ->
-    {keep_state, Data#data{held_armed = false}};
+handle_event({call, From}, Request, State, Data) ->
+    call(Request, From, State, Data);
+handle_event(cast, Request, State, Data) when State =:= waiting; State =:= bound ->
+    active_cast(Request, Data);
+handle_event(internal, handover, handing_over, Data) ->
+    {keep_state, send_handover(Data)};
+handle_event(_Type, _Event, handing_over, _Data) ->
+    {keep_state_and_data, [postpone]};
+handle_event(cast, _Request, _StandbyOrFenced, _Data) ->
+    %% Not accepted, so never acknowledged: the client sends it again to
+    %% the active.
+    keep_state_and_data;
+handle_event(Type, Event, _State, #data{id = Id}) ->
+    ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => Type, event => Event}),
+    keep_state_and_data.
 
 %% ---------------------------------------------------------------------------
-%% Standby, fenced, handing over: no client traffic
+%% Starting: ask the peers, or offer to be the standby of the active found
 %% ---------------------------------------------------------------------------
 
-handle_event({call, From}, delete, State, #data{id = Id} = Data)
-  when State =:= standby; State =:= fenced ->
+starting(internal, load, #data{id = Id, mode = Mode} = Data) ->
+    case {Mode, evatar_registry:previous(Id), peers()} of
+        {create, none, _} ->
+            become_active(Data);
+        {{standby_for, Active}, none, _} ->
+            offer_to(Active, Data);
+        {_, _Previous, []} ->
+            %% A restart with nobody to ask: start afresh, as a lone node does.
+            become_active(Data);
+        {_, Previous, Peers} ->
+            ?LOG_NOTICE(#{what => pairing_restarted, pairing => Id, previous => Previous}),
+            ask_peers(Peers, Data)
+    end;
+starting(info, {evatar_ha, 1, {instance, Id, Node, Info}},
+         #data{id = Id, answers = Answers, asks = N} = Data) ->
+    Data1 = Data#data{answers = [{Node, Info} | Answers]},
+    case length(Data1#data.answers) >= N of
+        true -> decide_start(Data1);
+        false -> {keep_state, Data1}
+    end;
+starting(info, {evatar_ha, 1, {snapshot, Active, _Epoch, Version, State, Claim}},
+         #data{active = Active} = Data) ->
+    become_standby(Version, State, Claim, Data);
+starting(info, {evatar_ha, 1, {dismiss, Active}}, #data{active = Active} = Data) ->
+    stop_instance(dismissed, Data);
+starting(info, {'DOWN', Ref, process, _, _}, #data{active_mon = Ref} = Data) ->
+    stop_instance(active_gone, Data);
+starting({call, From}, {inspect, ha}, Data) ->
+    {keep_state_and_data, [{reply, From, ha_status(Data)}]};
+starting(_Type, _Event, _Data) ->
+    {keep_state_and_data, [postpone]}.
+
+ask_peers(Peers, #data{id = Id} = Data) ->
+    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
+    {keep_state, timer({ha, asked}, 2 * evatar_cluster:opt(suspect_ms),
+                       Data#data{asks = length(Peers), answers = []})}.
+
+offer_to(Active, #data{commit = C} = Data) ->
+    Mon = erlang:monitor(process, Active),
+    ok = evatar_ha_proto_v1:offer(Active, self(), evatar_ha_commit:version(C)),
+    {keep_state, timer({ha, offered}, 5 * evatar_cluster:opt(suspect_ms) + 2000,
+                       Data#data{active = Active, active_mon = Mon})}.
+
+%% A restarted instance: an active elsewhere takes it as its standby; a
+%% standby elsewhere is about to take over (ask again); nobody: start afresh.
+decide_start(#data{answers = Answers} = Data) ->
+    Infos = [I || {_, I} <- Answers, is_map(I)],
+    case [I || #{role := R} = I <- Infos, R =:= active orelse R =:= fenced] of
+        [#{pid := Active} | _] ->
+            offer_to(Active, Data);
+        [] ->
+            case [I || #{role := standby} = I <- Infos] of
+                [_ | _] when Data#data.asks > 0 ->
+                    {keep_state, timer({ha, retry_ask}, evatar_cluster:opt(suspect_ms),
+                                       Data#data{answers = []})};
+                _ ->
+                    become_active(Data)
+            end
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Timers: one map, keyed by what each is for
+%% ---------------------------------------------------------------------------
+
+timeout({ha, Key}, State, #data{timers = Timers} = Data) ->
+    ha_timeout(Key, State, Data#data{timers = maps:remove({ha, Key}, Timers)});
+timeout(Key, State, #data{timers = Timers} = Data) when State =:= waiting; State =:= bound ->
+    Data1 = run({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)}),
+    next(flush_maybe(Data1), []);
+timeout(_Key, State, _Data) when State =:= fenced; State =:= handing_over ->
+    %% Runs if this instance serves again (a handover aborted).
+    {keep_state_and_data, [postpone]};
+timeout(_Key, _State, _Data) ->
+    keep_state_and_data.
+
+ha_timeout(asked, starting, Data) -> decide_start(Data);
+ha_timeout(retry_ask, starting, Data) -> ask_peers(peers(), Data);
+ha_timeout(offered, starting, Data) -> stop_instance(no_snapshot, Data);
+ha_timeout(election, State, Data) -> core({timeout, election}, State, Data);
+ha_timeout(register, State, Data) -> core({timeout, register}, State, Data);
+ha_timeout(place, State, Data) -> {keep_state, place(State, Data#data{placing = false})};
+ha_timeout(held, standby, Data) -> {keep_state, check_held(Data)};
+ha_timeout(silent, State, Data) when State =:= waiting; State =:= bound -> silent_check(Data);
+ha_timeout(handover, handing_over, #data{id = Id} = Data) ->
+    ?LOG_WARNING(#{what => handover_aborted, pairing => Id}),
+    next(Data, []);
+ha_timeout(_Key, _State, Data) ->
+    {keep_state, Data}.
+
+%% (Re)arms the timer of `Key'.
+timer(Key, Ms, #data{timers = Timers} = Data) ->
+    ok = cancel(maps:get(Key, Timers, undefined)),
+    Data#data{timers = Timers#{Key => erlang:start_timer(Ms, self(), Key)}}.
+
+untimer(Key, #data{timers = Timers} = Data) ->
+    ok = cancel(maps:get(Key, Timers, undefined)),
+    Data#data{timers = maps:remove(Key, Timers)}.
+
+cancel(undefined) -> ok;
+cancel(TRef) -> erlang:cancel_timer(TRef, [{async, true}, {info, false}]).
+
+%% The logic's timers only: re-armed from its state on a takeover, dropped
+%% on a handover.
+cancel_logic_timers(#data{timers = Timers} = Data) ->
+    {Ha, Logic} = maps:fold(fun({ha, _} = K, T, {H, L}) -> {H#{K => T}, L};
+                               (_K, T, {H, L}) -> {H, [T | L]}
+                            end, {#{}, []}, Timers),
+    _ = [cancel(T) || T <- Logic],
+    Data#data{timers = Ha}.
+
+arm_logic_timers(#data{logic = Logic} = Data) ->
+    Now = erlang:system_time(millisecond),
+    lists:foldl(fun({Key, Ms}, D) -> timer(Key, Ms, D) end, cancel_logic_timers(Data),
+                evatar_pairing_logic:timers(Logic, Now)).
+
+%% ---------------------------------------------------------------------------
+%% Calls
+%% ---------------------------------------------------------------------------
+
+call({inspect, What}, From, State, Data0) ->
+    %% An active whose node was paused since it began serving asks the
+    %% cluster whether it is still the active and says nothing until it
+    %% knows: never `active' beside a standby that took over meanwhile.
+    Data = case stalled_active(State, Data0) of
+               true -> paused(Data0);
+               false -> Data0
+           end,
+    case Data of
+        #data{reconfirming = true, inspects = Waiting} ->
+            {keep_state, Data#data{inspects = [{From, What} | Waiting]}};
+        #data{} ->
+            {keep_state, Data, [{reply, From, inspect(What, State, Data)}]}
+    end;
+call({auth, Role, EntityId}, From, _State, #data{config = Config}) ->
+    %% What a join must present, so that the joining process checks its
+    %% credential itself (evatar:join/4): an id the pairing refuses anyway
+    %% costs no hash.
+    Reply = case evatar_auth:check_id(EntityId, maps:get(max_id_length, Config)) of
+                ok -> {ok, evatar_auth:requirement(Role, EntityId, Config)};
+                {error, _} = Error -> Error
+            end,
+    {keep_state_and_data, [{reply, From, Reply}]};
+call(_Request, _From, handing_over, _Data) ->
+    {keep_state_and_data, [postpone]};
+call(delete, From, _State, #data{id = Id, standby = Standby}) ->
     ?LOG_INFO(#{what => pairing_deleted, pairing => Id}),
-    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
+    _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
     {stop_and_reply, normal, [{reply, From, ok}]};
-handle_event({call, From}, {resume, _, _, _, _, _} = Request, standby, Data) ->
+call({tap_watch, Pid, Filter}, From, State, #data{id = Id} = Data)
+  when is_pid(Pid), is_map(Filter), (State =:= waiting orelse State =:= bound) ->
+    case evatar_tap:add(Pid, Filter, Data#data.watchers, Id) of
+        {ok, Ref, Watchers} ->
+            {keep_state, Data#data{watchers = Watchers}, [{reply, From, {ok, Ref}}]};
+        {error, _} = Error ->
+            {keep_state_and_data, [{reply, From, Error}]}
+    end;
+call({tap_watch, _, _}, From, standby, #data{active = Active}) ->
+    {keep_state_and_data, [{reply, From, {redirect, Active}}]};
+call({tap_watch, _, _}, From, fenced, _Data) ->
+    {keep_state_and_data, [{reply, From, {error, busy}}]};
+call({resume, _, _, _, _, _} = Request, From, standby, Data) ->
     %% A client that lost the active comes here: answer once this instance
     %% either took over (it serves the resume then) or heard its active
     %% after the request came (NotActive), instead of sending the client
     %% through its endpoints and back-off while a takeover is under way.
     Held = [{From, Request, erlang:monotonic_time(millisecond)} | Data#data.held],
     {keep_state, arm_held(Data#data{held = Held})};
-handle_event({call, From}, Request, standby, #data{active = Active}) ->
-    Reply = case Request of
-                {leave, _} -> ok;
-                _ -> {error, {not_active, node_of(Active)}}
-            end,
-    {keep_state_and_data, [{reply, From, Reply}]};
-handle_event({call, From}, Request, fenced, _Data) ->
-    Reply = case Request of
-                {leave, _} -> ok;
-                _ -> {error, fenced}
-            end,
-    {keep_state_and_data, [{reply, From, Reply}]};
-handle_event(cast, _Client, State, _Data) when State =:= standby; State =:= fenced ->
-    %% Not accepted, so never acknowledged: the client sends it again to
-    %% the active.
-    keep_state_and_data;
-handle_event(info, {timeout, _TRef, _Key}, fenced, _Data) ->
-    {keep_state_and_data, [postpone]};
-handle_event(info, {timeout, _TRef, _Key}, standby, _Data) ->
-    keep_state_and_data;
-handle_event(internal, handover, handing_over, Data) ->
-    {keep_state, send_handover(Data)};
-handle_event(state_timeout, handover, handing_over, Data) ->
-    ?LOG_WARNING(#{what => handover_aborted, pairing => Data#data.id}),
-    next(Data#data{role = active}, []);
-handle_event(info, evatar_silent_check, State, Data) when State =/= waiting, State =/= bound ->
-    {keep_state, Data#data{silent_armed = false}};
-handle_event(_Type, _Event, handing_over, _Data) ->
-    {keep_state_and_data, [postpone]};
-
-%% ---------------------------------------------------------------------------
-%% Active: the client traffic
-%% ---------------------------------------------------------------------------
-
-%% The hot path: no reply, no timer for anything but requests.
-handle_event(cast, {signal, EntityId, Signal}, _State, Data) ->
-    {keep_state, flush_maybe(run({signal, EntityId, Signal}, Data))};
-handle_event(cast, {client_ack, EntityId, Seq}, _State, Data) when is_integer(Seq) ->
-    {keep_state, flush_maybe(run({client_ack, EntityId, Seq}, Data))};
-handle_event(cast, {report_binding, EntityId}, _State, Data) when is_binary(EntityId) ->
-    {keep_state, report_binding(EntityId, Data)};
-handle_event({call, From}, {join, Role, EntityId, Credential, Pid}, _State, Data) ->
-    join({join, Role, EntityId, Credential}, EntityId, Pid, From, Data);
-handle_event({call, From}, {join, Role, EntityId, Credential, Pid, #{session := S}}, _State,
-             Data) when is_binary(S) ->
-    join({join, Role, EntityId, Credential, S}, EntityId, Pid, From, Data);
-handle_event({call, From}, {resume, Role, EntityId, Credential, Pid,
-                            #{session := S, received := R, epoch := E}}, _State, Data)
-  when is_binary(S), is_integer(R), R >= 0, is_integer(E), E >= 0 ->
-    join({resume, Role, EntityId, Credential, S, R, E}, EntityId, Pid, From, Data);
-handle_event({call, From}, {describe, EntityId, Description}, _State, Data) ->
-    {Reply, Data1} = step({describe, EntityId, Description}, Data),
-    next(flush_maybe(reply(From, Reply, Data1)), []);
-handle_event({call, From}, {leave, EntityId}, _State, Data) ->
-    {ok, Data1} = step({leave, EntityId, left}, Data),
-    next(flush_maybe(reply(From, ok, forget(EntityId, Data1))), []);
-handle_event(cast, {leave, EntityId}, _State, Data) when is_binary(EntityId) ->
-    %% evatar:leave_async/1: a closing connection that needs no answer.
-    {ok, Data1} = step({leave, EntityId, left}, Data),
-    next(flush_maybe(forget(EntityId, Data1)), []);
-handle_event(info, {'DOWN', Ref, process, _Pid, _Reason}, _State, #data{refs = Refs} = Data) ->
-    case Refs of
-        #{Ref := EntityId} ->
-            Data1 = forget(EntityId, Data),
-            {_, Data2} = step({detach, EntityId}, Data1),
-            next(flush_maybe(Data2), []);
-        #{} ->
-            keep_state_and_data
-    end;
-handle_event(info, {timeout, TRef, Key}, _State, #data{timers = Timers} = Data) ->
-    case Timers of
-        #{Key := TRef} ->
-            Data1 = run({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)}),
-            next(flush_maybe(Data1), []);
-        #{} ->
-            %% Cancelled or replaced while the message was on its way.
-            keep_state_and_data
-    end;
-handle_event(info, evatar_silent_check, _State, Data) ->
-    silent_check(Data#data{silent_armed = false});
-handle_event({call, From}, delete, _State, #data{id = Id} = Data) ->
-    ?LOG_INFO(#{what => pairing_deleted, pairing => Id}),
-    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
-    {stop_and_reply, normal, [{reply, From, ok}]};
-handle_event(EventType, Event, _State, #data{id = Id}) ->
-    ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => EventType,
-                  event => Event}),
-    keep_state_and_data.
+call({leave, _}, From, State, _Data) when State =:= standby; State =:= fenced ->
+    {keep_state_and_data, [{reply, From, ok}]};
+call(_Request, From, standby, #data{active = Active}) ->
+    {keep_state_and_data, [{reply, From, {error, {not_active, node_of(Active)}}}]};
+call(_Request, From, fenced, _Data) ->
+    {keep_state_and_data, [{reply, From, {error, fenced}}]};
+call(Request, From, _Active, Data) ->
+    active_call(Request, From, Data).
 
 inspect(ha, _State, Data) ->
     ha_status(Data);
-inspect(What, State, #data{logic = Logic} = Data) ->
+inspect(What, State, #data{logic = Logic, commit = C} = Data) ->
     case What of
         summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(),
                                                            role => Data#data.role,
@@ -382,7 +359,7 @@ inspect(What, State, #data{logic = Logic} = Data) ->
         state -> Logic;
         %% One read of both: a state compared with another instance's
         %% only at the same version (tests).
-        versioned_state -> {Data#data.version, Logic}
+        versioned_state -> {evatar_ha_commit:version(C), Logic}
     end.
 
 %% The reconfirmation after a pause is over (accepted, or fenced): the
@@ -396,7 +373,7 @@ reconfirmed(State, #data{inspects = Waiting} = Data) ->
 %% @private
 %% Only an orderly stop runs this (the process does not trap exits): tell
 %% every entity's process, so it can close its connection with a reason.
--spec terminate(term(), atom(), #data{}) -> ok.
+-spec terminate(term(), state(), #data{}) -> ok.
 terminate(normal, _State, #data{id = Id, pids = Pids}) ->
     _ = [Pid ! {evatar, Id, {dropped, pairing_deleted, <<"the pairing was deleted">>}}
          || {Pid, _} <- maps:values(Pids)],
@@ -407,27 +384,74 @@ terminate(_Reason, _State, _Data) ->
     ok.
 
 %% ---------------------------------------------------------------------------
-%% Joining and resuming
+%% Active: the client traffic
 %% ---------------------------------------------------------------------------
+
+%% The hot path: no reply, no timer for anything but requests.
+active_cast({signal, EntityId, Signal}, Data) ->
+    {keep_state, flush_maybe(run({signal, EntityId, Signal}, Data))};
+active_cast({client_ack, EntityId, Seq}, Data) when is_integer(Seq) ->
+    {keep_state, flush_maybe(run({client_ack, EntityId, Seq}, Data))};
+active_cast({report_binding, EntityId}, Data) when is_binary(EntityId) ->
+    {keep_state, report_binding(EntityId, Data)};
+active_cast({leave, EntityId}, Data) when is_binary(EntityId) ->
+    %% evatar:leave_async/1: a closing connection that needs no answer.
+    {ok, Data1} = step({leave, EntityId, left}, Data),
+    next(flush_maybe(forget(EntityId, Data1)), []);
+active_cast(Request, #data{id = Id}) ->
+    ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => cast, event => Request}),
+    keep_state_and_data.
+
+active_call({join, Role, EntityId, Credential, Pid}, From, Data) ->
+    join({join, Role, EntityId, Credential}, EntityId, Pid, From, Data);
+active_call({join, Role, EntityId, Credential, Pid, #{session := S}}, From, Data)
+  when is_binary(S) ->
+    join({join, Role, EntityId, Credential, S}, EntityId, Pid, From, Data);
+active_call({resume, Role, EntityId, Credential, Pid,
+             #{session := S, received := R, epoch := E}}, From, Data)
+  when is_binary(S), is_integer(R), R >= 0, is_integer(E), E >= 0 ->
+    join({resume, Role, EntityId, Credential, S, R, E}, EntityId, Pid, From, Data);
+active_call({describe, EntityId, Description}, From, Data) ->
+    {Reply, Data1} = step({describe, EntityId, Description}, Data),
+    next(flush_maybe(reply(From, Reply, Data1)), []);
+active_call({leave, EntityId}, From, Data) ->
+    {ok, Data1} = step({leave, EntityId, left}, Data),
+    next(flush_maybe(reply(From, ok, forget(EntityId, Data1))), []);
+active_call(Request, _From, #data{id = Id}) ->
+    ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => call, event => Request}),
+    keep_state_and_data.
+
+%% The other instance's process, or an entity's.
+down(Ref, Why, State, #data{standby_mon = Ref} = Data) ->
+    standby_down(Why, State, Data);
+down(Ref, Why, standby, #data{active_mon = Ref} = Data) ->
+    active_down(Why, Data#data{active_mon = undefined});
+down(Ref, _Why, _State, #data{active_mon = Ref} = Data) ->
+    {keep_state, Data#data{active_mon = undefined}};
+down(_Ref, _Why, handing_over, _Data) ->
+    {keep_state_and_data, [postpone]};
+down(Ref, _Why, _State, #data{refs = Refs} = Data) ->
+    case Refs of
+        #{Ref := EntityId} ->
+            {_, Data1} = step({detach, EntityId}, forget(EntityId, Data)),
+            next(flush_maybe(Data1), []);
+        #{} ->
+            keep_state_and_data
+    end.
 
 %% The connection is registered before the event runs: a resume delivers
 %% again at once what the entity has not acknowledged. A refusal puts back
 %% whatever was registered before.
-join(Event, EntityId, Pid, From, Data) ->
-    case stalled_active(waiting, Data) of
-        true -> join1(Event, EntityId, Pid, From, paused(Data));
-        false -> join1(Event, EntityId, Pid, From, Data)
-    end.
-
-join1(Event, EntityId, Pid, From, #data{pids = Pids, refs = Refs} = Data) ->
-    Old = maps:get(EntityId, Pids, undefined),
+join(Event, EntityId, Pid, From, #data{pids = Pids0, refs = Refs} = Data0) ->
+    Data = case stalled_active(waiting, Data0) of
+               true -> paused(Data0);
+               false -> Data0
+           end,
+    Old = maps:get(EntityId, Pids0, undefined),
     Ref = erlang:monitor(process, Pid),
-    Data1 = Data#data{pids = Pids#{EntityId => {Pid, Ref}}, refs = Refs#{Ref => EntityId}},
+    Data1 = Data#data{pids = Pids0#{EntityId => {Pid, Ref}}, refs = Refs#{Ref => EntityId}},
     case step(Event, Data1) of
-        {ok, Data2} ->
-            ok = evatar_metrics:pairing_inc(Data2#data.metrics, evatar_pairing_joins_total, none),
-            joined(Event, Pid, From, Old, ok, Data2);
-        {{ok, _, _} = Ok, Data2} ->
+        {Ok, Data2} when Ok =:= ok; element(1, Ok) =:= ok ->
             ok = evatar_metrics:pairing_inc(Data2#data.metrics, evatar_pairing_joins_total, none),
             joined(Event, Pid, From, Old, Ok, Data2);
         {Error, Data2} ->
@@ -469,7 +493,7 @@ joined(Event, Pid, From, Old, Ok, #data{config = Config} = Data1) ->
     next(flush_maybe(reply(From, {ok, Info}, Data3)), []).
 
 %% ---------------------------------------------------------------------------
-%% Running the logic
+%% Running the logic, and the output commit
 %% ---------------------------------------------------------------------------
 
 next(#data{role = active, logic = Logic} = Data, Actions) ->
@@ -486,178 +510,103 @@ run(Event, Data) ->
     {_Reply, Data1} = step(Event, Data),
     Data1.
 
-%% Applies one event to the logic and executes its effects in order;
-%% returns the logic's reply (`ok' for events that have none). With a
-%% standby the event is queued for shipping and the effects seen outside
-%% wait in the outbox for its confirmation.
-step(Event, #data{logic = Logic, version = V} = Data) ->
+%% Applies one event to the logic; evatar_ha_commit says what of its
+%% effects goes out now. Returns the logic's reply (`ok' for events that
+%% have none).
+step(Event, #data{logic = Logic, commit = C, pids = Pids} = Data) ->
     Now = erlang:system_time(millisecond),
     {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
     ok = evatar_metrics:pairing_step(Data#data.metrics, Event, Effects),
-    Data1 = case Data#data.watchers of
-                [] ->
-                    Data#data{logic = Logic1, version = V + 1};
-                Watchers ->
-                    Data#data{logic = Logic1, version = V + 1,
-                              watchers = evatar_tap:emit(Data#data.id, Event, Effects, Now,
-                                                         Watchers)}
-            end,
-    case Data1#data.standby of
-        undefined when not Data1#data.hold ->
-            execute(Effects, ok, Data1);
-        undefined ->
-            %% No standby, and a registration under way: held until the
-            %% cluster has accepted it (then released at once).
-            {Reply, Held, Data2} = internal(Effects, ok, [], Data1),
-            {Reply, hold(V + 1, Held, Data2)};
-        _ ->
-            {Reply, Held, Data2} = internal(Effects, ok, [], Data1),
-            Data3 = Data2#data{repl = [{V + 1, Now, Event} | Data2#data.repl]},
-            {Reply, hold(V + 1, Held, Data3)}
-    end.
+    Watchers = case Data#data.watchers of
+                   [] -> [];
+                   W -> evatar_tap:emit(Data#data.id, Event, Effects, Now, W)
+               end,
+    Conns = maps:map(fun(_, {Pid, _}) -> Pid end, Pids),
+    {Reply, Out, C1} = evatar_ha_commit:step(Event, Now, Effects, Conns, mode(Data), C),
+    {Reply, execute(Out, Data#data{logic = Logic1, commit = C1, watchers = Watchers})}.
 
-%% With a standby: timers and logs now, the rest held.
-internal([{start_timer, _, _} = E | Rest], Reply, Held, Data) ->
-    {_, Data1} = execute([E], ok, Data),
-    internal(Rest, Reply, Held, Data1);
-internal([{cancel_timer, _} = E | Rest], Reply, Held, Data) ->
-    {_, Data1} = execute([E], ok, Data),
-    internal(Rest, Reply, Held, Data1);
-internal([{log, _, _} = E | Rest], Reply, Held, Data) ->
-    {_, Data1} = execute([E], ok, Data),
-    internal(Rest, Reply, Held, Data1);
-internal([{reply, Reply} | Rest], _Reply, Held, Data) ->
-    internal(Rest, Reply, Held, Data);
-internal([{Kind, EntityId, What} | Rest], Reply, Held, #data{pids = Pids} = Data)
-  when Kind =:= deliver; Kind =:= report ->
-    %% Bound now to the connection it was meant for: released later, it
-    %% must not reach a connection that attached since (that one gets the
-    %% resume's redelivery, in Sequence order).
-    Msg = case Kind of
-              deliver -> {signal, What};
-              report -> {bound, What}
-          end,
-    case Pids of
-        #{EntityId := {Pid, _}} -> internal(Rest, Reply, [{send, Pid, Msg} | Held], Data);
-        #{} -> internal(Rest, Reply, Held, Data)
+mode(#data{standby = undefined, core = Core}) ->
+    case evatar_ha_core:holding(Core) of
+        true -> held;
+        false -> direct
     end;
-internal([E | Rest], Reply, Held, Data) ->
-    internal(Rest, Reply, [E | Held], Data);
-internal([], Reply, Held, Data) ->
-    {Reply, lists:reverse(Held), Data}.
-
-hold(_V, [], Data) -> Data;
-hold(V, Effects, #data{outbox = Q} = Data) -> Data#data{outbox = queue:in({V, Effects}, Q)}.
+mode(#data{}) ->
+    replicated.
 
 %% A GetBinding (docs/protocol.md section 2): the current report, to that
-%% entity only. It changes no state, so it is not shipped to the standby;
-%% it waits behind the effects still held for the standby, so that it never
-%% overtakes an older report.
-report_binding(EntityId, #data{logic = Logic, pids = Pids, outbox = Q} = Data) ->
+%% entity only. It changes no state, so it is not shipped to the standby.
+report_binding(EntityId, #data{logic = Logic, pids = Pids, commit = C} = Data) ->
     {_, Effects} = evatar_pairing_logic:handle({report_binding, EntityId}, 0, Logic),
     Sends = [{send, Pid, {bound, R}} || {report, E, R} <- Effects,
                                         {Pid, _} <- [maps:get(E, Pids, {undefined, x})],
                                         is_pid(Pid)],
-    case queue:is_empty(Q) of
-        true ->
-            {ok, Data1} = execute(Sends, ok, Data),
-            Data1;
-        false ->
-            hold(Data#data.version, Sends, Data)
-    end.
+    {Out, C1} = evatar_ha_commit:report(Sends, mode(Data), C),
+    execute(Out, Data#data{commit = C1}).
 
-%% A call's reply, held like any other effect while there is a standby.
-reply(From, Reply, #data{standby = undefined, hold = false} = Data) ->
-    gen_statem:reply(From, Reply),
-    Data;
-reply(From, Reply, #data{version = V} = Data) ->
-    hold(V, [{reply_to, From, Reply}], Data).
+%% A call's reply, held like any other effect.
+reply(From, Reply, #data{commit = C} = Data) ->
+    {Out, C1} = evatar_ha_commit:reply(From, Reply, mode(Data), C),
+    execute(Out, Data#data{commit = C1}).
 
-execute([{deliver, EntityId, Signal} | Rest], Reply, Data) ->
+flush_maybe(#data{commit = C} = Data) ->
+    {message_queue_len, N} = erlang:process_info(self(), message_queue_len),
+    {Out, C1} = evatar_ha_commit:flush_maybe(N, mode(Data), C),
+    execute(Out, Data#data{commit = C1}).
+
+flush(#data{commit = C} = Data) ->
+    {Out, C1} = evatar_ha_commit:flush(mode(Data), C),
+    execute(Out, Data#data{commit = C1}).
+
+%% The standby confirmed `V': what was held for it goes out.
+release(V, #data{commit = C} = Data) ->
+    {Out, C1} = evatar_ha_commit:confirm(V, C),
+    execute(Out, Data#data{commit = C1}).
+
+%% No standby any more, or the cluster accepted this active's
+%% configuration: everything held goes out now.
+release_all(#data{commit = C} = Data) ->
+    {Out, C1} = evatar_ha_commit:release_all(C),
+    execute(Out, Data#data{commit = C1}).
+
+execute([{deliver, EntityId, Signal} | Rest], Data) ->
     ok = tell(EntityId, {signal, Signal}, Data),
-    execute(Rest, Reply, Data);
-execute([{send, Pid, Msg} | Rest], Reply, #data{id = Id} = Data) ->
-    Pid ! {evatar, Id, Msg},
-    execute(Rest, Reply, Data);
-execute([{report, EntityId, Report} | Rest], Reply, Data) ->
+    execute(Rest, Data);
+execute([{report, EntityId, Report} | Rest], Data) ->
     ok = tell(EntityId, {bound, Report}, Data),
-    execute(Rest, Reply, Data);
-execute([{drop, EntityId, Code, Reason} | Rest], Reply, Data) ->
+    execute(Rest, Data);
+execute([{drop, EntityId, Code, Reason} | Rest], Data) ->
     ok = tell(EntityId, {dropped, Code, Reason}, Data),
-    execute(Rest, Reply, forget(EntityId, Data));
-execute([{accepted, EntityId, SignalId} | Rest], Reply, #data{acks = Acks} = Data) ->
-    execute(Rest, Reply, Data#data{acks = Acks#{EntityId => SignalId}});
-execute([{reply_to, From, R} | Rest], Reply, Data) ->
+    execute(Rest, forget(EntityId, Data));
+execute([{send, Pid, Msg} | Rest], #data{id = Id} = Data) ->
+    Pid ! {evatar, Id, Msg},
+    execute(Rest, Data);
+execute([{reply_to, From, R} | Rest], Data) ->
     gen_statem:reply(From, R),
-    execute(Rest, Reply, Data);
-execute([{start_timer, Key, Ms} | Rest], Reply, #data{timers = Timers} = Data) ->
-    ok = cancel(maps:get(Key, Timers, undefined)),
-    TRef = erlang:start_timer(Ms, self(), Key),
-    execute(Rest, Reply, Data#data{timers = Timers#{Key => TRef}});
-execute([{cancel_timer, Key} | Rest], Reply, #data{timers = Timers} = Data) ->
-    ok = cancel(maps:get(Key, Timers, undefined)),
-    execute(Rest, Reply, Data#data{timers = maps:remove(Key, Timers)});
-execute([{log, Level, Report} | Rest], Reply, #data{id = Id} = Data) ->
-    %% Ids in a report come from clients: cut to 64 bytes (evatar_log).
-    ?LOG(Level, evatar_log:report(Report#{pairing => Id})),
-    execute(Rest, Reply, Data);
-execute([{reply, Reply} | Rest], _Reply, Data) ->
-    execute(Rest, Reply, Data);
-execute([], Reply, Data) ->
-    {Reply, Data}.
-
-%% Ships the queued events to the standby, or sends the batched Acks when
-%% there is none, once the mailbox is empty or every FLUSH_EVERY events:
-%% one message per batch instead of one per signal.
-flush_maybe(#data{repl = [], acks = Acks} = Data) when map_size(Acks) =:= 0 ->
-    Data;
-flush_maybe(#data{unflushed = N} = Data) ->
-    case erlang:process_info(self(), message_queue_len) of
-        {message_queue_len, 0} -> flush(Data);
-        _ when N >= ?FLUSH_EVERY -> flush(Data);
-        _ when N =:= 0 ->
-            %% Deferred: whatever the waiting messages are (not all of them
-            %% flush), this one flushes once they are handled.
-            self() ! evatar_flush,
-            Data#data{unflushed = 1};
-        _ -> Data#data{unflushed = N + 1}
-    end.
-
-flush(#data{standby = undefined, hold = true} = Data) ->
-    Data#data{unflushed = 0};
-flush(#data{standby = undefined} = Data) ->
-    send_acks(Data#data{unflushed = 0});
-flush(#data{repl = []} = Data) ->
-    Data#data{unflushed = 0};
-flush(#data{standby = Standby, repl = Repl, logic = Logic} = Data) ->
-    ok = evatar_ha_proto_v1:events(Standby, evatar_pairing_logic:epoch(Logic),
-                                   lists:reverse(Repl)),
-    Data#data{repl = [], unflushed = 0}.
-
-send_acks(#data{acks = Acks, id = Id, pids = Pids} = Data) ->
+    execute(Rest, Data);
+execute([{acks, Acks} | Rest], #data{id = Id, pids = Pids} = Data) ->
     maps:foreach(fun(EntityId, SignalId) ->
                          case Pids of
                              #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
                              #{} -> ok
                          end
                  end, Acks),
-    Data#data{acks = #{}}.
-
-%% The standby confirmed `Version': what was held for it goes out.
-release(Version, #data{outbox = Q} = Data) ->
-    case queue:peek(Q) of
-        {value, {V, Effects}} when V =< Version ->
-            {_, Data1} = execute(Effects, ok, Data#data{outbox = queue:drop(Q)}),
-            release(Version, Data1);
-        _ ->
-            send_acks(Data)
-    end.
-
-%% No standby any more (it died, or this node may go on alone): everything
-%% held goes out now (degraded).
-release_all(#data{version = V} = Data) ->
-    Data1 = release(V, Data),
-    Data1#data{repl = [], unflushed = 0}.
+    execute(Rest, Data);
+execute([{ship, Events} | Rest], #data{standby = Standby, logic = Logic} = Data) ->
+    ok = evatar_ha_proto_v1:events(Standby, evatar_pairing_logic:epoch(Logic), Events),
+    execute(Rest, Data);
+execute([flush_later | Rest], Data) ->
+    self() ! evatar_flush,
+    execute(Rest, Data);
+execute([{start_timer, Key, Ms} | Rest], Data) ->
+    execute(Rest, timer(Key, Ms, Data));
+execute([{cancel_timer, Key} | Rest], Data) ->
+    execute(Rest, untimer(Key, Data));
+execute([{log, Level, Report} | Rest], #data{id = Id} = Data) ->
+    %% Ids in a report come from clients: cut to 64 bytes (evatar_log).
+    ?LOG(Level, evatar_log:report(Report#{pairing => Id})),
+    execute(Rest, Data);
+execute([], Data) ->
+    Data.
 
 tell(EntityId, Message, #data{id = Id, pids = Pids}) ->
     case Pids of
@@ -684,104 +633,59 @@ disconnect_all(Code, Reason, #data{id = Id, pids = Pids} = Data) ->
     _ = [erlang:demonitor(Ref, [flush]) || {_, Ref} <- maps:values(Pids)],
     Data#data{pids = #{}, refs = #{}}.
 
-cancel(undefined) ->
-    ok;
-cancel(TRef) ->
-    ok = erlang:cancel_timer(TRef, [{async, true}, {info, false}]).
-
-cancel_all(#data{timers = Timers} = Data) ->
-    _ = [cancel(T) || T <- maps:values(Timers)],
-    Data#data{timers = #{}}.
-
-arm_timers(#data{logic = Logic} = Data) ->
-    Now = erlang:system_time(millisecond),
-    lists:foldl(fun({Key, Ms}, D) ->
-                        {_, D1} = execute([{start_timer, Key, Ms}], ok, D),
-                        D1
-                end, cancel_all(Data), evatar_pairing_logic:timers(Logic, Now)).
-
 %% ---------------------------------------------------------------------------
 %% Roles
 %% ---------------------------------------------------------------------------
 
-become_active(new, #data{id = Id, config = Config} = Data) ->
+become_active(#data{id = Id, config = Config} = Data) ->
     Logic = evatar_pairing_logic:new(Id, Config),
     ?LOG_INFO(#{what => pairing_started, pairing => Id}),
-    Data1 = publish(Data#data{logic = Logic, role = active, gen = evatar_cluster:stall_gen(),
-                              metrics = evatar_metrics:pairing(Id)}),
-    {next_state, evatar_pairing_logic:phase(Logic), Data1,
-     [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
+    Data1 = publish(left_starting(Data#data{logic = Logic, role = active,
+                                            gen = evatar_cluster:stall_gen(),
+                                            metrics = evatar_metrics:pairing(Id)})),
+    {next_state, evatar_pairing_logic:phase(Logic), place_soon(Data1)}.
+
+become_standby(Version, State, Claim, #data{id = Id, active = Active, commit = C} = Data) ->
+    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(State), Version),
+    ?LOG_INFO(#{what => standby_synced, pairing => Id, active => node_of(Active),
+                version => Version}),
+    {Core, []} = evatar_ha_core:handle({claim, Claim}, ctx(standby, Data), Data#data.core),
+    Data1 = publish(left_starting(Data#data{logic = State, role = standby, core = Core,
+                                            commit = evatar_ha_commit:applied(Version, C),
+                                            active_lost = false})),
+    {next_state, standby, Data1}.
+
+left_starting(Data) ->
+    lists:foldl(fun untimer/2, Data, [{ha, asked}, {ha, retry_ask}, {ha, offered}]).
 
 %% An instance that won the election at `Epoch' takes over: a standby
 %% (fully applied up to its version) or a fenced active asking again. It
 %% holds every effect until the cluster accepted its new configuration
-%% `{Epoch, 1}' (send_register/1), which no other instance's claim can
-%% reach; then it releases them and places a standby. Resumes held while it
-%% was a standby are served now.
-take_over(Why, Epoch, #data{id = Id, active_mon = Mon, standby_mon = SMon} = Data) ->
+%% (evatar_ha_core); then it releases them and places a standby. Resumes
+%% held while it was a standby are served now.
+take_over(Why, Epoch, #data{id = Id, active_mon = Mon, standby_mon = SMon, commit = C} = Data) ->
     _ = [erlang:demonitor(M, [flush]) || M <- [Mon, SMon], is_reference(M)],
     _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby], is_pid(P)],
     ?LOG_WARNING(#{what => takeover, pairing => Id, epoch => Epoch, reason => Why,
-                   version => Data#data.version}),
+                   version => evatar_ha_commit:version(C)}),
     ok = evatar_metrics:inc(evatar_takeovers_total, takeover_reason(Why)),
-    Data1 = Data#data{role = active, metrics = evatar_metrics:pairing(Id), active = undefined, active_mon = undefined,
-                      active_lost = false, standby = undefined, standby_mon = undefined,
-                      synced = false, repl = [], election = undefined, hold = true,
-                      conf = {Epoch, 1}, gen = evatar_cluster:stall_gen(), held = []},
-    Data2 = arm_timers(Data1),
-    {_, Data3} = step({takeover, Epoch}, Data2),
-    Data4 = arm_silent(publish(send_register(Data3))),
-    next(Data4, [{next_event, {call, From}, Request} || {From, Request, _} <- lists:reverse(Data#data.held)]).
+    Data1 = Data#data{role = active, metrics = evatar_metrics:pairing(Id), active = undefined,
+                      active_mon = undefined, active_lost = false, standby = undefined,
+                      standby_mon = undefined, commit = evatar_ha_commit:unsync(C),
+                      gen = evatar_cluster:stall_gen(), held = []},
+    {_, Data2} = step({takeover, Epoch}, arm_logic_timers(Data1)),
+    next(arm_silent(publish(Data2)),
+         [{next_event, {call, From}, Request} || {From, Request, _} <- lists:reverse(Data#data.held)]).
 
 takeover_reason({Why, _}) -> Why;
 takeover_reason(Why) -> Why.
 
-become_standby(_Epoch, Version, State, Claim, #data{id = Id, active = Active} = Data) ->
-    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(State), Version),
-    ?LOG_INFO(#{what => standby_synced, pairing => Id, active => node_of(Active),
-                version => Version}),
-    Data1 = publish(Data#data{logic = State, version = Version, role = standby,
-                              active_lost = false, conf = Claim, election = undefined}),
-    {next_state, standby, Data1}.
-
-offer_to(Active, #data{version = V} = Data) ->
-    Mon = erlang:monitor(process, Active),
-    ok = evatar_ha_proto_v1:offer(Active, self(), V),
-    {keep_state, Data#data{active = Active, active_mon = Mon},
-     [{state_timeout, 5 * evatar_cluster:opt(suspect_ms) + 2000, offered}]}.
-
-ask_peers(Peers, #data{id = Id, asks = _} = Data) ->
-    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
-    {keep_state, Data#data{asks = length(Peers), answers = []},
-     [{state_timeout, 2 * evatar_cluster:opt(suspect_ms), asked}]}.
-
-%% A restarted instance: an active elsewhere takes it as its standby; a
-%% standby elsewhere is about to take over (ask again); nobody: start afresh.
-decide_start(#data{answers = Answers} = Data) ->
-    Infos = [I || {_, I} <- Answers, is_map(I)],
-    case [I || #{role := R} = I <- Infos, R =:= active orelse R =:= fenced] of
-        [#{pid := Active} | _] ->
-            offer_to(Active, Data);
-        [] ->
-            case [I || #{role := standby} = I <- Infos] of
-                [_ | _] when Data#data.asks > 0 ->
-                    {keep_state, Data#data{answers = []},
-                     [{state_timeout, evatar_cluster:opt(suspect_ms), retry_ask}]};
-                _ ->
-                    become_active(new, Data)
-            end
-    end.
-
 publish(#data{id = Id, role = Role, logic = Logic} = Data) ->
-    Epoch = case Logic of
-                undefined -> 0;
-                _ -> evatar_pairing_logic:epoch(Logic)
-            end,
     Peer = case Role of
                standby -> Data#data.active;
                _ -> Data#data.standby
            end,
-    ok = evatar_registry:set_role(Id, self(), Role, Epoch, Peer),
+    ok = evatar_registry:set_role(Id, self(), Role, epoch(Logic), Peer),
     case Data of
         #data{watchers = []} -> Data;
         #data{role = active} -> Data;
@@ -799,10 +703,20 @@ step_down(Why, #data{id = Id} = Data) ->
     Data1 = disconnect_all(stale_epoch, <<"a newer instance of this pairing is active">>, Data),
     {stop, {shutdown, Why}, Data1}.
 
+%% ---------------------------------------------------------------------------
+%% The standby: placed by the active on the next alive node
+%% ---------------------------------------------------------------------------
+
 wants_standby(#data{role = active, standby = undefined, placing = false}) ->
     evatar_cluster:opt(standby) =:= true andalso evatar_cluster:size() > 1;
 wants_standby(_) ->
     false.
+
+place_soon(Data) ->
+    case wants_standby(Data) of
+        true -> timer({ha, place}, 0, Data);
+        false -> Data
+    end.
 
 %% Asks the next alive node to start a standby; tried again later when
 %% nothing came of it.
@@ -816,8 +730,7 @@ place(State, #data{id = Id, config = Config, logic = Logic} = Data)
                 Node ->
                     ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(),
                                                           evatar_pairing_logic:epoch(Logic)),
-                    erlang:send_after(?PLACE_RETRY_MS, self(), {evatar_cluster, place_retry}),
-                    Data#data{placing = true}
+                    timer({ha, place}, ?PLACE_RETRY_MS, Data#data{placing = true})
             end;
         false ->
             Data
@@ -825,16 +738,62 @@ place(State, #data{id = Id, config = Config, logic = Logic} = Data)
 place(_State, Data) ->
     Data.
 
+%% A new standby gets the whole state and a new claim: the configuration
+%% with it as the standby. The snapshot holds every event queued so far.
+snapshot_to(#data{standby = Standby, logic = Logic, commit = C, core = Core} = Data) ->
+    {Claim, Core1} = evatar_ha_core:next_claim(Core),
+    ok = evatar_ha_proto_v1:snapshot(Standby, evatar_pairing_logic:epoch(Logic),
+                                     evatar_ha_commit:version(C), Logic, Claim),
+    Data#data{commit = evatar_ha_commit:shipped(C), core = Core1}.
+
+%% The standby's process died (its node is up): it cannot take over, so go
+%% on without it at once. Its node is lost or silent: it may be taking over
+%% (a partition looks the same), so first the cluster must accept a
+%% configuration without it (evatar_ha_core); everything stays held until then.
+standby_down(Why, State, #data{id = Id, standby = Standby} = Data) ->
+    ?LOG_WARNING(#{what => standby_lost, pairing => Id, standby => node_of(Standby),
+                   reason => Why}),
+    case Why of
+        noconnection ->
+            {keep_state, Data1} = core(standby_node_lost, State, forget_standby(Data)),
+            {keep_state, publish(Data1)};
+        _ ->
+            {keep_state, place(State, publish(release_all(forget_standby(Data))))}
+    end.
+
+forget_standby(#data{standby = Standby, standby_mon = Mon, commit = C} = Data) ->
+    _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
+    _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
+    Data#data{standby = undefined, standby_mon = undefined, commit = evatar_ha_commit:unsync(C)}.
+
+active_down(noconnection, Data) ->
+    core({elect, active_silent, false}, standby, Data#data{active_lost = true});
+active_down(Why, Data) ->
+    %% The process died and its node is up: its lease counts no more.
+    core({elect, {active_died, Why}, true}, standby, Data#data{active_lost = true}).
+
+remonitor_active(#data{active = Active, active_mon = undefined} = Data) when is_pid(Active) ->
+    Data#data{active_mon = erlang:monitor(process, Active)};
+remonitor_active(Data) ->
+    Data.
+
 %% ---------------------------------------------------------------------------
-%% Replication and role messages
+%% Messages between instances (evatar_ha_proto_v1)
 %% ---------------------------------------------------------------------------
 
 %% Active: a new instance offers to be the standby.
-ha({offer, Standby, _V}, State, #data{standby = undefined, reg = undefined} = Data)
+ha({offer, Standby, _V}, State, #data{standby = undefined, core = Core} = Data)
   when State =:= waiting; State =:= bound ->
-    Mon = erlang:monitor(process, Standby),
-    Data1 = Data#data{standby = Standby, standby_mon = Mon, synced = false, placing = false},
-    {keep_state, publish(snapshot_to(Data1))};
+    case evatar_ha_core:registering(Core) of
+        false ->
+            Mon = erlang:monitor(process, Standby),
+            Data1 = Data#data{standby = Standby, standby_mon = Mon, placing = false,
+                              commit = evatar_ha_commit:unsync(Data#data.commit)},
+            {keep_state, publish(snapshot_to(Data1))};
+        true ->
+            ok = evatar_ha_proto_v1:dismiss(Standby, self()),
+            keep_state_and_data
+    end;
 ha({offer, Standby, _V}, _State, #data{standby = Standby} = Data) ->
     {keep_state, snapshot_to(Data)};
 ha({offer, Standby, _V}, _State, _Data) ->
@@ -845,8 +804,8 @@ ha({resync, Standby, _V}, _State, #data{standby = Standby} = Data) ->
 ha({resync, Other, _V}, _State, _Data) ->
     ok = evatar_ha_proto_v1:dismiss(Other, self()),
     keep_state_and_data;
-ha({confirm, Standby, _E, V}, State, #data{standby = Standby, confirmed = C} = Data) ->
-    Data1 = release(V, Data#data{confirmed = max(C, V), synced = true}),
+ha({confirm, Standby, _E, V}, State, #data{standby = Standby} = Data) ->
+    Data1 = release(V, Data),
     case State of
         handing_over -> {keep_state, send_handover(Data1)};
         _ -> {keep_state, Data1}
@@ -856,15 +815,14 @@ ha({confirm, _Other, _E, _V}, _State, _Data) ->
 
 %% Standby: the state, then the events in order. Word from the active ends
 %% any election this standby had started.
-ha({snapshot, Active, Epoch, Version, State, Claim}, standby, #data{active = Active} = Data) ->
-    become_standby(Epoch, Version, State, Claim, Data);
+ha({snapshot, Active, _Epoch, Version, State, Claim}, standby, #data{active = Active} = Data) ->
+    become_standby(Version, State, Claim, Data);
 ha({events, Active, _Epoch, Events}, standby, #data{active = Active, logic = Logic} = Data) ->
-    Before = evatar_pairing_logic:epoch(Logic),
-    {keep_state, Data1} = apply_events(Events, remonitor_active(Data#data{active_lost = false,
-                                                                          election = undefined})),
-    case evatar_pairing_logic:epoch(Data1#data.logic) of
-        Before -> {keep_state, Data1};
-        _ -> {keep_state, publish(Data1)}
+    {Core, []} = evatar_ha_core:handle(active_heard, ctx(standby, Data), Data#data.core),
+    Data1 = apply_events(Events, remonitor_active(Data#data{active_lost = false, core = Core})),
+    case epoch(Data1#data.logic) =:= epoch(Logic) of
+        true -> {keep_state, Data1};
+        false -> {keep_state, publish(Data1)}
     end;
 ha({events, From, Epoch, _Events}, State, Data) ->
     other_instance(From, active, Epoch, State, Data);
@@ -872,17 +830,11 @@ ha({dismiss, Active}, standby, #data{active = Active} = Data) ->
     stop_instance(dismissed, Data);
 ha({dismiss, _}, _State, _Data) ->
     keep_state_and_data;
-ha({handover, Active, Epoch, Version}, standby,
-   #data{active = Active, version = Version, logic = Logic} = Data) ->
-    case evatar_pairing_logic:epoch(Logic) =:= Epoch of
-        true ->
-            %% The active gives the pairing up: an election in which its
-            %% lease does not count.
-            {keep_state, elect(Data#data{active_lost = true,
-                                         election = #{epoch => 0, granted => [], replied => [],
-                                                      dead => true, why => handover,
-                                                      attempt => 0}})};
-        false ->
+ha({handover, Active, Epoch, Version}, standby, #data{active = Active, logic = Logic} = Data) ->
+    case {epoch(Logic), evatar_ha_commit:version(Data#data.commit)} of
+        {Epoch, Version} ->
+            core({handover_asked}, standby, Data#data{active_lost = true});
+        _ ->
             keep_state_and_data
     end;
 ha({handover, _Active, _Epoch, _Version}, _State, _Data) ->
@@ -893,11 +845,12 @@ ha({handover_done, New, _Epoch, Claim}, handing_over, #data{standby = New, id = 
                            Data),
     _ = erlang:demonitor(Data1#data.standby_mon, [flush]),
     Mon = erlang:monitor(process, New),
-    Data2 = cancel_all(Data1#data{role = standby, active = New, active_mon = Mon,
-                                  standby = undefined, standby_mon = undefined,
-                                  outbox = queue:new(), repl = [], acks = #{}, conf = Claim,
-                                  hold = false, reg = undefined}),
-    {next_state, standby, reconfirmed(standby, publish(Data2))};
+    {Core, []} = evatar_ha_core:handle({claim, Claim}, ctx(standby, Data), Data#data.core),
+    Data2 = cancel_logic_timers(untimer({ha, handover}, Data1)),
+    Data3 = Data2#data{role = standby, active = New, active_mon = Mon, standby = undefined,
+                       standby_mon = undefined, core = Core,
+                       commit = evatar_ha_commit:reset(Data2#data.commit)},
+    {next_state, standby, reconfirmed(standby, publish(Data3))};
 ha({stale, From, Epoch}, State, Data) ->
     other_instance(From, active, Epoch, State, Data);
 ha({peer_instance, Pid, Role, Epoch}, State, Data) when is_pid(Pid), is_atom(Role),
@@ -905,124 +858,65 @@ ha({peer_instance, Pid, Role, Epoch}, State, Data) when is_pid(Pid), is_atom(Rol
     other_instance(Pid, Role, Epoch, State, Data);
 
 %% Elections and registrations: the answers of every node.
-ha({vote_reply, _Id, Ec, Node, Result}, State,
-   #data{election = #{epoch := Ec, granted := G, replied := R} = El} = Data)
-  when State =:= standby; State =:= fenced ->
-    El1 = El#{replied := lists:usort([Node | R])},
-    case Result of
-        granted ->
-            G1 = lists:usort([Node | G]),
-            case length(G1) >= evatar_cluster:quorum_size() of
-                true -> won(El1, State, Data);
-                false -> {keep_state, Data#data{election = El1#{granted := G1}}}
-            end;
-        {refused, stale_claim} ->
-            %% A newer configuration released what this instance lacks.
-            lost(stale_claim, State, Data);
-        {refused, {promised, P}} ->
-            {keep_state, retry_soon(Data#data{election = El1, promised = max(P, Data#data.promised)})};
-        {refused, holder_live} ->
-            {keep_state, Data#data{election = El1}}
-    end;
-ha({vote_reply, _, _, _, _}, _State, _Data) ->
-    keep_state_and_data;
-ha({register_reply, _Id, Claim, Node, ok}, State,
-   #data{reg = #{claim := Claim, ok := Ok} = Reg} = Data) ->
-    Ok1 = lists:usort([Node | Ok]),
-    case length(Ok1) >= evatar_cluster:quorum_size() of
-        true -> registered(State, Data#data{reg = undefined});
-        false -> {keep_state, Data#data{reg = Reg#{ok := Ok1}}}
-    end;
-ha({register_reply, _Id, Claim, Node, {refused, Why}}, State,
-   #data{reg = #{claim := Claim, no := No} = Reg} = Data) ->
-    No1 = lists:usort([Node | No]),
-    Size = evatar_cluster:size(),
-    case Size - length(No1) < evatar_cluster:quorum_size() of
-        true ->
-            %% Too many nodes promised the pairing to another instance, or saw
-            %% a newer configuration: this one cannot go on serving.
-            ?LOG_WARNING(#{what => registration_refused, pairing => Data#data.id,
-                           reason => Why}),
-            D1 = Data#data{reg = undefined},
-            case State of
-                S when S =:= waiting; S =:= bound -> fence_now(D1, []);
-                _ -> {keep_state, D1}
-            end;
-        false ->
-            {keep_state, Data#data{reg = Reg#{no := No1}}}
-    end;
-ha({register_reply, _, _, _, _}, _State, _Data) ->
-    keep_state_and_data;
+ha({vote_reply, _Id, Ec, Node, Result}, State, Data) ->
+    core({vote_reply, Ec, Node, Result}, State, Data);
+ha({register_reply, _Id, Claim, Node, Result}, State, Data) ->
+    core({register_reply, Claim, Node, Result}, State, Data);
 ha(_Body, _State, _Data) ->
     keep_state_and_data.
 
-%% A new standby gets the whole state and a new claim: the configuration
-%% with it as the standby.
-snapshot_to(#data{standby = Standby, logic = Logic, version = V, conf = {E, Seq}} = Data) ->
-    Claim = {E, Seq + 1},
-    ok = evatar_ha_proto_v1:snapshot(Standby, evatar_pairing_logic:epoch(Logic), V, Logic, Claim),
-    %% The snapshot holds every event queued so far.
-    Data#data{repl = [], unflushed = 0, conf = Claim}.
+apply_events([{V, Now, Event} | Rest], #data{commit = C} = Data) ->
+    Mine = evatar_ha_commit:version(C),
+    if
+        V =:= Mine + 1 ->
+            {Logic1, _Effects} = evatar_pairing_logic:handle(Event, Now, Data#data.logic),
+            apply_events(Rest, Data#data{logic = Logic1, commit = evatar_ha_commit:applied(V, C)});
+        V =< Mine ->
+            apply_events(Rest, Data);
+        true ->
+            ok = evatar_ha_proto_v1:resync(Data#data.active, self(), Mine),
+            Data
+    end;
+apply_events([], #data{active = Active, logic = Logic, commit = C} = Data) ->
+    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(Logic),
+                                    evatar_ha_commit:version(C)),
+    Data.
 
-apply_events([{V, Now, Event} | Rest], #data{version = Mine} = Data) when V =:= Mine + 1 ->
-    {Logic1, _Effects} = evatar_pairing_logic:handle(Event, Now, Data#data.logic),
-    apply_events(Rest, Data#data{logic = Logic1, version = V});
-apply_events([{V, _, _} | Rest], #data{version = Mine} = Data) when V =< Mine ->
-    apply_events(Rest, Data);
-apply_events([_Gap | _], #data{active = Active, version = Mine} = Data) ->
-    ok = evatar_ha_proto_v1:resync(Active, self(), Mine),
-    {keep_state, Data};
-apply_events([], #data{active = Active, logic = Logic, version = V} = Data) ->
-    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(Logic), V),
-    {keep_state, Data}.
-
-%% What this instance does about another instance of its pairing.
+%% What this instance does about another instance of its pairing
+%% (evatar_ha_core:reconcile/2).
+other_instance(Pid, _Role, _Epoch, _State, _Data) when Pid =:= self() ->
+    keep_state_and_data;
 other_instance(Pid, Role, Epoch, State, #data{logic = Logic} = Data) ->
     MyRole = case State of
                  S when S =:= waiting; S =:= bound; S =:= handing_over -> active;
                  S -> S
              end,
-    MyEpoch = case Logic of
-                  undefined -> 0;
-                  _ -> evatar_pairing_logic:epoch(Logic)
-              end,
+    MyEpoch = epoch(Logic),
     Peer = case MyRole of
                standby -> Data#data.active;
                _ -> Data#data.standby
            end,
     Me = #{role => MyRole, epoch => MyEpoch, node => node(), pid => self(), peer => Peer},
     Other = #{role => Role, epoch => Epoch, node => node(Pid), pid => Pid},
-    case MyRole =:= starting orelse Pid =:= self() of
-        true ->
+    case evatar_ha_core:reconcile(Me, Other) of
+        step_down ->
+            _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby],
+                                                          is_pid(P), P =/= Pid],
+            step_down({newer_instance, node(Pid), Epoch}, Data);
+        stop ->
+            stop_instance({newer_instance, node(Pid), Epoch}, Data);
+        keep when MyRole =:= active, Role =/= standby, MyEpoch > Epoch ->
+            %% Let the stale one know at once.
+            ok = evatar_ha_proto_v1:stale(Pid, self(), MyEpoch),
             keep_state_and_data;
-        false ->
-            case evatar_ha_rules:reconcile(Me, Other) of
-                step_down ->
-                    _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby],
-                                                                  is_pid(P), P =/= Pid],
-                    step_down({newer_instance, node(Pid), Epoch}, Data);
-                stop ->
-                    stop_instance({newer_instance, node(Pid), Epoch}, Data);
-                keep when MyRole =:= active, Role =/= standby, MyEpoch > Epoch ->
-                    %% Let the stale one know at once.
-                    ok = evatar_ha_proto_v1:stale(Pid, self(), MyEpoch),
-                    keep_state_and_data;
-                keep ->
-                    keep_state_and_data
-            end
+        keep ->
+            keep_state_and_data
     end.
 
-remonitor_active(#data{active = Active, active_mon = undefined} = Data) when is_pid(Active) ->
-    Data#data{active_mon = erlang:monitor(process, Active)};
-remonitor_active(Data) ->
-    Data.
-
 %% ---------------------------------------------------------------------------
-%% Failure detection
+%% Failure detection (evatar_cluster's events)
 %% ---------------------------------------------------------------------------
 
-cluster_event(place_retry, State, Data) ->
-    {keep_state, place(State, Data#data{placing = false})};
 cluster_event({node_alive, _Node}, State, Data) when State =:= waiting; State =:= bound ->
     {keep_state, place(State, Data)};
 cluster_event({Lost, Node}, State, #data{standby = Standby} = Data)
@@ -1032,15 +926,15 @@ cluster_event({Lost, Node}, State, #data{standby = Standby} = Data)
 cluster_event({Lost, Node}, standby, #data{active = Active} = Data)
   when (Lost =:= node_suspected orelse Lost =:= node_down), is_pid(Active),
        node(Active) =:= Node ->
-    {keep_state, start_election(active_silent, false, Data#data{active_lost = true})};
+    core({elect, active_silent, false}, standby, Data#data{active_lost = true});
 cluster_event({node_alive, Node}, standby, #data{active = Active, active_lost = true} = Data)
   when is_pid(Active), node(Active) =:= Node ->
     %% The active's node is back: pick up the replication again (an
     %% election under way goes on: the nodes decide).
-    ok = evatar_ha_proto_v1:resync(Active, self(), Data#data.version),
+    ok = evatar_ha_proto_v1:resync(Active, self(), evatar_ha_commit:version(Data#data.commit)),
     {keep_state, remonitor_active(Data)};
 cluster_event({quorum, true}, standby, #data{active_lost = true} = Data) ->
-    {keep_state, start_election(active_silent, false, Data)};
+    core({elect, active_silent, false}, standby, Data);
 cluster_event({quorum, false}, State, Data) when State =:= waiting; State =:= bound ->
     maybe_fence(Data);
 cluster_event(stalled, State, Data) when State =:= waiting; State =:= bound ->
@@ -1048,153 +942,107 @@ cluster_event(stalled, State, Data) when State =:= waiting; State =:= bound ->
     %% have another active by now, or (far more often) not.
     {keep_state, paused(Data)};
 cluster_event({quorum, true}, fenced, Data) ->
-    {keep_state, start_election(fenced, false, Data)};
+    core({elect, fenced, false}, fenced, Data);
 cluster_event({node_alive, _}, fenced, Data) ->
-    {keep_state, start_election(fenced, false, Data)};
+    core({elect, fenced, false}, fenced, Data);
 cluster_event(_Event, _State, _Data) ->
     keep_state_and_data.
 
-%% The standby's process died (its node is up): it cannot take over, so go
-%% on without it at once. Its node is lost or silent: it may be taking over
-%% (a partition looks the same), so first the cluster must accept a
-%% configuration without it; everything stays held until then.
-standby_down(Why, State, #data{id = Id, standby = Standby} = Data) ->
-    ?LOG_WARNING(#{what => standby_lost, pairing => Id, standby => node_of(Standby),
-                   reason => Why}),
-    case Why of
-        noconnection ->
-            #data{standby_mon = Mon, conf = {E, Seq}} = Data,
-            _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
-            _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
-            Claim = {E, Seq + 1},
-            Data1 = Data#data{standby = undefined, standby_mon = undefined, synced = false,
-                              repl = [], unflushed = 0, conf = Claim, hold = true,
-                              reg = #{claim => Claim, ok => [], no => []}},
-            %% A heartbeat later: by then a partition that cuts this node
-            %% off entirely has fenced it, and it registers nothing.
-            _ = erlang:send_after(evatar_cluster:opt(heartbeat_ms), self(),
-                                  {evatar_register_retry, Claim}),
-            {keep_state, publish(Data1)};
-        _ ->
-            {keep_state, place(State, drop_standby(Data))}
-    end.
-
-drop_standby(#data{standby = Standby, standby_mon = Mon} = Data) ->
-    _ = [erlang:demonitor(Mon, [flush]) || is_reference(Mon)],
-    _ = [evatar_ha_proto_v1:dismiss(Standby, self()) || is_pid(Standby)],
-    Data1 = release_all(Data#data{standby = undefined, standby_mon = undefined,
-                                  synced = false}),
-    publish(Data1).
-
-active_down(noconnection, standby, Data) ->
-    {keep_state, start_election(active_silent, false, Data#data{active_lost = true})};
-active_down(Why, standby, Data) ->
-    %% The process died and its node is up: its lease counts no more.
-    {keep_state, start_election({active_died, Why}, true, Data#data{active_lost = true})};
-active_down(_Why, _State, _Data) ->
-    keep_state_and_data.
-
 %% ---------------------------------------------------------------------------
-%% Elections: a standby whose active is gone, or a fenced active, asks every
-%% node for the pairing at a new epoch (evatar_ha_rules:vote/5 decides on
-%% each node); a majority of grants (1 of 2 in a two-node cluster) wins.
+%% Elections and registrations: evatar_ha_core decides, this executes
 %% ---------------------------------------------------------------------------
 
-start_election(_Why, _Dead, #data{election = #{}} = Data) ->
-    Data;
-start_election(Why, Dead, Data) ->
-    elect(Data#data{election = #{epoch => 0, granted => [], replied => [], dead => Dead,
-                                 why => Why, attempt => 0}}).
+ctx(Role, _Data) ->
+    #{nodes => evatar_cluster:configured(), heartbeat_ms => evatar_cluster:opt(heartbeat_ms),
+      epoch => 0, role => Role}.
 
-%% (Re)sends the vote requests at an epoch above any promise seen.
-elect(#data{election = #{dead := Dead, attempt := N} = El, id = Id, logic = Logic,
-            conf = Claim} = Data) ->
-    %% The same epoch again (a node grants its promise to the same
-    %% candidate twice), unless a refusal showed a higher promise.
-    Ec = max(maps:get(epoch, El),
-             max(evatar_pairing_logic:epoch(Logic), Data#data.promised) + 1),
+core(Event, State, #data{logic = Logic, core = Core} = Data) ->
+    Role = case State of
+               S when S =:= waiting; S =:= bound -> active;
+               S -> S
+           end,
+    {Core1, Effects} = evatar_ha_core:handle(Event, (ctx(Role, Data))#{epoch := epoch(Logic)},
+                                             Core),
+    core_effects(Effects, State, Data#data{core = Core1}).
+
+core_effects([{vote, Node, Ec, Claim, Dead} | Rest], State, #data{id = Id} = Data) ->
     Active = case Data#data.role of
                  standby -> Data#data.active;
                  _ -> self()
              end,
-    _ = [evatar_ha_proto_v1:vote(N1, Id, Ec, self(), Claim, Active, Dead)
-         || N1 <- evatar_cluster:configured()],
-    %% Quick retries at first (a node may not have seen a killed node's
-    %% connection close yet), then once per heartbeat.
-    Hb = evatar_cluster:opt(heartbeat_ms),
-    _ = erlang:send_after(min(Hb, 10 bsl min(N, 6)), self(), {evatar_election_retry, Ec}),
-    Data#data{election = El#{epoch := Ec, granted := [], replied := [], attempt := N + 1}}.
-
-%% Refused for a promise to another candidate: ask again above it.
-retry_soon(#data{election = #{epoch := Ec}} = Data) ->
-    _ = erlang:send_after(5, self(), {evatar_election_retry, Ec}),
-    Data.
-
-won(#{epoch := Ec, why := handover}, standby, #data{active = Old, version = V} = Data) ->
+    ok = evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead),
+    core_effects(Rest, State, Data);
+core_effects([{register, Node, {E, Seq}} | Rest], State, #data{id = Id} = Data) ->
+    ok = evatar_ha_proto_v1:register(Node, Id, E, Seq, self()),
+    core_effects(Rest, State, Data);
+core_effects([{timer, Key, Ms} | Rest], State, Data) ->
+    core_effects(Rest, State, timer({ha, Key}, Ms, Data));
+core_effects([{pause, keep} | Rest], State, Data) ->
+    core_effects(Rest, State, Data);
+core_effects([{pause, await} | Rest], State, Data) ->
+    core_effects(Rest, State, Data#data{reconfirming = true});
+core_effects([{pause, reconfirm} | Rest], State, #data{id = Id, core = Core} = Data) ->
+    ?LOG_NOTICE(#{what => reconfirming_after_pause, pairing => Id,
+                  claim => evatar_ha_core:claim(Core)}),
+    core_effects(Rest, State, Data#data{reconfirming = true});
+core_effects([{won, handover, Ec}], standby, #data{active = Old, commit = C} = Data) ->
     %% The old active becomes this one's standby, already in sync, with
     %% the claim {Ec, 1}.
     {next_state, S, D, A} = take_over(handover, Ec, Data),
     Mon = erlang:monitor(process, Old),
-    D1 = D#data{standby = Old, standby_mon = Mon, synced = true, confirmed = V,
-                placing = false, reg = undefined, hold = false},
     ok = evatar_ha_proto_v1:handover_done(Old, self(), Ec, {Ec, 1}),
+    {Core, []} = evatar_ha_core:handle({claim, {Ec, 1}}, ctx(active, D), D#data.core),
+    D1 = D#data{standby = Old, standby_mon = Mon, placing = false, core = Core,
+                commit = evatar_ha_commit:synced_at(evatar_ha_commit:version(C), D#data.commit)},
     {next_state, S, publish(flush(D1)), A};
-won(#{epoch := Ec, why := Why}, _State, Data) ->
-    take_over(Why, Ec, Data).
-
-lost(Why, standby, Data) ->
+core_effects([{won, Why, Ec}], _State, Data) ->
+    take_over(Why, Ec, Data);
+core_effects([{lost, Why}], standby, Data) ->
     stop_instance(Why, reply_held(Data));
-lost(Why, _State, Data) ->
-    step_down(Why, Data).
-
-%% Asks every node to record this active's configuration; effects stay held
-%% until a majority did (registered/2).
-send_register(#data{id = Id, conf = {E, Seq}} = Data) ->
-    Done = case Data#data.reg of
-               #{claim := {E, Seq}, ok := Ok} -> Ok;
-               _ -> []
-           end,
-    _ = [evatar_ha_proto_v1:register(N, Id, E, Seq, self())
-         || N <- evatar_cluster:configured(), not lists:member(N, Done)],
-    _ = erlang:send_after(2 * evatar_cluster:opt(heartbeat_ms) + 50, self(),
-                          {evatar_register_retry, {E, Seq}}),
-    Data#data{hold = true, reg = #{claim => {E, Seq}, ok => Done, no => []}}.
-
-registered(State, #data{standby = Standby} = Data) when is_pid(Standby) ->
+core_effects([{lost, Why}], _State, Data) ->
+    step_down(Why, Data);
+core_effects([registered], State, #data{standby = Standby} = Data) when is_pid(Standby) ->
     %% A reconfirmation after a pause: the standby's confirmations still
     %% decide what goes out.
-    {keep_state, reconfirmed(State, Data#data{hold = false})};
-registered(State, Data0) ->
-    Data = reconfirmed(State, Data0),
-    Data1 = release_all(Data#data{hold = false}),
-    {keep_state, place(State, Data1), [{{timeout, place}, 0, place} || wants_standby(Data1)]}.
+    {keep_state, reconfirmed(State, Data)};
+core_effects([registered], State, Data) ->
+    Data1 = release_all(reconfirmed(State, Data)),
+    {keep_state, place_soon(place(State, Data1))};
+core_effects([{fence, Why}], State, #data{id = Id} = Data) ->
+    ?LOG_WARNING(#{what => registration_refused, pairing => Id, reason => Why}),
+    case State of
+        S when S =:= waiting; S =:= bound -> fence_now(Data);
+        _ -> {keep_state, Data}
+    end;
+core_effects([], _State, Data) ->
+    {keep_state, Data}.
 
 %% ---------------------------------------------------------------------------
-%% Fencing
+%% Fencing and pauses
 %% ---------------------------------------------------------------------------
 
 maybe_fence(#data{standby = Standby} = Data) ->
     StandbyHeard = is_pid(Standby) andalso
         evatar_cluster:heard_within(node(Standby), evatar_cluster:opt(lease_ms)),
-    case evatar_ha_rules:must_fence(evatar_cluster:size(), evatar_cluster:majority_now(),
-                                    StandbyHeard) of
-        true -> fence_now(Data, []);
+    case evatar_ha_core:must_fence(evatar_cluster:size(), evatar_cluster:majority_now(),
+                                   StandbyHeard) of
+        true -> fence_now(Data);
         false -> keep_state_and_data
     end.
 
 %% Stops serving: every client is closed with Fenced (they go to their
 %% other endpoints), nothing goes out; with a majority heard it asks for
 %% the pairing again at once (an election in which its standby may win).
-fence_now(#data{id = Id} = Data, Actions) ->
+fence_now(#data{id = Id} = Data) ->
     ?LOG_WARNING(#{what => fenced, pairing => Id}),
     ok = evatar_metrics:inc(evatar_fenced_total),
     Data1 = disconnect_all(fenced, <<"this node lost the majority of the cluster">>,
                            Data#data{role = fenced}),
-    Data2 = case evatar_cluster:majority_now() of
-                true -> start_election(fenced, false, Data1);
-                false -> Data1
-            end,
-    {next_state, fenced, reconfirmed(fenced, publish(Data2)), Actions}.
+    {keep_state, Data2} = case evatar_cluster:majority_now() of
+                              true -> core({elect, fenced, false}, fenced, Data1);
+                              false -> {keep_state, Data1}
+                          end,
+    {next_state, fenced, reconfirmed(fenced, publish(Data2))}.
 
 stalled_active(State, #data{gen = Gen}) when State =:= waiting; State =:= bound ->
     not evatar_cluster:unstalled(Gen);
@@ -1203,42 +1051,28 @@ stalled_active(_State, _Data) ->
 
 %% This node was paused itself while this instance was active (SIGSTOP, a
 %% laptop lid, a long GC): told apart from a loss of the peers by
-%% evatar_cluster, decided by evatar_ha_rules:after_pause/2. Nothing is
-%% fenced for the pause alone: with a standby, only what it confirmed goes
-%% out, and a standby that took over meanwhile confirms nothing more; a
-%% reconfirmation holds the rest until a majority recorded this active's
-%% configuration again (or refused it, and the active fences).
-paused(#data{id = Id, reg = Reg} = Data) ->
-    Data1 = Data#data{gen = evatar_cluster:stall_gen()},
-    case evatar_ha_rules:after_pause(evatar_cluster:size(), Reg =/= undefined) of
-        keep ->
-            Data1;
-        await ->
-            Data1#data{reconfirming = true};
-        reconfirm ->
-            ?LOG_NOTICE(#{what => reconfirming_after_pause, pairing => Id,
-                          claim => Data1#data.conf}),
-            send_register(Data1#data{reconfirming = true})
-    end.
+%% evatar_cluster, decided by evatar_ha_core:after_pause/2. Nothing is
+%% fenced for the pause alone.
+paused(Data) ->
+    {keep_state, Data1} = core(paused, waiting, Data#data{gen = evatar_cluster:stall_gen()}),
+    Data1.
 
 %% ---------------------------------------------------------------------------
 %% Resumes held by a standby
 %% ---------------------------------------------------------------------------
 
-arm_held(#data{held_armed = true} = Data) ->
+arm_held(#data{timers = #{{ha, held} := _}} = Data) ->
     Data;
 arm_held(Data) ->
-    _ = erlang:send_after(max(5, evatar_cluster:opt(heartbeat_ms) div 2), self(),
-                          evatar_held_check),
-    Data#data{held_armed = true}.
+    timer({ha, held}, max(5, evatar_cluster:opt(heartbeat_ms) div 2), Data).
 
 %% A held resume is answered NotActive once the active was heard after it
 %% came (the active is alive: the client had another reason to leave it),
 %% or after suspect_ms + 2 heartbeats (at most 800 ms) without a decision.
-check_held(#data{held = Held, active = Active} = Data) ->
+check_held(#data{held = Held, active = Active, core = Core} = Data) ->
     Now = erlang:monotonic_time(millisecond),
     Max = min(800, evatar_cluster:opt(suspect_ms) + 2 * evatar_cluster:opt(heartbeat_ms)),
-    Electing = Data#data.election =/= undefined orelse Data#data.active_lost,
+    Electing = evatar_ha_core:electing(Core) orelse Data#data.active_lost,
     {Go, Keep} = lists:partition(
                    fun({_, _, Since}) ->
                            Now - Since > Max orelse
@@ -1257,15 +1091,13 @@ reply_held(#data{held = Held, active = Active} = Data) ->
     Data#data{held = []}.
 
 %% ---------------------------------------------------------------------------
-%% Silent client links
+%% Silent client links, and the planned handover they start
 %% ---------------------------------------------------------------------------
 
-arm_silent(#data{silent_armed = true} = Data) ->
+arm_silent(#data{timers = #{{ha, silent} := _}} = Data) ->
     Data;
 arm_silent(Data) ->
-    Interval = max(50, evatar_cluster:opt(client_ack_timeout) div 2),
-    _ = erlang:send_after(Interval, self(), evatar_silent_check),
-    Data#data{silent_armed = true}.
+    timer({ha, silent}, max(50, evatar_cluster:opt(client_ack_timeout) div 2), Data).
 
 silent_check(#data{logic = Logic, id = Id} = Data) ->
     Timeout = evatar_cluster:opt(client_ack_timeout),
@@ -1280,47 +1112,53 @@ silent_check(#data{logic = Logic, id = Id} = Data) ->
                       run({detach, E}, forget(E, D))
               end, Data, Silent),
     Handover = Silent =/= [] andalso evatar_cluster:opt(handover_on_silent_link) =:= true
-        andalso is_pid(Data1#data.standby) andalso Data1#data.synced,
+        andalso is_pid(Data1#data.standby) andalso evatar_ha_commit:synced(Data1#data.commit),
     Data2 = arm_silent(Data1),
     case Handover of
         true ->
-            {next_state, handing_over, flush(Data2),
-             [{state_timeout, 4 * evatar_cluster:opt(suspect_ms), handover},
-              {next_event, internal, handover}]};
+            {next_state, handing_over,
+             flush(timer({ha, handover}, 4 * evatar_cluster:opt(suspect_ms), Data2)),
+             [{next_event, internal, handover}]};
         false ->
             next(flush_maybe(Data2), [])
     end.
 
 %% The planned handover goes once the standby has confirmed everything.
-send_handover(#data{standby = Standby, confirmed = V, version = V, logic = Logic} = Data)
-  when is_pid(Standby) ->
-    ok = evatar_ha_proto_v1:handover(Standby, evatar_pairing_logic:epoch(Logic), V),
-    Data;
+send_handover(#data{standby = Standby, commit = C, logic = Logic} = Data) when is_pid(Standby) ->
+    V = evatar_ha_commit:version(C),
+    case evatar_ha_commit:confirmed(C) of
+        V ->
+            ok = evatar_ha_proto_v1:handover(Standby, evatar_pairing_logic:epoch(Logic), V),
+            Data;
+        _ ->
+            flush(Data)
+    end;
 send_handover(Data) ->
     flush(Data).
 
+%% ---------------------------------------------------------------------------
+
 peers() ->
     [N || N <- evatar_cluster:alive_nodes(), N =/= node()].
+
+epoch(undefined) -> 0;
+epoch(Logic) -> evatar_pairing_logic:epoch(Logic).
 
 node_of(Pid) when is_pid(Pid) -> node(Pid);
 node_of(_) -> undefined.
 
 node_name(Pid) -> atom_to_binary(node(Pid)).
 
-ha_status(#data{role = Role, logic = Logic, version = V} = Data) ->
-    Epoch = case Logic of
-                undefined -> 0;
-                _ -> evatar_pairing_logic:epoch(Logic)
-            end,
+ha_status(#data{role = Role, logic = Logic, commit = C} = Data) ->
     {Active, Standby} = case Role of
                             standby -> {Data#data.active, undefined};
                             starting -> {Data#data.active, undefined};
                             _ -> {self(), Data#data.standby}
                         end,
-    #{role => Role, epoch => Epoch, node => node(), active => Active, standby => Standby,
+    #{role => Role, epoch => epoch(Logic), node => node(), active => Active, standby => Standby,
       standby_node => node_of(Standby),
       synced => case Role of
                     standby -> true;
-                    _ -> Data#data.synced
+                    _ -> evatar_ha_commit:synced(C)
                 end,
-      version => V}.
+      version => evatar_ha_commit:version(C)}.

@@ -1,6 +1,6 @@
 %% @doc EUnit tests of what high availability adds to the pure pairing logic
 %% (de-duplication window, outbound buffer, resume, detach, takeover,
-%% SlowConsumer) and of the pure decisions in evatar_ha_rules.
+%% SlowConsumer) and of the pure decisions in evatar_ha_rules and evatar_ha_core.
 -module(evatar_ha_logic_tests).
 
 -include_lib("eunit/include/eunit.hrl").
@@ -215,7 +215,7 @@ deterministic_test() ->
     ?assertEqual(run(Events, Start), run(Events, Start)).
 
 %% ---------------------------------------------------------------------------
-%% evatar_ha_rules
+%% evatar_ha_rules and evatar_ha_core (votes, registrations, fencing, reconcile)
 %% ---------------------------------------------------------------------------
 
 standby_node_test_() ->
@@ -234,42 +234,42 @@ majority_test_() ->
      ?_assertNot(evatar_ha_rules:majority([a, b, c], [a, x, y]))].
 
 fence_test_() ->
-    [?_assertNot(evatar_ha_rules:must_fence(2, false, false)),
-     ?_assert(evatar_ha_rules:must_fence(3, false, false)),
-     ?_assertNot(evatar_ha_rules:must_fence(3, false, true)),
-     ?_assertNot(evatar_ha_rules:must_fence(3, true, false))].
+    [?_assertNot(evatar_ha_core:must_fence(2, false, false)),
+     ?_assert(evatar_ha_core:must_fence(3, false, false)),
+     ?_assertNot(evatar_ha_core:must_fence(3, false, true)),
+     ?_assertNot(evatar_ha_core:must_fence(3, true, false))].
 
 quorum_size_test_() ->
-    [?_assertEqual(1, evatar_ha_rules:quorum_size(1)),
-     ?_assertEqual(1, evatar_ha_rules:quorum_size(2)),
-     ?_assertEqual(2, evatar_ha_rules:quorum_size(3)),
-     ?_assertEqual(3, evatar_ha_rules:quorum_size(4)),
-     ?_assertEqual(3, evatar_ha_rules:quorum_size(5))].
+    [?_assertEqual(1, evatar_ha_core:quorum_size(1)),
+     ?_assertEqual(1, evatar_ha_core:quorum_size(2)),
+     ?_assertEqual(2, evatar_ha_core:quorum_size(3)),
+     ?_assertEqual(3, evatar_ha_core:quorum_size(4)),
+     ?_assertEqual(3, evatar_ha_core:quorum_size(5))].
 
 %% Votes: the pids only name instances here.
 votes_test_() ->
     A = list_to_pid("<0.101.0>"),
     B = list_to_pid("<0.102.0>"),
     S2 = list_to_pid("<0.103.0>"),
-    New = evatar_ha_rules:new_record(),
-    {ok, HeldByA} = evatar_ha_rules:register(New, 1, 1, A),
-    {granted, ToB} = evatar_ha_rules:vote(HeldByA, 2, B, {1, 1}, false),
+    New = evatar_ha_core:new_record(),
+    {ok, HeldByA} = evatar_ha_core:register(New, 1, 1, A),
+    {granted, ToB} = evatar_ha_core:vote(HeldByA, 2, B, {1, 1}, false),
     [%% While the holder is heard, nobody else gets the pairing.
-     ?_assertEqual({refused, holder_live}, evatar_ha_rules:vote(HeldByA, 2, B, {1, 1}, true)),
+     ?_assertEqual({refused, holder_live}, evatar_ha_core:vote(HeldByA, 2, B, {1, 1}, true)),
      %% One promise per epoch: epoch 2 went to B; C needs epoch 3.
-     ?_assertEqual({refused, {promised, 2}}, evatar_ha_rules:vote(ToB, 2, S2, {1, 1}, false)),
-     ?_assertMatch({granted, _}, evatar_ha_rules:vote(ToB, 2, B, {1, 1}, false)),
+     ?_assertEqual({refused, {promised, 2}}, evatar_ha_core:vote(ToB, 2, S2, {1, 1}, false)),
+     ?_assertMatch({granted, _}, evatar_ha_core:vote(ToB, 2, B, {1, 1}, false)),
      ?_assertMatch({granted, #{promised := 3, holder := S2}},
-                   evatar_ha_rules:vote(ToB, 3, S2, {1, 1}, false)),
+                   evatar_ha_core:vote(ToB, 3, S2, {1, 1}, false)),
      %% A configuration made without B (A dropped it) makes B's claim stale
      %% for good, and one promised to B's epoch refuses A's registration.
      ?_assertEqual({refused, stale_claim},
-                   evatar_ha_rules:vote(element(2, evatar_ha_rules:register(HeldByA, 1, 2, A)),
+                   evatar_ha_core:vote(element(2, evatar_ha_core:register(HeldByA, 1, 2, A)),
                                         2, B, {1, 1}, false)),
-     ?_assertEqual({refused, {promised, 2}}, evatar_ha_rules:register(ToB, 1, 2, A)),
+     ?_assertEqual({refused, {promised, 2}}, evatar_ha_core:register(ToB, 1, 2, A)),
      %% The winner's own configuration is accepted.
      ?_assertMatch({ok, #{promised := 2, holder := B, conf := {2, 1}}},
-                   evatar_ha_rules:register(ToB, 2, 1, B))].
+                   evatar_ha_core:register(ToB, 2, 1, B))].
 
 %% A partial partition (A active, its standby B cut from A, C hearing both):
 %% B's own node grants, C refuses while it hears A: one vote of three, so B
@@ -277,28 +277,28 @@ votes_test_() ->
 partial_partition_votes_test() ->
     A = list_to_pid("<0.101.0>"),
     B = list_to_pid("<0.102.0>"),
-    {ok, Rec} = evatar_ha_rules:register(evatar_ha_rules:new_record(), 1, 1, A),
-    OnB = evatar_ha_rules:vote(Rec, 2, B, {1, 1}, false),
-    OnC = evatar_ha_rules:vote(Rec, 2, B, {1, 1}, true),
+    {ok, Rec} = evatar_ha_core:register(evatar_ha_core:new_record(), 1, 1, A),
+    OnB = evatar_ha_core:vote(Rec, 2, B, {1, 1}, false),
+    OnC = evatar_ha_core:vote(Rec, 2, B, {1, 1}, true),
     Granted = length([G || {granted, _} = G <- [OnB, OnC]]),
-    ?assert(Granted < evatar_ha_rules:quorum_size(3)),
-    ?assertMatch({ok, _}, evatar_ha_rules:register(Rec, 1, 2, A)),
+    ?assert(Granted < evatar_ha_core:quorum_size(3)),
+    ?assertMatch({ok, _}, evatar_ha_core:register(Rec, 1, 2, A)),
     {granted, RecB} = OnB,
-    ?assertMatch({refused, _}, evatar_ha_rules:register(RecB, 1, 2, A)).
+    ?assertMatch({refused, _}, evatar_ha_core:register(RecB, 1, 2, A)).
 
 reconcile_test_() ->
     P1 = list_to_pid("<0.1.0>"),
     P2 = list_to_pid("<0.2.0>"),
     I = fun(Role, Epoch, Node, Pid) -> #{role => Role, epoch => Epoch, node => Node, pid => Pid} end,
-    [?_assertEqual(step_down, evatar_ha_rules:reconcile(I(active, 1, a, P1), I(active, 2, b, P2))),
-     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(active, 2, a, P1), I(fenced, 1, b, P2))),
-     ?_assertEqual(step_down, evatar_ha_rules:reconcile(I(fenced, 2, b, P1), I(active, 2, a, P2))),
-     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(active, 2, a, P1), I(active, 2, b, P2))),
-     ?_assertEqual(stop, evatar_ha_rules:reconcile((I(standby, 1, a, P1))#{peer => P1},
+    [?_assertEqual(step_down, evatar_ha_core:reconcile(I(active, 1, a, P1), I(active, 2, b, P2))),
+     ?_assertEqual(keep, evatar_ha_core:reconcile(I(active, 2, a, P1), I(fenced, 1, b, P2))),
+     ?_assertEqual(step_down, evatar_ha_core:reconcile(I(fenced, 2, b, P1), I(active, 2, a, P2))),
+     ?_assertEqual(keep, evatar_ha_core:reconcile(I(active, 2, a, P1), I(active, 2, b, P2))),
+     ?_assertEqual(stop, evatar_ha_core:reconcile((I(standby, 1, a, P1))#{peer => P1},
                                                     I(active, 2, b, P2))),
-     ?_assertEqual(keep, evatar_ha_rules:reconcile((I(standby, 1, a, P1))#{peer => P2},
+     ?_assertEqual(keep, evatar_ha_core:reconcile((I(standby, 1, a, P1))#{peer => P2},
                                                     I(active, 2, b, P2))),
-     ?_assertEqual(keep, evatar_ha_rules:reconcile(I(standby, 1, a, P1), I(standby, 2, b, P2)))].
+     ?_assertEqual(keep, evatar_ha_core:reconcile(I(standby, 1, a, P1), I(standby, 2, b, P2)))].
 
 stalled_test() ->
     ?assert(evatar_ha_rules:stalled(0, 1000, 250)),
@@ -308,12 +308,12 @@ stalled_test() ->
 %% holds the state), a node of a cluster asks the others again, or awaits
 %% the answer to a registration already under way.
 after_pause_test_() ->
-    [?_assertEqual(keep, evatar_ha_rules:after_pause(1, false)),
-     ?_assertEqual(keep, evatar_ha_rules:after_pause(1, true)),
-     ?_assertEqual(reconfirm, evatar_ha_rules:after_pause(2, false)),
-     ?_assertEqual(reconfirm, evatar_ha_rules:after_pause(3, false)),
-     ?_assertEqual(await, evatar_ha_rules:after_pause(3, true)),
-     ?_assertEqual(await, evatar_ha_rules:after_pause(2, true))].
+    [?_assertEqual(keep, evatar_ha_core:after_pause(1, false)),
+     ?_assertEqual(keep, evatar_ha_core:after_pause(1, true)),
+     ?_assertEqual(reconfirm, evatar_ha_core:after_pause(2, false)),
+     ?_assertEqual(reconfirm, evatar_ha_core:after_pause(3, false)),
+     ?_assertEqual(await, evatar_ha_core:after_pause(3, true)),
+     ?_assertEqual(await, evatar_ha_core:after_pause(2, true))].
 
 %% The timings of the defaults and of the release pass; a lease that would
 %% outlive the others' suspicion, or a value that is no duration, is named.

@@ -1,0 +1,347 @@
+%% @doc Internal. The quorum side of high availability, pure: an
+%% instance's configuration (its claim), its elections and registrations,
+%% and the leaf decisions every node takes about them (a vote, a
+%% registration), about fencing, pauses and two instances that meet.
+%% {@link handle/3} maps an event and a snapshot of what the instance is and
+%% sees ({@link ctx()}) to the new state and a list of effects, in the
+%% manner of `evatar_pairing_logic'; `evatar_pairing' executes them (sends
+%% the votes, arms the timer, takes over, fences) and `evatar_cluster'
+%% answers votes and registrations with {@link vote/5} and {@link register/4}.
+%%
+%% ```
+%%          elect                      won (a majority granted)
+%%  idle ---------> electing ------------------------------------> registering
+%%   ^   <---------    |  ^ refused {promised, P}: again above P      |    |
+%%   |  heard active   |  +-------------------                        |    |
+%%   |                 | refused stale_claim: lost                    |    |
+%%   |                                                                |    |
+%%   +------------- registered (a majority accepted) <----------------+    |
+%%                  refused by too many: the active fences  <--------------+
+%% '''
+%% A claim `{Epoch, Seq}' names a configuration: the active makes a new one
+%% each time its standby changes and gives it to the new standby with the
+%% snapshot; a takeover at epoch E starts at `{E, 1}'. While a registration
+%% runs (after a takeover, after the standby's node was lost, after a pause)
+%% the instance holds every effect seen outside (`holding/1',
+%% `evatar_ha_commit'). Nothing here holds a process, a timer or a clock:
+%% instances are any term (pids in the node, names in the model).
+-module(evatar_ha_core).
+
+-export([new/0, handle/3, claim/1, holding/1, electing/1, registering/1]).
+-export([next_claim/1, quorum_size/1, new_record/0, vote/5, register/4,
+         must_fence/3, reconcile/2, after_pause/2]).
+
+-export_type([state/0, ctx/0, event/0, effect/0, claim/0, record/0, refusal/0,
+              instance/0, verdict/0, pause_action/0, role/0]).
+
+-type claim() :: {non_neg_integer(), non_neg_integer()}.
+%% What one node (a voter) remembers of one pairing: the highest epoch it
+%% promised (voted for, or saw registered), the instance it promised it to
+%% (the holder), and the highest claim it saw.
+-type record() :: #{promised := non_neg_integer(), holder := term(), conf := claim()}.
+-type refusal() :: stale_claim | {promised, non_neg_integer()} | holder_live.
+-type role() :: starting | active | standby | fenced | handing_over.
+
+%% What the instance is and sees when an event comes: the configured
+%% nodes (a snapshot of evatar_cluster's view), the heartbeat, the epoch of
+%% its pairing state, and its role.
+-type ctx() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
+                 epoch := non_neg_integer(), role := role()}.
+
+-type event() :: {elect, Why :: term(), ActiveDead :: boolean()}
+               | {handover_asked}
+               | {timeout, election | register}
+               | {vote_reply, Ec :: pos_integer(), node(), granted | {refused, refusal()}}
+               | {register_reply, claim(), node(), ok | {refused, refusal()}}
+               | standby_node_lost
+               | paused
+               | active_heard
+               | {claim, claim()}.
+
+%% `{vote, Node, Ec, Claim, ActiveDead}': ask Node for the pairing at Ec;
+%% `{register, Node, Claim}': ask Node to record this active's
+%% configuration; `{timer, Key, Ms}': (re)arm the one timer of that key,
+%% which comes back as `{timeout, Key}'. The last three end an election or
+%% a registration and come last in a list.
+-type effect() :: {vote, node(), pos_integer(), claim(), boolean()}
+                | {register, node(), claim()}
+                | {timer, election | register, non_neg_integer()}
+                | {pause, pause_action()}
+                | {won, Why :: term(), Epoch :: pos_integer()}
+                | {lost, refusal()}
+                | registered
+                | {fence, refusal()}.
+
+-type election() :: #{epoch := non_neg_integer(), granted := [node()], replied := [node()],
+                      dead := boolean(), why := term(), attempt := non_neg_integer()}.
+-type registration() :: #{claim := claim(), ok := [node()], no := [node()]}.
+
+-record(core, {conf = {1, 0} :: claim(),
+               %% The highest promise seen in refusals.
+               promised = 0 :: non_neg_integer(),
+               election :: undefined | election(),
+               reg :: undefined | registration(),
+               hold = false :: boolean()}).
+-opaque state() :: #core{}.
+
+-type instance() :: #{role := active | standby | fenced | starting,
+                      epoch := non_neg_integer(),
+                      node := node(),
+                      pid := term(),
+                      peer => term()}.
+-type verdict() :: keep | step_down | stop.
+-type pause_action() :: keep | reconfirm | await.
+
+%% @doc An instance with the first configuration of a new pairing.
+-spec new() -> state().
+new() -> #core{}.
+
+%% @doc The configuration this instance holds.
+-spec claim(state()) -> claim().
+claim(#core{conf = C}) -> C.
+
+%% @doc Whether effects seen outside wait for a registration.
+-spec holding(state()) -> boolean().
+holding(#core{hold = H}) -> H.
+
+%% @doc Whether an election runs.
+-spec electing(state()) -> boolean().
+electing(#core{election = E}) -> E =/= undefined.
+
+%% @doc Whether a registration runs.
+-spec registering(state()) -> boolean().
+registering(#core{reg = R}) -> R =/= undefined.
+
+%% @doc The active takes a new standby: the configuration with it, which
+%% goes to the standby with its snapshot.
+-spec next_claim(state()) -> {claim(), state()}.
+next_claim(#core{conf = {E, Seq}} = C) ->
+    Claim = {E, Seq + 1},
+    {Claim, C#core{conf = Claim}}.
+
+%% @doc One event. See {@link event()} and {@link effect()}.
+-spec handle(event(), ctx(), state()) -> {state(), [effect()]}.
+handle({elect, _Why, _Dead}, _Ctx, #core{election = #{}} = C) ->
+    {C, []};
+handle({elect, Why, Dead}, Ctx, C) ->
+    elect(Ctx, C#core{election = fresh(Why, Dead)});
+handle({handover_asked}, Ctx, C) ->
+    %% The active gives the pairing up: an election in which its lease
+    %% does not count.
+    elect(Ctx, C#core{election = fresh(handover, true)});
+handle({timeout, election}, #{role := R} = Ctx, #core{election = #{}} = C)
+  when R =:= standby; R =:= fenced ->
+    elect(Ctx, C);
+handle({timeout, register}, #{role := R} = Ctx, #core{reg = #{claim := Claim}} = C)
+  when R =/= fenced ->
+    send_register(Claim, Ctx, C);
+handle({timeout, _}, _Ctx, C) ->
+    {C, []};
+handle({vote_reply, Ec, Node, Result}, #{role := R} = Ctx,
+       #core{election = #{epoch := Ec, granted := G, replied := Rep} = El} = C)
+  when R =:= standby; R =:= fenced ->
+    El1 = El#{replied := lists:usort([Node | Rep])},
+    case Result of
+        granted ->
+            G1 = lists:usort([Node | G]),
+            case length(G1) >= quorum(Ctx) of
+                true -> won(El1, Ctx, C);
+                false -> {C#core{election = El1#{granted := G1}}, []}
+            end;
+        {refused, stale_claim} ->
+            %% A newer configuration released what this instance lacks.
+            {C#core{election = undefined}, [{lost, stale_claim}]};
+        {refused, {promised, P}} ->
+            %% Promised to another candidate: ask again above it, soon.
+            {C#core{election = El1, promised = max(P, C#core.promised)},
+             [{timer, election, 5}]};
+        {refused, holder_live} ->
+            {C#core{election = El1}, []}
+    end;
+handle({vote_reply, _, _, _}, _Ctx, C) ->
+    {C, []};
+handle({register_reply, Claim, Node, ok}, Ctx,
+       #core{reg = #{claim := Claim, ok := Ok} = Reg} = C) ->
+    Ok1 = lists:usort([Node | Ok]),
+    case length(Ok1) >= quorum(Ctx) of
+        true -> {C#core{reg = undefined, hold = false}, [registered]};
+        false -> {C#core{reg = Reg#{ok := Ok1}}, []}
+    end;
+handle({register_reply, Claim, Node, {refused, Why}}, #{nodes := Nodes} = Ctx,
+       #core{reg = #{claim := Claim, no := No} = Reg} = C) ->
+    No1 = lists:usort([Node | No]),
+    case length(Nodes) - length(No1) < quorum(Ctx) of
+        true ->
+            %% Too many nodes promised the pairing to another instance, or
+            %% saw a newer configuration: this one cannot go on serving.
+            {C#core{reg = undefined}, [{fence, Why}]};
+        false ->
+            {C#core{reg = Reg#{no := No1}}, []}
+    end;
+handle({register_reply, _, _, _}, _Ctx, C) ->
+    {C, []};
+handle(standby_node_lost, #{heartbeat_ms := Hb}, #core{conf = {E, Seq}} = C) ->
+    %% The standby may be taking over (a partition looks the same): the
+    %% cluster must accept a configuration without it first, a heartbeat
+    %% later (by then a partition that cuts this node off entirely has
+    %% fenced it, and it registers nothing).
+    Claim = {E, Seq + 1},
+    {C#core{conf = Claim, hold = true, reg = #{claim => Claim, ok => [], no => []}},
+     [{timer, register, Hb}]};
+handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg} = C) ->
+    case after_pause(length(Nodes), Reg =/= undefined) of
+        reconfirm ->
+            {C1, Effects} = send_register(Claim, Ctx, C),
+            {C1, [{pause, reconfirm} | Effects]};
+        Action ->
+            {C, [{pause, Action}]}
+    end;
+handle(active_heard, _Ctx, C) ->
+    {C#core{election = undefined}, []};
+handle({claim, Claim}, _Ctx, C) ->
+    %% A standby's claim from its snapshot, or the old active's after a
+    %% handover: no election, no registration of its own.
+    {C#core{conf = Claim, election = undefined, reg = undefined, hold = false}, []}.
+
+%% ---------------------------------------------------------------------------
+
+fresh(Why, Dead) ->
+    #{epoch => 0, granted => [], replied => [], dead => Dead, why => Why, attempt => 0}.
+
+%% (Re)sends the vote requests at an epoch above any promise seen: the same
+%% epoch again (a node grants its promise to the same candidate twice),
+%% unless a refusal showed a higher promise. Quick retries at first (a node
+%% may not have seen a killed node's connection close yet), then once per
+%% heartbeat.
+elect(#{nodes := Nodes, heartbeat_ms := Hb, epoch := Epoch},
+      #core{election = #{dead := Dead, attempt := N} = El, conf = Claim} = C) ->
+    Ec = max(maps:get(epoch, El), max(Epoch, C#core.promised) + 1),
+    {C#core{election = El#{epoch := Ec, granted := [], replied := [], attempt := N + 1}},
+     [{vote, Node, Ec, Claim, Dead} || Node <- Nodes]
+     ++ [{timer, election, min(Hb, 10 bsl min(N, 6))}]}.
+
+%% Won: the configuration {Ec, 1}, which no other instance's claim can
+%% reach. After a handover the old active becomes the standby at once;
+%% otherwise everything is held until a majority recorded it.
+won(#{epoch := Ec, why := handover}, #{nodes := Nodes}, C) ->
+    %% Recorded on every node, but the old active, in sync, is the standby
+    %% at once: nothing waits for the answers (the process gives this
+    %% instance its claim once the takeover is applied, which ends the hold).
+    {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
+     [{register, N, {Ec, 1}} || N <- Nodes] ++ [{won, handover, Ec}]};
+won(#{epoch := Ec, why := Why}, Ctx, C) ->
+    {C1, Effects} = send_register({Ec, 1}, Ctx, C#core{election = undefined, conf = {Ec, 1},
+                                                       reg = undefined}),
+    {C1, Effects ++ [{won, Why, Ec}]}.
+
+%% Asks every node that has not accepted it yet to record `Claim'.
+send_register({E, Seq} = Claim, #{nodes := Nodes, heartbeat_ms := Hb}, C) ->
+    Done = case C#core.reg of
+               #{claim := Claim, ok := Ok} -> Ok;
+               _ -> []
+           end,
+    {C#core{hold = true, reg = #{claim => {E, Seq}, ok => Done, no => []}},
+     [{register, N, Claim} || N <- Nodes, not lists:member(N, Done)]
+     ++ [{timer, register, 2 * Hb + 50}]}.
+
+quorum(#{nodes := Nodes}) -> quorum_size(length(Nodes)).
+
+%% ---------------------------------------------------------------------------
+%% Leaf decisions
+%% ---------------------------------------------------------------------------
+
+%% @doc How many nodes must grant a vote or accept a registration: a strict
+%% majority of the configured nodes; 1 in a cluster of 2 or 1, where the
+%% availability rule holds (a node decides alone, docs/architecture.md).
+-spec quorum_size(pos_integer()) -> pos_integer().
+quorum_size(Size) when Size =< 2 -> 1;
+quorum_size(Size) -> Size div 2 + 1.
+
+%% @doc A voter's record of a pairing it has heard nothing about.
+-spec new_record() -> record().
+new_record() -> #{promised => 0, holder => undefined, conf => {0, 0}}.
+
+%% @doc Whether a voter grants candidate `Cand' the pairing at epoch `Ec',
+%% the candidate holding claim `Claim'. `Blocked' is whether another
+%% instance this voter knows as serving (its holder, or the active the
+%% candidate followed, unless the candidate saw that process die) is still
+%% heard: while it is, nobody else gets the pairing (the lease). A claim
+%% older than the highest this voter saw is stale for good: a newer
+%% configuration has released what that candidate lacks. One promise per
+%% epoch: an epoch at or below the promised one goes only to the instance
+%% it was promised to.
+-spec vote(record(), pos_integer(), term(), claim(), Blocked :: boolean()) ->
+          {granted, record()} | {refused, refusal()}.
+vote(#{conf := Conf}, _Ec, _Cand, Claim, _Blocked) when Claim < Conf ->
+    {refused, stale_claim};
+vote(#{promised := P, holder := H}, Ec, Cand, _Claim, _Blocked)
+  when Ec < P; Ec =:= P, H =/= Cand ->
+    {refused, {promised, P}};
+vote(_Record, _Ec, _Cand, _Claim, true) ->
+    {refused, holder_live};
+vote(#{conf := Conf} = R, Ec, Cand, Claim, false) ->
+    {granted, R#{promised := Ec, holder := Cand, conf := max(Conf, Claim)}}.
+
+%% @doc Whether a voter accepts the active `From''s new configuration
+%% `{E, Seq}' (the standby dropped, or a takeover confirmed): not when it
+%% promised a later epoch to someone else, nor when it saw a newer claim.
+-spec register(record(), pos_integer(), non_neg_integer(), term()) ->
+          {ok, record()} | {refused, refusal()}.
+register(#{promised := P}, E, _Seq, _From) when E < P ->
+    {refused, {promised, P}};
+register(#{conf := Conf}, E, Seq, _From) when {E, Seq} < Conf ->
+    {refused, stale_claim};
+register(R, E, Seq, From) ->
+    {ok, R#{promised := E, holder := From, conf := {E, Seq}}}.
+
+%% @doc Whether an active must fence itself: in a cluster of 3 or more, when
+%% it hears neither its standby's node nor a majority within the lease.
+-spec must_fence(ClusterSize :: pos_integer(), Majority :: boolean(),
+                 StandbyHeard :: boolean()) -> boolean().
+must_fence(Size, _Majority, _StandbyHeard) when Size =< 2 -> false;
+must_fence(_Size, Majority, StandbyHeard) -> not (Majority orelse StandbyHeard).
+
+%% @doc What instance `Me' does on learning of `Other', another instance of
+%% the same pairing on another node. Two actives (fenced counts as active):
+%% the lower epoch steps down; on equal epochs the one on the greater node
+%% name does. A standby stops when an active with a higher epoch that is not
+%% its own active exists. Anything else keeps going.
+-spec reconcile(instance(), instance()) -> verdict().
+reconcile(#{role := MyRole, epoch := E1, node := N1},
+          #{role := OtherRole, epoch := E2, node := N2})
+  when (MyRole =:= active orelse MyRole =:= fenced),
+       (OtherRole =:= active orelse OtherRole =:= fenced) ->
+    case E2 > E1 orelse (E2 =:= E1 andalso N2 < N1) of
+        true -> step_down;
+        false -> keep
+    end;
+reconcile(#{role := standby, epoch := E1} = Me,
+          #{role := OtherRole, epoch := E2, pid := Pid})
+  when OtherRole =:= active; OtherRole =:= fenced ->
+    case E2 > E1 andalso maps:get(peer, Me, undefined) =/= Pid of
+        true -> stop;
+        false -> keep
+    end;
+reconcile(_Me, _Other) ->
+    keep.
+
+%% @doc What an active does when its node finds it was paused itself
+%% (SIGSTOP, a laptop lid, a long GC or a load spike), rather than that its
+%% peers went silent. It never fences for the pause alone (docs/ha.md
+%% section 6):
+%% <ul>
+%% <li>`keep' on a lone node: no other node holds the pairing's state, so
+%% nobody can have taken it over.</li>
+%% <li>`reconfirm' in a cluster: keep every client, hold what is not yet
+%% seen outside, and ask every node to record this active's configuration
+%% again. A majority that accepts it has promised the pairing to nobody
+%% else (and now refuses a standby's election while it hears this node);
+%% a refusal means a standby won meanwhile, and the active fences.</li>
+%% <li>`await' in a cluster while a registration of this active's
+%% configuration is already under way (`Registering'): its answer settles
+%% the same question.</li>
+%% </ul>
+-spec after_pause(ClusterSize :: pos_integer(), Registering :: boolean()) -> pause_action().
+after_pause(Size, _Registering) when Size =< 1 -> keep;
+after_pause(_Size, true) -> await;
+after_pause(_Size, false) -> reconfirm.
