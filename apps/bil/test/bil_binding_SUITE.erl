@@ -3,6 +3,9 @@
 %% naive reference written straight from the rules text.
 -module(bil_binding_SUITE).
 
+%% The PropEr runner the suites share (apps/evatar_test_kit).
+-import(evatar_test_proper, [check/2]).
+
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
 
@@ -375,12 +378,6 @@ old_matches_at_scale(_Config) ->
     #{bound := Bound, unbound := Unbound} = Result,
     true = length(Bound) > 500 andalso length(Unbound) > 100,
     ok.
-
-check(Prop, NumTests) ->
-    case proper:quickcheck(Prop, [{numtests, NumTests}, {to_file, user}, long_result]) of
-        true -> ok;
-        CounterExample -> ct:fail({counterexample, CounterExample})
-    end.
 
 %% Shows in the PropEr output how often the generated cases exercise each
 %% outcome, so a generator that stopped producing matches would be noticed.

@@ -6,6 +6,9 @@
 %% path, and the shipped examples.
 -module(bil_codec_SUITE).
 
+%% The PropEr runner the suites share (apps/evatar_test_kit).
+-import(evatar_test_proper, [check/2]).
+
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -886,12 +889,6 @@ example(File) ->
 %% ---------------------------------------------------------------------------
 %% Helpers
 %% ---------------------------------------------------------------------------
-
-check(Property, NumTests) ->
-    case proper:quickcheck(Property, [{numtests, NumTests}, {to_file, user}, long_result]) of
-        true -> ok;
-        CounterExample -> ct:fail({counterexample, CounterExample})
-    end.
 
 list_of(Min, Max, Type) ->
     ?LET(N, range(Min, Max), vector(N, Type)).

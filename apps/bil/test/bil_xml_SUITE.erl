@@ -44,14 +44,12 @@ end_per_suite(_Config) ->
 
 %% Generated well-formed documents parse to the same tree as with xmerl.
 differential(_Config) ->
-    true = proper:quickcheck(prop_differential(), [{numtests, 600}, {to_file, user},
-                                                   long_result]).
+    ok = evatar_test_proper:check(prop_differential(), 600).
 
 %% Generated BIL-shaped documents (prefixed structure, leaf fields, CRLF and
 %% indentation) parse to the same tree as with xmerl.
 differential_signals(_Config) ->
-    true = proper:quickcheck(prop_differential_signal(), [{numtests, 200}, {to_file, user},
-                                                          long_result]).
+    ok = evatar_test_proper:check(prop_differential_signal(), 200).
 
 prop_differential() ->
     ?FORALL(Doc, document(), same_as_reference(Doc)).
@@ -72,13 +70,11 @@ same_as_reference(Doc) ->
 %% Byte flips, insertions and deletions in well-formed documents never make
 %% the parser raise or return anything but ok or a well-formed error.
 fuzz_mutations(_Config) ->
-    true = proper:quickcheck(prop_fuzz_mutations(), [{numtests, 2500}, {to_file, user},
-                                                     long_result]).
+    ok = evatar_test_proper:check(prop_fuzz_mutations(), 2500).
 
 %% Random bytes (biased towards XML syntax) never make the parser raise.
 fuzz_random_bytes(_Config) ->
-    true = proper:quickcheck(prop_fuzz_random(), [{numtests, 2000}, {to_file, user},
-                                                  long_result]).
+    ok = evatar_test_proper:check(prop_fuzz_random(), 2000).
 
 %% Every prefix of several documents is refused as truncated or parses, never raises.
 fuzz_prefixes(_Config) ->

@@ -75,7 +75,7 @@ start_stop_test() ->
 %% Merging is commutative, associative and idempotent: catalogues
 %% exchanged in any order end equal.
 merge_converges_test() ->
-    ?assert(proper:quickcheck(prop_merge(), [{numtests, 300}, {to_file, user}])).
+    ok = evatar_test_proper:check(prop_merge(), 300).
 
 prop_merge() ->
     ?FORALL({A, B, C}, {catalogue(), catalogue(), catalogue()},

@@ -278,7 +278,7 @@ report_constants_test() ->
 %% stays within max_binding_report.
 binding_report_bound_test_() ->
     {timeout, 300,
-     ?_assert(proper:quickcheck(prop_report_bound(), [{numtests, 100}, {to_file, user}]))}.
+     ?_test(ok = evatar_test_proper:check(prop_report_bound(), 100))}.
 
 prop_report_bound() ->
     ?FORALL(Entities, resize(12, non_empty(list(entity_gen()))),

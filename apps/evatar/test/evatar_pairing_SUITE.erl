@@ -432,22 +432,9 @@ wait_for_restart(Id, Old) ->
                     end),
     evatar_registry:whereis_name(Id).
 
-wait_until(Fun) -> wait_until(Fun, 500).
-
-wait_until(_Fun, 0) ->
-    {error, gave_up};
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(10), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000, interval => 10}).
 
 %% @doc PropEr state machine model of the lifecycle (join, describe, route,
 %% leave, crash of an entity process) against the real pairing.
 lifecycle_model(_Config) ->
-    Result = proper:quickcheck(evatar_pairing_statem:prop_lifecycle(),
-                               [{numtests, 500}, {to_file, user}, long_result]),
-    case Result of
-        true -> ok;
-        CounterExample -> ct:fail({counterexample, CounterExample})
-    end.
+    ok = evatar_test_proper:check(evatar_pairing_statem:prop_lifecycle(), 500).

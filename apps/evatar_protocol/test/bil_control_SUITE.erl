@@ -8,6 +8,9 @@
 %% trips.
 -module(bil_control_SUITE).
 
+%% The PropEr runner the suites share (apps/evatar_test_kit).
+-import(evatar_test_proper, [check/2]).
+
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
 
@@ -137,12 +140,6 @@ connection_pipeline_fuzz(_Config) ->
 %% ---------------------------------------------------------------------------
 %% Checks
 %% ---------------------------------------------------------------------------
-
-check(Property, NumTests) ->
-    case proper:quickcheck(Property, [{numtests, NumTests}, {to_file, user}, long_result]) of
-        true -> ok;
-        CounterExample -> ct:fail({counterexample, CounterExample})
-    end.
 
 same(Expected, {ok, Expected}) ->
     true;

@@ -324,7 +324,7 @@ prop_discovery_never_crashes(_Config) ->
                     is_list(Problems) andalso
                         (components(Desc) =:= [] orelse mqtt_avatar:check(Desc) =:= ok)
                 end),
-    true = proper:quickcheck(P, [{numtests, 500}, {to_file, user}]),
+    ok = evatar_test_proper:check(P, 500),
     Expose = ?LET({T, Prop}, {oneof([<<"binary">>, <<"numeric">>, <<"light">>, <<"enum">>, binary()]),
                               oneof([<<"occupancy">>, <<"state">>, binary()])},
                   #{<<"type">> => T, <<"property">> => Prop, <<"access">> => 1}),
@@ -335,7 +335,7 @@ prop_discovery_never_crashes(_Config) ->
                     {Desc, _} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, B}], #{}),
                     components(Desc) =:= [] orelse mqtt_avatar:check(Desc) =:= ok
                 end),
-    true = proper:quickcheck(Z, [{numtests, 300}, {to_file, user}]).
+    ok = evatar_test_proper:check(Z, 300).
 
 %% @doc Any payload on a state topic gives parameters BIL can carry, or a
 %% readable error; never an exception.
@@ -362,7 +362,7 @@ prop_payload_mapping_never_crashes(_Config) ->
                     {error, M} ->
                         is_binary(M)
                 end),
-    true = proper:quickcheck(P, [{numtests, 500}, {to_file, user}]).
+    ok = evatar_test_proper:check(P, 500).
 
 %% ---------------------------------------------------------------------------
 %% Fixtures: what devices publish

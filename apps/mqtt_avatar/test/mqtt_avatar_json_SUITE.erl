@@ -28,7 +28,7 @@ round_trip(_Config) ->
                     {ok, V1} = mqtt_avatar_json:decode(Text),
                     equal(V, V1)
                 end),
-    true = proper:quickcheck(P, [{numtests, numtests()}, {to_file, user}]).
+    ok = evatar_test_proper:check(P, numtests()).
 
 %% @doc Whitespace between tokens does not change the value.
 whitespace_is_ignored(_Config) ->
@@ -39,12 +39,12 @@ whitespace_is_ignored(_Config) ->
                     {ok, V1} = mqtt_avatar_json:decode(Spaced),
                     equal(V, V1)
                 end),
-    true = proper:quickcheck(P, [{numtests, numtests()}, {to_file, user}]).
+    ok = evatar_test_proper:check(P, numtests()).
 
 %% @doc Random bytes give {ok, _} or {error, {Code, Offset}}, never raise.
 random_bytes_never_crash(_Config) ->
     P = ?FORALL(B, binary(), well_behaved(B)),
-    true = proper:quickcheck(P, [{numtests, numtests() * 3}, {to_file, user}]).
+    ok = evatar_test_proper:check(P, numtests() * 3).
 
 %% @doc Valid JSON with bytes flipped, cut or inserted never makes the
 %% decoder raise.
@@ -54,7 +54,7 @@ mutated_json_never_crash(_Config) ->
                     Text = iolist_to_binary(mqtt_avatar_json:encode(V)),
                     well_behaved(mutate(Text, Mutations))
                 end),
-    true = proper:quickcheck(P, [{numtests, numtests()}, {to_file, user}]).
+    ok = evatar_test_proper:check(P, numtests()).
 
 %% @doc Documents RFC 8259 refuses are refused, with a code and an offset.
 refused_documents(_Config) ->

@@ -25,7 +25,7 @@ groups() ->
                      bad_fixed_headers, v5_property_errors]}].
 
 check(Prop) ->
-    true = proper:quickcheck(Prop, [{numtests, ?N}, {to_file, user}]).
+    ok = evatar_test_proper:check(Prop, ?N).
 
 %%--------------------------------------------------------------------
 %% Properties

@@ -19,9 +19,8 @@ all() -> [window_and_order, requests_survive_resume].
 %% acknowledged every message was acknowledged exactly once.
 window_and_order(_Config) ->
     N = list_to_integer(os:getenv("MQTT_PROPER_N", "300")),
-    true = proper:quickcheck(
-             ?FORALL({W, Cmds}, {range(1, 5), list(cmd())}, run(W, Cmds)),
-             [{numtests, N}, {to_file, user}]).
+    ok = evatar_test_proper:check(
+           ?FORALL({W, Cmds}, {range(1, 5), list(cmd())}, run(W, Cmds)), N).
 
 cmd() ->
     frequency([{5, {publish, boolean()}}, {4, {ack, nat()}}, {1, {ack_unknown, nat()}},

@@ -4,6 +4,9 @@
 %% lexicon (the same reports in any order give the same lexicon).
 -module(reference_agents_logic_SUITE).
 
+%% The PropEr runner the suites share (apps/evatar_test_kit).
+-import(evatar_test_proper, [check/2]).
+
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
 
@@ -16,9 +19,6 @@ suite() -> [{timetrap, {seconds, 90}}].
 all() ->
     [rules_read_back, rules_parser_is_total, complex_window, anchors_one_per_object,
      lexicon_order_independent].
-
-check(Prop, N) ->
-    true = proper:quickcheck(Prop, [{numtests, N}, {to_file, user}]).
 
 %% ---------------------------------------------------------------------------
 %% Rules: render random statements as text, parse them back
