@@ -12,7 +12,9 @@
 %% An entity: the keys every family has, and its family's own
 %% (mqtt_avatar_family_*: `on'/`off' for on/off actuators, `press' for
 %% buttons...).
--type kind() :: light | switch | binary_sensor | sensor | button | text | event | siren | notify.
+-type kind() :: light | switch | binary_sensor | sensor | button | text | event | siren | notify
+              | cover | valve | climate | fan | humidifier | lock | number | select
+              | alarm_control_panel | scene | vacuum.
 -type entity() :: #{uid := binary(),
                     kind := kind(),
                     name := binary() | undefined,

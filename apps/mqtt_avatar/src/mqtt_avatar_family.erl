@@ -9,7 +9,7 @@
 %% (mqtt_avatar_z2m). docs/mqtt.md section 2 lists each family's BIL.
 -module(mqtt_avatar_family).
 
--export([components/0, module/1, from_ha/3, generate/2]).
+-export([components/0, module/1, from_ha/3, generate/2, abbreviations/1]).
 
 %% The HA config (keys expanded, `~' applied) and the entity the shared
 %% keys give (uid, kind, name, device_class, state_topic, command_topic,
@@ -20,6 +20,10 @@
 %% The entity's Services and Consumes entries.
 -callback generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) ->
     mqtt_avatar_part:part().
+
+%% HA's key abbreviations used only by this family (`[{Short, Full}]');
+%% the shared ones are mqtt_avatar_ha's.
+-callback abbreviations() -> [{binary(), binary()}].
 
 %% HA component name, entity kind, module. Kinds are atoms of this list
 %% only: a component name from the network is looked up here, never made
@@ -33,7 +37,18 @@
          {<<"text">>, text, mqtt_avatar_family_text},
          {<<"event">>, event, mqtt_avatar_family_event},
          {<<"siren">>, siren, mqtt_avatar_family_siren},
-         {<<"notify">>, notify, mqtt_avatar_family_notify}]).
+         {<<"notify">>, notify, mqtt_avatar_family_notify},
+         {<<"cover">>, cover, mqtt_avatar_family_cover},
+         {<<"valve">>, valve, mqtt_avatar_family_valve},
+         {<<"climate">>, climate, mqtt_avatar_family_climate},
+         {<<"fan">>, fan, mqtt_avatar_family_fan},
+         {<<"humidifier">>, humidifier, mqtt_avatar_family_humidifier},
+         {<<"lock">>, lock, mqtt_avatar_family_lock},
+         {<<"number">>, number, mqtt_avatar_family_number},
+         {<<"select">>, select, mqtt_avatar_family_select},
+         {<<"alarm_control_panel">>, alarm_control_panel, mqtt_avatar_family_alarm_control_panel},
+         {<<"scene">>, scene, mqtt_avatar_family_scene},
+         {<<"vacuum">>, vacuum, mqtt_avatar_family_vacuum}]).
 
 %% @doc The HA components understood.
 -spec components() -> [binary()].
@@ -54,6 +69,12 @@ module(Component) ->
 from_ha(Component, Config, Base) ->
     {ok, _Kind, Mod} = module(Component),
     Mod:from_ha(Config, Base).
+
+%% @doc The abbreviations of an HA component's family.
+-spec abbreviations(binary()) -> [{binary(), binary()}].
+abbreviations(Component) ->
+    {ok, _Kind, Mod} = module(Component),
+    Mod:abbreviations().
 
 %% @doc The BIL of one entity, by its family.
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().

@@ -3,7 +3,7 @@
 -module(mqtt_avatar_family_button).
 -behaviour(mqtt_avatar_family).
 
--export([from_ha/2, generate/2]).
+-export([from_ha/2, generate/2, abbreviations/0]).
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
@@ -20,3 +20,6 @@ generate(E, Ctx) ->
             {<<"MqttCommand">>, <<"raw:", (maps:get(press, E))/binary>>},
             {<<"MqttExpect">>, <<"none">>}],
     mqtt_avatar_part:actuator([mqtt_avatar_part:entry(<<"ACTUATOR">>, Type, Params)], Ctx).
+
+-spec abbreviations() -> [{binary(), binary()}].
+abbreviations() -> [].

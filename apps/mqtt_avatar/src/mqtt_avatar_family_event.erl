@@ -4,7 +4,7 @@
 -module(mqtt_avatar_family_event).
 -behaviour(mqtt_avatar_family).
 
--export([from_ha/2, generate/2]).
+-export([from_ha/2, generate/2, abbreviations/0]).
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
@@ -20,3 +20,6 @@ generate(E, #{room := Room}) ->
             end,
     mqtt_avatar_part:stream(E#{value := Value, attributes := true}, Room, <<"Event">>, P,
                             <<"Read", P/binary>>, event, [], P).
+
+-spec abbreviations() -> [{binary(), binary()}].
+abbreviations() -> [].

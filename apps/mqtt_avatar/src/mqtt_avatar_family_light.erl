@@ -4,7 +4,7 @@
 -module(mqtt_avatar_family_light).
 -behaviour(mqtt_avatar_family).
 
--export([from_ha/2, generate/2]).
+-export([from_ha/2, generate/2, abbreviations/0]).
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
@@ -22,3 +22,6 @@ from_ha(C, Base) ->
 generate(E, Ctx) ->
     mqtt_avatar_part:on_off(E, Ctx, {<<"TurnLightOn">>, <<"TurnLightOff">>},
                             [{<<"Light">>, <<"yes">>}], <<"Light">>, <<"LightSwitch">>).
+
+-spec abbreviations() -> [{binary(), binary()}].
+abbreviations() -> [].

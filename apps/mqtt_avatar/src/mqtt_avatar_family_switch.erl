@@ -4,7 +4,7 @@
 -module(mqtt_avatar_family_switch).
 -behaviour(mqtt_avatar_family).
 
--export([from_ha/2, generate/2]).
+-export([from_ha/2, generate/2, abbreviations/0]).
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
@@ -22,3 +22,6 @@ generate(E, Ctx) ->
     mqtt_avatar_part:on_off(E, Ctx, {<<"SwitchOn">>, <<"SwitchOff">>},
                             [{<<"Switch">>, <<"yes">>}, {<<"Name">>, Name}],
                             <<"Switch">>, <<"Switch">>).
+
+-spec abbreviations() -> [{binary(), binary()}].
+abbreviations() -> [].

@@ -4,7 +4,7 @@
 -module(mqtt_avatar_family_text).
 -behaviour(mqtt_avatar_family).
 
--export([from_ha/2, generate/2]).
+-export([from_ha/2, generate/2, abbreviations/0]).
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
@@ -19,3 +19,6 @@ generate(E, Ctx) ->
             {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Text">>}]
         ++ mqtt_avatar_part:echo_params(E, <<"any">>),
     mqtt_avatar_part:actuator([mqtt_avatar_part:entry(<<"ACTUATOR">>, Type, Params)], Ctx).
+
+-spec abbreviations() -> [{binary(), binary()}].
+abbreviations() -> [].

@@ -6,7 +6,8 @@
 
 -export([parse/3, template/1, components/0]).
 %% For the families (mqtt_avatar_family_*): reading their keys.
--export([str/2, str/3, topic/2, source/1, require/3, on_off/1, bool/3, number/3, strings/2]).
+-export([str/2, str/3, topic/2, source/1, require/3, on_off/1, bool/3, number/3, strings/2,
+         read/2, settings/2]).
 
 -type parsed() :: {entity, mqtt_avatar_discovery:device_info(), mqtt_avatar_discovery:entity()}
                 | remove.
@@ -43,7 +44,8 @@ config(Component, Node, Object, Payload) ->
         {ok, Kind, _Mod} ->
             case mqtt_avatar_json:decode(Payload) of
                 {ok, Json} when is_map(Json) ->
-                    entity(Component, Kind, Node, Object, expand(Json));
+                    entity(Component, Kind, Node, Object,
+                           expand(Json, mqtt_avatar_family:abbreviations(Component)));
                 {ok, _} ->
                     {error, <<"the config is not a JSON object">>};
                 {error, R} ->
@@ -92,6 +94,64 @@ require(Key, #{kind := Kind} = Base, Then) ->
         undefined -> {error, <<"a ", (atom_to_binary(Kind))/binary, " needs ",
                                (atom_to_binary(Key))/binary>>};
         _ -> Then()
+    end.
+
+%% @doc Reads a family's topics: `{state, TopicKey, TemplateKey}' gives a
+%% mqtt_avatar_part:state() (the template says where the value is),
+%% `{control, TopicKey}' a mqtt_avatar_part:control() (the payload is the
+%% value). Absent topics are left out of the map; a bad topic or an
+%% unsupported template is an error.
+-spec read(map(), [{atom(), {state, binary(), binary() | undefined} | {control, binary()}}]) ->
+          {ok, #{atom() => mqtt_avatar_part:state() | mqtt_avatar_part:control()}}
+        | {error, binary()}.
+read(C, Specs) ->
+    lists:foldl(fun(_, {error, _} = E) -> E;
+                   ({Name, Spec}, {ok, Acc}) ->
+                        case read_one(C, Spec) of
+                            {ok, undefined} -> {ok, Acc};
+                            {ok, V} -> {ok, Acc#{Name => V}};
+                            {error, _} = E -> E
+                        end
+                end, {ok, #{}}, Specs).
+
+%% @doc A family's settings (mqtt_avatar_part:setting()), from
+%% `{Param, Service, CommandKey, StateKey, TemplateKey, Check}'; a setting
+%% with neither topic is left out.
+-spec settings(map(), [{binary(), binary(), binary() | undefined, binary() | undefined,
+                        binary() | undefined, binary()}]) ->
+          {ok, [mqtt_avatar_part:setting()]} | {error, binary()}.
+settings(C, Specs) ->
+    lists:foldr(fun(_, {error, _} = E) -> E;
+                   ({Param, Service, CmdKey, StateKey, TplKey, Check}, {ok, Acc}) ->
+                        Read = [{control, {control, CmdKey}} || CmdKey =/= undefined]
+                            ++ [{state, {state, StateKey, TplKey}} || StateKey =/= undefined],
+                        case read(C, Read) of
+                            {ok, M} when map_size(M) =:= 0 -> {ok, Acc};
+                            {ok, M} -> {ok, [M#{param => Param, service => Service, check => Check}
+                                             | Acc]};
+                            {error, _} = E -> E
+                        end
+                end, {ok, []}, Specs).
+
+read_one(C, {control, Key}) ->
+    case topic(Key, C) of
+        {ok, undefined} -> {ok, undefined};
+        {ok, T} -> {ok, #{topic => T, field => undefined}};
+        {error, _} = E -> E
+    end;
+read_one(C, {state, Key, TemplateKey}) ->
+    case topic(Key, C) of
+        {ok, undefined} -> {ok, undefined};
+        {ok, T} ->
+            Template = case TemplateKey of
+                           undefined -> undefined;
+                           _ -> str(TemplateKey, C)
+                       end,
+            case source(Template) of
+                {ok, S} -> {ok, #{topic => T, source => S}};
+                {error, _} = E -> E
+            end;
+        {error, _} = E -> E
     end.
 
 %% @doc The on/off payloads and states of lights, switches, fans...
@@ -155,7 +215,7 @@ device(C, Uid, Avail) ->
 
 availability(C) ->
     Item = case maps:get(<<"availability">>, C, undefined) of
-               [First | _] when is_map(First) -> expand(First);
+               [First | _] when is_map(First) -> expand(First, []);
                _ -> #{}
            end,
     Topic = case maps:get(<<"topic">>, Item, undefined) of
@@ -271,8 +331,8 @@ printable(B) ->
 %% Abbreviations and the base topic
 %% ---------------------------------------------------------------------------
 
-expand(C) ->
-    Full = maps:fold(fun(K, V, Acc) -> Acc#{full_key(K) => expand_value(K, V)} end, #{}, C),
+expand(C, Extra) ->
+    Full = maps:fold(fun(K, V, Acc) -> Acc#{full_key(K, Extra) => expand_value(K, V)} end, #{}, C),
     case maps:get(<<"~">>, Full, undefined) of
         Base when is_binary(Base) ->
             maps:map(fun(K, V) -> base_topic(K, V, Base) end, Full);
@@ -310,10 +370,16 @@ base_topic(<<"availability">>, L, Base) when is_list(L) ->
 base_topic(_K, V, _Base) ->
     V.
 
-full_key(K) ->
+full_key(K) -> full_key(K, []).
+
+full_key(K, Extra) ->
     case lists:keyfind(K, 1, abbreviations()) of
         {_, Full} -> Full;
-        false -> K
+        false ->
+            case lists:keyfind(K, 1, Extra) of
+                {_, Full} -> Full;
+                false -> K
+            end
     end.
 
 abbreviations() ->

@@ -375,11 +375,11 @@ request(#{id := Id, sender := From, receiver := To, context := Ctx,
                                              iolist_to_binary(["device ", To, " is offline (its "
                                                                "availability topic says so)"]))};
                         {up, _} ->
-                            case command_payload(Service, Args) of
+                            case checked_payload(Service, Args) of
                                 {ok, Payload} ->
                                     publish(Key, Pending, Payload, Timeout, P, S);
-                                {error, Message} ->
-                                    {S, answer_error(Key, Pending, <<"BadParameter">>, Message)}
+                                {error, Code, Message} ->
+                                    {S, answer_error(Key, Pending, Code, Message)}
                             end
                     end
             end
@@ -404,6 +404,63 @@ find_service(Cat, Type, #{services := Services}) ->
                 {mqtt_avatar_spec:keyword(C), mqtt_avatar_spec:keyword(T)} =:= K] of
         [Service | _] -> Service;
         [] -> none
+    end.
+
+%% The request's parameters checked (MqttArgCheck, MqttCode), then the
+%% payload. A code is compared, never logged nor echoed.
+checked_payload(Service, Params) ->
+    case check_args(maps:get(checks, Service, []), Params) of
+        ok ->
+            case check_code(maps:get(code, Service, undefined), Params) of
+                ok ->
+                    case command_payload(Service, [P || {N, _} = P <- Params, N =/= <<"Code">>
+                                                        orelse maps:get(code, Service, undefined)
+                                                               =:= undefined]) of
+                        {ok, Payload} -> {ok, Payload};
+                        {error, M} -> {error, <<"BadParameter">>, M}
+                    end;
+                {error, M} ->
+                    {error, <<"WrongCode">>, M}
+            end;
+        {error, M} ->
+            {error, <<"BadParameter">>, M}
+    end.
+
+check_args([], _Params) ->
+    ok;
+check_args([{Name, Check} | Rest], Params) ->
+    case {lists:keyfind(Name, 1, Params), Check} of
+        {false, _} ->
+            {error, <<"the request needs parameter ", Name/binary>>};
+        {{_, _}, present} ->
+            check_args(Rest, Params);
+        {{_, V}, {range, Lo, Hi}} ->
+            case mqtt_avatar_json:decode(V) of
+                {ok, N} when is_number(N), N >= Lo, N =< Hi -> check_args(Rest, Params);
+                _ -> {error, iolist_to_binary([Name, " must be a number from ",
+                                               mqtt_avatar_json:to_text(Lo), " to ",
+                                               mqtt_avatar_json:to_text(Hi)])}
+            end;
+        {{_, V}, {one_of, Values}} ->
+            case [X || X <- Values, same(X, V)] of
+                [_ | _] -> check_args(Rest, Params);
+                [] -> {error, iolist_to_binary([Name, " must be one of: ",
+                                                lists:join(", ", Values)])}
+            end
+    end.
+
+check_code(undefined, _Params) ->
+    ok;
+check_code({pbkdf2_sha256, Iterations, Salt, Hash}, Params) ->
+    case lists:keyfind(<<"Code">>, 1, Params) of
+        {_, Code} ->
+            Derived = crypto:pbkdf2_hmac(sha256, Code, Salt, Iterations, byte_size(Hash)),
+            case crypto:hash_equals(Derived, Hash) of
+                true -> ok;
+                false -> {error, <<"the code is wrong">>}
+            end;
+        false ->
+            {error, <<"this service needs parameter Code">>}
     end.
 
 command_payload(#{command := {raw, Text}, args := Args}, Params) ->

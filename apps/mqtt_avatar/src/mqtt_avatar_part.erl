@@ -6,9 +6,24 @@
 
 -export([entry/3, on_off/6, actuator/2, actuator/3, stream/7, stream/8, command/4,
          echo_params/2, value_params/3, match/2, on_off_map/3, source/1, join_path/1,
-         json_at/2, first_name/1, camel/1, extra/1, named/2]).
+         json_at/2, first_name/1, camel/1, extra/1, named/2,
+         fixed/6, setter/7, watch/5, family/5, map_text/1, range/2, echo_of/2, settings/3,
+         one_of/1, valued/7, with_info/2, merge/1]).
 
--export_type([part/0, ctx/0]).
+-export_type([part/0, ctx/0, control/0, state/0]).
+
+%% Where a value is set: a command topic, and the JSON field the value
+%% goes in (`undefined': the payload is the value itself).
+-type control() :: #{topic := binary(), field := binary() | undefined}.
+%% Where a value is read: a state topic and the payload source.
+-type state() :: #{topic := binary(), source := mqtt_avatar_spec:source()}.
+%% A value the VA sets (`control') and reads (`state'), as parameter
+%% `param', with service `service' and MqttArgCheck text `check'.
+-type setting() :: #{param := binary(), service := binary(), check := binary(),
+                     control => control(), state => state(), map => binary()}.
+-export_type([setting/0]).
+-type echo() :: {binary(), state(), binary()} | {binary(), state(), binary(), binary() | any}
+              | undefined.
 
 %% What one entity contributes to its device's component: Services,
 %% Consumes entries, the parameters its sensors add to the device's
@@ -148,6 +163,25 @@ extra(Pairs) ->
         Tokens -> [{<<"MqttExtra">>, iolist_to_binary(lists:join(" ", Tokens))}]
     end.
 
+%% @doc `Info' (`[{Name, Value | undefined}]': Unit, DeviceClass...) on
+%% the part's services, and as MqttExtra on its streams, so every reading
+%% carries it without constraining binding.
+-spec with_info(part(), [{binary(), binary() | undefined}]) -> part().
+with_info(#{services := Services, consumes := Consumes} = Part, Info) ->
+    Known = [{N, V} || {N, V} <- Info, is_binary(V)],
+    Extra = extra(Known),
+    Add = fun(#{parameters := Ps} = E, More) -> E#{parameters := Ps ++ More} end,
+    Part#{services := [Add(S, Known) || S <- Services],
+          consumes := [Add(C, Extra) || C <- Consumes]}.
+
+%% @doc Several parts of one entity as one.
+-spec merge([part()]) -> part().
+merge([First | _] = Parts) ->
+    #{services => lists:append([S || #{services := S} <- Parts]),
+      consumes => lists:append([C || #{consumes := C} <- Parts]),
+      sensor => lists:append([S || #{sensor := S} <- Parts]),
+      feedback => maps:get(feedback, First)}.
+
 %% @doc `{Camel, CamelClass}': what the user called the entity, and what it
 %% is (its device class), both in CamelCase; the second is `undefined'
 %% when it has no device class or it is the same name.
@@ -164,6 +198,161 @@ named(E, Default) ->
         <<>> -> {Name, undefined};
         _ -> {Name, Class}
     end.
+
+%% ---------------------------------------------------------------------------
+%% Controls and states (the families of docs/mqtt.md section 2.3)
+%% ---------------------------------------------------------------------------
+
+%% @doc A service that publishes a fixed `Payload' on `Control' (the
+%% payload itself, or `{"field": Payload}'), confirmed by the next message
+%% of `Echo' (`{Param, State, Map}'), or the first whose value is
+%% `Expected' (`{Param, State, Map, Expected}'), or the broker's PUBACK
+%% (`undefined'); the value becomes feedback parameter `Param'.
+-spec fixed(binary(), [bil:parameter()], control(), binary(), echo(), ctx()) -> bil:entry().
+fixed(Type, Caps, #{topic := Topic, field := Field}, Payload, Echo, #{room := Room}) ->
+    Command = case Field of
+                  undefined -> <<"raw:", Payload/binary>>;
+                  _ -> <<"json:", (json_at([Field], Payload))/binary>>
+              end,
+    command(Type, Topic, Command, Caps ++ Room ++ echo(Echo)).
+
+%% @doc A service that sets request parameter `Arg' (checked by `Check',
+%% MqttArgCheck text without the name: `0..100', `a|b', or `<<>>' for
+%% present) on `Control', confirmed as `fixed/6' confirms.
+-spec setter(binary(), binary(), [bil:parameter()], control(), binary(), echo(), ctx()) ->
+          bil:entry().
+setter(Type, Arg, Caps, #{topic := Topic, field := Field}, Check, Echo, #{room := Room}) ->
+    {Command, Args} = case Field of
+                          undefined -> {<<"raw:">>, Arg};
+                          _ -> {<<"json:{}">>, <<Arg/binary, "=", Field/binary>>}
+                      end,
+    CheckText = case Check of
+                    <<>> -> Arg;
+                    _ -> <<Arg/binary, "=", Check/binary>>
+                end,
+    command(Type, Topic, Command, [{Arg, <<"yes">>}] ++ Caps ++ Room
+                                  ++ [{<<"MqttCommandArgs">>, Args},
+                                      {<<"MqttArgCheck">>, CheckText}]
+                                  ++ echo(Echo)).
+
+echo(undefined) ->
+    [{<<"MqttExpect">>, <<"none">>}];
+echo({Param, State, Map}) ->
+    echo({Param, State, Map, any});
+echo({Param, #{topic := T, source := Source}, Map, Expected}) ->
+    Expect = case Expected of
+                 any -> <<"any">>;
+                 _ -> match(Source, Expected)
+             end,
+    [{<<"MqttStateTopic">>, T}, {<<"MqttExpect">>, Expect},
+     {<<"MqttValue">>, <<Param/binary, "=", (source(Source))/binary>>}]
+        ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
+
+%% @doc A stream `SENSOR/Type' of the value of `State' as parameter
+%% `Param', translated by `Map', sent only when it changed if `OnChange'.
+-spec watch(binary(), binary(), state(), binary(), #{on_change => boolean(),
+                                                   context => sensor_data | event,
+                                                   room := [bil:parameter()],
+                                                   extra => [bil:parameter()]}) -> bil:entry().
+watch(Type, Param, #{topic := T, source := Source}, Map, Opts) ->
+    entry(<<"SENSOR">>, Type,
+          maps:get(room, Opts)
+          ++ [{<<"MqttStateTopic">>, T},
+              {<<"MqttValue">>, <<Param/binary, "=", (source(Source))/binary>>}]
+          ++ [{<<"MqttMap">>, Map} || Map =/= <<>>]
+          ++ [{<<"MqttContext">>, <<"Event">>} || maps:get(context, Opts, sensor_data) =:= event]
+          ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, Opts, false)]
+          ++ maps:get(extra, Opts, [])).
+
+%% @doc A family's part: its services, a stream per state it reads
+%% (`[{Param, State, Map}]', named `<Family><Param>', sent on change
+%% when several share a topic), a read service
+%% `Read<Family>' naming them, and ACTION FEEDBACK Device `<Family>'.
+-spec family(binary(), [bil:entry()], [{binary(), state(), binary()}],
+             mqtt_avatar_discovery:entity(), ctx()) -> part().
+family(Family, Services, States, E, #{room := Room}) ->
+    %% Streams that share a topic (one JSON state) send only changes, or
+    %% every message would send all of them.
+    Topics = [T || {_, #{topic := T}, _} <- States],
+    Shared = fun(T) -> length([x || X <- Topics, X =:= T]) > 1 end,
+    Streams = [watch(<<Family/binary, Param/binary>>, Param, State, Map,
+                     #{room => Room, on_change => maps:get(on_change, E, false) orelse Shared(T)})
+               || {Param, #{topic := T} = State, Map} <- States],
+    Read = [entry(<<"SENSOR">>, <<"Read", Family/binary>>,
+                  [{Param, <<"yes">>} || {Param, _, _} <- States] ++ Room) || States =/= []],
+    #{services => Services ++ Read, consumes => Streams,
+      sensor => [], feedback => case Services of
+                                    [] -> none;
+                                    _ -> Family
+                                end}.
+
+%% @doc The services (`Set...') and the states read of a family's settings.
+-spec settings([setting()], [bil:parameter()], ctx()) ->
+          {[bil:entry()], [{binary(), state(), binary()}]}.
+settings(Settings, Caps, Ctx) ->
+    Reads = [{P, S, maps:get(map, X, <<>>)} || #{param := P, state := S} = X <- Settings],
+    Services = [setter(Type, P, Caps, Control, Check, echo_of(P, Reads), Ctx)
+                || #{param := P, service := Type, control := Control, check := Check} <- Settings],
+    {Services, Reads}.
+
+%% @doc One value the VA sets and reads, named after the entity (numbers,
+%% selects): `<Verb><Name>' with request parameter `Arg', the stream
+%% `SENSOR/<Name>' and `Read<Name>', both with parameter `Arg'.
+-spec valued(mqtt_avatar_discovery:entity(), binary(), binary(), [bil:parameter()], binary(),
+             binary(), ctx()) -> part().
+valued(E, Verb, Arg, Caps, Check, Device, #{room := Room} = Ctx) ->
+    Name = camel(first_name([maps:get(name, E), maps:get(device_class, E), Device])),
+    Control = #{topic => maps:get(command_topic, E), field => maps:get(field, E, undefined)},
+    State = case maps:get(state_topic, E) of
+                undefined -> [];
+                T -> [{Arg, #{topic => T, source => maps:get(value, E)}, <<>>}]
+            end,
+    Set = setter(<<Verb/binary, Name/binary>>, Arg, Caps, Control, Check, echo_of(Arg, State), Ctx),
+    Opts = #{room => Room, on_change => maps:get(on_change, E, false)},
+    Streams = [watch(Name, P, S, M, Opts) || {P, S, M} <- State],
+    Read = [entry(<<"SENSOR">>, <<"Read", Name/binary>>, [{Arg, <<"yes">>}] ++ Room) || State =/= []],
+    #{services => [Set | Read], consumes => Streams, sensor => [], feedback => Device}.
+
+%% @doc An MqttArgCheck list `a|b|c' of the values (`<<>>', no check but
+%% presence, when one cannot be written there: a space or `|' in it).
+-spec one_of([binary()] | undefined) -> binary().
+one_of(undefined) -> <<>>;
+one_of(Values) ->
+    case lists:all(fun(V) -> V =/= <<>> andalso
+                                 binary:match(V, [<<" ">>, <<"|">>, <<"\t">>, <<"\n">>]) =:= nomatch
+                   end, Values) of
+        true when Values =/= [] -> iolist_to_binary(lists:join("|", Values));
+        _ -> <<>>
+    end.
+
+%% @doc An MqttArgCheck range `Lo..Hi' from two JSON numbers in either
+%% order (a cover whose open position is below its closed one).
+-spec range(binary(), binary()) -> binary().
+range(A, B) ->
+    {ok, X} = mqtt_avatar_json:decode(A),
+    {ok, Y} = mqtt_avatar_json:decode(B),
+    case X =< Y of
+        true -> <<A/binary, "..", B/binary>>;
+        false -> <<B/binary, "..", A/binary>>
+    end.
+
+%% @doc The state read as `Param' among a family's states, `undefined'
+%% when it reads none: what confirms a command that changes it.
+-spec echo_of(binary(), [{binary(), state(), binary()}]) -> {binary(), state(), binary()} | undefined.
+echo_of(Param, States) ->
+    case lists:keyfind(Param, 1, States) of
+        false -> undefined;
+        S -> S
+    end.
+
+%% @doc An MqttMap text from `[{DevicePayload, BilValue}]': the pairs that
+%% differ and can be written (no spaces or `='): MqttMap compares without
+%% case but passes an unmapped value on as the device wrote it.
+-spec map_text([{binary() | undefined, binary()}]) -> binary().
+map_text(Pairs) ->
+    iolist_to_binary(lists:join(" ", [[From, "=", To] || {From, To} <- Pairs, is_binary(From),
+                                                         plain_token(From), From =/= To])).
+
 
 %% ---------------------------------------------------------------------------
 %% Names and sources

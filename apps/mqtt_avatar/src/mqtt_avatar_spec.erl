@@ -9,7 +9,7 @@
          parse_source/1, keyword/1, format_problem/1, round_trip/1, is_name/1]).
 
 -export_type([spec/0, component/0, service/0, stream/0, availability/0, source/0,
-              expect/0, problem/0]).
+              expect/0, problem/0, check/0, code/0]).
 
 %% `raw': the whole payload as text; `{json, Path}': a field of the JSON
 %% payload ([] is the whole value).
@@ -30,7 +30,14 @@
                      state_topic => binary() | undefined,
                      expect => expect(),
                      progress => match() | undefined,
-                     mapping => mapping()}.
+                     mapping => mapping(),
+                     checks => [{binary(), check()}],
+                     code => code() | undefined}.
+%% What a request parameter must be (MqttArgCheck): present, and within
+%% the range or one of the values.
+-type check() :: present | {range, number(), number()} | {one_of, [binary()]}.
+%% A code the request must carry (MqttCode): its PBKDF2-SHA256 hash.
+-type code() :: {pbkdf2_sha256, pos_integer(), binary(), binary()}.
 -type stream() :: #{category := binary(),
                     type := binary(),
                     static := [bil:parameter()],
@@ -62,6 +69,7 @@
                     <<"MqttPayloadAvailable">>, <<"MqttPayloadNotAvailable">>,
                     <<"MqttAvailabilityValue">>]).
 -define(ENTRY_ONLY, [<<"MqttCommand">>, <<"MqttCommandArgs">>, <<"MqttExpect">>,
+                     <<"MqttExtra">>, <<"MqttArgCheck">>, <<"MqttCode">>,
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
                      <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>]).
 
@@ -199,9 +207,92 @@ get(Name, #{parameters := Ps}) ->
 
 has(Name, E) -> get(Name, E) =/= undefined.
 
-static(#{parameters := Ps}) ->
+static(#{parameters := Ps} = E) ->
     [{N, V} || {N, V} <- Ps, not is_reserved(N),
-               not lists:member(keyword(V), [<<"yes">>, <<"no">>, <<"any">>])].
+               not lists:member(keyword(V), [<<"yes">>, <<"no">>, <<"any">>])]
+        ++ case get(<<"MqttExtra">>, E) of
+               undefined -> [];
+               Text -> [{N, V} || [N, V] <- [binary:split(T, <<"=">>) || T <- tokens(Text)]]
+           end.
+
+%% MqttExtra: Name=Value tokens (checked here, read by static/1).
+extra(Id, E, What) ->
+    case get(<<"MqttExtra">>, E) of
+        undefined -> {ok, ok};
+        Text ->
+            Good = fun(T) -> case binary:split(T, <<"=">>) of
+                                 [N, V] -> is_name(N) andalso V =/= <<>>;
+                                 _ -> false
+                             end
+                   end,
+            case lists:all(Good, tokens(Text)) of
+                true -> {ok, ok};
+                false -> {error, [problem(Id, E, What, <<"MqttExtra">>,
+                                          <<"expected Name=Value tokens">>)]}
+            end
+    end.
+
+%% MqttArgCheck: `Param', `Param=Min..Max' or `Param=a|b|c' tokens.
+checks(Id, E) ->
+    case get(<<"MqttArgCheck">>, E) of
+        undefined -> {ok, []};
+        Text ->
+            Parsed = [check_token(T) || T <- tokens(Text)],
+            case lists:member(error, Parsed) of
+                false -> {ok, Parsed};
+                true -> {error, [problem(Id, E, "Service", <<"MqttArgCheck">>,
+                                         <<"expected Param, Param=Min..Max or Param=a|b|c tokens">>)]}
+            end
+    end.
+
+check_token(T) ->
+    case binary:split(T, <<"=">>) of
+        [P] -> name_check(P, present);
+        [P, Spec] ->
+            case binary:split(Spec, <<"..">>) of
+                [Lo, Hi] ->
+                    case {number(Lo), number(Hi)} of
+                        {{ok, L}, {ok, H}} when L =< H -> name_check(P, {range, L, H});
+                        _ -> error
+                    end;
+                [_] ->
+                    case [V || V <- binary:split(Spec, <<"|">>, [global]), V =/= <<>>] of
+                        [] -> error;
+                        Vs -> name_check(P, {one_of, Vs})
+                    end
+            end
+    end.
+
+name_check(P, Check) ->
+    case is_name(P) of
+        true -> {P, Check};
+        false -> error
+    end.
+
+number(B) ->
+    case mqtt_avatar_json:decode(B) of
+        {ok, N} when is_number(N) -> {ok, N};
+        _ -> error
+    end.
+
+%% MqttCode: pbkdf2-sha256:Iterations:SaltHex:HashHex.
+code(Id, E) ->
+    case get(<<"MqttCode">>, E) of
+        undefined -> {ok, undefined};
+        Text ->
+            Bad = {error, [problem(Id, E, "Service", <<"MqttCode">>,
+                                   <<"expected pbkdf2-sha256:Iterations:SaltHex:HashHex">>)]},
+            case binary:split(Text, <<":">>, [global]) of
+                [<<"pbkdf2-sha256">>, I, Salt, Hash] ->
+                    try {binary_to_integer(I), binary:decode_hex(Salt), binary:decode_hex(Hash)} of
+                        {N, S, H} when N > 0, N =< 1000000, byte_size(H) > 0 ->
+                            {ok, {pbkdf2_sha256, N, S, H}};
+                        _ -> Bad
+                    catch error:badarg -> Bad
+                    end;
+                _ -> Bad
+            end
+    end.
 
 room(Entries) ->
     case [V || #{parameters := Ps} <- Entries, {<<"Room">>, V} <- Ps] of
@@ -243,8 +334,8 @@ stream(Id, E, Inherited) ->
                    <<"no">> -> {ok, false};
                    _ -> {error, [problem(Id, E, What, <<"MqttOnChange">>, <<"must be yes or no">>)]}
                end,
-    case collect([Topic, Mapping, Context, OnChange]) of
-        {ok, [T, M, Ctx, Change]} ->
+    case collect([Topic, Mapping, Context, OnChange, extra(Id, E, What)]) of
+        {ok, [T, M, Ctx, Change, ok]} ->
             #{category := Cat, type := Type} = E,
             {ok, #{category => Cat, type => Type, static => static(E), topic => T,
                    context => Ctx, on_change => Change, mapping => M}};
@@ -272,15 +363,18 @@ command_service(Id, E, Inherited, Base, Command) ->
                args(Id, E),
                StateTopic,
                optional_match(Id, E, <<"MqttProgress">>),
-               mapping(Id, E, What)],
+               mapping(Id, E, What),
+               extra(Id, E, What),
+               checks(Id, E),
+               code(Id, E)],
     case collect(Results) of
-        {ok, [CT, Cmd, Args, ST1, Progress, Mapping]} ->
+        {ok, [CT, Cmd, Args, ST1, Progress, Mapping, ok, Checks, Code]} ->
             Default = case ST1 of undefined -> none; _ -> any end,
             case expect(Id, E, Default, ST1) of
                 {ok, Expect} ->
                     {ok, Base#{kind => command, command_topic => CT, command => Cmd, args => Args,
                                state_topic => ST1, expect => Expect, progress => Progress,
-                               mapping => Mapping}};
+                               mapping => Mapping, checks => Checks, code => Code}};
                 Error ->
                     Error
             end;

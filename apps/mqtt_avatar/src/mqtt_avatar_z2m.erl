@@ -7,6 +7,13 @@
 -module(mqtt_avatar_z2m).
 
 -export([parse/2]).
+%% For the families (mqtt_avatar_family_*): reading their exposes.
+-export([setting/4, entity/3, text/1]).
+
+-export_type([ctx/0]).
+
+%% The device an expose belongs to: its state topic and friendly name.
+-type ctx() :: #{topic := binary(), device := binary()}.
 
 %% `access' bits of an expose (zigbee2mqtt's documentation of exposes).
 -define(ACCESS_STATE, 1).
@@ -62,6 +69,25 @@ device(Base, #{<<"friendly_name">> := Name} = D) when is_binary(Name), Name =/= 
 device(_Base, _) ->
     {error, <<"an entry without friendly_name; skipped">>}.
 
+%% Composite exposes of the other families, and settable numbers and
+%% enums, are read by their family.
+expose(Topic, Dev, #{<<"type">> := Type} = E)
+  when Type =:= <<"cover">>; Type =:= <<"lock">>; Type =:= <<"climate">>; Type =:= <<"fan">> ->
+    Ctx = #{topic => Topic, device => Dev},
+    case Type of
+        <<"cover">> -> mqtt_avatar_family_cover:from_z2m(E, Ctx);
+        <<"lock">> -> mqtt_avatar_family_lock:from_z2m(E, Ctx);
+        <<"climate">> -> mqtt_avatar_family_climate:from_z2m(E, Ctx);
+        <<"fan">> -> mqtt_avatar_family_fan:from_z2m(E, Ctx)
+    end;
+expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop, <<"access">> := A} = E)
+  when (Type =:= <<"numeric">> orelse Type =:= <<"enum">>), is_binary(Prop), is_integer(A),
+       A band ?ACCESS_SET =/= 0, A band ?ACCESS_STATE =/= 0, Prop =/= <<"action">> ->
+    Ctx = #{topic => Topic, device => Dev},
+    case Type of
+        <<"numeric">> -> mqtt_avatar_family_number:from_z2m(E, Ctx);
+        <<"enum">> -> mqtt_avatar_family_select:from_z2m(E, Ctx)
+    end;
 %% Composite exposes (light, switch) carry their state in a feature.
 expose(Topic, Dev, #{<<"type">> := Type, <<"features">> := Features} = E)
   when (Type =:= <<"light">> orelse Type =:= <<"switch">>), is_list(Features) ->
@@ -124,6 +150,51 @@ outlet(#{kind := switch} = E, Description) when is_binary(Description) ->
 outlet(E, _) ->
     E.
 
+%% @doc A feature as a family's setting (mqtt_avatar_part:setting()):
+%% read from the device's JSON state when its `access' has the state bit,
+%% set through `.../set' when it has the set bit; checked against
+%% value_min..value_max or its enum values. `[]' when it is neither.
+-spec setting(map(), binary(), binary(), ctx()) -> [mqtt_avatar_part:setting()].
+setting(#{<<"property">> := P} = F, Param, Service, #{topic := Topic}) when is_binary(P) ->
+    Access = case maps:get(<<"access">>, F, ?ACCESS_STATE) of
+                 A when is_integer(A) -> A;
+                 _ -> 0
+             end,
+    Check = case F of
+                #{<<"value_min">> := Lo, <<"value_max">> := Hi} when is_number(Lo), is_number(Hi),
+                                                                    Lo =< Hi ->
+                    <<(text(Lo))/binary, "..", (text(Hi))/binary>>;
+                #{<<"values">> := Vs} when is_list(Vs) ->
+                    mqtt_avatar_part:one_of([V || V <- [text(V0) || V0 <- Vs], is_binary(V)]);
+                _ -> <<>>
+            end,
+    S = maps:from_list([{state, #{topic => Topic, source => {json, [P]}}}
+                        || Access band ?ACCESS_STATE =/= 0]
+                       ++ [{control, #{topic => <<Topic/binary, "/set">>, field => P}}
+                           || Access band ?ACCESS_SET =/= 0]),
+    case map_size(S) of
+        0 -> [];
+        _ -> [S#{param => Param, service => Service, check => Check}]
+    end;
+setting(_, _, _, _) ->
+    [].
+
+%% @doc The shared keys of an entity of family `Kind' of the device,
+%% named `<friendly_name>/<Suffix>'. zigbee2mqtt publishes the whole state
+%% on every change, so its streams send only changes.
+-spec entity(mqtt_avatar_discovery:kind(), binary(), ctx()) -> mqtt_avatar_discovery:entity().
+entity(Kind, Suffix, #{topic := Topic, device := Dev}) ->
+    #{uid => iolist_to_binary([Dev, "/", Suffix]),
+      kind => Kind,
+      name => undefined,
+      device_class => undefined,
+      state_topic => Topic,
+      command_topic => <<Topic/binary, "/set">>,
+      value => raw,
+      attributes => false,
+      on_change => true,
+      unit => undefined}.
+
 binary_to_kind(<<"light">>) -> light;
 binary_to_kind(<<"switch">>) -> switch.
 
@@ -132,6 +203,8 @@ binary_class(P) when P =:= <<"occupancy">>; P =:= <<"presence">>; P =:= <<"motio
 binary_class(P) ->
     P.
 
+%% @doc A JSON scalar as text (`undefined' for null and non-scalars).
+-spec text(term()) -> binary() | undefined.
 text(undefined) -> undefined;
 text(null) -> undefined;
 text(true) -> <<"true">>;
