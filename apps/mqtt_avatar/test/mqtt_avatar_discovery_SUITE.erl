@@ -16,7 +16,7 @@ suite() -> [{timetrap, {seconds, 120}}].
 all() ->
     [ha_json_light, tasmota_outlet, sensors_and_events, siren_notify_button, zigbee2mqtt_devices,
      malformed_discovery, config_removed, overrides, generated_bil_validates,
-     printed_bil_reads_back, hand_written_checks, public_description_binds,
+     printed_bil_reads_back, families_validate, hand_written_checks, public_description_binds,
      empty_topic_with_base, prop_discovery_never_crashes, prop_payload_mapping_never_crashes].
 
 %% ---------------------------------------------------------------------------
@@ -153,7 +153,12 @@ malformed_discovery(_Config) ->
             <<"{\"state_topic\":\"s\",\"value_template\":\"{{ value_json.a if x }}\"}">>,
             <<"not supported">>},
            {<<"homeassistant/sensor/x/topic/config">>, <<"{\"state_topic\": 42}">>, <<"not a string">>},
-           {<<"homeassistant/vacuum/x/robot/config">>, <<"{}">>, <<"is not supported">>},
+           {<<"homeassistant/water_heater/x/boiler/config">>, <<"{}">>, <<"is not supported">>},
+           {<<"homeassistant/vacuum/x/robot/config">>, <<"{}">>, <<"needs command_topic">>},
+           {<<"homeassistant/select/x/noopts/config">>, <<"{\"cmd_t\":\"c\"}">>, <<"needs options">>},
+           {<<"homeassistant/climate/x/tpl/config">>,
+            <<"{\"mode_stat_t\":\"s\",\"mode_stat_tpl\":\"{% if x %}1{% endif %}\"}">>,
+            <<"not supported">>},
            {<<"homeassistant/sensor/x/utf/config">>, <<"{\"name\":\"", 255, "\"}">>, <<"invalid JSON">>},
            {<<"zigbee2mqtt/bridge/devices">>, <<"{\"not\":\"a list\"}">>, <<"not a JSON array">>}],
     {D, Problems} = mqtt_avatar:generate([light() | [{T, P} || {T, P, _} <- Bad]], #{}),
@@ -212,6 +217,88 @@ generated_bil_validates(Config) ->
         ++ [{<<"zigbee2mqtt/bridge/devices">>, z2m_devices()}],
     {D, _} = mqtt_avatar:generate(Messages, #{entity_id => <<"mqtt-home-01">>}),
     9 = length(components(D)),
+    validate(Config, [{"generated.xml", D}, {"public.xml", mqtt_avatar:public_description(D)}]).
+
+%% @doc Every family of docs/mqtt.md section 2.3, announced in HA's format
+%% (abbreviated keys) and as zigbee2mqtt exposes, gives a description
+%% without problems that passes the checks and bil.xsd; the new reserved
+%% parameters are checked in hand-written BIL too.
+families_validate(Config) ->
+    Enc = fun(M) -> iolist_to_binary(mqtt_avatar_json:encode(M)) end,
+    Dev = fun(N) -> #{<<"ids">> => [N], <<"name">> => N, <<"sa">> => <<"Living">>} end,
+    Ha = [{<<"cover">>, #{<<"cmd_t">> => <<"b/set">>, <<"stat_t">> => <<"b/state">>,
+                          <<"pos_t">> => <<"b/pos">>, <<"set_pos_t">> => <<"b/pos/set">>,
+                          <<"tilt_cmd_t">> => <<"b/tilt/set">>, <<"tilt_status_t">> => <<"b/tilt">>,
+                          <<"dev_cla">> => <<"blind">>, <<"dev">> => Dev(<<"Blind">>)}},
+          {<<"valve">>, #{<<"cmd_t">> => <<"v/set">>, <<"stat_t">> => <<"v/state">>, <<"pos">> => true,
+                          <<"dev">> => Dev(<<"Valve">>)}},
+          {<<"climate">>, #{<<"mode_cmd_t">> => <<"ac/mode/set">>, <<"mode_stat_t">> => <<"ac/state">>,
+                            <<"mode_stat_tpl">> => <<"{{ value_json.mode }}">>,
+                            <<"temp_cmd_t">> => <<"ac/temp/set">>, <<"curr_temp_t">> => <<"ac/state">>,
+                            <<"curr_temp_tpl">> => <<"{{ value_json.current }}">>,
+                            <<"pr_mode_cmd_t">> => <<"ac/preset/set">>, <<"pr_modes">> => [<<"eco">>],
+                            <<"pow_cmd_t">> => <<"ac/power">>, <<"dev">> => Dev(<<"AC">>)}},
+          {<<"fan">>, #{<<"cmd_t">> => <<"f/set">>, <<"stat_t">> => <<"f/state">>,
+                        <<"pct_cmd_t">> => <<"f/pct/set">>, <<"osc_cmd_t">> => <<"f/osc/set">>,
+                        <<"dir_cmd_t">> => <<"f/dir/set">>, <<"dev">> => Dev(<<"Fan">>)}},
+          {<<"humidifier">>, #{<<"cmd_t">> => <<"h/set">>, <<"hum_cmd_t">> => <<"h/hum/set">>,
+                               <<"modes">> => [<<"eco">>], <<"mode_cmd_t">> => <<"h/mode/set">>,
+                               <<"dev">> => Dev(<<"Dryer">>)}},
+          {<<"lock">>, #{<<"cmd_t">> => <<"l/set">>, <<"stat_t">> => <<"l/state">>,
+                         <<"dev">> => Dev(<<"Door">>)}},
+          {<<"number">>, #{<<"name">> => <<"Volume">>, <<"cmd_t">> => <<"n/set">>, <<"stat_t">> => <<"n">>,
+                           <<"min">> => 0, <<"max">> => 10, <<"dev">> => Dev(<<"Speaker">>)}},
+          {<<"select">>, #{<<"name">> => <<"Source">>, <<"cmd_t">> => <<"s/set">>,
+                           <<"ops">> => [<<"TV">>, <<"Line in">>], <<"dev">> => Dev(<<"Speaker">>)}},
+          {<<"alarm_control_panel">>, #{<<"cmd_t">> => <<"a/set">>, <<"stat_t">> => <<"a/state">>,
+                                        <<"code">> => <<"1234">>, <<"dev">> => Dev(<<"Alarm">>)}},
+          {<<"scene">>, #{<<"name">> => <<"Movie night">>, <<"cmd_t">> => <<"sc/set">>}},
+          {<<"vacuum">>, #{<<"cmd_t">> => <<"vac/cmd">>, <<"stat_t">> => <<"vac/state">>,
+                           <<"set_fan_spd_t">> => <<"vac/fan">>, <<"fanspd_lst">> => [<<"min">>],
+                           <<"dev">> => Dev(<<"Robot">>)}}],
+    Exposes = [#{<<"type">> => <<"cover">>,
+                 <<"features">> => [#{<<"name">> => <<"state">>, <<"property">> => <<"state">>,
+                                      <<"access">> => 3},
+                                    #{<<"name">> => <<"position">>, <<"property">> => <<"position">>,
+                                      <<"access">> => 7}]},
+               #{<<"type">> => <<"lock">>,
+                 <<"features">> => [#{<<"name">> => <<"state">>, <<"property">> => <<"state">>,
+                                      <<"access">> => 7, <<"value_on">> => <<"LOCK">>}]},
+               #{<<"type">> => <<"climate">>,
+                 <<"features">> => [#{<<"name">> => <<"system_mode">>, <<"property">> => <<"system_mode">>,
+                                      <<"access">> => 7, <<"values">> => [<<"off">>, <<"heat">>]},
+                                    #{<<"name">> => <<"local_temperature">>,
+                                      <<"property">> => <<"local_temperature">>, <<"access">> => 1}]},
+               #{<<"type">> => <<"numeric">>, <<"name">> => <<"countdown">>, <<"property">> => <<"countdown">>,
+                 <<"access">> => 7, <<"value_min">> => 0, <<"value_max">> => 100}],
+    Z2m = Enc([#{<<"friendly_name">> => <<"multi">>, <<"ieee_address">> => <<"0x1">>,
+                 <<"definition">> => #{<<"model">> => <<"M">>, <<"exposes">> => Exposes}}]),
+    Messages = [{<<"homeassistant/", C/binary, "/x/", C/binary, "/config">>, Enc(Cfg)} || {C, Cfg} <- Ha]
+        ++ [{<<"zigbee2mqtt/bridge/devices">>, Z2m}],
+    {D, []} = mqtt_avatar:generate(Messages, #{entity_id => <<"families">>}),
+    ok = mqtt_avatar:check(D),
+    Types = [T || #{services := S} <- components(D), #{type := T} <- S],
+    [] = [<<"OpenCover">>, <<"SetValvePosition">>, <<"SetHvacMode">>, <<"TurnClimateOn">>,
+          <<"SetFanPercentage">>, <<"StartFanOscillation">>, <<"SetHumidifierMode">>, <<"Lock">>,
+          <<"SetVolume">>, <<"SelectSource">>, <<"ArmAway">>, <<"ActivateMovieNight">>,
+          <<"SetVacuumFanSpeed">>, <<"SetCountdown">>] -- Types,
+    %% An option with a space cannot be listed: the option is only required.
+    [Select] = [E || #{services := S} <- components(D), #{type := <<"SelectSource">>} = E <- S],
+    <<"Option">> = p(<<"MqttArgCheck">>, maps:get(parameters, Select)),
+    validate(Config, [{"families.xml", D}, {"families-public.xml", mqtt_avatar:public_description(D)}]),
+    %% The new reserved parameters, written wrong by hand.
+    Entry = fun(Ps) -> #{category => <<"ACTUATOR">>, type => <<"Set">>,
+                         parameters => [{<<"MqttCommandTopic">>, <<"c">>}, {<<"MqttCommand">>, <<"raw:">>}
+                                        | Ps]} end,
+    Bad = #{entity_id => <<"x">>, api_name => <<>>, entity_type => avatar, context => <<>>,
+            components => [#{id => <<"C">>, consumes => [],
+                             services => [Entry([{<<"MqttArgCheck">>, <<"Value=10..1">>}]),
+                                          Entry([{<<"MqttCode">>, <<"1234">>}]),
+                                          Entry([{<<"MqttExtra">>, <<"Unit">>}])]}]},
+    {error, Problems} = mqtt_avatar:check(Bad),
+    [<<"MqttArgCheck">>, <<"MqttCode">>, <<"MqttExtra">>] = lists:sort([N || #{parameter := N} <- Problems]).
+
+validate(Config, Descriptions) ->
     {ok, Schema} = xmerl_xsd:process_schema(filename:join(code:priv_dir(bil), "bil.xsd")),
     Dir = ?config(priv_dir, Config),
     lists:foreach(
@@ -225,7 +312,7 @@ generated_bil_validates(Config) ->
                   {error, Errors} -> ct:fail({invalid, Name, Errors})
               end,
               {ok, Desc} = bil:parse_description(iolist_to_binary(bil:encode_description(Desc)))
-      end, [{"generated.xml", D}, {"public.xml", mqtt_avatar:public_description(D)}]).
+      end, Descriptions).
 
 %% @doc The printed (indented) BIL reads back to the same description, so
 %% a person can save, edit and load it.
