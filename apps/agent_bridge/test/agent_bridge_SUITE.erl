@@ -10,8 +10,8 @@
 -compile([export_all, nowarn_export_all]).
 
 -define(NS, "xmlns:bil=\"urn:evatar:bil:1\"").
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -63,7 +63,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 2000,
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 2000,
                                                                feedback_timeout => 300}),
     [{pairing, Pairing} | Config].
 
@@ -210,7 +210,7 @@ malformed_signal_keeps_connection(Config) ->
 %% An entity that never describes itself is dropped after the join timeout.
 join_timeout_drops(Config) ->
     Pairing = <<"join_timeout_short">>,
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 200}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 200}),
     S = raw_connect(Config),
     ok = gen_tcp:send(S, bil_control:encode({hello, #{pairing => Pairing, role => avatar,
                                                       entity_id => <<"av">>,
@@ -578,8 +578,9 @@ listener_port_taken_retries(Config) ->
         true = Failures >= 3,
         true = Next >= 400,
         ok = gen_tcp:close(Taken),
-        ok = agent_bridge_test_node:wait_until(
-               fun() -> agent_bridge:address(kept) =:= {ok, {{127, 0, 0, 1}, Port}} end, 600),
+        ok = evatar_test_wait:until(
+               fun() -> agent_bridge:address(kept) =:= {ok, {{127, 0, 0, 1}, Port}} end,
+               #{timeout => 12000}),
         #{state := running, starts := 1} = agent_bridge_listener_keeper:status(Keeper),
         {ok, C} = client([{addr, {{127, 0, 0, 1}, Port}} | Config], agent, <<"va">>),
         ok = agent_bridge_client:close(C)
@@ -716,16 +717,13 @@ registered_entities(Config) ->
 %% ---------------------------------------------------------------------------
 
 client_opts(Config, Role, Entity) ->
-    #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
-      credential => case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end}.
+    evatar_test_fixtures:client_opts(?config(pairing, Config), Role, Entity).
 
 client(Config, Role, Entity) ->
-    agent_bridge_client:connect([?config(addr, Config)], client_opts(Config, Role, Entity)).
+    evatar_test_fixtures:client(?config(addr, Config), ?config(pairing, Config), Role, Entity).
 
 hello(Config, Role, Entity, Cred) ->
-    bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,
-                                 entity_id => Entity, credential => Cred,
-                                 protocol_version => 1}}).
+    evatar_test_fixtures:hello(?config(pairing, Config), Role, Entity, Cred, 1).
 
 raw_connect(Config) -> raw_connect(Config, []).
 
@@ -742,10 +740,7 @@ joined_raw(Config, Role, Entity, Cred, Extra) ->
     {control, {welcome, _}} = recv_doc(S),
     S.
 
-recv_doc(S) ->
-    {ok, Frame} = gen_tcp:recv(S, 0, 5000),
-    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
-    Doc.
+recv_doc(S) -> evatar_test_fixtures:recv_doc(S, 5000).
 
 recv_raw_doc(S) ->
     {ok, <<Len:32>>} = gen_tcp:recv(S, 4, 5000),
@@ -780,7 +775,7 @@ queue_len(Pid) ->
     {message_queue_len, N} = erlang:process_info(Pid, message_queue_len),
     N.
 
-wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 500).
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 10000}).
 
 %% A VA and an Avatar bound to each other; the Avatar runs a responder.
 bound_pair(Config) ->
@@ -791,7 +786,7 @@ bound_pair(Config) ->
     {Va, Av}.
 
 wait_binding(Va, Pred) ->
-    agent_bridge_test_node:wait_binding(Va, Pred, 5000).
+    evatar_test_fixtures:wait_binding(Va, Pred, 5000).
 
 collect_sensor(_Va, 0, Acc) ->
     lists:reverse(Acc);
@@ -840,7 +835,7 @@ responder(C, Answer) ->
 
 start_bystander(Addr) ->
     Pairing = <<"bystander">>,
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{}),
     Config = [{addr, Addr}, {pairing, Pairing}],
     Parent = self(),
     %% The bystander's clients belong to a long-lived process, not to the
@@ -888,29 +883,18 @@ sensor(I, Value) ->
       body => #{category => <<"SENSOR">>, type => <<"Temperature">>,
                 parameters => [{<<"Value">>, Value}, {<<"N">>, integer_to_binary(I)}]}}.
 
-entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
-
 va_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent,
-      context => <<"EmulatorDescription">>,
-      components => [#{id => <<"LightEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>),
-                                    entry(<<"ACTUATOR">>, <<"Dim">>)]},
-                     #{id => <<"DoorEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Door">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"OpenDoor">>)]},
-                     #{id => <<"ThermoEmulator01">>,
-                       services => [entry(<<"SENSOR">>, <<"Temperature">>)],
-                       consumes => []}]}.
+    C = fun evatar_test_fixtures:component/3,
+    evatar_test_fixtures:description(
+      Id, agent, <<"TEST VA">>, <<"EmulatorDescription">>,
+      [C(<<"LightEmulator01">>, [{<<"BEHAVIOUR">>, <<"Light">>}],
+         [{<<"ACTUATOR">>, <<"TurnLightOn">>}, {<<"ACTUATOR">>, <<"Dim">>}]),
+       C(<<"DoorEmulator01">>, [{<<"BEHAVIOUR">>, <<"Door">>}], [{<<"ACTUATOR">>, <<"OpenDoor">>}]),
+       C(<<"ThermoEmulator01">>, [{<<"SENSOR">>, <<"Temperature">>}], [])]).
 
+%% The suites' Avatar body, with a door when WithDoor.
 avatar_description(Id, WithDoor) ->
-    Door = [#{id => <<"Door01">>, services => [entry(<<"ACTUATOR">>, <<"OpenDoor">>)],
-              consumes => []} || WithDoor],
-    #{entity_id => Id, api_name => <<"TEST AVATAR">>, entity_type => avatar,
-      context => <<"ActuatorDescription">>,
-      components => [#{id => <<"Light01">>, services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
-                       consumes => []},
-                     #{id => <<"Thermo01">>, services => [entry(<<"SENSOR">>, <<"Reading">>)],
-                       consumes => [entry(<<"SENSOR">>, <<"Temperature">>)]}
-                     | Door]}.
+    #{components := Cs} = D = evatar_test_fixtures:avatar_description(Id),
+    Door = [evatar_test_fixtures:component(<<"Door01">>, [{<<"ACTUATOR">>, <<"OpenDoor">>}], [])
+            || WithDoor],
+    D#{components := Cs ++ Door}.

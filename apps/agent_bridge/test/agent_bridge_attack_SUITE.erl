@@ -62,7 +62,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = call(?config(peer, Config), agent_bridge_test_node, create_pairing, [Pairing, #{}]),
+    {ok, _} = call(?config(peer, Config), evatar_test_fixtures, create_pairing, [Pairing, #{}]),
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -166,7 +166,7 @@ wrong_credential_flood(Config) ->
         agent_bridge_client:connect([Addr], client_opts(Config, agent, <<"va">>)),
     %% Another address is not locked out.
     S = raw_connect(Addr, [{ip, {127, 0, 0, 3}}]),
-    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, agent_bridge_test_node:va_credential())),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, evatar_test_fixtures:va_credential())),
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:close(S),
     %% The lockout was logged once, the refusals in summaries.
@@ -182,7 +182,7 @@ wrong_credential_flood(Config) ->
 slow_consumer_closed(Config) ->
     Addr = addr(slow, Config),
     S = raw_connect(Addr, [{recbuf, 4096}]),
-    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, agent_bridge_test_node:va_credential())),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, evatar_test_fixtures:va_credential())),
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:send(S, bil:encode_description(agent_bridge_SUITE:va_description(<<"va">>))),
     %% The Avatar comes through a listener with the default queue bounds:
@@ -339,7 +339,7 @@ wrong_hello(Addr, Config) ->
 
 joined_v1(Addr, Config) ->
     S = raw_connect(Addr, []),
-    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, agent_bridge_test_node:va_credential())),
+    ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, evatar_test_fixtures:va_credential())),
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:send(S, bil:encode_description(agent_bridge_SUITE:va_description(<<"va">>))),
     S.
@@ -357,11 +357,11 @@ until_not_binding(S) ->
         Other -> Other
     end.
 
-wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 1000).
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).
 
 start_bystander(Peer, Addr) ->
     Pairing = <<"bystander">>,
-    {ok, _} = call(Peer, agent_bridge_test_node, create_pairing, [Pairing, #{}]),
+    {ok, _} = call(Peer, evatar_test_fixtures, create_pairing, [Pairing, #{}]),
     Parent = self(),
     Holder = spawn(fun() ->
                            {Va, Av} = agent_bridge_SUITE:bound_pair([{addr, Addr},

@@ -12,8 +12,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 120}}].
 
@@ -43,7 +43,7 @@ end_per_suite(_Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{}),
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -212,7 +212,7 @@ accepted_signals_notified(Config) ->
     ok = agent_bridge_client:describe(Av, avatar_description(<<"av">>)),
     {ok, Va} = client(Config, <<"va">>),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
     Ids = [begin
                Id = <<"reading-", (integer_to_binary(I))/binary>>,
                ok = agent_bridge_client:send(Av, (sensor(I))#{id => Id}),
@@ -339,7 +339,7 @@ welcome(Pairing) ->
                                    session_id => binary:copy(<<"a">>, 32),
                                    max_frame => 1048576, join_timeout => 2000}}).
 
-wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 500).
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 10000}).
 
 light_request() ->
     #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,

@@ -14,8 +14,8 @@
 -export([take_detached_entity/1, fill_avatar_slots/1, pass_for_evatar/1,
          forge_timeout_feedback/1, hold_100000_requests/1, ids_of_60000_characters/1]).
 
--define(VA_CRED, <<"va-secret">>).
--define(AV_CRED, <<"avatar-secret">>).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 -define(LAMP_CRED, <<"lamp-own-secret">>).
 
 suite() -> [{timetrap, {minutes, 5}}].
@@ -82,7 +82,8 @@ take_detached_entity(Config) ->
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"lamp">>))),
     {control, {binding, _}} = recv_doc(S),
     ok = gen_tcp:close(S),
-    ok = agent_bridge_test_node:wait_until(fun() -> not attached(Pairing, <<"lamp">>) end, 500),
+    ok = evatar_test_wait:until(fun() -> not attached(Pairing, <<"lamp">>) end,
+                                #{timeout => 10000}),
     [<<"BadCredential">> = refused_code(Config, hello(Config, avatar, <<"lamp">>, Cred, V))
      || Cred <- [?AV_CRED, ?VA_CRED, <<>>], V <- [1, 2]],
     {ok, Registry} = evatar:registry(Pairing),
@@ -143,7 +144,7 @@ forge_timeout_feedback(Config) ->
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
     S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mallory">>))),
-    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
     ok = agent_bridge_client:send(Va, (light_request())#{id => <<"req-1">>,
                                                            context => request}),
     Req = recv_until(S, fun({signal, #{context := request}}) -> true; (_) -> false end),
@@ -159,7 +160,7 @@ forge_timeout_feedback(Config) ->
     %% Without the mark it is the Avatar's feedback, and looks it.
     ok = gen_tcp:send(S, bil:encode_signal(Forged)),
     #{sender := MyComp} = Seen =
-        agent_bridge_test_node:wait_signal(Va, fun(#{id := Id}) -> Id =:= <<"forged-1">> end,
+        evatar_test_fixtures:wait_signal(Va, fun(#{id := Id}) -> Id =:= <<"forged-1">> end,
                                            10000),
     false = maps:is_key(origin, Seen),
     ok = gen_tcp:close(S),
@@ -174,8 +175,9 @@ hold_100000_requests(Config) ->
     ok = gen_tcp:send(Va, bil:encode_description(va_description(<<"va">>))),
     S = joined_raw(Config, avatar, <<"mute">>, ?AV_CRED),
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mute">>))),
-    ok = agent_bridge_test_node:wait_until(
-           fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end, 500),
+    ok = evatar_test_wait:until(
+           fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end,
+           #{timeout => 10000}),
     %% Both sockets are read by processes of their own, so the bridge never
     %% drops either as a slow consumer; the VA's counts the refusals.
     N = 100000,
@@ -213,7 +215,7 @@ ids_of_60000_characters(Config) ->
     <<"IdTooLong">> = refused_code(Config, hello(Config, avatar, Long, ?AV_CRED, 1)),
     {ok, Va} = client(Config, agent, <<"va">>, ?VA_CRED),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = agent_bridge_test_node:wait_binding(Va, fun(_) -> true end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, 10000),
     S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
     Desc = lamp_description(<<"mallory">>),
     [C | _] = maps:get(components, Desc),
@@ -226,7 +228,7 @@ ids_of_60000_characters(Config) ->
     {signal, #{context := error, body := #{type := <<"DescriptionRefused">>}}} = recv_doc(S),
     ok = gen_tcp:send(S, bil:encode_description(Desc)),
     {control, {binding, _}} = recv_doc(S),
-    Report = agent_bridge_test_node:wait_binding(
+    Report = evatar_test_fixtures:wait_binding(
                Va, fun(#{entities := Es}) -> lists:member(<<"mallory">>, Es) end, 10000),
     Size = iolist_size(bil_control:encode({binding, Report})),
     ct:log("the VA's Binding report: ~b bytes", [Size]),
@@ -279,9 +281,7 @@ client(Config, Role, Entity, Cred) ->
                                   entity_id => Entity, credential => Cred}).
 
 hello(Config, Role, Entity, Cred, Version) ->
-    bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,
-                                 entity_id => Entity, credential => Cred,
-                                 protocol_version => Version}}).
+    evatar_test_fixtures:hello(?config(pairing, Config), Role, Entity, Cred, Version).
 
 raw_connect(Config) ->
     {Ip, Port} = ?config(addr, Config),
@@ -303,31 +303,21 @@ refused_code(Config, Hello) ->
     {error, closed} = gen_tcp:recv(S, 0, 10000),
     Code.
 
-recv_doc(S) ->
-    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
-    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
-    Doc.
+recv_doc(S) -> evatar_test_fixtures:recv_doc(S).
 
-recv_until(S, Pred) ->
-    Doc = recv_doc(S),
-    case Pred(Doc) of
-        true -> Doc;
-        false -> recv_until(S, Pred)
-    end.
-
-entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+recv_until(S, Pred) -> evatar_test_fixtures:recv_until(S, Pred).
 
 va_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent, context => <<>>,
-      components => [#{id => <<"LightEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]}]}.
+    evatar_test_fixtures:description(
+      Id, agent, <<"TEST VA">>, <<>>,
+      [evatar_test_fixtures:component(<<"LightEmulator01">>, [{<<"BEHAVIOUR">>, <<"Light">>}],
+                                      [{<<"ACTUATOR">>, <<"TurnLightOn">>}])]).
 
 lamp_description(Id) ->
-    #{entity_id => Id, api_name => <<"LAMP">>, entity_type => avatar, context => <<>>,
-      components => [#{id => <<"Light01">>,
-                       services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
-                       consumes => [entry(<<"BEHAVIOUR">>, <<"Light">>)]}]}.
+    evatar_test_fixtures:description(
+      Id, avatar, <<"LAMP">>, <<>>,
+      [evatar_test_fixtures:component(<<"Light01">>, [{<<"ACTUATOR">>, <<"TurnLightOn">>}],
+                                      [{<<"BEHAVIOUR">>, <<"Light">>}])]).
 
 light_request() ->
     #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
@@ -336,22 +326,22 @@ light_request() ->
 %% A pairing of its own with a VA and an Avatar that answers every request.
 start_bystander(Addr) ->
     Pairing = <<"identity-bystander">>,
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{}),
     Config = [{addr, Addr}, {pairing, Pairing}],
     Parent = self(),
     Holder = spawn(fun() ->
                            {ok, Va} = client(Config, agent, <<"va">>,
-                                             agent_bridge_test_node:va_credential()),
+                                             evatar_test_fixtures:va_credential()),
                            ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
                            Av = spawn(fun() ->
                                               {ok, C} = client(
                                                           Config, avatar, <<"av">>,
-                                                          agent_bridge_test_node:avatar_credential()),
+                                                          evatar_test_fixtures:avatar_credential()),
                                               ok = agent_bridge_client:describe(
                                                      C, lamp_description(<<"av">>)),
                                               answer(C)
                                       end),
-                           _ = agent_bridge_test_node:wait_binding(
+                           _ = evatar_test_fixtures:wait_binding(
                                  Va, fun(#{bound := B}) -> B =/= [] end, 10000),
                            Parent ! {bystander, Va, Av},
                            receive stop -> ok end

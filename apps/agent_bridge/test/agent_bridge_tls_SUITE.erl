@@ -11,8 +11,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 -define(LISTENERS, [tls_open, tls_mutual, tls_plain_tcp]).
 
 suite() -> [{timetrap, {seconds, 60}}].
@@ -37,8 +37,8 @@ groups() ->
 init_per_suite(Config) ->
     ok = agent_bridge_test_node:start([]),
     Priv = ?config(priv_dir, Config),
-    Certs = agent_bridge_test_node:bridge_certs(filename:join(Priv, "certs"), ["va", "av"]),
-    Rogue = agent_bridge_test_node:bridge_certs(filename:join(Priv, "rogue"), ["va"]),
+    Certs = evatar_test_fixtures:bridge_certs(filename:join(Priv, "certs"), ["va", "av"]),
+    Rogue = evatar_test_fixtures:bridge_certs(filename:join(Priv, "rogue"), ["va"]),
     Server = #{certfile => file(Certs, "server.pem"), keyfile => file(Certs, "server.key")},
     Conn = #{handshake_timeout => 1000, linger => 200},
     Open = agent_bridge_test_node:listen(tls_open, #{tls => Server, conn => Conn}),
@@ -52,7 +52,7 @@ end_per_suite(_Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 5000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 5000}),
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -309,13 +309,13 @@ bound_session(Config, Listener, VaTls, AvTls, Extra) ->
     receive {avatar, Av} -> ok after 10000 -> ct:fail(no_avatar) end,
     {ok, Va} = connect(Config, Listener, agent, <<"va">>, VaTls, Extra),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
     {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
     N = 500,
     Av ! {stream, N},
     Got = [begin
                #{body := #{parameters := [{<<"N">>, V}]}} =
-                   agent_bridge_test_node:wait_signal(
+                   evatar_test_fixtures:wait_signal(
                      Va, fun(#{context := Ctx}) -> Ctx =:= sensor_data end, 5000),
                binary_to_integer(V)
            end || _ <- lists:seq(1, N)],
@@ -383,7 +383,7 @@ sniffed_session(Config, Listener, Tls) ->
     {ok, C} = agent_bridge_client:connect([RelayAddr], Opts),
     {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
     ok = agent_bridge_client:describe(C, va_description(<<"va">>)),
-    _ = agent_bridge_test_node:wait_binding(C, fun(_) -> true end, 5000),
+    _ = evatar_test_fixtures:wait_binding(C, fun(_) -> true end, 5000),
     ok = agent_bridge_client:close(C),
     Relay ! {bytes, self()},
     Bytes = receive {relay_bytes, B} -> B after 5000 -> ct:fail(no_relay_bytes) end,

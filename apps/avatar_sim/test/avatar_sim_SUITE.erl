@@ -10,8 +10,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 -define(WAIT, 10000).
 
 suite() -> [{timetrap, {seconds, 60}}].
@@ -43,7 +43,7 @@ init_per_testcase(Case, Config) ->
     Timeout = case Case of muted_device_times_out -> 300; _ -> 5000 end,
     Pairings = [<<(atom_to_binary(Case))/binary, "-", (integer_to_binary(N))/binary>>
                 || N <- [1, 2]],
-    [{ok, _} = agent_bridge_test_node:create_pairing(P, #{feedback_timeout => Timeout})
+    [{ok, _} = evatar_test_fixtures:create_pairing(P, #{feedback_timeout => Timeout})
      || P <- Pairings],
     Spool = filename:join(?config(priv_dir, Config), atom_to_list(Case) ++ "-spool"),
     [{pairings, Pairings}, {spool, Spool} | Config].
@@ -309,7 +309,7 @@ same_seed_same_signals(Config) ->
     ?assertEqual(Got1, Got2),
     ?assertEqual(Log1, Log2),
     ok = evatar:delete_pairing(pairing(1, Config)),
-    {ok, _} = agent_bridge_test_node:create_pairing(pairing(1, Config), #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(pairing(1, Config), #{}),
     {_, Log3} = Run(8, pairing(1, Config)),
     ?assertNotEqual(Log1, Log3).
 
@@ -426,10 +426,10 @@ signals(Va) ->
     end.
 
 wait_signal(Va, Pred) ->
-    agent_bridge_test_node:wait_signal(Va, Pred, ?WAIT).
+    evatar_test_fixtures:wait_signal(Va, Pred, ?WAIT).
 
 wait_binding(Va, Pred) ->
-    agent_bridge_test_node:wait_binding(Va, Pred, ?WAIT).
+    evatar_test_fixtures:wait_binding(Va, Pred, ?WAIT).
 
 wait_for(F) -> wait_for(F, 200).
 wait_for(_F, 0) -> ct:fail(condition_not_met);

@@ -20,13 +20,6 @@ loop(Clock, Seen) ->
             loop(Clock, Seen)
     end.
 
-wait_until(_F, 0) -> {error, timeout};
-wait_until(F, Tries) ->
-    case F() of
-        true -> ok;
-        false -> timer:sleep(20), wait_until(F, Tries - 1)
-    end.
-
 seen(Pid) ->
     Pid ! {seen, self()},
     receive {seen, S} -> S end.
@@ -60,7 +53,8 @@ paced_test() ->
     ok = avatar_sim_clock:resume(Clock),
     %% Until it has run ten ticks, however loaded the machine (a fixed
     %% sleep made this depend on the scheduler).
-    ok = wait_until(fun() -> avatar_sim_clock:now(Clock) >= 1000 end, 500),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1000 end,
+                                #{timeout => 10000}),
     ok = avatar_sim_clock:pause(Clock),
     Now = avatar_sim_clock:now(Clock),
     ?assert(Now >= 1000),

@@ -8,8 +8,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 90}}].
 
@@ -26,7 +26,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{feedback_timeout => 5000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{feedback_timeout => 5000}),
     Home = start_home(Config, Case, Pairing),
     {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
                                            #{pairing => Pairing, role => agent,
@@ -72,12 +72,12 @@ stray_hardware_pairing_replaced(Config) ->
     Home = start_home(Config, stray, ?config(pairing, Config)),
     try
         %% The house joined the new pairing with this start's credential.
-        ok = agent_bridge_test_node:wait_until(
+        ok = evatar_test_wait:until(
                fun() ->
                        {ok, Registry} = evatar:registry(Id),
                        lists:member(<<"easy-home-mqtt-hardware">>,
                                     [E || #{entity := E} <- Registry])
-               end, 1500),
+               end, #{timeout => 30000}),
         [Id] = [I || I <- evatar:catalogued(), I =:= Id],
         {error, _} = evatar:join(Id, agent, <<"intruder">>, <<"stale-agent">>)
     after

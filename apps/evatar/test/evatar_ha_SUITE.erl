@@ -375,8 +375,7 @@ heal(#{peer := P}, Others) ->
 cookie(Which) ->
     case persistent_term:get({?MODULE, cookie, Which}, undefined) of
         undefined ->
-            Hex = [io_lib:format("~2.16.0b", [B]) || <<B>> <= crypto:strong_rand_bytes(24)],
-            Cookie = list_to_atom(lists:flatten(Hex)),
+            Cookie = evatar_test_fixtures:secret_atom(),
             persistent_term:put({?MODULE, cookie, Which}, Cookie),
             Cookie;
         Cookie ->
@@ -576,11 +575,4 @@ dump_on_error(Error, Nodes, Id) ->
     ct:pal("mailbox: ~p", [element(2, process_info(self(), messages))]),
     Error.
 
-wait_until(F) -> wait_until(F, 200).
-
-wait_until(_F, 0) -> {error, timeout};
-wait_until(F, N) ->
-    case F() of
-        true -> ok;
-        false -> timer:sleep(50), wait_until(F, N - 1)
-    end.
+wait_until(F) -> evatar_test_wait:poll(F, #{timeout => 10000, interval => 50}).

@@ -18,15 +18,10 @@
          crashed_pairing_is_isolated/1, crash_loop_gives_up/1,
          configured_pairings/1, inspection/1, lifecycle_model/1]).
 
--define(E, evatar_test_entity).
+-include_lib("evatar_test_kit/include/evatar_entities.hrl").
+
 -define(AGENT_CRED, <<"agent-secret">>).
 -define(AVATAR_CRED, <<"avatar-secret">>).
--define(VA, <<"va1">>).
--define(AV, <<"7008">>).
--define(EMU, <<"LightEmulator01">>).
--define(SINK, <<"TemperatureSink">>).
--define(LIGHT, <<"HomeLightActuator01">>).
--define(THERMO, <<"Thermo01">>).
 
 suite() -> [{timetrap, {minutes, 3}}].
 

@@ -5,12 +5,7 @@
 -include_lib("eunit/include/eunit.hrl").
 
 -define(P, <<"home">>).
--define(VA, <<"va1">>).
--define(AV, <<"7008">>).
--define(EMU, <<"LightEmulator01">>).
--define(LIGHT, <<"HomeLightActuator01">>).
--define(THERMO, <<"Thermo01">>).
--define(SINK, <<"TemperatureSink">>).
+-include_lib("evatar_test_kit/include/evatar_entities.hrl").
 
 %% ---------------------------------------------------------------------------
 %% Fixtures

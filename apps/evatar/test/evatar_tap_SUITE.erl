@@ -13,13 +13,7 @@
          dead_watcher_is_removed/1, too_many_watchers/1, pairing_gone/1,
          bad_filter/1]).
 
--define(E, evatar_test_entity).
--define(VA, <<"va1">>).
--define(AV, <<"7008">>).
--define(EMU, <<"LightEmulator01">>).
--define(SINK, <<"TemperatureSink">>).
--define(LIGHT, <<"HomeLightActuator01">>).
--define(THERMO, <<"Thermo01">>).
+-include_lib("evatar_test_kit/include/evatar_entities.hrl").
 
 suite() -> [{timetrap, {minutes, 2}}].
 

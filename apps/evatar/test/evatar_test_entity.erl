@@ -107,10 +107,9 @@ description(EntityId, Components) ->
     description(EntityId, Type, Components).
 
 description(EntityId, Type, Components) ->
-    Entry = fun({C, T}) -> #{category => C, type => T, parameters => []} end,
-    #{entity_id => EntityId, api_name => <<"test">>, entity_type => Type, context => <<>>,
-      components => [#{id => Id, services => [Entry(S) || S <- Ss],
-                       consumes => [Entry(C) || C <- Cs]} || {Id, Ss, Cs} <- Components]}.
+    evatar_test_fixtures:description(EntityId, Type, <<"test">>, <<>>,
+                                     [evatar_test_fixtures:component(Id, Ss, Cs)
+                                      || {Id, Ss, Cs} <- Components]).
 
 %% @doc A signal with an empty body.
 -spec signal(binary(), bil:signal_context(), binary(), binary()) -> bil:signal().

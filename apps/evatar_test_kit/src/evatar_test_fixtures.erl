@@ -9,7 +9,8 @@
 -export([va_credential/0, avatar_credential/0, credential/1, create_pairing/2,
          entry/2, component/3, description/5, va_description/1, avatar_description/1,
          client_opts/3, client/4,
-         hello/5, raw_connect/1, recv_doc/1, recv_doc/2, recv_until/2, refused_code/2,
+         hello/5, raw_connect/1, recv_doc/1, recv_doc/2, recv_until/2, recv_until/3,
+         refused_code/2,
          start_responder/3, responder/1, wait_binding/3, wait_signal/3,
          bridge_certs/2, repo_root/0, secret/0, secret_atom/0]).
 
@@ -192,10 +193,15 @@ recv_doc(S, Timeout) ->
 %% dropped.
 -spec recv_until(gen_tcp:socket(), fun((term()) -> boolean())) -> term().
 recv_until(S, Pred) ->
-    Doc = recv_doc(S),
+    recv_until(S, Pred, ?RECV_TIMEOUT).
+
+%% @doc recv_until/2, waiting at most Timeout ms for each document.
+-spec recv_until(gen_tcp:socket(), fun((term()) -> boolean()), timeout()) -> term().
+recv_until(S, Pred, Timeout) ->
+    Doc = recv_doc(S, Timeout),
     case Pred(Doc) of
         true -> Doc;
-        false -> recv_until(S, Pred)
+        false -> recv_until(S, Pred, Timeout)
     end.
 
 %% @doc The Refused code the listener at Addr answers Hello with; checks

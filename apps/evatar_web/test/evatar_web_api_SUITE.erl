@@ -429,14 +429,7 @@ change(Method, Path, none) ->
 change(Method, Path, Body) ->
     ?T:request(Method, Path, [auth(?TOKEN)], json(Body)).
 
-wait_until(Fun) -> wait_until(Fun, 200).
-
-wait_until(Fun, 0) -> ct:fail({timeout, Fun()});
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(100), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 20000, interval => 100}).
 
 start_mosquitto(Dir) ->
     {ok, L} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),

@@ -186,14 +186,7 @@ split_events(Buf) ->
 
 has_kind(Kind) -> fun(Is) -> [x || #{<<"kind">> := K} <- Is, K =:= Kind] =/= [] end.
 
-wait_until(Fun) -> wait_until(Fun, 200).
-
-wait_until(Fun, 0) -> ct:fail({condition_never_held, Fun});
-wait_until(Fun, N) ->
-    case Fun() of
-        true -> ok;
-        false -> timer:sleep(50), wait_until(Fun, N - 1)
-    end.
+wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 10000, interval => 50}).
 
 %% ---------------------------------------------------------------------------
 %% Cases

@@ -11,8 +11,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 -define(PYTHON, "/usr/bin/python3").
 
 suite() -> [{timetrap, {seconds, 60}}].
@@ -40,7 +40,7 @@ end_per_suite(_Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Pairing, #{join_timeout => 5000,
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 5000,
                                                                feedback_timeout => 300}),
     [{pairing, Pairing} | Config].
 
@@ -78,8 +78,9 @@ traffic_moves_counters(Config) ->
     {ok, #{body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
         agent_bridge_client:request(Va, light_request(), 5000),
     %% The refused sockets are closed: two connections held.
-    ok = agent_bridge_test_node:wait_until(
-           fun() -> gauge(scrape(Config), evatar_bridge_connections_open, []) =:= 2 end, 500),
+    ok = evatar_test_wait:until(
+           fun() -> gauge(scrape(Config), evatar_bridge_connections_open, []) =:= 2 end,
+           #{timeout => 10000}),
     After = scrape(Config),
     Expected = #{{evatar_joins_total, [{kind, agent_join}]} => 1,
                  {evatar_joins_total, [{kind, avatar_join}]} => 1,
@@ -113,7 +114,7 @@ traffic_moves_counters(Config) ->
 %% label: the reference parser reads the id back unchanged.
 label_values_are_escaped(Config) ->
     Id = <<"odd \"pairing\" \\ with\nnewline">>,
-    {ok, _} = agent_bridge_test_node:create_pairing(Id, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Id, #{}),
     try
         Samples = scrape(Config),
         ?assertEqual(0, maps:get({evatar_pairing_joins_total, [{pairing, Id}]}, Samples))
@@ -127,7 +128,7 @@ pairing_series_are_capped(Config) ->
     P = ?config(pairing, Config),
     ok = application:set_env(evatar, metrics_max_pairings, 1),
     Over = <<"over-the-cap">>,
-    {ok, _} = agent_bridge_test_node:create_pairing(Over, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Over, #{}),
     try
         Samples = scrape(Config),
         ?assert(is_map_key({evatar_pairing_joins_total, [{pairing, P}]}, Samples)),
@@ -201,31 +202,21 @@ gauge(Samples, Name, Labels) ->
 %% Clients
 %% ---------------------------------------------------------------------------
 
-client_opts(Config, Role, Entity) ->
-    #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
-      credential => case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end}.
-
 client(Config, Role, Entity) ->
-    agent_bridge_client:connect([?config(addr, Config)], client_opts(Config, Role, Entity)).
+    evatar_test_fixtures:client(?config(addr, Config), ?config(pairing, Config), Role, Entity).
 
 hello(Pairing, Role, Entity, Cred) ->
-    bil_control:encode({hello, #{pairing => Pairing, role => Role, entity_id => Entity,
-                                 credential => Cred, protocol_version => 1}}).
+    evatar_test_fixtures:hello(Pairing, Role, Entity, Cred, 1).
 
 refused_hello(Config, Hello, Code) ->
-    {Ip, Port} = ?config(addr, Config),
-    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
-    ok = gen_tcp:send(S, Hello),
-    {ok, Frame} = gen_tcp:recv(S, 0, 10000),
-    {ok, {control, {refused, #{code := Code}}}} = bil_control:parse_frame(Frame, #{}),
-    {error, closed} = gen_tcp:recv(S, 0, 10000),
+    Code = evatar_test_fixtures:refused_code(?config(addr, Config), Hello),
     ok.
 
 bound_pair(Config) ->
     Av = start_responder(Config, <<"av">>),
     {ok, Va} = client(Config, agent, <<"va">>),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = agent_bridge_test_node:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
     {Va, Av}.
 
 collect_sensor(Va, N) ->
@@ -235,33 +226,9 @@ collect_sensor(Va, N) ->
      end || _ <- lists:seq(1, N)].
 
 start_responder(Config, Entity) ->
-    Self = self(),
-    Pid = spawn(fun() ->
-                        {ok, C} = client(Config, avatar, Entity),
-                        ok = agent_bridge_client:describe(C, avatar_description(Entity)),
-                        Self ! {responder, self()},
-                        responder(C, true)
-                end),
-    receive {responder, Pid} -> Pid after 10000 -> ct:fail(responder_not_started) end.
-
-responder(C, Answer) ->
-    receive
-        {agent_bridge, C, {signal, #{context := request, id := Id, sender := From,
-                                     receiver := To, body := Body}}} when Answer ->
-            ok = agent_bridge_client:send(C, #{context => feedback, sender => To,
-                                               receiver => From, in_reply_to => Id,
-                                               body => Body#{parameters => []}}),
-            responder(C, Answer);
-        mute ->
-            responder(C, false);
-        {stream, N} ->
-            [ok = agent_bridge_client:send(C, sensor(I)) || I <- lists:seq(1, N)],
-            responder(C, Answer);
-        {agent_bridge, C, {closed, _}} ->
-            ok;
-        _ ->
-            responder(C, Answer)
-    end.
+    evatar_test_fixtures:start_responder(fun() -> client(Config, avatar, Entity) end,
+                                         evatar_test_fixtures:avatar_description(Entity),
+                                         fun sensor/1).
 
 light_request() ->
     #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,
@@ -273,22 +240,5 @@ sensor(I) ->
       body => #{category => <<"SENSOR">>, type => <<"Temperature">>,
                 parameters => [{<<"Value">>, <<"21.5">>}, {<<"N">>, integer_to_binary(I)}]}}.
 
-entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
-
 va_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent,
-      context => <<"EmulatorDescription">>,
-      components => [#{id => <<"LightEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]},
-                     #{id => <<"ThermoEmulator01">>,
-                       services => [entry(<<"SENSOR">>, <<"Temperature">>)],
-                       consumes => []}]}.
-
-avatar_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST AVATAR">>, entity_type => avatar,
-      context => <<"ActuatorDescription">>,
-      components => [#{id => <<"Light01">>, services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
-                       consumes => []},
-                     #{id => <<"Thermo01">>, services => [entry(<<"SENSOR">>, <<"Reading">>)],
-                       consumes => [entry(<<"SENSOR">>, <<"Temperature">>)]}]}.
+    evatar_test_fixtures:va_description(Id).

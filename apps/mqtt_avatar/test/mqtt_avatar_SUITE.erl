@@ -9,8 +9,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -36,7 +36,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Name = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Name, #{feedback_timeout => 1500}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => 1500}),
     [{pairing, Name}, {prefix, Name} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -469,10 +469,10 @@ provider_of_service(Va, Provider, Type) ->
     C.
 
 wait_binding(Va, Pred) ->
-    agent_bridge_test_node:wait_binding(Va, Pred, 10000).
+    evatar_test_fixtures:wait_binding(Va, Pred, 10000).
 
 wait_signal(Va, Pred) ->
-    agent_bridge_test_node:wait_signal(Va, Pred, 5000).
+    evatar_test_fixtures:wait_signal(Va, Pred, 5000).
 
 param(Name, Params) ->
     case lists:keyfind(Name, 1, Params) of
@@ -480,7 +480,7 @@ param(Name, Params) ->
         false -> ct:fail({missing_parameter, Name, Params})
     end.
 
-wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 250).
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000}).
 
 remember(Kind, Pid) ->
     put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).

@@ -59,7 +59,7 @@ demo_from_scratch(Config) ->
 %% its own listener and pairing, and leaves the rest running as it was.
 demo_on_running_node(Config) ->
     ok = agent_bridge_test_node:start([]),
-    {ok, _} = agent_bridge_test_node:create_pairing(<<"bystander">>, #{}),
+    {ok, _} = evatar_test_fixtures:create_pairing(<<"bystander">>, #{}),
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],
     true = lists:member(<<"bystander">>, Pairings),
