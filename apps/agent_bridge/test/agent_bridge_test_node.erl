@@ -7,6 +7,11 @@
 -module(agent_bridge_test_node).
 
 -export([start/1, start_with_broker/3, stop/2, listen/1, listen/2, stop_broker/1]).
+%% Moved to evatar_test_fixtures (apps/evatar_test_kit); kept as calls to it
+%% for the suites written before the move. New code calls
+%% evatar_test_fixtures.
+-export([va_credential/0, avatar_credential/0, create_pairing/2, wait_binding/3,
+         wait_signal/3]).
 
 %% @doc Starts evatar, agent_bridge (without a default listener) and Apps.
 -spec start([atom()]) -> ok.
@@ -61,3 +66,23 @@ start_broker() ->
 -spec stop_broker(mqtt_broker:broker()) -> ok.
 stop_broker(Broker) ->
     ok = mqtt_broker:stop(Broker).
+
+%% @doc evatar_test_fixtures:va_credential/0.
+-spec va_credential() -> binary().
+va_credential() -> evatar_test_fixtures:va_credential().
+
+%% @doc evatar_test_fixtures:avatar_credential/0.
+-spec avatar_credential() -> binary().
+avatar_credential() -> evatar_test_fixtures:avatar_credential().
+
+%% @doc evatar_test_fixtures:create_pairing/2.
+-spec create_pairing(binary(), map()) -> {ok, pid()}.
+create_pairing(Id, Opts) -> evatar_test_fixtures:create_pairing(Id, Opts).
+
+%% @doc evatar_test_fixtures:wait_binding/3.
+-spec wait_binding(pid(), fun((map()) -> boolean()), timeout()) -> map().
+wait_binding(C, Pred, Timeout) -> evatar_test_fixtures:wait_binding(C, Pred, Timeout).
+
+%% @doc evatar_test_fixtures:wait_signal/3.
+-spec wait_signal(pid(), fun((map()) -> boolean()), timeout()) -> map().
+wait_signal(C, Pred, Timeout) -> evatar_test_fixtures:wait_signal(C, Pred, Timeout).

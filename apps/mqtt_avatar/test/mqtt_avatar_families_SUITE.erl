@@ -12,8 +12,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, agent_bridge_test_node:va_credential()).
--define(AV_CRED, agent_bridge_test_node:avatar_credential()).
+-define(VA_CRED, evatar_test_fixtures:va_credential()).
+-define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -30,7 +30,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Name = atom_to_binary(Case),
-    {ok, _} = agent_bridge_test_node:create_pairing(Name, #{feedback_timeout => 3000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => 3000}),
     [{pairing, Name}, {prefix, Name} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -423,7 +423,7 @@ sensors_named_by_what_they_are(Config) ->
                         consumes => [entry(<<"SENSOR">>, <<"ReadTemperature">>,
                                            [{<<"Temperature">>, <<"yes">>}, {<<"Unit">>, <<"°C"/utf8>>}
                                             | Kitchen])]}]}),
-    Comp = agent_bridge_test_node:wait_binding(
+    Comp = evatar_test_fixtures:wait_binding(
              Va, fun(#{bound := B}) ->
                          lists:sort([T || #{type := T} <- B]) =:=
                              [<<"DoorChanged">>, <<"ReadTemperature">>, <<"Temperature">>]
@@ -628,7 +628,7 @@ va(Config, Requests, Streams) ->
                                     ++ [entry(<<"SENSOR">>, S, Any) || S <- Streams],
                         consumes => [entry(category(R), R, []) || R <- Requests]}]}),
     put(requests, Requests),
-    _ = agent_bridge_test_node:wait_binding(
+    _ = evatar_test_fixtures:wait_binding(
           Va, fun(#{bound := B}) ->
                       Bound = [T || #{consumer := #{entity := <<"test-va">>}, type := T} <- B],
                       lists:all(fun(R) -> lists:member(R, Bound) end, Requests)
@@ -641,7 +641,7 @@ category(_) -> <<"ACTUATOR">>.
 %% The Avatar component bound to the VA's request of type `Type'.
 provider(Va, Type) ->
     ok = agent_bridge_client:get_binding(Va),
-    #{bound := B} = agent_bridge_test_node:wait_binding(Va, fun(_) -> true end, 10000),
+    #{bound := B} = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, 10000),
     [C] = [C || #{consumer := #{entity := <<"test-va">>}, type := T, provider := #{component := C}} <- B,
                 T =:= Type],
     C.
@@ -671,7 +671,7 @@ entry(Cat, Type, Params) ->
     #{category => Cat, type => Type, parameters => Params}.
 
 wait_signal(Va, Pred) ->
-    agent_bridge_test_node:wait_signal(Va, Pred, 10000).
+    evatar_test_fixtures:wait_signal(Va, Pred, 10000).
 
 param(Name, Params) ->
     case lists:keyfind(Name, 1, Params) of
