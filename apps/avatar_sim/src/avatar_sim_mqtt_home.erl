@@ -5,7 +5,10 @@
 %% (apps/mqtt_avatar) discovers them and joins EVATAR, so a VA whose body
 %% is smart_home_va.xml works unchanged. The people, the clock, the script
 %% and the devices' behaviour are avatar_sim's own home, reached through a
-%% private EVATAR pairing (the devices' "hardware"). docs/mqtt.md section 7.
+%% private EVATAR pairing (the devices' "hardware"). That pairing is the
+%% caller's: a simulator does not drive the mediator, so the scenario's
+%% set-up creates it and deletes it (reference_agents_mqtt_home does both).
+%% docs/mqtt.md section 7.
 %%
 %% ```
 %%  VA --EVATAR pairing--> MQTT Avatar --mosquitto--> simulated MQTT devices
@@ -24,22 +27,28 @@
 -include_lib("kernel/include/logger.hrl").
 
 -export([start/1, stop/1, house/1, avatar/1, devices/1, power_off/2, power_on/2, info/1,
-         overrides/1]).
+         overrides/1, hardware_pairing_id/1, entity_id/1]).
 -export([hardware_request/5]).
 -export([start_link/1, init/1, callback_mode/0, handle_event/4, terminate/3]).
 
--export_type([opts/0, home/0]).
+-export_type([opts/0, home/0, hardware/0]).
 
 -type home() :: pid().
+-type hardware() :: #{pairing := binary(), agent_credential := binary(),
+                      avatar_credential := binary()}.
 %% `mqtt': the broker (`#{host, port}' and any other mqtt_client option),
 %% assumed running. `endpoints': EVATAR's bridge on this node. `pairing' and
 %% `credential': the VA's pairing, which the MQTT Avatar and the notifier
-%% join. The options of avatar_sim:start_home/1 (`clock', `seed', `script',
+%% join. `hardware': the private pairing between the simulated house (its
+%% Avatar credential) and the devices' firmware link (its agent
+%% credential), made by the caller, running, and used by nothing else.
+%% The options of avatar_sim:start_home/1 (`clock', `seed', `script',
 %% `script_file', `people', `spool', `password', `location'...) go to the
 %% simulated house.
 -type opts() :: #{mqtt := map(),
                   endpoints := [agent_bridge_client:endpoint()],
                   pairing := binary(),
+                  hardware := hardware(),
                   credential => binary(),
                   entity_id => binary(),
                   prefix => binary(),
@@ -78,27 +87,35 @@
 
 %% @doc Starts the MQTT home and returns once its MQTT Avatar has joined
 %% EVATAR (or, with `avatar => false', once every device is online). For
-%% `make demo': `avatar_sim_mqtt_home:start(#{mqtt => #{host => "127.0.0.1",
+%% `make demo' (reference_agents_mqtt_home:start/1 makes `hardware'):
+%% `avatar_sim_mqtt_home:start(#{mqtt => #{host => "127.0.0.1",
 %% port => 1883}, endpoints => [{{127,0,0,1}, 7400}], pairing => <<"home">>,
-%% credential => <<"...">>, clock => Clock, script => Script})'.
+%% credential => <<"...">>, hardware => #{pairing => <<"home-hw">>,
+%% agent_credential => <<"...">>, avatar_credential => <<"...">>}, clock =>
+%% Clock, script => Script})'.
 -spec start(opts()) -> {ok, home()} | {error, term()}.
-start(#{mqtt := #{host := _, port := _}, endpoints := [_ | _], pairing := P} = Opts)
-  when is_binary(P) ->
-    %% The devices' hardware is reached through a pairing of this node.
-    case lists:keymember(evatar, 1, application:which_applications()) of
-        false ->
-            {error, <<"EVATAR (the evatar application) must run on this node">>};
-        true ->
-            {ok, _} = application:ensure_all_started(avatar_sim),
-            {ok, _} = application:ensure_all_started(mqtt_avatar),
-            {ok, Pid} = avatar_sim_sup:start_child(#{start => {?MODULE, start_link, [Opts]}}),
-            case gen_statem:call(Pid, await_ready, ?READY_TIMEOUT + ?DEVICES_TIMEOUT) of
-                ok -> {ok, Pid};
-                {error, _} = Error -> stop(Pid), Error
-            end
+start(#{mqtt := #{host := _, port := _}, endpoints := [_ | _], pairing := P,
+        hardware := #{pairing := HP, agent_credential := AC, avatar_credential := VC}} = Opts)
+  when is_binary(P), is_binary(HP), is_binary(AC), is_binary(VC) ->
+    {ok, _} = application:ensure_all_started(avatar_sim),
+    {ok, _} = application:ensure_all_started(mqtt_avatar),
+    {ok, Pid} = avatar_sim_sup:start_child(#{start => {?MODULE, start_link, [Opts]}}),
+    case gen_statem:call(Pid, await_ready, ?READY_TIMEOUT + ?DEVICES_TIMEOUT) of
+        ok -> {ok, Pid};
+        {error, _} = Error -> stop(Pid), Error
     end;
 start(_Opts) ->
-    {error, <<"mqtt => #{host, port}, endpoints => [Endpoint] and pairing => Binary are required">>}.
+    {error, <<"mqtt => #{host, port}, endpoints => [Endpoint], pairing => Binary and "
+              "hardware => #{pairing, agent_credential, avatar_credential} are required">>}.
+
+%% @doc The id of the private hardware pairing a home of entity `EntityId'
+%% uses by convention (the set-up that creates it may choose another).
+-spec hardware_pairing_id(binary()) -> binary().
+hardware_pairing_id(EntityId) -> <<"mqtt-hardware-", EntityId/binary>>.
+
+%% @doc The entity id of a home started with `Opts' (`easy-home-mqtt').
+-spec entity_id(map()) -> binary().
+entity_id(Opts) -> maps:get(entity_id, Opts, <<"easy-home-mqtt">>).
 
 %% @doc Stops the MQTT Avatar, the devices (each says offline) and the house.
 -spec stop(home()) -> ok.
@@ -169,10 +186,11 @@ callback_mode() -> handle_event_function.
 -spec init(opts()) -> gen_statem:init_result(starting).
 init(Opts) ->
     process_flag(trap_exit, true),
-    Entity = maps:get(entity_id, Opts, <<"easy-home-mqtt">>),
+    Entity = entity_id(Opts),
     logger:update_process_metadata(#{domain => [avatar_sim, mqtt_home], entity => Entity}),
+    #{hardware := #{pairing := HwPairing}} = Opts,
     D = #d{opts = Opts, entity = Entity, ctx = ctx(Opts),
-           hw_pairing = <<"mqtt-hardware-", Entity/binary>>,
+           hw_pairing = HwPairing,
            hw_entity = <<Entity/binary, "-hardware">>,
            fw_entity = <<Entity/binary, "-firmware">>},
     {ok, starting, D, [{next_event, internal, setup}]}.
@@ -250,7 +268,6 @@ terminate(_Why, _State, D) ->
     _ = [catch gen_statem:stop(P) || P <- maps:values(D#d.devices)],
     _ = [catch agent_bridge_client:close(C) || C <- [D#d.client], C =/= undefined],
     _ = [catch avatar_sim:stop(H) || H <- [D#d.house], H =/= undefined],
-    _ = evatar:delete_pairing(D#d.hw_pairing),
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -258,59 +275,18 @@ terminate(_Why, _State, D) ->
 %% ---------------------------------------------------------------------------
 
 setup(#d{opts = Opts, ctx = Ctx} = D) ->
-    AgentCred = binary:encode_hex(crypto:strong_rand_bytes(16)),
-    AvatarCred = binary:encode_hex(crypto:strong_rand_bytes(16)),
-    %% Long feedback timeout: the hardware's own answers may take simulated
-    %% seconds; the VA's pairing has the timeout that matters.
-    %% The id is this Avatar's, the credentials this start's: a pairing of
-    %% that id left by an earlier start is deleted first. terminate/3
-    %% deletes it, but not after a kill -9 of the node, when the durable
-    %% catalogue keeps it and the cluster restores it at every restart: so
-    %% the next start of the scenario removes it instead of leaving a stray.
-    %% create_pairing, not ensure_pairing: the hardware link below needs it
-    %% running now, which ensure_pairing does not promise.
-    case create_hw_pairing(D#d.hw_pairing, #{agent_credential => AgentCred,
-                                             avatar_credential => AvatarCred,
-                                             feedback_timeout => 600000}) of
-        {ok, _} ->
-            Specs = device_specs(Ctx),
-            Devices = maps:from_list(
-                        [{Id, start_device(Spec, D)} || #{id := Id} = Spec <- Specs]),
-            D1 = D#d{specs = Specs, devices = Devices,
-                     opts = Opts#{hw_agent_credential => AgentCred}},
-            case start_house(AvatarCred, Specs, D1) of
-                {ok, House} ->
-                    case hardware_link(D1#d{house = House}) of
-                        {ok, D2} -> {ok, D2};
-                        {error, Why} -> {error, {hardware_link, Why}, D1#d{house = House}}
-                    end;
-                {error, Why} ->
-                    {error, {house, Why}, D1}
+    #{hardware := #{agent_credential := AgentCred, avatar_credential := AvatarCred}} = Opts,
+    Specs = device_specs(Ctx),
+    Devices = maps:from_list([{Id, start_device(Spec, D)} || #{id := Id} = Spec <- Specs]),
+    D1 = D#d{specs = Specs, devices = Devices, opts = Opts#{hw_agent_credential => AgentCred}},
+    case start_house(AvatarCred, Specs, D1) of
+        {ok, House} ->
+            case hardware_link(D1#d{house = House}) of
+                {ok, D2} -> {ok, D2};
+                {error, Why} -> {error, {hardware_link, Why}, D1#d{house = House}}
             end;
         {error, Why} ->
-            {error, {hardware_pairing, Why}, D}
-    end.
-
-create_hw_pairing(Id, Opts) ->
-    _ = evatar:delete_pairing(Id),
-    create_hw_pairing(Id, Opts, erlang:monotonic_time(millisecond) + 30000).
-
-%% An instance of the old pairing on another node stops when that node
-%% learns of the deletion (its catalogue, within a second): until then the
-%% id exists.
-create_hw_pairing(Id, Opts, Deadline) ->
-    case evatar:create_pairing(Id, Opts) of
-        {error, already_exists} ->
-            case erlang:monotonic_time(millisecond) < Deadline of
-                true ->
-                    timer:sleep(100),
-                    _ = evatar:delete_pairing(Id),
-                    create_hw_pairing(Id, Opts, Deadline);
-                false ->
-                    {error, already_exists}
-            end;
-        Result ->
-            Result
+            {error, {house, Why}, D1}
     end.
 
 start_device(Spec, #d{ctx = Ctx, opts = Opts}) ->
@@ -403,7 +379,7 @@ to_hardware(Comp, Type, Params, {Device, Tag}, #d{client = C} = D) ->
                            provider := #{entity := HE, component := P},
                            category := Cat, type := T} <- D#d.bound,
                          FE =:= D#d.fw_entity, HE =:= D#d.hw_entity, P =:= Comp,
-                         mqtt_avatar_spec:keyword(T) =:= mqtt_avatar_spec:keyword(Type)],
+                         bil:keyword(T) =:= bil:keyword(Type)],
     case {C, Route} of
         {undefined, _} ->
             ?LOG_NOTICE(#{what => hardware_unreachable, component => Comp, service => Type}),

@@ -123,11 +123,11 @@ start_home(true, HomeOpts, S1) ->
             {error, {broker, Message}, S1}
     end;
 start_home(#{host := _, port := _} = Mqtt, HomeOpts, S1) ->
-    case avatar_sim_mqtt_home:start(HomeOpts#{mqtt => Mqtt, pairing => ?PAIRING,
-                                              credential => ?AV_CRED}) of
+    case reference_agents_mqtt_home:start(HomeOpts#{mqtt => Mqtt, pairing => ?PAIRING,
+                                                    credential => ?AV_CRED}) of
         {ok, MqttHome} ->
             S2 = reference_agents_scenario:on_stop(
-                   fun() -> avatar_sim_mqtt_home:stop(MqttHome) end,
+                   fun() -> reference_agents_mqtt_home:stop(MqttHome) end,
                    reference_agents_scenario:add(mqtt, Mqtt, S1)),
             House = avatar_sim_mqtt_home:house(MqttHome),
             S3 = reference_agents_scenario:add(mqtt_home, MqttHome,
