@@ -1,5 +1,6 @@
-%% @doc Internal (to evatar and agent_bridge). Bounds what a client sent
-%% before it reaches a log line:
+%% @doc Public (evatar's, for the apps that log what clients sent:
+%% agent_bridge, evatar_web). Bounds what a client sent before it reaches a
+%% log line:
 %% ids are cut to 64 bytes with a marker that says how long they were, and
 %% any term (a parse error's reason, say) has its binaries cut alike, its
 %% lists shortened and its depth limited, so a 60 KB id never writes 60 KB
