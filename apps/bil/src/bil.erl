@@ -5,7 +5,8 @@
 %% and computes the Body Mapping Registry from the descriptions of one
 %% pairing. Input is untrusted: parsers never raise, never create atoms and
 %% refuse DTDs, entities, oversize and over-deep documents. The language is
-%% specified in docs/bil.md; every other bil_* module is internal.
+%% specified in docs/bil.md; every other bil_* module of this app is internal
+%% (bil_control, the wire's control documents, is app evatar_protocol's).
 -module(bil).
 
 -export([parse_description/1, parse_description/2, encode_description/1,
