@@ -212,21 +212,14 @@ await_formed(C, Timeout) ->
                             end, Infos)
           end, Timeout, cluster_not_formed).
 
-%% @doc Polls Fun every 50 ms until it returns true, or `{error, What}'
-%% after Timeout ms.
--spec await(fun(() -> boolean()), pos_integer(), term()) -> ok | {error, term()}.
+%% @doc Polls Fun every 50 ms until it returns true, or `{error, {timeout,
+%% What}}' after Timeout ms (evatar_test_wait:poll/2, which the suites of
+%% the apps use too).
+-spec await(evatar_test_wait:probe(), pos_integer(), term()) -> ok | {error, term()}.
 await(Fun, Timeout, What) ->
-    Deadline = erlang:monotonic_time(millisecond) + Timeout,
-    await_loop(Fun, Deadline, What).
-
-await_loop(Fun, Deadline, What) ->
-    case Fun() of
-        true -> ok;
-        false ->
-            case erlang:monotonic_time(millisecond) > Deadline of
-                true -> {error, {timeout, What}};
-                false -> timer:sleep(50), await_loop(Fun, Deadline, What)
-            end
+    case evatar_test_wait:poll(Fun, #{timeout => Timeout, interval => 50, what => What}) of
+        ok -> ok;
+        {error, {wait_timeout, _}} -> {error, {timeout, What}}
     end.
 
 %% @doc Makes this node a hidden distributed node with a long name, unless
@@ -266,8 +259,7 @@ release_distribution(already) ->
 %% the evatar application was compiled.
 -spec repo_root() -> file:filename().
 repo_root() ->
-    Src = proplists:get_value(source, evatar:module_info(compile)),
-    filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))).
+    evatar_test_fixtures:repo_root().
 
 %% ---------------------------------------------------------------------------
 %% Run on the cluster's nodes
@@ -483,7 +475,8 @@ start_proxies(Nodes) ->
     {Linked, Proxies}.
 
 code_path() ->
-    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff],
+    %% evatar_test_kit: this module's helpers (await/3) run on a node too.
+    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff, evatar_test_kit],
     Dirs = [filename:join(code:lib_dir(App), "ebin") || App <- Apps]
         ++ [filename:dirname(code:which(?MODULE))],
     lists:usort(Dirs).

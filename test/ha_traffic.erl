@@ -411,29 +411,14 @@ credential(avatar) -> ?CRED_AV.
 %% Descriptions
 %% ---------------------------------------------------------------------------
 
-entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
-
 %% @doc The VA's body: a light emulator consuming TurnLightOn, a thermometer
-%% emulator providing the Temperature the Avatar's sensor streams.
+%% emulator providing the Temperature the Avatar's sensor streams (the
+%% suites' shared VA, evatar_test_fixtures).
 -spec va_description(binary()) -> bil:description().
 va_description(Id) ->
-    #{entity_id => Id, api_name => <<"HA TEST VA">>, entity_type => agent,
-      context => <<"EmulatorDescription">>,
-      components => [#{id => <<"LightEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]},
-                     #{id => <<"ThermoEmulator01">>,
-                       services => [entry(<<"SENSOR">>, <<"Temperature">>)],
-                       consumes => []}]}.
+    evatar_test_fixtures:va_description(Id).
 
 %% @doc The Avatar's body: a light providing TurnLightOn and a thermometer.
 -spec avatar_description(binary()) -> bil:description().
 avatar_description(Id) ->
-    #{entity_id => Id, api_name => <<"HA TEST AVATAR">>, entity_type => avatar,
-      context => <<"ActuatorDescription">>,
-      components => [#{id => <<"Light01">>,
-                       services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
-                       consumes => []},
-                     #{id => <<"Thermo01">>,
-                       services => [entry(<<"SENSOR">>, <<"Reading">>)],
-                       consumes => [entry(<<"SENSOR">>, <<"Temperature">>)]}]}.
+    evatar_test_fixtures:avatar_description(Id).

@@ -221,9 +221,7 @@ bridge(Config) ->
 connect_hello(Config, Pairing, Role, Entity, Cred) ->
     {Ip, Port} = bridge(Config),
     {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}], 10000),
-    ok = gen_tcp:send(S, bil_control:encode({hello, #{pairing => Pairing, role => Role,
-                                                      entity_id => Entity, credential => Cred,
-                                                      protocol_version => 1}})),
+    ok = gen_tcp:send(S, evatar_test_fixtures:hello(Pairing, Role, Entity, Cred, 1)),
     {S, recv(S)}.
 
 join(Config, Pairing, Role, Entity, Cred) ->
@@ -242,33 +240,18 @@ send(S, {description, D}) ->
 close(S) ->
     gen_tcp:close(S).
 
-recv(S) ->
-    {ok, Frame} = gen_tcp:recv(S, 0, 20000),
-    {ok, Doc} = bil_control:parse_frame(Frame, #{}),
-    Doc.
+recv(S) -> evatar_test_fixtures:recv_doc(S, 20000).
 
-recv_until(S, Pred) ->
-    Doc = recv(S),
-    case Pred(Doc) of
-        true -> Doc;
-        false -> recv_until(S, Pred)
-    end.
-
-entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
+recv_until(S, Pred) -> evatar_test_fixtures:recv_until(S, Pred, 20000).
 
 va_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST VA">>, entity_type => agent,
-      context => <<"EmulatorDescription">>,
-      components => [#{id => <<"LightEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Light">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)]},
-                     #{id => <<"DoorEmulator01">>,
-                       services => [entry(<<"BEHAVIOUR">>, <<"Door">>)],
-                       consumes => [entry(<<"ACTUATOR">>, <<"OpenDoor">>)]}]}.
+    C = fun evatar_test_fixtures:component/3,
+    evatar_test_fixtures:description(
+      Id, agent, <<"TEST VA">>, <<"EmulatorDescription">>,
+      [C(<<"LightEmulator01">>, [{<<"BEHAVIOUR">>, <<"Light">>}], [{<<"ACTUATOR">>, <<"TurnLightOn">>}]),
+       C(<<"DoorEmulator01">>, [{<<"BEHAVIOUR">>, <<"Door">>}], [{<<"ACTUATOR">>, <<"OpenDoor">>}])]).
 
 avatar_description(Id) ->
-    #{entity_id => Id, api_name => <<"TEST AVATAR">>, entity_type => avatar,
-      context => <<"ActuatorDescription">>,
-      components => [#{id => <<"Light01">>,
-                       services => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>)],
-                       consumes => []}]}.
+    evatar_test_fixtures:description(
+      Id, avatar, <<"TEST AVATAR">>, <<"ActuatorDescription">>,
+      [evatar_test_fixtures:component(<<"Light01">>, [{<<"ACTUATOR">>, <<"TurnLightOn">>}], [])]).
