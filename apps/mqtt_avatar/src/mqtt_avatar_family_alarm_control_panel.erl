@@ -4,8 +4,8 @@
 %% the stream AlarmState and ReadAlarm. A panel with a local `code' needs
 %% the request parameter `Code', checked by the Avatar against a
 %% PBKDF2 hash of it (MqttCode) and never published, logged or echoed;
-%% a remote code (`REMOTE_CODE') must be present and is checked by the
-%% device. docs/mqtt.md section 2.3.
+%% a remote code (`REMOTE_CODE') must be present and goes to the device
+%% through the panel's `command_template' (`code'). docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_alarm_control_panel).
 -behaviour(mqtt_avatar_family).
 
@@ -62,7 +62,10 @@ from_ha(C, Base) ->
                     Code =/= none andalso maps:get(Need, Required)}
                    || {Feature, Type, Key, Default, Final, Need} <- ?ACTIONS,
                       Feature =:= disarm orelse lists:member(Feature, Features)],
-        {ok, Base#{actions => Actions, code => Code}}
+        case mqtt_avatar_ha:command_template(mqtt_avatar_ha:str(<<"command_template">>, C)) of
+            {ok, Tpl} -> {ok, Base#{actions => Actions, code => Code, template => Tpl}};
+            {error, _} = Error -> Error
+        end
     end).
 
 %% The description holds this, never the code.
@@ -81,7 +84,9 @@ generate(#{actions := Actions, code := Code, command_topic := Topic} = E, Ctx) -
                   Type, [{<<"Alarm">>, <<"yes">>}] ++ code_params(Needs, Code)
                         ++ [{<<"MqttProgress">>, <<"raw:", P/binary>>} || Read =/= [],
                                                                           P <- progress(Final)],
-                  #{topic => Topic, field => undefined}, Payload,
+                  maps:merge(#{topic => Topic, field => undefined},
+                             maps:filter(fun(_, V) -> V =/= undefined end, maps:with([template], E))),
+                  Payload,
                   case Read of
                       [{Pm, S, M}] -> {Pm, S, M, Final};
                       [] -> undefined

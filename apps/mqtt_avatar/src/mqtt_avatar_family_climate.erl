@@ -4,7 +4,7 @@
 %% SetFanMode, SetSwingMode, SetClimatePresetMode, SetTargetHumidity),
 %% TurnClimateOn/Off with a power topic, a stream per value read
 %% (Climate<Param>, with CurrentTemperature, HvacAction, CurrentHumidity),
-%% ReadClimate. docs/mqtt.md section 2.3.
+%% ReadClimate. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_climate).
 -behaviour(mqtt_avatar_family).
 
@@ -44,7 +44,16 @@ abbreviations() ->
      {<<"hum_stat_t">>, <<"target_humidity_state_topic">>},
      {<<"hum_state_tpl">>, <<"target_humidity_state_template">>},
      {<<"min_hum">>, <<"min_humidity">>}, {<<"max_hum">>, <<"max_humidity">>},
-     {<<"pl_on">>, <<"payload_on">>}, {<<"pl_off">>, <<"payload_off">>}].
+     {<<"pl_on">>, <<"payload_on">>}, {<<"pl_off">>, <<"payload_off">>},
+     {<<"mode_cmd_tpl">>, <<"mode_command_template">>},
+     {<<"temp_cmd_tpl">>, <<"temperature_command_template">>},
+     {<<"temp_lo_cmd_tpl">>, <<"temperature_low_command_template">>},
+     {<<"temp_hi_cmd_tpl">>, <<"temperature_high_command_template">>},
+     {<<"fan_mode_cmd_tpl">>, <<"fan_mode_command_template">>},
+     {<<"swing_mode_cmd_tpl">>, <<"swing_mode_command_template">>},
+     {<<"pr_mode_cmd_tpl">>, <<"preset_mode_command_template">>},
+     {<<"hum_cmd_tpl">>, <<"target_humidity_command_template">>},
+     {<<"pow_cmd_tpl">>, <<"power_command_template">>}].
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.

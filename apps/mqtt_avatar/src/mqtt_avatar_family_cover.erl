@@ -1,7 +1,7 @@
 %% @doc Internal. The `cover' family (HA `cover', zigbee2mqtt's `cover'
 %% expose): blinds, shutters, curtains, garage doors. OpenCover, CloseCover,
 %% StopCover, SetCoverPosition and SetCoverTilt; streams CoverState,
-%% CoverPosition, CoverTilt; ReadCover. docs/mqtt.md section 2.3.
+%% CoverPosition, CoverTilt; ReadCover. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_cover).
 -behaviour(mqtt_avatar_family).
 

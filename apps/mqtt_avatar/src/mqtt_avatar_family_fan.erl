@@ -2,7 +2,7 @@
 %% TurnFanOn/TurnFanOff, SetFanPercentage, SetFanPresetMode,
 %% StartFanOscillation/StopFanOscillation, SetFanDirection; streams
 %% FanState, FanPercentage, FanPresetMode, FanOscillation, FanDirection;
-%% ReadFan. docs/mqtt.md section 2.3.
+%% ReadFan. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_fan).
 -behaviour(mqtt_avatar_family).
 
@@ -23,7 +23,11 @@ abbreviations() ->
      {<<"pl_osc_on">>, <<"payload_oscillation_on">>}, {<<"pl_osc_off">>, <<"payload_oscillation_off">>},
      {<<"dir_cmd_t">>, <<"direction_command_topic">>}, {<<"dir_stat_t">>, <<"direction_state_topic">>},
      {<<"dir_val_tpl">>, <<"direction_value_template">>},
-     {<<"spd_rng_min">>, <<"speed_range_min">>}, {<<"spd_rng_max">>, <<"speed_range_max">>}].
+     {<<"spd_rng_min">>, <<"speed_range_min">>}, {<<"spd_rng_max">>, <<"speed_range_max">>},
+     {<<"pct_cmd_tpl">>, <<"percentage_command_template">>},
+     {<<"pr_mode_cmd_tpl">>, <<"preset_mode_command_template">>},
+     {<<"osc_cmd_tpl">>, <<"oscillation_command_template">>},
+     {<<"dir_cmd_tpl">>, <<"direction_command_template">>}].
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.

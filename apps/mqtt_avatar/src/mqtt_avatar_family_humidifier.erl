@@ -2,7 +2,7 @@
 %% humidifier or dehumidifier): TurnHumidifierOn/Off, SetTargetHumidity,
 %% SetHumidifierMode; streams HumidifierState, HumidifierTargetHumidity,
 %% HumidifierMode, HumidifierCurrentHumidity, HumidifierAction;
-%% ReadHumidifier. docs/mqtt.md section 2.3.
+%% ReadHumidifier. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_humidifier).
 -behaviour(mqtt_avatar_family).
 
@@ -18,7 +18,9 @@ abbreviations() ->
      {<<"mode_stat_tpl">>, <<"mode_state_template">>},
      {<<"curr_hum_t">>, <<"current_humidity_topic">>},
      {<<"curr_hum_tpl">>, <<"current_humidity_template">>},
-     {<<"act_t">>, <<"action_topic">>}, {<<"act_tpl">>, <<"action_template">>}].
+     {<<"act_t">>, <<"action_topic">>}, {<<"act_tpl">>, <<"action_template">>},
+     {<<"hum_cmd_tpl">>, <<"target_humidity_command_template">>},
+     {<<"mode_cmd_tpl">>, <<"mode_command_template">>}].
 
 -spec from_ha(map(), mqtt_avatar_discovery:entity()) ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.

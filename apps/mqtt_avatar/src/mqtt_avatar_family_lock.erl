@@ -1,7 +1,7 @@
 %% @doc Internal. The `lock' family (HA `lock', zigbee2mqtt's `lock'
 %% expose): Lock, Unlock and OpenLock (when `payload_open' is set); the
 %% stream LockState (locked, unlocked, locking, unlocking, jammed, open,
-%% opening); ReadLock. docs/mqtt.md section 2.3.
+%% opening); ReadLock. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_lock).
 -behaviour(mqtt_avatar_family).
 

@@ -1,5 +1,5 @@
 %% @doc Internal. The `scene' family (HA `scene'): `Activate<Name>' (with
-%% `Scene' the name) publishes `payload_on'. docs/mqtt.md section 2.3.
+%% `Scene' the name) publishes `payload_on'. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_scene).
 -behaviour(mqtt_avatar_family).
 

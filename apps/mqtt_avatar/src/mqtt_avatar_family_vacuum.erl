@@ -3,7 +3,7 @@
 %% PauseVacuum, StopVacuum, ReturnVacuumToBase, LocateVacuum, CleanSpot
 %% (as `supported_features' says), SetVacuumFanSpeed, SendVacuumCommand;
 %% streams VacuumState, VacuumBattery, VacuumFanSpeed; ReadVacuum.
-%% docs/mqtt.md section 2.3.
+%% docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_vacuum).
 -behaviour(mqtt_avatar_family).
 

@@ -1,7 +1,7 @@
 %% @doc Internal. The `valve' family (HA `valve'): water and gas valves.
 %% OpenValve, CloseValve, StopValve (when `payload_stop' is set),
 %% SetValvePosition (when it `reports_position'); streams ValveState or
-%% ValvePosition; ReadValve. docs/mqtt.md section 2.3.
+%% ValvePosition; ReadValve. docs/mqtt.md section 2.4.
 -module(mqtt_avatar_family_valve).
 -behaviour(mqtt_avatar_family).
 

@@ -6,7 +6,8 @@
 
 -export([parse/3, template/1, components/0]).
 %% For the families (mqtt_avatar_family_*): reading their keys.
--export([str/2, str/3, topic/2, source/1, require/3, on_off/1, bool/3, number/3, strings/2,
+-export([str/2, str/3, topic/2, source/1, command_template/1, require/3, on_off/1, bool/3,
+         number/3, strings/2,
          read/2, settings/2]).
 
 -type parsed() :: {entity, mqtt_avatar_discovery:device_info(), mqtt_avatar_discovery:entity()}
@@ -136,7 +137,14 @@ settings(C, Specs) ->
 read_one(C, {control, Key}) ->
     case topic(Key, C) of
         {ok, undefined} -> {ok, undefined};
-        {ok, T} -> {ok, #{topic => T, field => undefined}};
+        {ok, T} ->
+            %% `mode_command_topic' has its `mode_command_template'...
+            TplKey = binary:replace(Key, <<"_topic">>, <<"_template">>),
+            case command_template(str(TplKey, C)) of
+                {ok, undefined} -> {ok, #{topic => T, field => undefined}};
+                {ok, Tpl} -> {ok, #{topic => T, field => undefined, template => Tpl}};
+                {error, _} = E -> E
+            end;
         {error, _} = E -> E
     end;
 read_one(C, {state, Key, TemplateKey}) ->
@@ -241,7 +249,7 @@ availability(C) ->
                                    V when is_binary(V) -> V;
                                    _ -> str(<<"availability_template">>, C)
                                end,
-                    case source(Template) of
+                    case path_source(Template) of
                         {ok, Source} ->
                             {ok, #{topic => Topic,
                                    online => Get(<<"payload_available">>, <<"online">>),
@@ -260,10 +268,34 @@ value_source(C) ->
                end,
     source(Template).
 
-%% @doc Where a template reads its value (`undefined': the whole payload).
+%% @doc Where a state template reads its value (`undefined': the whole
+%% payload): a plain path when it is one, else the template itself,
+%% evaluated for every message by mqtt_avatar_template (docs/mqtt.md
+%% section 2.3); a template it cannot evaluate is an error.
 -spec source(binary() | undefined) -> {ok, mqtt_avatar_spec:source()} | {error, binary()}.
-source(undefined) -> {ok, raw};
 source(Template) ->
+    case path_source(Template) of
+        {ok, S} -> {ok, S};
+        {error, Plain} ->
+            case mqtt_avatar_template:parse(Template) of
+                {ok, _} -> {ok, {template, Template}};
+                {error, M} -> {error, <<Plain/binary, " (", M/binary, ")">>}
+            end
+    end.
+
+%% @doc A command template (`undefined' when there is none), checked.
+-spec command_template(binary() | undefined) -> {ok, binary() | undefined} | {error, binary()}.
+command_template(undefined) -> {ok, undefined};
+command_template(Template) ->
+    case mqtt_avatar_template:parse(Template) of
+        {ok, _} -> {ok, Template};
+        {error, M} -> {error, <<"command template ", (printable(Template))/binary,
+                                " cannot be used: ", M/binary>>}
+    end.
+
+%% Availability payloads are compared, not evaluated: a plain path only.
+path_source(undefined) -> {ok, raw};
+path_source(Template) ->
     case template(Template) of
         {ok, S} -> {ok, S};
         error -> {error, <<"value template ", (printable(Template))/binary, " is not supported: "

@@ -413,17 +413,36 @@ checked_payload(Service, Params) ->
         ok ->
             case check_code(maps:get(code, Service, undefined), Params) of
                 ok ->
-                    case command_payload(Service, [P || {N, _} = P <- Params, N =/= <<"Code">>
-                                                        orelse maps:get(code, Service, undefined)
-                                                               =:= undefined]) of
-                        {ok, Payload} -> {ok, Payload};
-                        {error, M} -> {error, <<"BadParameter">>, M}
+                    Local = maps:get(code, Service, undefined) =/= undefined,
+                    Args = [P || {N, _} = P <- Params, N =/= <<"Code">> orelse not Local],
+                    case command_payload(Service, Args) of
+                        {ok, Payload} ->
+                            render_command(maps:get(command_template, Service, undefined),
+                                           iolist_to_binary(Payload), Args);
+                        {error, M} ->
+                            {error, <<"BadParameter">>, M}
                     end;
                 {error, M} ->
                     {error, <<"WrongCode">>, M}
             end;
         {error, M} ->
             {error, <<"BadParameter">>, M}
+    end.
+
+%% HA's command template: `value' (and `action', as alarm panels call it)
+%% is what would be published without it, `code' a remote code.
+render_command(undefined, Payload, _Args) ->
+    {ok, Payload};
+render_command(Template, Payload, Args) ->
+    Value = case mqtt_avatar_json:decode(Payload) of
+                {ok, N} when is_number(N) -> N;
+                _ -> Payload
+            end,
+    Vars = #{<<"value">> => Value, <<"action">> => Payload,
+             <<"code">> => proplists:get_value(<<"Code">>, Args, undefined)},
+    case mqtt_avatar_template:render(Template, Vars) of
+        {ok, Text} -> {ok, Text};
+        {error, M} -> {error, <<"BadParameter">>, <<"the command template: ", M/binary>>}
     end.
 
 check_args([], _Params) ->
@@ -560,9 +579,10 @@ extract(Mapping, Payload) ->
 -spec extract(#{values := list(), attributes := boolean(), map := list()}, binary(),
               #{exclude => [binary()]}) ->
           {ok, [bil:parameter()]} | {error, binary()}.
-extract(#{values := Values, attributes := Attributes, map := Map}, Payload, Opts) ->
+extract(#{values := Values, attributes := Attributes, map := Map} = Mapping, Payload, Opts) ->
     Exclude = maps:get(exclude, Opts, []),
-    NeedsJson = Attributes orelse lists:any(fun({_, S}) -> S =/= raw end, Values),
+    NeedsJson = Attributes orelse lists:any(fun({_, S}) -> S =/= raw andalso S =/= template end,
+                                            Values),
     Decoded = case NeedsJson of
                   true -> mqtt_avatar_json:decode(Payload);
                   false -> {ok, undefined}
@@ -573,7 +593,8 @@ extract(#{values := Values, attributes := Attributes, map := Map}, Payload, Opts
         {_, {error, Reason}} ->
             {error, mqtt_avatar_json:format_error(Reason)};
         {{ok, Text}, {ok, Json}} ->
-            Mapped = lists:append([one_value(Name, Source, Text, Json) || {Name, Source} <- Values]),
+            Mapped0 = [one_value(Name, Source, Text, Json, Payload, Mapping) || {Name, Source} <- Values],
+            Mapped = lists:append([V || V <- Mapped0, is_list(V)]),
             Attrs = case {Attributes, Json} of
                         {true, J} when is_map(J) ->
                             [{camel(K), scalar(V)} || {K, V} <- lists:sort(maps:to_list(J)),
@@ -582,15 +603,25 @@ extract(#{values := Values, attributes := Attributes, map := Map}, Payload, Opts
                         _ -> []
                     end,
             Params = [{N, translate(V, Map)} || {N, V} <- Mapped ++ Attrs],
-            case [N || {N, V} <- Params, byte_size(V) > ?MAX_VALUE] of
-                [] -> {ok, dedupe(Params)};
-                [N | _] -> {error, <<"value of ", N/binary, " longer than 4096 bytes">>}
+            case {[M || {error, M} <- Mapped0], [N || {N, V} <- Params, byte_size(V) > ?MAX_VALUE]} of
+                {[M | _], _} -> {error, M};
+                {[], []} -> {ok, dedupe(Params)};
+                {[], [N | _]} -> {error, <<"value of ", N/binary, " longer than 4096 bytes">>}
             end
     end.
 
-one_value(Name, raw, Text, _Json) ->
+one_value(Name, raw, Text, _Json, _Payload, _Mapping) ->
     [{Name, Text}];
-one_value(Name, {json, Path}, _Text, Json) ->
+one_value(Name, template, _Text, _Json, Payload, #{template := T}) ->
+    %% HA's state template: `value' and `value_json' of the payload.
+    case mqtt_avatar_template:value(T, mqtt_avatar_template:payload_vars(Payload)) of
+        {ok, undefined} -> [];
+        {ok, null} -> [];
+        {ok, V} when is_binary(V); is_number(V); is_boolean(V) -> [{Name, scalar(V)}];
+        {ok, V} -> [{Name, clean(mqtt_avatar_template:to_text(V))}];
+        {error, M} -> {error, <<"the value template of ", Name/binary, ": ", M/binary>>}
+    end;
+one_value(Name, {json, Path}, _Text, Json, _Payload, _Mapping) ->
     case mqtt_avatar_json:get_path(Path, Json) of
         {ok, null} -> [];
         {ok, V} -> [{Name, scalar(V)}];

@@ -8,13 +8,13 @@
          echo_params/2, value_params/3, match/2, on_off_map/3, source/1, join_path/1,
          json_at/2, first_name/1, camel/1, extra/1, named/2,
          fixed/6, setter/7, watch/5, family/5, map_text/1, range/2, echo_of/2, settings/3,
-         one_of/1, valued/7, with_info/2, merge/1]).
+         one_of/1, valued/7, with_info/2, merge/1, value/2]).
 
 -export_type([part/0, ctx/0, control/0, state/0]).
 
 %% Where a value is set: a command topic, and the JSON field the value
 %% goes in (`undefined': the payload is the value itself).
--type control() :: #{topic := binary(), field := binary() | undefined}.
+-type control() :: #{topic := binary(), field := binary() | undefined, template => binary()}.
 %% Where a value is read: a state topic and the payload source.
 -type state() :: #{topic := binary(), source := mqtt_avatar_spec:source()}.
 %% A value the VA sets (`control') and reads (`state'), as parameter
@@ -94,12 +94,13 @@ echo_params(#{state_topic := T} = E, Expect) ->
 value_params(#{state_topic := undefined}, _Param, _Map) ->
     [];
 value_params(#{value := V}, Param, Map) ->
-    [{<<"MqttValue">>, <<Param/binary, "=", (source(V))/binary>>}]
-        ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
+    value(Param, V) ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
 
 %% @doc An MqttExpect text: the payload (or its field) equal to `Expected'.
 -spec match(mqtt_avatar_spec:source(), binary()) -> binary().
 match(raw, Expected) -> <<"raw:", Expected/binary>>;
+%% What a template makes of a message cannot be matched beforehand.
+match({template, _}, _Expected) -> <<"any">>;
 match({json, Path}, Expected) -> <<"json:", (join_path(Path))/binary, "=", Expected/binary>>.
 
 %% @doc An MqttMap translating the entity's `state_on'/`state_off' to
@@ -132,8 +133,8 @@ stream(E, Room, Param, Stream, Read, Context, Map) ->
              binary() | [term()], binary()) -> part().
 stream(E, Room, Param, Stream, Read, Context, Map, SensorParam) ->
     Consumes = entry(<<"SENSOR">>, Stream,
-                     Room ++ [{<<"MqttStateTopic">>, maps:get(state_topic, E)},
-                              {<<"MqttValue">>, <<Param/binary, "=", (source(maps:get(value, E)))/binary>>}]
+                     Room ++ [{<<"MqttStateTopic">>, maps:get(state_topic, E)}]
+                     ++ value(Param, maps:get(value, E))
                      ++ [{<<"MqttMap">>, Map} || is_binary(Map), Map =/= <<>>]
                      ++ [{<<"MqttContext">>, <<"Event">>} || Context =:= event]
                      ++ [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E, false)]
@@ -200,7 +201,7 @@ named(E, Default) ->
     end.
 
 %% ---------------------------------------------------------------------------
-%% Controls and states (the families of docs/mqtt.md section 2.3)
+%% Controls and states (the families of docs/mqtt.md section 2.4)
 %% ---------------------------------------------------------------------------
 
 %% @doc A service that publishes a fixed `Payload' on `Control' (the
@@ -209,19 +210,24 @@ named(E, Default) ->
 %% `Expected' (`{Param, State, Map, Expected}'), or the broker's PUBACK
 %% (`undefined'); the value becomes feedback parameter `Param'.
 -spec fixed(binary(), [bil:parameter()], control(), binary(), echo(), ctx()) -> bil:entry().
-fixed(Type, Caps, #{topic := Topic, field := Field}, Payload, Echo, #{room := Room}) ->
+fixed(Type, Caps, #{topic := Topic, field := Field} = Control, Payload, Echo, #{room := Room}) ->
     Command = case Field of
                   undefined -> <<"raw:", Payload/binary>>;
                   _ -> <<"json:", (json_at([Field], Payload))/binary>>
               end,
-    command(Type, Topic, Command, Caps ++ Room ++ echo(Echo)).
+    command(Type, Topic, Command, Caps ++ Room ++ echo(Echo) ++ command_template(Control)).
+
+%% HA's command template of the control: what is published is the template
+%% rendered with the value (docs/mqtt.md section 3.2).
+command_template(#{template := T}) -> [{<<"MqttCommandTemplate">>, T}];
+command_template(_) -> [].
 
 %% @doc A service that sets request parameter `Arg' (checked by `Check',
 %% MqttArgCheck text without the name: `0..100', `a|b', or `<<>>' for
 %% present) on `Control', confirmed as `fixed/6' confirms.
 -spec setter(binary(), binary(), [bil:parameter()], control(), binary(), echo(), ctx()) ->
           bil:entry().
-setter(Type, Arg, Caps, #{topic := Topic, field := Field}, Check, Echo, #{room := Room}) ->
+setter(Type, Arg, Caps, #{topic := Topic, field := Field} = Control, Check, Echo, #{room := Room}) ->
     {Command, Args} = case Field of
                           undefined -> {<<"raw:">>, Arg};
                           _ -> {<<"json:{}">>, <<Arg/binary, "=", Field/binary>>}
@@ -233,7 +239,7 @@ setter(Type, Arg, Caps, #{topic := Topic, field := Field}, Check, Echo, #{room :
     command(Type, Topic, Command, [{Arg, <<"yes">>}] ++ Caps ++ Room
                                   ++ [{<<"MqttCommandArgs">>, Args},
                                       {<<"MqttArgCheck">>, CheckText}]
-                                  ++ echo(Echo)).
+                                  ++ echo(Echo) ++ command_template(Control)).
 
 echo(undefined) ->
     [{<<"MqttExpect">>, <<"none">>}];
@@ -244,8 +250,7 @@ echo({Param, #{topic := T, source := Source}, Map, Expected}) ->
                  any -> <<"any">>;
                  _ -> match(Source, Expected)
              end,
-    [{<<"MqttStateTopic">>, T}, {<<"MqttExpect">>, Expect},
-     {<<"MqttValue">>, <<Param/binary, "=", (source(Source))/binary>>}]
+    [{<<"MqttStateTopic">>, T}, {<<"MqttExpect">>, Expect}] ++ value(Param, Source)
         ++ [{<<"MqttMap">>, Map} || Map =/= <<>>].
 
 %% @doc A stream `SENSOR/Type' of the value of `State' as parameter
@@ -257,8 +262,8 @@ echo({Param, #{topic := T, source := Source}, Map, Expected}) ->
 watch(Type, Param, #{topic := T, source := Source}, Map, Opts) ->
     entry(<<"SENSOR">>, Type,
           maps:get(room, Opts)
-          ++ [{<<"MqttStateTopic">>, T},
-              {<<"MqttValue">>, <<Param/binary, "=", (source(Source))/binary>>}]
+          ++ [{<<"MqttStateTopic">>, T}]
+          ++ value(Param, Source)
           ++ [{<<"MqttMap">>, Map} || Map =/= <<>>]
           ++ [{<<"MqttContext">>, <<"Event">>} || maps:get(context, Opts, sensor_data) =:= event]
           ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, Opts, false)]
@@ -302,7 +307,8 @@ settings(Settings, Caps, Ctx) ->
              binary(), ctx()) -> part().
 valued(E, Verb, Arg, Caps, Check, Device, #{room := Room} = Ctx) ->
     Name = camel(first_name([maps:get(name, E), maps:get(device_class, E), Device])),
-    Control = #{topic => maps:get(command_topic, E), field => maps:get(field, E, undefined)},
+    Control = maps:merge(#{topic => maps:get(command_topic, E), field => maps:get(field, E, undefined)},
+                         maps:with([template], E)),
     State = case maps:get(state_topic, E) of
                 undefined -> [];
                 T -> [{Arg, #{topic => T, source => maps:get(value, E)}, <<>>}]
@@ -358,9 +364,17 @@ map_text(Pairs) ->
 %% Names and sources
 %% ---------------------------------------------------------------------------
 
+%% @doc The MqttValue of parameter `Param' read from `Source', and the
+%% MqttValueTemplate when a template reads it.
+-spec value(binary(), mqtt_avatar_spec:source()) -> [bil:parameter()].
+value(Param, Source) ->
+    [{<<"MqttValue">>, <<Param/binary, "=", (source(Source))/binary>>}]
+        ++ [{<<"MqttValueTemplate">>, T} || {template, T} <- [Source]].
+
 %% @doc A payload source as MqttValue writes it.
 -spec source(mqtt_avatar_spec:source()) -> binary().
 source(raw) -> <<"raw">>;
+source({template, _}) -> <<"template">>;
 source({json, Path}) -> <<"json:", (join_path(Path))/binary>>.
 
 -spec join_path([binary()]) -> binary().

@@ -13,11 +13,15 @@
 
 %% `raw': the whole payload as text; `{json, Path}': a field of the JSON
 %% payload ([] is the whole value).
--type source() :: raw | {json, [binary()]}.
+%% `template': the entry's MqttValueTemplate, evaluated on the payload;
+%% `{template, Text}' is how discovery hands such a template to the
+%% generator (mqtt_avatar_part writes it as `template' and the text).
+-type source() :: raw | {json, [binary()]} | template | {template, binary()}.
 -type match() :: {raw, binary()} | {json, [binary()], binary()}.
 -type expect() :: none | any | match().
 %% How a state message becomes BIL parameters.
--type mapping() :: #{values := [{binary(), source()}],
+-type mapping() :: #{template => mqtt_avatar_template:template(),
+                     values := [{binary(), source()}],
                      attributes := boolean(),
                      map := [{binary(), binary()}]}.
 -type service() :: #{category := binary(),
@@ -32,6 +36,7 @@
                      progress => match() | undefined,
                      mapping => mapping(),
                      checks => [{binary(), check()}],
+                     command_template => mqtt_avatar_template:template() | undefined,
                      code => code() | undefined}.
 %% What a request parameter must be (MqttArgCheck): present, and within
 %% the range or one of the values.
@@ -70,6 +75,7 @@
                     <<"MqttAvailabilityValue">>]).
 -define(ENTRY_ONLY, [<<"MqttCommand">>, <<"MqttCommandArgs">>, <<"MqttExpect">>,
                      <<"MqttExtra">>, <<"MqttArgCheck">>, <<"MqttCode">>,
+                     <<"MqttValueTemplate">>, <<"MqttCommandTemplate">>,
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
                      <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>]).
 
@@ -113,6 +119,7 @@ from_description(#{components := Components}) ->
 %% whole JSON value).
 -spec parse_source(binary()) -> {ok, source()} | error.
 parse_source(<<"raw">>) -> {ok, raw};
+parse_source(<<"template">>) -> {ok, template};
 parse_source(<<"json:", Path/binary>>) -> path(Path);
 parse_source(_) -> error.
 
@@ -366,15 +373,17 @@ command_service(Id, E, Inherited, Base, Command) ->
                mapping(Id, E, What),
                extra(Id, E, What),
                checks(Id, E),
-               code(Id, E)],
+               code(Id, E),
+               command_template(Id, E)],
     case collect(Results) of
-        {ok, [CT, Cmd, Args, ST1, Progress, Mapping, ok, Checks, Code]} ->
+        {ok, [CT, Cmd, Args, ST1, Progress, Mapping, ok, Checks, Code, CmdTpl]} ->
             Default = case ST1 of undefined -> none; _ -> any end,
             case expect(Id, E, Default, ST1) of
                 {ok, Expect} ->
                     {ok, Base#{kind => command, command_topic => CT, command => Cmd, args => Args,
                                state_topic => ST1, expect => Expect, progress => Progress,
-                               mapping => Mapping, checks => Checks, code => Code}};
+                               mapping => Mapping, checks => Checks, code => Code,
+                               command_template => CmdTpl}};
                 Error ->
                     Error
             end;
@@ -475,9 +484,34 @@ mapping(Id, E, What) ->
               undefined -> {ok, []};
               M -> value_map(Id, E, What, M)
           end,
-    case collect([Values, Attributes, Map]) of
-        {ok, [Vs, A, Mp]} -> {ok, #{values => Vs, attributes => A, map => Mp}};
+    Template = case {get(<<"MqttValueTemplate">>, E), Values} of
+                   {undefined, {ok, Vs0}} ->
+                       case lists:keymember(template, 2, Vs0) of
+                           true -> {error, [problem(Id, E, What, <<"MqttValue">>,
+                                                    <<"Param=template needs MqttValueTemplate">>)]};
+                           false -> {ok, #{}}
+                       end;
+                   {undefined, _} -> {ok, #{}};
+                   {T, _} -> template(Id, E, What, <<"MqttValueTemplate">>, T)
+               end,
+    case collect([Values, Attributes, Map, Template]) of
+        {ok, [Vs, A, Mp, Tpl]} -> {ok, Tpl#{values => Vs, attributes => A, map => Mp}};
         Error -> Error
+    end.
+
+template(Id, E, What, Name, Text) ->
+    case mqtt_avatar_template:parse(Text) of
+        {ok, T} -> {ok, #{template => T}};
+        {error, M} -> {error, [problem(Id, E, What, Name, M)]}
+    end.
+
+command_template(Id, E) ->
+    case get(<<"MqttCommandTemplate">>, E) of
+        undefined -> {ok, undefined};
+        Text -> case template(Id, E, "Service", <<"MqttCommandTemplate">>, Text) of
+                    {ok, #{template := T}} -> {ok, T};
+                    Error -> Error
+                end
     end.
 
 values(Id, E, What, Text) ->
@@ -485,7 +519,7 @@ values(Id, E, What, Text) ->
     case lists:member(error, Parsed) of
         false when Parsed =/= [] -> {ok, Parsed};
         _ -> {error, [problem(Id, E, What, <<"MqttValue">>,
-                              <<"expected Param=raw or Param=json:field.path tokens">>)]}
+                              <<"expected Param=raw, Param=json:field.path or Param=template tokens">>)]}
     end.
 
 value_token(Token) ->

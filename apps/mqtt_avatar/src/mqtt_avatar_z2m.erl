@@ -122,7 +122,10 @@ base_entity(Topic, Uid, Kind, Feature, Expose) ->
     Prop = maps:get(<<"property">>, Feature),
     On = text(maps:get(<<"value_on">>, Feature, <<"ON">>)),
     Off = text(maps:get(<<"value_off">>, Feature, <<"OFF">>)),
-    Settable = maps:get(<<"access">>, Feature, 0) band ?ACCESS_SET =/= 0,
+    Settable = case maps:get(<<"access">>, Feature, 0) of
+                   A when is_integer(A) -> A band ?ACCESS_SET =/= 0;
+                   _ -> false
+               end,
     #{uid => Uid,
       kind => Kind,
       name => text(maps:get(<<"label">>, Expose, maps:get(<<"name">>, Expose, Prop))),

@@ -273,7 +273,7 @@ malformed_inputs(Config) ->
             <<"{\"name\": \"Wild\", \"command_topic\": \"a/#\"}">>},
            {<<Ha/binary, "/sensor/x/tpl/config">>,
             <<"{\"name\": \"Tpl\", \"state_topic\": \"t\", \"value_template\": "
-              "\"{% if value %}1{% endif %}\"}">>},
+              "\"{% for x in value %}1{% endfor %}\"}">>},
            {<<Ha/binary, "/sensor/x/array/config">>, <<"[1, 2]">>},
            {<<Ha/binary, "/vacuum/x/robot/config">>, <<"{}">>}],
     [ok = mqtt_avatar_test_device:publish(Dev, T, Pl, false) || {T, Pl} <- Bad],

@@ -1,5 +1,5 @@
 %% Common Test suite of the device families beyond lights and switches
-%% (docs/mqtt.md section 2.3) against a real mosquitto, a real EVATAR node
+%% (docs/mqtt.md section 2.4) against a real mosquitto, a real EVATAR node
 %% with its bridge listener, and a VA joined over TCP with
 %% agent_bridge_client. Each family is announced as Home Assistant
 %% announces it (and as zigbee2mqtt does, where it has the expose), played
@@ -18,8 +18,8 @@
 suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
-    [covers_and_valves, climate_and_humidifier, fan, lock_and_alarm, number_select_scene, vacuum,
-     sensors_named_by_what_they_are, zigbee2mqtt_families].
+    [covers_and_valves, climate_and_humidifier, fan, lock_and_alarm, alarm_with_remote_code,
+     number_select_scene, vacuum, sensors_named_by_what_they_are, zigbee2mqtt_families].
 
 init_per_suite(Config) ->
     agent_bridge_test_node:start_with_broker([mqtt_avatar], mqtt_families_suite, Config).
@@ -134,7 +134,8 @@ climate_and_humidifier(Config) ->
                              <<"temp_hi_stat_t">> => T(<<"temp_hi">>),
                              <<"min_temp">> => 16, <<"max_temp">> => 30,
                              <<"curr_temp_t">> => T(<<"sensor">>),
-                             <<"curr_temp_tpl">> => <<"{{ value_json.temperature }}">>,
+                             %% (a template only the evaluator reads: tenths of a degree)
+                             <<"curr_temp_tpl">> => <<"{{ value_json.tenths / 10 }}">>,
                              <<"fan_mode_cmd_t">> => T(<<"fan/set">>), <<"fan_mode_stat_t">> => T(<<"fan">>),
                              <<"swing_mode_cmd_t">> => T(<<"swing/set">>),
                              <<"swing_mode_stat_t">> => T(<<"swing">>),
@@ -189,7 +190,7 @@ climate_and_humidifier(Config) ->
                                                  [{<<"SwingMode">>, <<"on">>}]))),
     <<"eco">> = param(<<"PresetMode">>, ok(request(Va, Hp, <<"SetClimatePresetMode">>,
                                                    [{<<"PresetMode">>, <<"eco">>}]))),
-    ok = mqtt_avatar_test_device:publish(Dev, T(<<"sensor">>), <<"{\"temperature\": 19.5}">>, false),
+    ok = mqtt_avatar_test_device:publish(Dev, T(<<"sensor">>), <<"{\"tenths\": 195}">>, false),
     <<"19.5">> = param(<<"CurrentTemperature">>, stream(Va, <<"ClimateCurrentTemperature">>,
                                                         <<"CurrentTemperature">>, <<"19.5">>)),
     %% The dehumidifier.
@@ -309,15 +310,48 @@ lock_and_alarm(Config) ->
     nomatch = binary:match(Xml, <<"4711">>),
     [] = [X || X <- mqtt_avatar:problems(A), binary:match(term_to_binary(X), <<"4711">>) =/= nomatch].
 
-%% A speaker's volume (number: min/max/step), its source (select) and a
-%% scene: values within the device's range and options are applied and
-%% read back, others refused; the scene is activated.
+%% An alarm panel whose code the device checks (`REMOTE_CODE'): the code
+%% is required, and goes to the device through the panel's command
+%% template, as in HA.
+alarm_with_remote_code(Config) ->
+    P = ?config(prefix, Config),
+    Al = fun(S) -> <<P/binary, "/garage/", S/binary>> end,
+    Alarm = device(Config, [{<<"alarm_control_panel">>, <<"alarm">>,
+                             #{<<"name">> => null, <<"cmd_t">> => Al(<<"set">>),
+                               <<"stat_t">> => Al(<<"state">>), <<"code">> => <<"REMOTE_CODE">>,
+                               <<"cmd_tpl">> => <<"{\"action\": \"{{ action }}\", \"code\": \"{{ code }}\"}">>,
+                               <<"sup_feat">> => [<<"arm_home">>],
+                               <<"dev">> => dev(P, <<"Garage Alarm">>, <<"Garage">>)}}],
+                   [Al(<<"set">>)],
+                   fun(_, Cmd) ->
+                           {ok, #{<<"action">> := Action, <<"code">> := Code}} = mqtt_avatar_json:decode(Cmd),
+                           case {Action, Code} of
+                               {<<"ARM_HOME">>, <<"2468">>} -> [{Al(<<"state">>), <<"armed_home">>}];
+                               _ -> [{Al(<<"state">>), <<"disarmed">>}]
+                           end
+                   end),
+    _A = avatar(Config),
+    Va = va(Config, [<<"ArmHome">>], [<<"AlarmState">>]),
+    Panel = provider(Va, <<"ArmHome">>),
+    <<"BadParameter">> = error_code(request(Va, Panel, <<"ArmHome">>, [])),
+    [] = mqtt_avatar_test_device:commands(Alarm),
+    <<"armed_home">> = param(<<"State">>, ok(request(Va, Panel, <<"ArmHome">>,
+                                                    [{<<"Code">>, <<"2468">>}]))),
+    [{_, Cmd}] = mqtt_avatar_test_device:commands(Alarm),
+    {ok, #{<<"action">> := <<"ARM_HOME">>, <<"code">> := <<"2468">>}} = mqtt_avatar_json:decode(Cmd).
+
+%% A speaker's volume (number: min/max/step, a command template and a
+%% value template), its source (select) and a scene: values within the
+%% device's range and options are applied and read back, others refused;
+%% the scene is activated.
 number_select_scene(Config) ->
     P = ?config(prefix, Config),
     S = fun(X) -> <<P/binary, "/speaker/", X/binary>> end,
     Dev = dev(P, <<"Kitchen Speaker">>, <<"Kitchen">>),
-    _Speaker = device(Config, [{<<"number">>, <<"volume">>,
+    Speaker = device(Config, [{<<"number">>, <<"volume">>,
                                 #{<<"name">> => <<"Volume">>, <<"cmd_t">> => S(<<"volume/set">>),
+                                  <<"cmd_tpl">> => <<"{\"volume\": {{ value }}}">>,
+                                  <<"val_tpl">> => <<"{{ value_json.volume }}">>,
                                   <<"stat_t">> => S(<<"volume">>), <<"min">> => 0, <<"max">> => 10,
                                   <<"step">> => 0.5, <<"unit_of_meas">> => <<"dB">>, <<"dev">> => Dev}},
                                {<<"select">>, <<"source">>,
@@ -344,6 +378,8 @@ number_select_scene(Config) ->
     <<"tv">> = param(<<"Option">>, ok(request(Va, Sp, <<"SelectSource">>, [{<<"Option">>, <<"tv">>}]))),
     <<"BadParameter">> = error_code(request(Va, Sp, <<"SelectSource">>, [{<<"Option">>, <<"vinyl">>}])),
     <<"7.5">> = param(<<"Value">>, ok(request(Va, Sp, <<"ReadVolume">>, [], <<"SENSOR">>))),
+    %% The volume went out through its command template.
+    [{_, <<"{\"volume\": 7.5}">>} | _] = mqtt_avatar_test_device:commands(Speaker),
     Sc = provider(Va, <<"ActivateMovieNight">>),
     <<"done">> = param(<<"Result">>, ok(request(Va, Sc, <<"ActivateMovieNight">>, []))),
     [{_, <<"go">>}] = mqtt_avatar_test_device:commands(Scene).
@@ -402,7 +438,9 @@ sensors_named_by_what_they_are(Config) ->
                                 <<"dev_cla">> => <<"temperature">>, <<"stat_cla">> => <<"measurement">>,
                                 <<"unit_of_meas">> => <<"°C"/utf8>>,
                                 <<"stat_t">> => <<P/binary, "/kitchen/sensor">>,
-                                <<"val_tpl">> => <<"{{ value_json.t }}">>, <<"dev">> => Dev}},
+                                %% (evaluated: not a plain path)
+                                <<"val_tpl">> => <<"{{ (value_json.t | float) | round(1) }}">>,
+                                <<"dev">> => Dev}},
                              {<<"binary_sensor">>, <<"door">>,
                               #{<<"name">> => <<"Back door">>, <<"dev_cla">> => <<"door">>,
                                 <<"stat_t">> => <<P/binary, "/kitchen/door">>, <<"dev">> => Dev}}],
@@ -431,7 +469,7 @@ sensors_named_by_what_they_are(Config) ->
     [<<"KitchenMultisensor">>] = lists:usort([maps:get(component, maps:get(provider, B))
                                               || #{type := <<"ReadTemperature">>} = B
                                                      <- maps:get(bound, Comp)]),
-    ok = mqtt_avatar_test_device:publish(Sensor, <<P/binary, "/kitchen/sensor">>, <<"{\"t\": 21.4}">>, false),
+    ok = mqtt_avatar_test_device:publish(Sensor, <<P/binary, "/kitchen/sensor">>, <<"{\"t\": 21.44}">>, false),
     #{context := sensor_data, body := #{parameters := Ps}} =
         wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"Temperature">> end),
     <<"21.4">> = param(<<"Temperature">>, Ps),
