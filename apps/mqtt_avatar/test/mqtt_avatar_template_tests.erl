@@ -167,8 +167,7 @@ limits_test_() ->
 %% ---------------------------------------------------------------------------
 
 never_raises_test_() ->
-    {timeout, 60, ?_assert(proper:quickcheck(prop_never_raises(), [{numtests, numtests()},
-                                                                    {to_file, user}]))}.
+    {timeout, 60, ?_test(ok = evatar_test_proper:check(prop_never_raises(), numtests()))}.
 
 numtests() ->
     case os:getenv("EVATAR_LONG_TESTS") of
