@@ -194,3 +194,106 @@ camel_test() ->
     ?assertEqual(<<"P2ndFloor">>, mqtt_avatar_logic:camel(<<"2nd floor">>)),
     ?assertEqual(<<"TimeOfDay">>, mqtt_avatar_logic:camel(<<"Time of day">>)),
     ?assertEqual(<<>>, mqtt_avatar_logic:camel(<<"---">>)).
+
+%% ---------------------------------------------------------------------------
+%% MqttArgCheck, MqttCode, MqttCommandTemplate, MqttValueTemplate, MqttExtra
+%% ---------------------------------------------------------------------------
+
+%% A component whose services check their parameters, one with a local
+%% code (the PBKDF2 hash of 4711), one with a command template, and a
+%% stream read by a template, with extra parameters.
+family_state() ->
+    Entry = fun(Cat, Type, Ps) -> #{category => Cat, type => Type, parameters => Ps} end,
+    Salt = <<"salt">>,
+    Hash = crypto:pbkdf2_hmac(sha256, <<"4711">>, Salt, 1000, 32),
+    Code = iolist_to_binary(["pbkdf2-sha256:1000:", binary:encode_hex(Salt), ":",
+                             binary:encode_hex(Hash)]),
+    D = #{entity_id => ?E, api_name => <<>>, entity_type => avatar, context => <<>>,
+          components =>
+              [#{id => <<"Dev">>,
+                 services => [Entry(<<"ACTUATOR">>, <<"SetMode">>,
+                                    [{<<"MqttCommandTopic">>, <<"d/mode">>},
+                                     {<<"MqttCommand">>, <<"raw:">>},
+                                     {<<"MqttCommandArgs">>, <<"Mode">>},
+                                     {<<"MqttArgCheck">>, <<"Mode=off|heat">>},
+                                     {<<"MqttExpect">>, <<"none">>}]),
+                              Entry(<<"ACTUATOR">>, <<"SetLevel">>,
+                                    [{<<"MqttCommandTopic">>, <<"d/level">>},
+                                     {<<"MqttCommand">>, <<"raw:">>},
+                                     {<<"MqttCommandArgs">>, <<"Level">>},
+                                     {<<"MqttArgCheck">>, <<"Level=0..10">>},
+                                     {<<"MqttCommandTemplate">>, <<"{\"level\": {{ value * 10 }}}">>},
+                                     {<<"MqttExpect">>, <<"none">>}]),
+                              Entry(<<"ACTUATOR">>, <<"Arm">>,
+                                    [{<<"Code">>, <<"yes">>},
+                                     {<<"MqttCommandTopic">>, <<"d/arm">>},
+                                     {<<"MqttCommand">>, <<"raw:ARM_AWAY">>},
+                                     {<<"MqttCode">>, Code},
+                                     {<<"MqttExpect">>, <<"none">>}])],
+                 consumes => [Entry(<<"SENSOR">>, <<"Level">>,
+                                    [{<<"MqttStateTopic">>, <<"d/state">>},
+                                     {<<"MqttValue">>, <<"Level=template">>},
+                                     {<<"MqttValueTemplate">>, <<"{{ value_json.tenths / 10 }}">>},
+                                     {<<"MqttExtra">>, <<"Unit=dB DeviceClass=sound">>}])]}]},
+    {ok, Spec} = mqtt_avatar_spec:from_description(D),
+    S0 = mqtt_avatar_logic:new(?E, Spec, 3000),
+    {S1, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, S0),
+    Row = #{consumer => #{entity => ?E, component => <<"Dev">>},
+            provider => #{entity => <<"va">>, component => <<"Emu">>},
+            category => <<"SENSOR">>, type => <<"Level">>, score => 1, candidates => 1},
+    {S2, _} = mqtt_avatar_logic:handle({binding, #{bound => [Row], unbound => []}}, 0, S1),
+    S2.
+
+dev_request(Id, Type, Params) ->
+    {signal, #{id => Id, context => request, sender => <<"Emu">>, receiver => <<"Dev">>,
+               in_reply_to => undefined, timestamp => 1, seq => 1, epoch => 1,
+               body => #{category => <<"ACTUATOR">>, type => Type, parameters => Params}}}.
+
+error_of(Effects) ->
+    [#{context := error, body := #{type := Code, parameters := [{<<"Message">>, M}]}}] = sends(Effects),
+    {Code, M}.
+
+%% A parameter outside its list or range, or missing, is refused with what
+%% is allowed, and nothing is published.
+arg_check_test() ->
+    S = family_state(),
+    {_, E1} = mqtt_avatar_logic:handle(dev_request(<<"a1">>, <<"SetMode">>, [{<<"Mode">>, <<"sauna">>}]), 1, S),
+    ?assertEqual({<<"BadParameter">>, <<"Mode must be one of: off, heat">>}, error_of(E1)),
+    {_, E2} = mqtt_avatar_logic:handle(dev_request(<<"a2">>, <<"SetMode">>, []), 1, S),
+    ?assertEqual({<<"BadParameter">>, <<"the request needs parameter Mode">>}, error_of(E2)),
+    {_, E3} = mqtt_avatar_logic:handle(dev_request(<<"a3">>, <<"SetLevel">>, [{<<"Level">>, <<"11">>}]), 1, S),
+    ?assertEqual({<<"BadParameter">>, <<"Level must be a number from 0 to 10">>}, error_of(E3)),
+    {_, [{publish, <<"d/mode">>, P, _} | _]} =
+        mqtt_avatar_logic:handle(dev_request(<<"a4">>, <<"SetMode">>, [{<<"Mode">>, <<"HEAT">>}]), 1, S),
+    ?assertEqual(<<"HEAT">>, iolist_to_binary(P)).
+
+%% The command template renders what is published, with the value as a
+%% number.
+command_template_test() ->
+    {_, [{publish, <<"d/level">>, P, _} | _]} =
+        mqtt_avatar_logic:handle(dev_request(<<"t1">>, <<"SetLevel">>, [{<<"Level">>, <<"7">>}]), 1,
+                                 family_state()),
+    ?assertEqual(<<"{\"level\": 70}">>, iolist_to_binary(P)).
+
+%% A local code: wrong or missing is WrongCode without a publish; the right
+%% one publishes the bare action; the code is in no effect.
+local_code_test() ->
+    S = family_state(),
+    {_, E1} = mqtt_avatar_logic:handle(dev_request(<<"c1">>, <<"Arm">>, [{<<"Code">>, <<"1234">>}]), 1, S),
+    ?assertMatch({<<"WrongCode">>, _}, error_of(E1)),
+    {_, E2} = mqtt_avatar_logic:handle(dev_request(<<"c2">>, <<"Arm">>, []), 1, S),
+    ?assertMatch({<<"WrongCode">>, _}, error_of(E2)),
+    {_, E3} = mqtt_avatar_logic:handle(dev_request(<<"c3">>, <<"Arm">>, [{<<"Code">>, <<"4711">>}]), 1, S),
+    [{publish, <<"d/arm">>, P, _} | _] = E3,
+    ?assertEqual(<<"ARM_AWAY">>, iolist_to_binary(P)),
+    [] = [X || X <- E1 ++ E2 ++ E3, binary:match(term_to_binary(X), <<"4711">>) =/= nomatch].
+
+%% A value template reads the stream's value; the extra parameters ride
+%% along; a template that fails on a message is a bad_payload problem.
+value_template_and_extra_test() ->
+    S = family_state(),
+    {_, [{send, #{body := #{parameters := Ps}}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"d/state">>, <<"{\"tenths\": 75}">>), 1, S),
+    ?assertEqual([{<<"Level">>, <<"7.5">>}, {<<"Unit">>, <<"dB">>}, {<<"DeviceClass">>, <<"sound">>}], Ps),
+    {_, [{problem, #{what := bad_payload}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"d/state">>, <<"{\"tenths\": \"many\"}">>), 1, S).
