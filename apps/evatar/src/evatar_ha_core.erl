@@ -17,6 +17,9 @@
 %%   |                                                                |    |
 %%   +------------- registered (a majority accepted) <----------------+    |
 %%                  refused by too many: the active fences  <--------------+
+%%                  refused {promised, P} (an active, not after a pause):
+%%                    it stands for election itself above P (reelect)
+%%                  neither, in 2 x suspect_ms: the active fences
 %% '''
 %% A claim `{Epoch, Seq}' names a configuration: the active makes a new one
 %% each time its standby changes and gives it to the new standby with the
@@ -44,13 +47,14 @@
 
 %% What the instance is and sees when an event comes: the configured
 %% nodes (a snapshot of evatar_cluster's view), the heartbeat, the epoch of
-%% its pairing state, and its role.
+%% its pairing state, and its role; `suspect_ms' (default 5 heartbeats, the
+%% release's ratio) bounds a registration.
 -type ctx() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
-                 epoch := non_neg_integer(), role := role()}.
+                 epoch := non_neg_integer(), role := role(), suspect_ms => pos_integer()}.
 
 -type event() :: {elect, Why :: term(), ActiveDead :: boolean()}
                | {handover_asked}
-               | {timeout, election | register}
+               | {timeout, election | register | deadline}
                | {vote_reply, Ec :: pos_integer(), node(), granted | {refused, refusal()}}
                | {register_reply, claim(), node(), ok | {refused, refusal()}}
                | standby_node_lost
@@ -65,16 +69,19 @@
 %% a registration and come last in a list.
 -type effect() :: {vote, node(), pos_integer(), claim(), boolean()}
                 | {register, node(), claim()}
-                | {timer, election | register, non_neg_integer()}
+                | {timer, election | register | deadline, non_neg_integer()}
                 | {pause, pause_action()}
                 | {won, Why :: term(), Epoch :: pos_integer()}
                 | {lost, refusal()}
                 | registered
-                | {fence, refusal()}.
+                | {fence, refusal() | registration_timeout}.
 
 -type election() :: #{epoch := non_neg_integer(), granted := [node()], replied := [node()],
                       dead := boolean(), why := term(), attempt := non_neg_integer()}.
--type registration() :: #{claim := claim(), ok := [node()], no := [node()]}.
+%% pause: a reconfirmation after a pause of this node, where a refusal for
+%% a promise means a standby may have won (the active fences).
+-type registration() :: #{claim := claim(), ok := [node()], no := [node()],
+                          pause => boolean()}.
 
 -record(core, {conf = {1, 0} :: claim(),
                %% The highest promise seen in refusals.
@@ -130,16 +137,22 @@ handle({handover_asked}, Ctx, C) ->
     %% does not count.
     elect(Ctx, C#core{election = fresh(handover, true)});
 handle({timeout, election}, #{role := R} = Ctx, #core{election = #{}} = C)
-  when R =:= standby; R =:= fenced ->
+  when R =:= standby; R =:= fenced; R =:= active ->
     elect(Ctx, C);
-handle({timeout, register}, #{role := R} = Ctx, #core{reg = #{claim := Claim}} = C)
+handle({timeout, register}, #{role := R} = Ctx,
+       #core{reg = #{claim := Claim}, election = undefined} = C)
   when R =/= fenced ->
     send_register(Claim, Ctx, C);
+handle({timeout, deadline}, #{role := active}, #core{hold = true} = C) ->
+    %% Neither accepted nor refused by a majority, nor settled by its own
+    %% election, while this node hears a majority (else the lease fenced
+    %% it first): the pairing says so and fences; its election goes on.
+    {C#core{reg = undefined}, [{fence, registration_timeout}]};
 handle({timeout, _}, _Ctx, C) ->
     {C, []};
 handle({vote_reply, Ec, Node, Result}, #{role := R} = Ctx,
        #core{election = #{epoch := Ec, granted := G, replied := Rep} = El} = C)
-  when R =:= standby; R =:= fenced ->
+  when R =:= standby; R =:= fenced; R =:= active ->
     El1 = El#{replied := lists:usort([Node | Rep])},
     case Result of
         granted ->
@@ -167,6 +180,17 @@ handle({register_reply, Claim, Node, ok}, Ctx,
         true -> {C#core{reg = undefined, hold = false}, [registered]};
         false -> {C#core{reg = Reg#{ok := Ok1}}, []}
     end;
+handle({register_reply, Claim, _Node, {refused, {promised, P}}}, #{role := active} = Ctx,
+       #core{reg = #{claim := Claim} = Reg} = C) when not is_map_key(pause, Reg) ->
+    %% A node promised a later epoch to another instance: a standby cut off
+    %% with it in an earlier partition, whose promise outlived the heal, or
+    %% one that won since. Raft's answer, without dropping the clients:
+    %% this active, which holds the newest claim, stands for an epoch above
+    %% that promise under the rules of every election (docs/architecture.md
+    %% section 8.5): a winner still heard, or its newer claim, makes the
+    %% voters refuse it; else it wins and the stale promise is gone. The
+    %% registration stays (effects held, no standby taken) until then.
+    handle({elect, reelect, false}, Ctx, C#core{promised = max(P, C#core.promised)});
 handle({register_reply, Claim, Node, {refused, Why}}, #{nodes := Nodes} = Ctx,
        #core{reg = #{claim := Claim, no := No} = Reg} = C) ->
     No1 = lists:usort([Node | No]),
@@ -180,19 +204,19 @@ handle({register_reply, Claim, Node, {refused, Why}}, #{nodes := Nodes} = Ctx,
     end;
 handle({register_reply, _, _, _}, _Ctx, C) ->
     {C, []};
-handle(standby_node_lost, #{heartbeat_ms := Hb}, #core{conf = {E, Seq}} = C) ->
+handle(standby_node_lost, #{heartbeat_ms := Hb} = Ctx, #core{conf = {E, Seq}} = C) ->
     %% The standby may be taking over (a partition looks the same): the
     %% cluster must accept a configuration without it first, a heartbeat
     %% later (by then a partition that cuts this node off entirely has
     %% fenced it, and it registers nothing).
     Claim = {E, Seq + 1},
     {C#core{conf = Claim, hold = true, reg = #{claim => Claim, ok => [], no => []}},
-     [{timer, register, Hb}]};
+     [{timer, register, Hb}, deadline(Ctx)]};
 handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg} = C) ->
     case after_pause(length(Nodes), Reg =/= undefined) of
         reconfirm ->
-            {C1, Effects} = send_register(Claim, Ctx, C),
-            {C1, [{pause, reconfirm} | Effects]};
+            {#core{reg = R1} = C1, Effects} = send_register(Claim, Ctx, C),
+            {C1#core{reg = R1#{pause => true}}, [{pause, reconfirm} | Effects]};
         Action ->
             {C, [{pause, Action}]}
     end;
@@ -229,20 +253,31 @@ won(#{epoch := Ec, why := handover}, #{nodes := Nodes}, C) ->
     %% instance its claim once the takeover is applied, which ends the hold).
     {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
      [{register, N, {Ec, 1}} || N <- Nodes] ++ [{won, handover, Ec}]};
+won(#{epoch := Ec, why := reelect}, #{role := active} = Ctx, C) ->
+    %% Still serving: the clients stay; the new epoch is registered like a
+    %% takeover's, and effects are released once a majority accepted it.
+    {C1, Effects} = send_register({Ec, 1}, Ctx, C#core{election = undefined, conf = {Ec, 1},
+                                                       reg = undefined}),
+    {C1, Effects ++ [{won, reelect, Ec}]};
 won(#{epoch := Ec, why := Why}, Ctx, C) ->
     {C1, Effects} = send_register({Ec, 1}, Ctx, C#core{election = undefined, conf = {Ec, 1},
                                                        reg = undefined}),
     {C1, Effects ++ [{won, Why, Ec}]}.
 
-%% Asks every node that has not accepted it yet to record `Claim'.
-send_register({E, Seq} = Claim, #{nodes := Nodes, heartbeat_ms := Hb}, C) ->
-    Done = case C#core.reg of
-               #{claim := Claim, ok := Ok} -> Ok;
-               _ -> []
-           end,
-    {C#core{hold = true, reg = #{claim => {E, Seq}, ok => Done, no => []}},
+%% Asks every node that has not accepted it yet to record `Claim'; a new
+%% claim's registration gets its deadline.
+send_register({E, Seq} = Claim, #{nodes := Nodes, heartbeat_ms := Hb} = Ctx, C) ->
+    {Done, Deadline, Kept} = case C#core.reg of
+                                 #{claim := Claim, ok := Ok} = R -> {Ok, [], maps:with([pause], R)};
+                                 _ -> {[], [deadline(Ctx)], #{}}
+                             end,
+    {C#core{hold = true, reg = Kept#{claim => {E, Seq}, ok => Done, no => []}},
      [{register, N, Claim} || N <- Nodes, not lists:member(N, Done)]
-     ++ [{timer, register, 2 * Hb + 50}]}.
+     ++ Deadline ++ [{timer, register, 2 * Hb + 50}]}.
+
+%% A registration settles within 2 x suspect_ms, or the active fences.
+deadline(#{heartbeat_ms := Hb} = Ctx) ->
+    {timer, deadline, 2 * maps:get(suspect_ms, Ctx, 5 * Hb)}.
 
 quorum(#{nodes := Nodes}) -> quorum_size(length(Nodes)).
 

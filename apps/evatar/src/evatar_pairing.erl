@@ -954,7 +954,7 @@ cluster_event(_Event, _State, _Data) ->
 
 ctx(Role, _Data) ->
     #{nodes => evatar_cluster:configured(), heartbeat_ms => evatar_cluster:opt(heartbeat_ms),
-      epoch => 0, role => Role}.
+      suspect_ms => evatar_cluster:opt(suspect_ms), epoch => 0, role => Role}.
 
 core(Event, State, #data{logic = Logic, core = Core} = Data) ->
     Role = case State of
@@ -995,6 +995,13 @@ core_effects([{won, handover, Ec}], standby, #data{active = Old, commit = C} = D
     D1 = D#data{standby = Old, standby_mon = Mon, placing = false, core = Core,
                 commit = evatar_ha_commit:synced_at(evatar_ha_commit:version(C), D#data.commit)},
     {next_state, S, publish(flush(D1)), A};
+core_effects([{won, reelect, Ec}], State, #data{id = Id} = Data)
+  when State =:= waiting; State =:= bound ->
+    %% Re-elected above a stale promise while serving: the clients stay,
+    %% only the epoch moves; effects wait for the registration of {Ec, 1}.
+    ?LOG_WARNING(#{what => reelected, pairing => Id, epoch => Ec}),
+    {_, Data1} = step({reelected, Ec}, Data),
+    {keep_state, publish(Data1)};
 core_effects([{won, Why, Ec}], _State, Data) ->
     take_over(Why, Ec, Data);
 core_effects([{lost, Why}], standby, Data) ->
@@ -1009,7 +1016,13 @@ core_effects([registered], State, Data) ->
     Data1 = release_all(reconfirmed(State, Data)),
     {keep_state, place_soon(place(State, Data1))};
 core_effects([{fence, Why}], State, #data{id = Id} = Data) ->
-    ?LOG_WARNING(#{what => registration_refused, pairing => Id, reason => Why}),
+    _ = case Why of
+            registration_timeout ->
+                ?LOG_WARNING(#{what => registration_timeout, pairing => Id,
+                               claim => evatar_ha_core:claim(Data#data.core)});
+            _ ->
+                ?LOG_WARNING(#{what => registration_refused, pairing => Id, reason => Why})
+        end,
     case State of
         S when S =:= waiting; S =:= bound -> fence_now(Data);
         _ -> {keep_state, Data}
@@ -1102,7 +1115,10 @@ arm_silent(Data) ->
 silent_check(#data{logic = Logic, id = Id} = Data) ->
     Timeout = evatar_cluster:opt(client_ack_timeout),
     Now = erlang:system_time(millisecond),
-    Silent = [E || {E, T} <- evatar_pairing_logic:unacked_since(Logic), Now - T > Timeout],
+    %% Deliveries still held for a registration were never sent: their
+    %% receivers are not silent.
+    Silent = [E || not evatar_ha_core:holding(Data#data.core),
+                   {E, T} <- evatar_pairing_logic:unacked_since(Logic), Now - T > Timeout],
     Data1 = lists:foldl(
               fun(E, D) ->
                       ?LOG_WARNING(#{what => silent_link, pairing => Id, entity => E}),

@@ -118,6 +118,7 @@
                | {client_ack, EntityId :: binary(), Seq :: non_neg_integer()}
                | {report_binding, EntityId :: binary()}
                | {takeover, Epoch :: pos_integer()}
+               | {reelected, Epoch :: pos_integer()}
                | {timeout, timer_key()}.
 -type effect() :: {reply, term()}
                 | {deliver, EntityId :: binary(), bil:signal()}
@@ -218,6 +219,11 @@ handle1({report_binding, EntityId}, _Now, St) ->
     {St, report_to(EntityId, St)};
 handle1({takeover, Epoch}, Now, St) ->
     takeover(Epoch, Now, St);
+handle1({reelected, Epoch}, _Now, #st{epoch = Old} = St) when Epoch > Old ->
+    %% The active itself won a new epoch while serving (docs/architecture.md
+    %% section 8.5): its clients' connections are its own, so nobody is
+    %% detached; only the epoch stamped from now on moves.
+    {St#st{epoch = Epoch}, [{log, notice, #{what => reelected, epoch => Epoch}}]};
 handle1({timeout, {join, EntityId}}, Now, St) ->
     join_timeout(EntityId, Now, St);
 handle1({timeout, {resume, EntityId}}, Now, St) ->

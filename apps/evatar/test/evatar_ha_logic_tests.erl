@@ -193,6 +193,17 @@ takeover_test() ->
     ?assertEqual([{{resume, ?AV}, 400}, {{resume, ?VA}, 400}],
                  lists:sort(evatar_pairing_logic:timers(St, 1100))).
 
+%% An active re-elected while serving moves its epoch and keeps every
+%% entity attached, with no timer armed: its clients are still connected.
+reelected_test() ->
+    Bound = bound(),
+    Attached = evatar_pairing_logic:attached_ids(Bound),
+    {St, E} = h({reelected, 3}, Bound),
+    ?assertEqual(3, evatar_pairing_logic:epoch(St)),
+    ?assertEqual(Attached, evatar_pairing_logic:attached_ids(St)),
+    ?assertEqual([], [T || {start_timer, _, _} = T <- E]),
+    ?assertEqual([{log, notice, #{what => reelected, epoch => 3}}], E).
+
 %% A fresh join of a detached entity's id replaces it (the client came back
 %% without resuming); an attached one is still refused.
 fresh_join_replaces_detached_test() ->
@@ -347,3 +358,79 @@ discount_test_() ->
      %% Heard during the pause's last moments: never in the future.
      ?_assertEqual(1400, evatar_ha_rules:discount(1390, Paused, 1400)),
      ?_assertEqual(960, evatar_ha_rules:discount(960, 0, 1400))].
+
+%% ---------------------------------------------------------------------------
+%% A stale promise (issue 18): the active re-elects itself above it
+%% ---------------------------------------------------------------------------
+
+core_ctx(Role) ->
+    #{nodes => [a, b, c], heartbeat_ms => 50, suspect_ms => 250, epoch => 1, role => Role}.
+
+%% An active that lost its standby's node, its configuration {1, 1} not yet
+%% registered.
+lost_standby() ->
+    {C, Effects} = evatar_ha_core:handle(standby_node_lost, core_ctx(active),
+                                         evatar_ha_core:new()),
+    ?assert(lists:member({timer, deadline, 500}, Effects)),
+    {C1, _} = evatar_ha_core:handle({timeout, register}, core_ctx(active), C),
+    C1.
+
+%% Refused for a promise of epoch 2 (a standby cut off earlier): it asks
+%% every node for epoch 3 with its own claim, still holding; a majority
+%% re-elects it, it registers {3, 1} and is told so last; then releases.
+reelect_above_stale_promise_test() ->
+    C = lost_standby(),
+    {C1, Votes} = evatar_ha_core:handle({register_reply, {1, 1}, b, {refused, {promised, 2}}},
+                                        core_ctx(active), C),
+    ?assertEqual([{vote, N, 3, {1, 1}, false} || N <- [a, b, c]],
+                 [V || {vote, _, _, _, _} = V <- Votes]),
+    ?assert(evatar_ha_core:holding(C1)),
+    ?assert(evatar_ha_core:electing(C1)),
+    %% The register retry waits for the election.
+    ?assertEqual({C1, []}, evatar_ha_core:handle({timeout, register}, core_ctx(active), C1)),
+    {C2, []} = evatar_ha_core:handle({vote_reply, 3, a, granted}, core_ctx(active), C1),
+    {C3, Won} = evatar_ha_core:handle({vote_reply, 3, b, granted}, core_ctx(active), C2),
+    ?assertEqual({won, reelect, 3}, lists:last(Won)),
+    ?assertEqual([{register, N, {3, 1}} || N <- [a, b, c]],
+                 [R || {register, _, _} = R <- Won]),
+    ?assertEqual({3, 1}, evatar_ha_core:claim(C3)),
+    ?assert(evatar_ha_core:holding(C3)),
+    {C4, []} = evatar_ha_core:handle({register_reply, {3, 1}, a, ok}, core_ctx(active), C3),
+    {C5, [registered]} = evatar_ha_core:handle({register_reply, {3, 1}, b, ok},
+                                               core_ctx(active), C4),
+    ?assertNot(evatar_ha_core:holding(C5)),
+    %% The deadline of a registration that settled does nothing.
+    ?assertEqual({C5, []}, evatar_ha_core:handle({timeout, deadline}, core_ctx(active), C5)).
+
+%% An instance that really won the promised epoch and registered since
+%% makes the re-election stale: the active is told it lost.
+reelect_loses_to_a_newer_claim_test() ->
+    {C1, _} = evatar_ha_core:handle({register_reply, {1, 1}, b, {refused, {promised, 2}}},
+                                    core_ctx(active), lost_standby()),
+    ?assertMatch({_, [{lost, stale_claim}]},
+                 evatar_ha_core:handle({vote_reply, 3, b, {refused, stale_claim}},
+                                       core_ctx(active), C1)).
+
+%% After a pause a refusal for a promise means a standby may have won: no
+%% re-election; refused by too many, the active fences.
+no_reelect_after_pause_test() ->
+    {C, _} = evatar_ha_core:handle(paused, core_ctx(active), evatar_ha_core:new()),
+    {C1, []} = evatar_ha_core:handle({register_reply, {1, 0}, b, {refused, {promised, 2}}},
+                                     core_ctx(active), C),
+    ?assertNot(evatar_ha_core:electing(C1)),
+    %% Still so after a retry of the registration.
+    {C2, _} = evatar_ha_core:handle({timeout, register}, core_ctx(active), C1),
+    {C3, []} = evatar_ha_core:handle({register_reply, {1, 0}, b, {refused, {promised, 2}}},
+                                     core_ctx(active), C2),
+    ?assertNot(evatar_ha_core:electing(C3)),
+    ?assertMatch({_, [{fence, {promised, 2}}]},
+                 evatar_ha_core:handle({register_reply, {1, 0}, c, {refused, {promised, 2}}},
+                                       core_ctx(active), C3)).
+
+%% Neither accepted nor refused in time (one refusal, one silent node, an
+%% election that does not end): the active fences, saying why.
+registration_deadline_fences_test() ->
+    C = lost_standby(),
+    ?assertMatch({_, [{fence, registration_timeout}]},
+                 evatar_ha_core:handle({timeout, deadline}, core_ctx(active), C)),
+    ?assertMatch({_, []}, evatar_ha_core:handle({timeout, deadline}, core_ctx(fenced), C)).
