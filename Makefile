@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -51,6 +51,12 @@ bench-brokers: deps
 ## Failover times (kill -9, silent stall: p50/p99 over 50 trials) and TLS distribution's cost.
 bench-failover: deps
 	@bash scripts/bench-failover.sh $(BENCH_ARGS)
+
+## Partitions of a real network (each node in a network namespace; root): the longest
+## unserved time of a majority-side pairing per kind of partition, this build beside the
+## build before the stale-promise fix. BENCH_ARGS='[quick]' for a smoke run.
+bench-partition: deps
+	@bash scripts/bench-partition.sh $(BENCH_ARGS)
 
 ## Growth of a pairing's large operations (voiding, binding, re-binding, resuming) at
 ## three sizes, with the old algorithms, and other pairings' round trips meanwhile.

@@ -22,7 +22,7 @@
          up/1, kill/2, stall/2, resume/2, restart/2, power_cut/1, restart_all/1,
          partition/2, isolate/2, cut/2, heal/2,
          os_pid/2, call/5, call/6, await_formed/2, await/3, ensure_distributed/0,
-         release_distribution/1, repo_root/0, free_ports/1]).
+         release_distribution/1, repo_root/0, free_ports/1, code_path/0]).
 -export([node_setup/1, watchdog/0, watchdog/1]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2, terminate/2]).
 
@@ -285,8 +285,9 @@ node_setup(#{log := Log, env := Env, bridge_port := Port, conn := Conn} = Setup)
     ok = application:set_env(Env, [{persistent, true}]),
     {ok, _} = application:ensure_all_started(agent_bridge),
     Listener = maps:get(listener, Setup, #{}),
-    {ok, _} = agent_bridge:start_listener(ha, Listener#{ip => {127, 0, 0, 1}, port => Port,
-                                                        conn => Conn}),
+    %% Loopback, unless the node has an address of its own (ha_netns).
+    Ip = maps:get(ip, Setup, {127, 0, 0, 1}),
+    {ok, _} = agent_bridge:start_listener(ha, Listener#{ip => Ip, port => Port, conn => Conn}),
     ok.
 
 %% @private Halts this node when its standard input closes: the controller
@@ -474,6 +475,9 @@ start_proxies(Nodes) ->
                       end, Nodes),
     {Linked, Proxies}.
 
+%% @doc The ebin directories a cluster's node loads: EVATAR's applications
+%% of this build and the test support.
+-spec code_path() -> [file:filename()].
 code_path() ->
     %% evatar_test_kit: this module's helpers (await/3) run on a node too.
     Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff, evatar_test_kit],

@@ -1,0 +1,105 @@
+%% @doc Partition benchmark: the longest time a pairing of the majority side
+%% goes without a round trip, for three kinds of partition of a real network
+%% (each node an OS process in a network namespace of its own,
+%% test/ha_netns.erl), after a first partition left a stale promise behind
+%% (test/ha_partition.erl, docs/architecture.md section 8.5). It runs the
+%% same scenario on this build and, when given one, on an earlier build
+%% (`{before, Dir}': a source tree compiled with `rebar3 compile'), and
+%% prints both side by side. Needs root and `ip'. Run through
+%% scripts/bench-partition.sh (`make bench-partition').
+%%
+%% Options: `{before, Dir}'; `{trials, N}' (default 1: each trial runs the
+%% scenario once per kind on a fresh cluster); `{cut_ms, Ms}' (default
+%% 8000); `{kinds, [nodes | all | link]}'; `quick' (cut 3000 ms, kinds
+%% nodes only).
+-module(partition_bench).
+
+-export([main/1]).
+
+%% The release's defaults (config/sys.config.src): node timings 50/250/150
+%% ms, the bridge's heartbeat 150 ms.
+-define(EVATAR, [{heartbeat_ms, 50}, {suspect_ms, 250}, {lease_ms, 150}]).
+-define(CONN, #{heartbeat => 150}).
+
+-spec main([term()]) -> ok.
+main(Opts) ->
+    case ha_netns:available() of
+        ok -> run(Opts);
+        {skip, Why} -> io:format("partition_bench: not run: ~s~n", [Why])
+    end.
+
+run(Opts) ->
+    Quick = lists:member(quick, Opts),
+    Trials = proplists:get_value(trials, Opts, 1),
+    CutMs = proplists:get_value(cut_ms, Opts, case Quick of true -> 3000; false -> 8000 end),
+    Kinds = proplists:get_value(kinds, Opts, case Quick of true -> [nodes];
+                                                         false -> [nodes, all, link] end),
+    Builds = [{"after (this build)", #{}}]
+        ++ case proplists:get_value(before, Opts) of
+               undefined -> [];
+               Dir -> [{"before (" ++ Dir ++ ")",
+                        #{code_path => filelib:wildcard(
+                                         filename:join([Dir, "_build", "default", "lib", "*",
+                                                        "ebin"]))}}]
+           end,
+    _ = ha_cluster:ensure_distributed(),
+    io:format("partition_bench: 3 nodes in network namespaces, 3 pairings (one active on "
+              "each node), a request every 20 ms per pairing; release timings 50/250/150 ms, "
+              "bridge heartbeat 150 ms; first partition 2000 ms, measured partition ~b ms; "
+              "~b trial(s); load average before: ~s~n",
+              [CutMs, Trials, loadavg()]),
+    Results = [{Kind, Name, [trial(Kind, Build, CutMs, T) || T <- lists:seq(1, Trials)]}
+               || Kind <- Kinds, {Name, Build} <- Builds],
+    io:format("~nlongest unserved time of a majority-side pairing (ms; per pairing in "
+              "brackets; the pairing that held the stale promise first):~n~n"),
+    io:format("| partition | build | longest | per trial [p1, p2, p3] | lost | duplicated |~n"
+              "|---|---|---|---|---|---|~n"),
+    _ = [io:format("| ~s | ~s | ~s | ~s | ~b | ~b |~n",
+                   [kind_name(Kind), Name, fmt(lists:max([M || #{max := M} <- Rs])),
+                    lists:join("; ", [[fmt(M), " ", gaps(G)] || #{max := M, gaps := G} <- Rs]),
+                    lists:sum([L || #{lost := L} <- Rs]),
+                    lists:sum([D || #{duplicated := D} <- Rs])])
+         || {Kind, Name, Rs} <- Results],
+    io:format("~nload average after: ~s~n", [loadavg()]),
+    ok.
+
+trial(Kind, Build, CutMs, T) ->
+    Dir = filename:join(["/tmp", "partition_bench-" ++ os:getpid(),
+                         atom_to_list(Kind) ++ "-" ++ integer_to_list(T) ++ "-"
+                         ++ integer_to_list(erlang:unique_integer([positive]))]),
+    ok = filelib:ensure_path(Dir),
+    {ok, Net} = ha_netns:start(Build#{dir => Dir, evatar => ?EVATAR, conn => ?CONN}),
+    try
+        Ids = [<<"bench-", (integer_to_binary(K))/binary>> || K <- [1, 2, 3]],
+        _ = [ok = ha_pairing:create(Net, K, Id) || {K, Id} <- lists:enumerate(Ids)],
+        Pairs = [begin
+                     {ok, P} = ha_traffic:start_pair(ha_netns:endpoints(Net), Id,
+                                                     #{request_interval => 20}),
+                     P
+                 end || Id <- Ids],
+        {ok, R} = ha_partition:run(Net, Pairs, Kind, #{first_ms => 2000, cut_ms => CutMs}),
+        _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
+        _ = [ha_traffic:settle(P, 30000) || P <- Pairs],
+        Check = ha_checker:check_pairs([ha_traffic:history(P) || P <- Pairs]),
+        _ = [ha_traffic:close(P) || P <- Pairs],
+        #{max => maps:get(max, R), gaps => [G || {_, G} <- maps:get(unserved, R)],
+          lost => length(maps:get(lost, Check)),
+          duplicated => length(maps:get(duplicated, Check))}
+    after
+        ha_netns:stop(Net)
+    end.
+
+kind_name(nodes) -> "(a) node cut from the other nodes";
+kind_name(all) -> "(b) node cut from everything";
+kind_name(link) -> "(c) one link between two nodes cut".
+
+fmt(never) -> "never served again";
+fmt(Ms) -> integer_to_list(Ms).
+
+gaps(Gs) -> ["[", lists:join(", ", [fmt(G) || G <- Gs]), "]"].
+
+loadavg() ->
+    case file:read_file("/proc/loadavg") of
+        {ok, B} -> lists:join(" ", lists:sublist(string:lexemes(binary_to_list(B), " "), 3));
+        _ -> "?"
+    end.

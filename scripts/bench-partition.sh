@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Runs the partition benchmark (bench/partition_bench.erl): the longest time
+# a majority-side pairing goes without a round trip, for a node cut from the
+# other nodes, a node cut from everything and one link cut, each after a
+# first partition that left a stale promise behind (docs/architecture.md
+# section 8.5), on this build and on the build before the fix of that
+# freeze, side by side. Every node is an OS process in a network namespace
+# of its own (test/ha_netns.erl): needs root and iproute2's `ip'.
+# Usage: scripts/bench-partition.sh [ERLANG_OPTION_LIST]
+#   scripts/bench-partition.sh                  # three kinds, 8 s partitions (about 5 minutes)
+#   scripts/bench-partition.sh '[quick]'        # one kind, 3 s partitions
+#   scripts/bench-partition.sh '[{trials, 3}]'
+# EVATAR_BEFORE: the git revision to compare with (default: the parent of the
+# commit that made an active re-elect itself above a stale promise); `none'
+# runs this build only. Honours REBAR (default rebar3) and REBAR_BASE_DIR
+# (default _build); the earlier build is kept in $REBAR_BASE_DIR/partition-before/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+REBAR=${REBAR:-rebar3}
+BASE=${REBAR_BASE_DIR:-_build}
+OPTS=${1:-[]}
+
+"$REBAR" as bench compile
+
+OUT="$BASE/bench/extras/partition"
+mkdir -p "$OUT"
+erlc -o "$OUT" test/ha_cluster.erl test/ha_netns.erl test/ha_partition.erl \
+  test/ha_traffic.erl test/ha_pairing.erl test/ha_checker.erl bench/partition_bench.erl
+
+BEFORE=none
+REV=${EVATAR_BEFORE:-}
+if [ -z "$REV" ]; then
+  FIX=$(git log -1 --format=%H --fixed-strings --grep='re-elects itself above a stale promise' 2>/dev/null || true)
+  [ -n "$FIX" ] && REV="$FIX^"
+fi
+if [ -n "$REV" ] && [ "$REV" != none ]; then
+  SHORT=$(git rev-parse --short "$REV")
+  BEFORE="$(pwd)/$BASE/partition-before/$SHORT"
+  if [ ! -d "$BEFORE/_build/default/lib/evatar/ebin" ]; then
+    echo "building $REV ($SHORT) in $BEFORE"
+    rm -rf "$BEFORE"; mkdir -p "$BEFORE"
+    git archive "$REV" | tar -x -C "$BEFORE"
+    (cd "$BEFORE" && env -u REBAR_BASE_DIR "$REBAR" compile > build.log 2>&1) \
+      || { echo "the earlier build failed: $BEFORE/build.log"; exit 1; }
+  fi
+fi
+
+if [ "$BEFORE" = none ]; then ARGS="$OPTS"; else ARGS="[{before, \"$BEFORE\"} | $OPTS]"; fi
+exec erl -noshell -pa "$BASE"/bench/lib/*/ebin -pa "$OUT" \
+  -eval "try partition_bench:main($ARGS) of
+           ok -> halt(0)
+         catch C:R:S ->
+           io:format(standard_error, \"partition_bench failed: ~p:~p~n~p~n\", [C, R, S]),
+           halt(1)
+         end."
