@@ -583,7 +583,11 @@ booted(#nd{name = Node, peer = Peer}, #s{opts = Opts}) ->
 setup(#nd{name = Node} = Nd, #s{opts = Opts, nodes = All} = S) ->
     Cluster = lists:sort([X#nd.name || X <- maps:values(All)]),
     Data = filename:join(maps:get(dir, Opts), Nd#nd.short ++ ".data"),
-    Env = [{evatar, [{cluster, Cluster} | maps:get(evatar, Opts)]},
+    %% No rebalancing unless a suite asks for it: these suites assert where
+    %% pairings go after their faults (netns_SUITE tests rebalancing).
+    Evatar = maps:get(evatar, Opts),
+    Env = [{evatar, [{cluster, Cluster} | Evatar]
+                ++ [{rebalance, false} || not lists:keymember(rebalance, 1, Evatar)]},
            {agent_bridge, [{listeners, []}]},
            {mnesia, [{dir, Data}]}],
     Info = #{name => Node, peer => Nd#nd.peer, control => maps:get(control, Opts)},

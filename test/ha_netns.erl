@@ -327,7 +327,8 @@ sh(Cmd) ->
 
 code_path(#s{opts = Opts}) ->
     case Opts of
-        #{code_path := Dirs} -> Dirs ++ [filename:dirname(code:which(ha_cluster))];
+        #{code_path := Dirs} -> Dirs ++ [filename:dirname(code:which(M))
+                                         || M <- [ha_cluster, evatar_test_wait]];
         #{} -> ha_cluster:code_path()
     end.
 

@@ -13,7 +13,7 @@
 -export([introduced_in/0, tag/0]).
 -export([heartbeat/2, inventory/2, ask/3, instance/4, start_standby/5]).
 -export([offer/3, snapshot/5, events/3, confirm/3, resync/3, dismiss/2, stale/3,
-         handover/3, handover_done/4, peer_instance/2]).
+         handover/3, handover_done/4, peer_instance/2, rebalance/2]).
 -export([vote/7, vote_reply/5, register/5, register_reply/5]).
 
 -export_type([message/0, instance_info/0]).
@@ -45,7 +45,8 @@
               | {register, evatar:pairing_id(), pos_integer(), non_neg_integer(), pid()}
               | {register_reply, evatar:pairing_id(), evatar_ha_core:claim(), node(),
                  ok | {refused, evatar_ha_core:refusal()}}
-              | {peer_instance, pid(), atom(), pos_integer()}.
+              | {peer_instance, pid(), atom(), pos_integer()}
+              | {rebalance, evatar_placement:move()}.
 -type message() :: {evatar_ha, 1, body()}.
 
 -define(M(Body), {evatar_ha, 1, Body}).
@@ -133,6 +134,11 @@ handover(To, Epoch, Version) -> pid(To, {handover, self(), Epoch, Version}).
 %% with `Claim'.
 -spec handover_done(pid(), pid(), pos_integer(), evatar_ha_core:claim()) -> ok.
 handover_done(To, From, Epoch, Claim) -> pid(To, {handover_done, From, Epoch, Claim}).
+
+%% @doc The rebalancer asks active `To' for one move of its pairing
+%% (evatar_placement); an active that cannot make it now ignores it.
+-spec rebalance(pid(), evatar_placement:move()) -> ok.
+rebalance(To, Move) -> pid(To, {rebalance, Move}).
 
 %% --- votes: between an instance and every node's evatar_cluster ------------
 

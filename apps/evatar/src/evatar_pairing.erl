@@ -796,6 +796,17 @@ ha({offer, Standby, _V}, State, #data{standby = undefined, core = Core} = Data)
     end;
 ha({offer, Standby, _V}, _State, #data{standby = Standby} = Data) ->
     {keep_state, snapshot_to(Data)};
+%% The rebalancer's moves: made only by an active with a synced standby and
+%% no registration or election under way; else the next round plans again.
+ha({rebalance, Move}, State, #data{standby = Standby, core = Core, commit = C} = Data)
+  when is_pid(Standby), (State =:= waiting orelse State =:= bound) ->
+    case evatar_ha_commit:synced(C) andalso not evatar_ha_core:holding(Core)
+        andalso not evatar_ha_core:electing(Core) of
+        true -> rebalance(Move, State, Data);
+        false -> keep_state_and_data
+    end;
+ha({rebalance, _Move}, _State, _Data) ->
+    keep_state_and_data;
 ha({offer, Standby, _V}, _State, _Data) ->
     ok = evatar_ha_proto_v1:dismiss(Standby, self()),
     keep_state_and_data;
@@ -1131,13 +1142,32 @@ silent_check(#data{logic = Logic, id = Id} = Data) ->
         andalso is_pid(Data1#data.standby) andalso evatar_ha_commit:synced(Data1#data.commit),
     Data2 = arm_silent(Data1),
     case Handover of
-        true ->
-            {next_state, handing_over,
-             flush(timer({ha, handover}, 4 * evatar_cluster:opt(suspect_ms), Data2)),
-             [{next_event, internal, handover}]};
-        false ->
-            next(flush_maybe(Data2), [])
+        true -> hand_over(Data2);
+        false -> next(flush_maybe(Data2), [])
     end.
+
+%% A planned handover to the synced standby (a silent link, or the
+%% rebalancer): it goes once the standby has confirmed everything.
+hand_over(Data) ->
+    {next_state, handing_over,
+     flush(timer({ha, handover}, 4 * evatar_cluster:opt(suspect_ms), Data)),
+     [{next_event, internal, handover}]}.
+
+%% A move of the rebalancer (evatar_placement): a planned handover, or the
+%% standby moved to another node: dismissed, a configuration without it
+%% registered as when its node is lost (effects held until a majority
+%% accepted it), then a new standby placed there from a snapshot.
+rebalance({handover, Id}, _State, #data{id = Id, standby = Standby} = Data) ->
+    ?LOG_NOTICE(#{what => rebalance_handover, pairing => Id, to => node(Standby)}),
+    hand_over(Data);
+rebalance({standby, Id, Node}, State, #data{id = Id, standby = Standby, config = Config} = Data)
+  when Node =/= node(), Node =/= node(Standby) ->
+    ?LOG_NOTICE(#{what => rebalance_standby, pairing => Id, from => node(Standby), to => Node}),
+    {keep_state, Data1} = core(standby_node_lost, State,
+                               forget_standby(Data#data{config = Config#{standby_node => Node}})),
+    {keep_state, publish(Data1)};
+rebalance(_Move, _State, _Data) ->
+    keep_state_and_data.
 
 %% The planned handover goes once the standby has confirmed everything.
 send_handover(#data{standby = Standby, commit = C, logic = Logic} = Data) when is_pid(Standby) ->

@@ -2,7 +2,8 @@
 %% metrics (evatar_metrics), the pairing registry, the
 %% cluster membership process, the supervisor of all pairings, then the
 %% catalogue of pairings (which starts pairings, so it comes after their
-%% supervisor; its own crash restarts only itself).
+%% supervisor; its own crash restarts only itself), and the rebalancer
+%% (which moves them; likewise).
 %% `rest_for_one': should the registry or the membership process ever die,
 %% their tables die with them, so every pairing is restarted (with a cluster,
 %% their standbys take over); a pairing's own faults stay inside its own tree.
@@ -42,6 +43,11 @@ init([]) ->
                   type => supervisor},
                 #{id => evatar_catalogue,
                   start => {evatar_catalogue, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_rebalancer,
+                  start => {evatar_rebalancer, start_link, []},
                   restart => permanent,
                   shutdown => 5000,
                   type => worker}],

@@ -330,8 +330,9 @@ setup_node(P, Nodes) ->
     %% Looser than the defaults (50/250/150): several VMs share two cores
     %% here, and a heartbeat late by 250 ms is a (safe but) needless takeover.
     %% kill -9 is seen at once anyway (the connection drops).
+    %% No rebalancing: the cases assert where pairings go after their faults.
     Env = [{cluster, Nodes}, {heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
-           {resume_timeout, 10000}],
+           {resume_timeout, 10000}, {rebalance, false}],
     _ = [ok = peer:call(P, application, set_env, [evatar, K, V]) || {K, V} <- Env],
     ok = peer:call(P, application, set_env, [agent_bridge, listeners, []]),
     {ok, _} = peer:call(P, application, ensure_all_started, [agent_bridge]),
