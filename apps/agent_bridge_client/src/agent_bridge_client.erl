@@ -25,6 +25,12 @@
 %% once. The TCP (and TLS) connect runs in a short-lived helper process, so
 %% the client answers `close/1' while it waits.
 %%
+%% This module is the process: it owns the socket, the connect helper and
+%% the timers, and carries out what agent_bridge_client_session (pure: the
+%% version, the endpoint ring, the unacknowledged window, de-duplication,
+%% requests, heartbeats, the resume) decides; agent_bridge_client_sock is
+%% the TCP or TLS socket.
+%%
 %% ```
 %%  idle --connect/1--> connecting --TCP up, Hello/Resume sent--> handshaking --Welcome--> connected
 %%                       ^   | all endpoints failed                | Refused      | closed, Refused, Bye
@@ -94,59 +100,20 @@
                        | {unreachable, [{endpoint(), term()}]}
                        | closed | already_connected | connecting.
 
-%% Refusals after which a version 2 client tries the next endpoint.
--define(RETRY_CODES, [<<"NotActive">>, <<"Fenced">>, <<"StaleEpoch">>, <<"PairingDown">>,
-                      <<"UnknownPairing">>, <<"HandshakeTimeout">>, <<"SilentLink">>,
-                      <<"SessionResumed">>, <<"TooManyConnections">>, <<"RateLimited">>]).
--define(ACK_DELAY, 5).
--define(RECONNECT_LIMIT, 600000).
--define(ACK_EVERY, 32).
-
 -record(d, {opts :: opts(),
             owner :: pid(),
-            endpoints :: [endpoint()],
-            failures = [] :: [{endpoint(), term()}],
-            current :: endpoint() | undefined,
+            %% The protocol's decisions: agent_bridge_client_session.
+            session :: agent_bridge_client_session:session(),
             sock :: agent_bridge_client_sock:sock() | undefined,
+            %% The connect/1 caller awaiting the Welcome.
             waiter :: gen_statem:from() | undefined,
             %% The helper process making the TCP (TLS) connection.
             connector :: {pid(), reference()} | undefined,
             %% close/1 callers waiting for EVATAR's Bye.
             closers = [] :: [gen_statem:from()],
-            welcome :: bil_control:welcome() | undefined,
-            nonce :: binary(),
-            counter = 0 :: non_neg_integer(),
-            pending = #{} :: #{binary() => gen_statem:from()},
-            %% Protocol version 2 only.
-            ha = false :: boolean(),
-            all :: [endpoint()],
-            next = 0 :: non_neg_integer(),
-            tried = 0 :: non_neg_integer(),
-            backoff = 0 :: non_neg_integer(),
-            lost_at :: integer() | undefined,
-            last_reason :: term(),
-            session_id :: binary() | undefined,
-            epoch = 0 :: non_neg_integer(),
-            last_seq = 0 :: non_neg_integer(),
-            acked_seq = 0 :: non_neg_integer(),
-            ack_timer = false :: boolean(),
-            unacked = queue:new() :: queue:queue({binary(), iodata()}),
-            unacked_n = 0 :: non_neg_integer(),
-            blocked = queue:new() :: queue:queue({gen_statem:from(), {binary(), iodata()},
-                                                   signal | request}),
-            ack_waiters = [] :: [gen_statem:from()],
-            description :: iodata() | undefined,
-            heartbeat = 0 :: non_neg_integer(),
-            last_rx = 0 :: integer(),
-            window = 1024 :: pos_integer(),
-            ever_connected = false :: boolean(),
-            %% A new session after a reconnect (the server had lost the
-            %% old one, e.g. every node restarted): signals wait until a
-            %% Binding report shows another entity registered, instead of
-            %% being refused as UnknownReceiver while it is not back yet.
-            held = false :: boolean(),
             %% Frames to read before the socket's count is topped up.
             reads = 1 :: pos_integer()}).
+
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -277,31 +244,26 @@ callback_mode() -> handle_event_function.
 -spec init({[endpoint()], opts(), pid()}) -> gen_statem:init_result(idle).
 init({Endpoints, Opts, Owner}) ->
     monitor(process, Owner),
-    D = #d{opts = Opts, owner = Owner, endpoints = Endpoints, all = Endpoints,
-           ha = maps:get(ha, Opts, false) =:= true,
-           nonce = binary:encode_hex(crypto:strong_rand_bytes(4))},
-    {ok, idle, D}.
+    Nonce = binary:encode_hex(crypto:strong_rand_bytes(4)),
+    {ok, idle, #d{opts = Opts, owner = Owner,
+                  session = agent_bridge_client_session:new(Endpoints, Opts, Nonce)}}.
 
 -spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
           gen_statem:event_handler_result(atom()).
 handle_event({call, From}, connect, idle, D) ->
     %% Connecting starts only now, so the outcome always has a caller to go to.
-    {next_state, connecting, D#d{waiter = From, lost_at = now_ms()},
-     [{next_event, internal, connect}]};
-handle_event({call, From}, connect, State, #d{waiter = W, ever_connected = Ever}) ->
+    {next_state, connecting, D#d{waiter = From}, [{next_event, internal, connect}]};
+handle_event({call, From}, connect, State, #d{waiter = W, session = S}) ->
+    Ever = agent_bridge_client_session:ever_connected(S),
     Why = if State =:= closing -> closed;
              W =/= undefined, not Ever -> connecting;
              true -> already_connected
           end,
     {keep_state_and_data, [{reply, From, {error, Why}}]};
-handle_event(internal, connect, connecting, #d{ha = true} = D) ->
+handle_event(internal, connect, connecting, D) ->
     attempt(D);
 handle_event({timeout, retry}, retry, connecting, D) ->
     attempt(D);
-handle_event(internal, connect, connecting, #d{endpoints = []} = D) ->
-    fail({unreachable, lists:reverse(D#d.failures)}, D);
-handle_event(internal, connect, connecting, #d{endpoints = [E | Rest]} = D) ->
-    try_endpoint(E, D#d{endpoints = Rest});
 handle_event(info, {connected, Ref, Result, Early}, connecting, #d{connector = {_, Ref}} = D) ->
     %% What the socket said while the connector owned it is read first.
     with_events(connected_to(Result, D#d{connector = undefined}),
@@ -323,18 +285,28 @@ handle_event(info, {ssl_closed, Sock}, State, D) ->
     handle_event(info, {tcp_closed, Sock}, State, D);
 handle_event(info, {ssl_error, Sock, Why}, State, D) ->
     handle_event(info, {tcp_error, Sock, Why}, State, D);
-handle_event(state_timeout, E, handshaking, D) ->
-    agent_bridge_client_sock:close(D#d.sock),
-    next_endpoint(E, handshake_timeout, D#d{sock = undefined});
-handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock} = D) ->
+
+%% Handshaking.
+handle_event(state_timeout, handshake, handshaking, D) ->
+    attempt_failed(handshake_timeout, drop_sock(D));
+handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock, session = S} = D) ->
     case bil_control:parse_frame(Frame, #{}) of
         {ok, {control, {welcome, Welcome}}} ->
             ok = agent_bridge_client_sock:setopts(Sock, [{active, active_n(D)}]),
             reply_waiter({ok, self()}, D),
-            welcomed(Welcome, D#d{welcome = Welcome, waiter = undefined,
-                                  reads = max(1, active_n(D) div 2)});
+            D1 = D#d{waiter = undefined, reads = max(1, active_n(D) div 2)},
+            case agent_bridge_client_session:welcomed(Welcome, now_ms(), S) of
+                {ok, Effects, S1} ->
+                    {D2, Actions} = run(Effects, D1#d{session = S1}),
+                    {next_state, connected, D2, Actions};
+                {error, Reason} ->
+                    fail(Reason, D1)
+            end;
         {ok, {control, {refused, #{code := Code, message := Message}}}} ->
-            refused_in_handshake(Code, Message, D);
+            case agent_bridge_client_session:refused_in_handshake(Code, Message, S) of
+                retry -> attempt_failed({refused, Code, Message}, drop_sock(D));
+                final -> fail({refused, Code, Message}, D)
+            end;
         {ok, Other} ->
             fail({refused, <<"BadHandshake">>,
                   iolist_to_binary(io_lib:format("expected Welcome, got ~p", [Other]))}, D);
@@ -342,15 +314,17 @@ handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock} = D) ->
             fail({refused, <<"Malformed">>, bil:format_error(Reason)}, D)
     end;
 handle_event(info, {tcp_closed, Sock}, handshaking, #d{sock = Sock} = D) ->
-    next_endpoint(D#d.current, closed, D#d{sock = undefined});
+    attempt_failed(closed, D#d{sock = undefined});
 handle_event(info, {tcp_error, Sock, Why}, handshaking, #d{sock = Sock} = D) ->
-    next_endpoint(D#d.current, Why, D#d{sock = undefined});
+    attempt_failed(Why, D#d{sock = undefined});
 
 %% Connected.
-handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock, ha = false} = D) ->
-    incoming(bil_control:parse_frame(Frame, #{}), read_on(D));
-handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock} = D) ->
-    incoming(bil_control:parse_frame(Frame, #{}), read_on(D#d{last_rx = now_ms()}));
+handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock, session = S} = D) ->
+    D1 = read_on(D),
+    case agent_bridge_client_session:incoming(bil_control:parse_frame(Frame, #{}), now_ms(), S) of
+        {ok, Effects, S1} -> keep(run(Effects, D1#d{session = S1}));
+        {lost, Reason, S1} -> disconnected(Reason, D1#d{session = S1})
+    end;
 handle_event(info, {tcp_passive, Sock}, connected, #d{sock = Sock} = D) ->
     %% A top-up made just as the socket went passive makes this notice stale.
     case agent_bridge_client_sock:getopts(Sock, [active]) of
@@ -364,17 +338,17 @@ handle_event(info, {tcp_closed, Sock}, connected, #d{sock = Sock} = D) ->
     disconnected(closed, D);
 handle_event(info, {tcp_error, Sock, Why}, connected, #d{sock = Sock} = D) ->
     disconnected({socket_error, Why}, D);
-handle_event({timeout, ack}, ack, connected, D) ->
-    {keep_state, send_ack(D#d{ack_timer = false})};
-handle_event({timeout, ack}, ack, _State, D) ->
-    {keep_state, D#d{ack_timer = false}};
-handle_event({timeout, silence}, check, connected, #d{heartbeat = Hb, last_rx = Rx} = D) ->
-    case now_ms() - Rx > 3 * Hb of
-        true -> disconnected(server_silent, D);
-        false -> {keep_state_and_data, [{{timeout, silence}, Hb, check}]}
+handle_event({timeout, ack}, ack, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:ack_due(S), D));
+handle_event({timeout, silence}, silence, connected, #d{session = S} = D) ->
+    case agent_bridge_client_session:silence_check(now_ms(), S) of
+        {ok, Effects} -> keep(run({Effects, S}, D));
+        {lost, Reason} -> disconnected(Reason, D)
     end;
-handle_event({timeout, silence}, check, _State, _D) ->
+handle_event({timeout, silence}, silence, _State, _D) ->
     keep_state_and_data;
+handle_event({timeout, {request, Id}}, _, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:request_timeout(Id, S), D));
 
 %% Requests from the owner. Once close/1 has said Bye, nothing more is
 %% taken (with `ha' it would be queued and lost).
@@ -382,50 +356,21 @@ handle_event({call, From}, close, closing, D) ->
     {keep_state, D#d{closers = [From | D#d.closers]}};
 handle_event({call, From}, Request, closing, _D) when Request =/= status ->
     {keep_state_and_data, [{reply, From, {error, closed}}]};
-handle_event({call, From}, {describe, Doc}, State, #d{ha = true} = D) ->
-    _ = [write(Doc, D) || State =:= connected],
-    {keep_state, D#d{description = Doc}, [{reply, From, ok}]};
-handle_event({call, From}, {describe, Doc}, connected, D) ->
-    {keep_state_and_data, [{reply, From, write(Doc, D)}]};
-handle_event({call, From}, {signal, Partial}, State, #d{ha = true} = D) ->
-    ha_send(From, {signal, Partial}, State, D);
-handle_event({call, From}, {signal, Partial}, connected, D) ->
-    case encode(Partial, D) of
-        {ok, _Id, Frame, D1} -> {keep_state, D1, [{reply, From, write(Frame, D1)}]};
-        {error, _} = Error -> {keep_state_and_data, [{reply, From, Error}]}
-    end;
-handle_event({call, From}, {request, _, _} = Request, State, #d{ha = true} = D) ->
-    ha_send(From, Request, State, D);
-handle_event({call, From}, {request, Partial, Timeout}, connected, D) ->
-    case encode(Partial#{context => request}, D) of
-        {ok, Id, Frame, D1} ->
-            case write(Frame, D1) of
-                ok ->
-                    {keep_state, D1#d{pending = maps:put(Id, From, D1#d.pending)},
-                     [{{timeout, {request, Id}}, Timeout, Id}]};
-                {error, _} = Error ->
-                    {keep_state, D1, [{reply, From, Error}]}
-            end;
-        {error, _} = Error ->
-            {keep_state_and_data, [{reply, From, Error}]}
-    end;
-handle_event({timeout, {request, Id}}, Id, _State, D) ->
-    answer(Id, {error, timeout}, D);
-handle_event({call, From}, get_binding, connected, D) ->
-    {keep_state_and_data, [{reply, From, write(bil_control:encode({get_binding, #{}}), D)}]};
-handle_event({call, From}, get_binding, _State, #d{ha = true}) ->
-    {keep_state_and_data, [{reply, From, ok}]};
-handle_event({call, From}, session, connected, #d{welcome = W}) ->
-    {keep_state_and_data, [{reply, From, {ok, W}}]};
-handle_event({call, From}, status, State, D) ->
-    {keep_state_and_data, [{reply, From, {ok, status(State, D)}}]};
-handle_event({call, From}, await_acks, _State, #d{unacked_n = 0, blocked = B} = D) ->
-    case queue:is_empty(B) of
-        true -> {keep_state_and_data, [{reply, From, ok}]};
-        false -> {keep_state, D#d{ack_waiters = [From | D#d.ack_waiters]}}
-    end;
-handle_event({call, From}, await_acks, _State, D) ->
-    {keep_state, D#d{ack_waiters = [From | D#d.ack_waiters]}};
+handle_event({call, From}, {describe, Doc}, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:describe(From, Doc, S), D));
+handle_event({call, From}, {signal, Partial}, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:send(From, Partial, wall_ms(), S), D));
+handle_event({call, From}, {request, Partial, Timeout}, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:request(From, Partial, Timeout, wall_ms(), S), D));
+handle_event({call, From}, get_binding, _State, #d{session = S} = D) ->
+    keep(run({agent_bridge_client_session:get_binding(From, S), S}, D));
+handle_event({call, From}, session, connected, #d{session = S}) ->
+    {keep_state_and_data, [{reply, From, {ok, agent_bridge_client_session:welcome(S)}}]};
+handle_event({call, From}, status, State, #d{session = S}) ->
+    {keep_state_and_data,
+     [{reply, From, {ok, agent_bridge_client_session:status(State =:= connected, S)}}]};
+handle_event({call, From}, await_acks, _State, #d{session = S} = D) ->
+    keep(run(agent_bridge_client_session:await_acks(From, S), D));
 handle_event({call, From}, close, connected, #d{sock = Sock, opts = Opts} = D) ->
     %% EVATAR answers Bye once the entity has left: waiting for it lets the
     %% same EntityID connect again at once. Its Bye, the end of the
@@ -439,19 +384,17 @@ handle_event({call, From}, close, connected, #d{sock = Sock, opts = Opts} = D) -
         {error, _} ->
             {stop_and_reply, normal, [{reply, From, ok}], finish({closed, normal}, D)}
     end;
-handle_event({call, From}, close, State, D) ->
+handle_event({call, From}, close, State, #d{session = S} = D) ->
     %% Not connected: an attempt in progress stops here (terminate/3 ends
     %% the helper and the socket), and its caller is told.
     reply_waiter({error, closed}, D),
-    Event = case State of
-                idle -> none;
-                _ -> {closed, normal}
-            end,
-    D1 = case D#d.ever_connected of
-             true when Event =/= none -> finish(Event, D);
+    D1 = case agent_bridge_client_session:ever_connected(S) of
+             true when State =/= idle -> finish({closed, normal}, D);
              _ -> finish_quietly(D)
          end,
     {stop_and_reply, normal, [{reply, From, ok}], D1#d{waiter = undefined}};
+
+%% Closing.
 handle_event(info, {tcp, Sock, Frame}, closing, #d{sock = Sock} = D) ->
     case bil_control:parse_frame(Frame, #{}) of
         {ok, {control, {bye, _}}} -> closed(D);
@@ -497,10 +440,29 @@ closed(#d{closers = Closers} = D) ->
 %% Connecting
 %% ---------------------------------------------------------------------------
 
+%% The endpoint the session chose next, or the end of the attempts.
+attempt(#d{session = S} = D) ->
+    case agent_bridge_client_session:next_attempt(now_ms(), S) of
+        {connect, E, S1} -> try_endpoint(E, D#d{session = S1});
+        {give_up, Reason} -> fail(Reason, D)
+    end.
+
+attempt_failed(Why, #d{session = S} = D) ->
+    case agent_bridge_client_session:attempt_failed(Why, now_ms(), S) of
+        {now, S1} ->
+            {next_state, connecting, D#d{session = S1}, [{next_event, internal, connect}]};
+        {{retry, Pause}, S1} ->
+            {next_state, connecting, D#d{session = S1}, [{{timeout, retry}, Pause, retry}]}
+    end.
+
+drop_sock(#d{sock = Sock} = D) ->
+    _ = [agent_bridge_client_sock:close(Sock) || Sock =/= undefined],
+    D#d{sock = undefined}.
+
 %% The TCP (TLS) connect runs in a helper, so that close/1 is answered
 %% meanwhile; the helper hands the socket over and ends. Killed with the
 %% client, it takes a socket it still owns with it.
-try_endpoint({Host, Port} = E, D) ->
+try_endpoint({Host, Port}, D) ->
     Opts = D#d.opts,
     %% Active once from the start: with TLS 1.3 a server refuses a client
     %% certificate after the client's handshake, and a passive socket
@@ -512,7 +474,7 @@ try_endpoint({Host, Port} = E, D) ->
     Self = self(),
     Ref = make_ref(),
     Pid = spawn(fun() -> connector(Self, Ref, Host, Port, SockOpts, How) end),
-    {next_state, connecting, D#d{connector = {Pid, Ref}, current = E}}.
+    {next_state, connecting, D#d{connector = {Pid, Ref}}}.
 
 connector(Client, Ref, Host, Port, SockOpts, How) ->
     {Result, Early} =
@@ -556,118 +518,37 @@ early(Sock, Acc) ->
 with_events({next_state, State, D, Actions}, Events) ->
     {next_state, State, D, Actions ++ Events}.
 
-connected_to({ok, Sock}, #d{current = E, opts = Opts} = D) ->
+connected_to({ok, Sock}, #d{opts = Opts, session = S} = D) ->
     %% Active once since the connect; what came before the hand-over
     %% follows as messages from the connector.
-    case agent_bridge_client_sock:send(Sock, bil_control:encode(hello(D))) of
+    case agent_bridge_client_sock:send(Sock, agent_bridge_client_session:hello(S)) of
         Sent when Sent =:= ok; not is_port(Sock) ->
             %% With TLS 1.3 a server refuses a client certificate
             %% after the client's handshake is done: the send may
             %% fail, and the reason (the TLS alert) follows as a
             %% message.
             {next_state, handshaking, D#d{sock = Sock},
-             [{state_timeout, maps:get(handshake_timeout, Opts, 5000), E}]};
+             [{state_timeout, maps:get(handshake_timeout, Opts, 5000), handshake}]};
         {error, Why} ->
             agent_bridge_client_sock:close(Sock),
-            next_endpoint(E, Why, D)
+            attempt_failed(Why, D)
     end;
-connected_to({error, Why}, #d{current = E} = D) ->
-    next_endpoint(E, Why, D).
+connected_to({error, Why}, D) ->
+    attempt_failed(Why, D).
 
-hello(#d{opts = Opts, ha = Ha, session_id = Session} = D) ->
-    Hello = #{pairing => maps:get(pairing, Opts), role => maps:get(role, Opts),
-              entity_id => maps:get(entity_id, Opts),
-              credential => maps:get(credential, Opts),
-              protocol_version => case Ha of true -> 2; false -> 1 end},
-    case Session of
-        undefined -> {hello, Hello};
-        _ -> {resume, Hello#{session_id => Session, received => D#d.last_seq,
-                             epoch => D#d.epoch}}
-    end.
-
-%% Version 2: one endpoint per attempt, round the ring, starting after the
-%% one that was lost; a pause (doubling) after every full round.
-attempt(#d{all = All, next = Next, tried = Tried} = D) ->
-    Limit = maps:get(reconnect_limit, D#d.opts, ?RECONNECT_LIMIT),
-    case now_ms() - D#d.lost_at > Limit andalso Tried > 0 of
+%% Connecting ends here: a client that had connected tells its owner, one
+%% that had not its connect/1 caller.
+fail(Reason, #d{session = S} = D) ->
+    case agent_bridge_client_session:ever_connected(S) of
         true ->
-            give_up(D);
+            {stop, normal, finish({closed, Reason}, D)};
         false ->
-            E = lists:nth(Next rem length(All) + 1, All),
-            try_endpoint(E, D#d{next = Next + 1, tried = Tried + 1})
+            reply_waiter({error, Reason}, D),
+            {stop, normal, finish_quietly(D#d{waiter = undefined})}
     end.
-
-next_endpoint(E, Why, #d{ha = false} = D) ->
-    {next_state, connecting, D#d{failures = [{E, Why} | D#d.failures]},
-     [{next_event, internal, connect}]};
-next_endpoint(E, Why, #d{all = All, tried = Tried, opts = Opts} = D) ->
-    D1 = D#d{failures = [{E, Why} | D#d.failures], last_reason = Why, sock = undefined},
-    {Min, Max} = maps:get(reconnect_backoff, Opts, {20, 500}),
-    case Tried rem length(All) of
-        0 ->
-            Pause = min(Max, max(Min, D#d.backoff * 2)),
-            {next_state, connecting, D1#d{backoff = Pause}, [{{timeout, retry}, Pause, retry}]};
-        _ ->
-            {next_state, connecting, D1, [{next_event, internal, connect}]}
-    end.
-
-refused_in_handshake(Code, Message, #d{ha = true} = D) ->
-    case lists:member(Code, ?RETRY_CODES) of
-        true ->
-            agent_bridge_client_sock:close(D#d.sock),
-            next_endpoint(D#d.current, {refused, Code, Message}, D#d{sock = undefined});
-        false ->
-            fail({refused, Code, Message}, D)
-    end;
-refused_in_handshake(Code, Message, D) ->
-    fail({refused, Code, Message}, D).
-
-fail(Reason, #d{ever_connected = true} = D) ->
-    {stop, normal, finish({closed, Reason}, D)};
-fail(Reason, D) ->
-    reply_waiter({error, Reason}, D),
-    {stop, normal, finish_quietly(D#d{waiter = undefined})}.
-
-give_up(#d{ever_connected = false} = D) ->
-    fail({unreachable, lists:reverse(D#d.failures)}, D);
-give_up(#d{last_reason = Why} = D) ->
-    fail({gave_up, Why}, D).
 
 reply_waiter(_Reply, #d{waiter = undefined}) -> ok;
 reply_waiter(Reply, #d{waiter = From}) -> gen_statem:reply(From, Reply).
-
-welcomed(_Welcome, #d{ha = false} = D) ->
-    {next_state, connected, D#d{ever_connected = true}};
-welcomed(Welcome, D) when not is_map_key(ha, Welcome) ->
-    fail({refused, <<"BadHandshake">>, <<"the server does not speak ProtocolVersion 2">>}, D);
-welcomed(#{session_id := Sid, ha := Ha}, #d{ever_connected = Again} = D) ->
-    #{epoch := Epoch, resumed := Resumed, last_accepted := Last, dedup_window := Window,
-      heartbeat := Hb} = Ha,
-    D1 = case Resumed of
-             true ->
-                 drop_accepted(Last, D#d{epoch = max(Epoch, D#d.epoch)});
-             false ->
-                 %% A new session: the server knows nothing of this client.
-                 D#d{session_id = Sid, epoch = Epoch, last_seq = 0, acked_seq = 0}
-         end,
-    D2 = D1#d{ever_connected = true, tried = 0, backoff = 0, failures = [],
-              heartbeat = Hb, window = max(1, Window), last_rx = now_ms(), held = false},
-    %% Described again only when the session is new; then everything not
-    %% acknowledged goes again (the server drops what it already accepted),
-    %% once the other side is registered again (held until a Binding
-    %% report says so).
-    Describe = [Desc || not Resumed, Desc <- [D2#d.description], Desc =/= undefined],
-    _ = [write(Desc, D2) || Desc <- Describe],
-    Held = Again andalso Describe =/= [],
-    _ = [write(Frame, D2) || not Held, {_, Frame} <- queue:to_list(D2#d.unacked)],
-    D3 = case Again of
-             true -> notify({reconnected, #{endpoint => D2#d.current, resumed => Resumed,
-                                            epoch => D2#d.epoch, session_id => Sid,
-                                            reason => D#d.last_reason}}, D2#d{held = Held});
-             false -> D2
-         end,
-    Silence = [{{timeout, silence}, Hb, check} || Hb > 0],
-    {next_state, connected, D3, Silence}.
 
 %% ---------------------------------------------------------------------------
 %% Traffic
@@ -692,217 +573,62 @@ read_on(#d{sock = Sock} = D) ->
     end,
     D#d{reads = max(1, N div 2)}.
 
-incoming({ok, {signal, S}}, #d{ha = true} = D) ->
-    ha_signal(S, D);
-incoming({ok, {signal, #{in_reply_to := Id, context := Ctx} = S}}, #d{pending = P} = D)
-  when is_map_key(Id, P), (Ctx =:= feedback orelse Ctx =:= error) ->
-    answer(Id, case Ctx of feedback -> {ok, S}; error -> {error, S} end, D);
-incoming({ok, {signal, S}}, D) ->
-    {keep_state, notify({signal, S}, D)};
-incoming({ok, {control, {binding, Report}}}, D) ->
-    {keep_state, notify({binding, Report}, release_held(Report, D))};
-incoming({ok, {control, {ack, Ack}}}, #d{ha = true} = D) ->
-    case Ack of
-        #{accepted := Id} -> {keep_state, acknowledged(Id, D)};
-        #{} -> {keep_state, D}
-    end;
-incoming({ok, {control, {refused, #{code := Code, message := Message}}}}, D) ->
-    disconnected({refused, Code, Message}, D);
-incoming({ok, {control, {bye, Reason}}}, D) ->
-    disconnected({bye, Reason}, D);
-incoming({ok, Other}, D) ->
-    logger:notice(#{what => unexpected_document, document => Other}),
-    {keep_state, D};
-incoming({error, Reason}, D) ->
-    disconnected({malformed, Reason}, D).
-
-%% After a new session the signals not acknowledged go once another
-%% entity is registered again.
-release_held(#{entities := Entities}, #d{held = true, opts = Opts} = D) ->
-    case [E || E <- Entities, E =/= maps:get(entity_id, Opts)] of
-        [] ->
-            D;
-        [_ | _] ->
-            _ = [write(Frame, D) || {_, Frame} <- queue:to_list(D#d.unacked)],
-            D#d{held = false}
-    end;
-release_held(_Report, D) ->
-    D.
-
-%% Nothing twice: a signal redelivered after a resume (Sequence already
-%% passed to the owner) or from an older epoch than one seen is dropped.
-ha_signal(#{seq := Seq}, #d{last_seq = Last} = D) when is_integer(Seq), Seq =< Last ->
-    {keep_state, D};
-ha_signal(#{epoch := Epoch}, #d{epoch = Mine} = D) when is_integer(Epoch), Epoch < Mine ->
-    {keep_state, D};
-ha_signal(#{seq := Seq} = S, D) ->
-    D1 = case Seq of
-             N when is_integer(N) -> D#d{last_seq = N};
-             _ -> D
-         end,
-    D2 = case maps:get(epoch, S, undefined) of
-             E when is_integer(E), E > D1#d.epoch -> D1#d{epoch = E};
-             _ -> D1
-         end,
-    {D3, Actions} = schedule_ack(D2),
-    case S of
-        #{in_reply_to := Id, context := Ctx} when is_map_key(Id, D3#d.pending),
-                                                  (Ctx =:= feedback orelse Ctx =:= error) ->
-            {keep_state, D4, More} = answer(Id, case Ctx of feedback -> {ok, S};
-                                                             error -> {error, S}
-                                                 end, D3),
-            {keep_state, D4, Actions ++ More};
-        _ ->
-            {keep_state, notify({signal, S}, D3), Actions}
-    end.
-
-schedule_ack(#d{last_seq = Last, acked_seq = Acked} = D) when Last - Acked >= ?ACK_EVERY ->
-    {send_ack(D), []};
-schedule_ack(#d{ack_timer = true} = D) ->
-    {D, []};
-schedule_ack(D) ->
-    {D#d{ack_timer = true}, [{{timeout, ack}, ?ACK_DELAY, ack}]}.
-
-send_ack(#d{last_seq = Last, acked_seq = Last} = D) ->
-    D;
-send_ack(#d{last_seq = Last} = D) ->
-    _ = write(bil_control:encode({ack, #{received => Last}}), D),
-    D#d{acked_seq = Last}.
-
-%% The server accepted everything up to `Id' in send order.
-acknowledged(Id, #d{unacked = Q} = D) ->
-    case lists:keymember(Id, 1, queue:to_list(Q)) of
-        true -> drop_through(Id, Q, D, []);
-        false -> D
-    end.
-
-drop_through(Id, Q, D, Acc) ->
-    {{value, {I, _}}, Q1} = queue:out(Q),
-    case I of
-        Id -> after_acks(lists:reverse([I | Acc]), D#d{unacked = Q1,
-                                                        unacked_n = queue:len(Q1)});
-        _ -> drop_through(Id, Q1, D, [I | Acc])
-    end.
-
-drop_accepted(<<>>, D) -> D;
-drop_accepted(Last, D) -> acknowledged(Last, D).
-
-after_acks(Ids, #d{opts = Opts} = D) ->
-    D1 = case maps:get(notify_acks, Opts, false) of
-             true -> notify({accepted, Ids}, D);
-             false -> D
-         end,
-    unblock(D1).
-
-%% Callers that waited for room in the window go on.
-unblock(#d{unacked_n = N, window = W, blocked = B} = D) when N < W ->
-    case queue:out(B) of
-        {{value, {From, Signal, request}}, B1} ->
-            unblock(keep(From, Signal, D#d{blocked = B1}));
-        {{value, {From, Signal, signal}}, B1} ->
-            D1 = keep(none, Signal, D#d{blocked = B1}),
-            gen_statem:reply(From, ok),
-            unblock(D1);
-        {empty, _} when N =:= 0 ->
-            _ = [gen_statem:reply(F, ok) || F <- D#d.ack_waiters],
-            D#d{ack_waiters = []};
-        {empty, _} ->
-            D
-    end;
-unblock(D) ->
-    D.
-
-%% The signal is completed (id, time) at once; it waits in `blocked' while
-%% the window of unacknowledged signals is full. A request's timer runs from
-%% the call.
-ha_send(From, Request, State, D) ->
-    Partial = case Request of
-                  {signal, P} -> P;
-                  {request, P, _} -> P#{context => request}
-              end,
-    case encode(Partial, D) of
-        {ok, Id, Frame, D1} ->
-            Timers = case Request of
-                         {signal, _} -> [];
-                         {request, _, Timeout} -> [{{timeout, {request, Id}}, Timeout, Id}]
-                     end,
-            ha_keep(From, Request, State, {Id, Frame}, Timers, D1);
-        {error, _} = Error ->
-            {keep_state_and_data, [{reply, From, Error}]}
-    end.
-
-ha_keep(From, Request, State, Signal, Timers, #d{unacked_n = N, window = W, blocked = B} = D1) ->
-    case N >= W orelse not queue:is_empty(B) of
-        true ->
-            {keep_state, D1#d{blocked = queue:in({From, Signal, element(1, Request)}, B)},
-             Timers};
-        false ->
-            _ = State,
-            case Request of
-                {signal, _} ->
-                    {keep_state, keep(none, Signal, D1), [{reply, From, ok} | Timers]};
-                {request, _, _} ->
-                    {keep_state, keep(From, Signal, D1), Timers}
-            end
-    end.
-
-%% Keeps the signal until it is acknowledged and writes it when connected.
-%% `Waiter' is the request/3 caller awaiting the feedback, or `none' for a
-%% signal given to send/2: its feedback goes to the owner like any signal.
-keep(Waiter, {Id, Frame}, #d{unacked = Q, unacked_n = N} = D) ->
-    _ = [write(Frame, D) || D#d.welcome =/= undefined, not D#d.held],
-    D1 = D#d{unacked = queue:in({Id, Frame}, Q), unacked_n = N + 1},
-    case Waiter of
-        none -> D1;
-        From -> D1#d{pending = (D1#d.pending)#{Id => From}}
-    end.
-
-answer(Id, Reply, #d{pending = P} = D) ->
-    case maps:take(Id, P) of
-        {From, P1} ->
-            {keep_state, D#d{pending = P1},
-             [{reply, From, Reply}, {{timeout, {request, Id}}, cancel}]};
-        error ->
-            {keep_state, D, []}
-    end.
-
 %% Without `ha' the session ends here. With it, reconnect through the
 %% endpoints (starting after this one) unless the refusal is final.
-disconnected(Reason, #d{ha = true, sock = Sock} = D) ->
-    Retry = case Reason of
-                {refused, Code, _} -> lists:member(Code, ?RETRY_CODES);
-                {malformed, _} -> false;
-                _ -> true
-            end,
-    case Retry of
-        true ->
-            _ = [agent_bridge_client_sock:close(Sock) || Sock =/= undefined],
-            Next = index_of(D#d.current, D#d.all) + 1,
-            {next_state, connecting,
-             D#d{sock = undefined, welcome = undefined, next = Next, tried = 0,
-                 backoff = 0, lost_at = now_ms(), last_reason = Reason, ack_timer = false},
-             [{next_event, internal, connect}, {{timeout, silence}, cancel},
-              {{timeout, ack}, cancel}]};
-        false ->
+disconnected(Reason, #d{session = S} = D) ->
+    case agent_bridge_client_session:lost(Reason, now_ms(), S) of
+        {reconnect, Effects, S1} ->
+            {D1, Actions} = run(Effects, drop_sock(D#d{session = S1})),
+            {next_state, connecting, D1, [{next_event, internal, connect} | Actions]};
+        stop ->
             {stop, normal, finish({closed, Reason}, D)}
-    end;
-disconnected(Reason, D) ->
-    {stop, normal, finish({closed, Reason}, D)}.
+    end.
 
-index_of(E, List) -> index_of(E, List, 0).
-index_of(_E, [], _N) -> 0;
-index_of(E, [E | _], N) -> N;
-index_of(E, [_ | Rest], N) -> index_of(E, Rest, N + 1).
+%% Carries out the session's effects in order; timers become actions.
+run({Effects, S}, D) ->
+    run(Effects, D#d{session = S});
+run(Effects, D) ->
+    run(Effects, D, []).
+
+run([], D, Actions) ->
+    {D, lists:reverse(Actions)};
+run([{send, Frame} | Rest], D, Actions) ->
+    _ = write(Frame, D),
+    run(Rest, D, Actions);
+run([{send, Frame, {reply, From}} | Rest], D, Actions) ->
+    gen_statem:reply(From, write(Frame, D)),
+    run(Rest, D, Actions);
+run([{send, Frame, {request, Id}} | Rest], #d{session = S} = D, Actions) ->
+    case write(Frame, D) of
+        ok ->
+            run(Rest, D, Actions);
+        {error, closed} ->
+            {More, S1} = agent_bridge_client_session:sent_failed(Id, S),
+            run(More ++ Rest, D#d{session = S1}, Actions)
+    end;
+run([{reply, From, Reply} | Rest], D, Actions) ->
+    gen_statem:reply(From, Reply),
+    run(Rest, D, Actions);
+run([{notify, Event} | Rest], D, Actions) ->
+    run(Rest, notify(Event, D), Actions);
+run([{timer, Name, Ms} | Rest], D, Actions) ->
+    run(Rest, D, [{{timeout, Name}, Ms, Name} | Actions]);
+run([{cancel, Name} | Rest], D, Actions) ->
+    run(Rest, D, [{{timeout, Name}, cancel} | Actions]);
+run([{log, notice, Report} | Rest], D, Actions) ->
+    logger:notice(Report),
+    run(Rest, D, Actions).
+
+keep({D, Actions}) ->
+    {keep_state, D, Actions}.
 
 %% Every waiting caller gets `{error, closed}', the owner `{closed, Reason}'.
 finish(Event, D) ->
     notify(Event, finish_quietly(D)).
 
-finish_quietly(#d{pending = P, blocked = B, ack_waiters = W} = D) ->
-    _ = [gen_statem:reply(From, {error, closed}) || From <- maps:values(P), From =/= undefined],
-    _ = [gen_statem:reply(From, {error, closed}) || {From, _} <- queue:to_list(B)],
-    _ = [gen_statem:reply(From, {error, closed}) || From <- W],
-    D#d{pending = #{}, blocked = queue:new(), ack_waiters = []}.
+finish_quietly(#d{session = S} = D) ->
+    {D1, _} = run(agent_bridge_client_session:finish(S), D),
+    D1.
 
 notify(Event, #d{owner = Owner} = D) ->
     Owner ! {agent_bridge, self(), Event},
@@ -916,30 +642,6 @@ write(Doc, #d{sock = Sock}) ->
         {error, _} -> {error, closed}
     end.
 
-%% The signal completed and encoded, or why it cannot be: bad input from
-%% the caller is its error, not the end of the client and its session.
-encode(Partial, D) when is_map(Partial) ->
-    {#{id := Id} = Signal, D1} = complete(Partial, D),
-    try bil:encode_signal(Signal) of
-        Frame -> {ok, Id, Frame, D1}
-    catch
-        error:Why -> {error, {bad_signal, Why}}
-    end;
-encode(Partial, _D) ->
-    {error, {bad_signal, {not_a_map, Partial}}}.
-
-complete(Partial, #d{counter = N} = D) ->
-    Defaults = #{context => request_no_feedback,
-                 id => signal_id(N + 1, D),
-                 timestamp => os:system_time(millisecond),
-                 in_reply_to => undefined, seq => undefined, epoch => undefined},
-    {maps:merge(Defaults, Partial), D#d{counter = N + 1}}.
-
-signal_id(N, #d{opts = Opts, nonce = Nonce}) ->
-    iolist_to_binary([maps:get(entity_id, Opts), "-", Nonce, "-", integer_to_binary(N)]).
-
-status(State, D) ->
-    #{connected => State =:= connected, endpoint => D#d.current, epoch => D#d.epoch,
-      session_id => D#d.session_id, unacked => D#d.unacked_n, last_seq => D#d.last_seq}.
-
 now_ms() -> erlang:monotonic_time(millisecond).
+
+wall_ms() -> os:system_time(millisecond).
