@@ -61,9 +61,13 @@ entity(Component, Kind, Node, Object, C) ->
                                              Object]);
               U -> U
           end,
+    %% A light reads its templates itself (mqtt_avatar_light), in every schema.
     Results = [topic(<<"state_topic">>, C), topic(<<"command_topic">>, C),
                topic(<<"json_attributes_topic">>, C), availability(C),
-               value_source(C)],
+               case Kind of
+                   light -> {ok, raw};
+                   _ -> value_source(C)
+               end],
     case [M || {error, M} <- Results] of
         [] ->
             [{ok, State}, {ok, Command}, {ok, Attrs}, {ok, Avail}, {ok, Value}] = Results,

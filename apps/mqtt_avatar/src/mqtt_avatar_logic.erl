@@ -38,12 +38,17 @@
                      mqtt := up | down,
                      last := #{{binary(), pos_integer()} => [bil:parameter()]},
                      avail := #{binary() => {online | offline, integer()}},
+                     lights := #{{binary(), binary()} => mqtt_avatar_light:state()},
                      pending := #{key() => pending()}}.
--type route() :: {stream, binary(), pos_integer()} | {avail, binary()}.
+-type route() :: {stream, binary(), pos_integer()} | {avail, binary()}
+               | {light, binary(), mqtt_avatar_light:light()}.
 -type pending() :: #{component := binary(),
                      requester := binary(),
                      service := mqtt_avatar_spec:service(),
-                     awaiting := boolean()}.
+                     awaiting := boolean(),
+                     %% a light command: what it waits for, the topics heard since
+                     wait => mqtt_avatar_light:wait(),
+                     heard => [binary()]}.
 
 %% Longest payload turned into one parameter value: keeps signals far
 %% below BIL's 64 KiB limit.
@@ -69,7 +74,8 @@ new(Entity, Spec, EchoTimeout, Opts) ->
     set_spec(Spec, #{entity => Entity, echo_timeout => EchoTimeout,
                      ts_field => maps:get(timestamp_field, Opts, undefined),
                      comps => #{}, routes => #{},
-                     bound => [], mqtt => down, last => #{}, avail => #{}, pending => #{}}).
+                     bound => [], mqtt => down, last => #{}, avail => #{}, lights => #{},
+                     pending => #{}}).
 
 %% @doc Replaces the spec (after a new discovery); keeps what is known about
 %% the components that remain.
@@ -84,9 +90,11 @@ set_spec(#{components := Comps}, S) ->
                        end
                end,
     KeepAvail = fun(Id, _) -> maps:is_key(Id, Index) end,
+    KeepLight = fun({Id, _}, _) -> maps:is_key(Id, Index) end,
     S#{comps := Index, routes := Routes,
        last := maps:filter(KeepLast, maps:get(last, S)),
-       avail := maps:filter(KeepAvail, maps:get(avail, S))}.
+       avail := maps:filter(KeepAvail, maps:get(avail, S)),
+       lights := maps:filter(KeepLight, maps:get(lights, S))}.
 
 %% @doc Last values of every stream: `#{ComponentID => [Param]}'.
 -spec last_values(state()) -> #{binary() => [bil:parameter()]}.
@@ -142,7 +150,7 @@ handle({puback, Key}, _Now, #{pending := P} = S) ->
     case maps:find(Key, P) of
         {ok, #{service := #{expect := none}} = Pending} ->
             {S#{pending := maps:remove(Key, P)},
-             [{cancel_timer, Key} | answer_done(Key, Pending, [], S)]};
+             [{cancel_timer, Key} | answer_done(Key, Pending, light_params(Pending, S), S)]};
         _ ->
             {S, []}
     end;
@@ -171,10 +179,16 @@ handle({echo_timeout, Key}, _Now, #{pending := P} = S) ->
 %% Incoming MQTT messages
 %% ---------------------------------------------------------------------------
 
-add_routes(#{id := Id, streams := Streams, availability := Avail}, Routes) ->
-    {R1, _} = lists:foldl(fun(#{topic := T}, {Acc, N}) ->
+add_routes(#{id := Id, streams := Streams, availability := Avail} = C, Routes) ->
+    {R0, _} = lists:foldl(fun(#{topic := T}, {Acc, N}) ->
                                   {append(T, {stream, Id, N}, Acc), N + 1}
                           end, {Routes, 1}, Streams),
+    %% A light's TurnLightOn and TurnLightOff share its config: one route.
+    Lights = lists:usort([L || #{light := L} <- maps:get(services, C)]),
+    R1 = lists:foldl(fun(L, Acc) ->
+                             lists:foldl(fun(T, A) -> append(T, {light, Id, L}, A) end, Acc,
+                                         mqtt_avatar_light:state_topics(L))
+                     end, R0, Lights),
     case Avail of
         #{topic := AT} -> append(AT, {avail, Id}, R1);
         undefined -> R1
@@ -208,6 +222,15 @@ route({stream, Id, N}, #{payload := Payload, retain := Retain, topic := Topic}, 
                     {S1, [{send, Stamp#{context => Ctx, sender => Id, receiver => R, body => Body}}
                           || R <- stream_receivers(Id, Cat, Type, S)]}
             end;
+        {error, Message} ->
+            {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
+                             message => Message}}]}
+    end;
+route({light, Id, L}, #{payload := Payload, topic := Topic}, _Now, #{lights := Lights} = S) ->
+    Key = {Id, mqtt_avatar_light:command_topic(L)},
+    case mqtt_avatar_light:read(L, Topic, Payload, maps:get(Key, Lights, #{})) of
+        {ok, New} ->
+            light_echo(Key, Topic, Payload, S#{lights := Lights#{Key => New}});
         {error, Message} ->
             {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
                              message => Message}}]}
@@ -295,6 +318,35 @@ echo(#{topic := Topic, payload := Payload}, #{pending := P} = S) ->
                         end
                 end, {S, []}, lists:sort(Waiting)).
 
+%% A light's state message may complete the commands waiting for it.
+light_echo({Id, CT} = LKey, Topic, Payload, #{lights := Lights} = S) ->
+    State = maps:get(LKey, Lights),
+    Waiting = lists:sort([{K, V} || {K, #{component := C, wait := _,
+                                          service := #{command_topic := T}} = V}
+                                        <- maps:to_list(maps:get(pending, S)),
+                                    C =:= Id, T =:= CT]),
+    lists:foldl(fun({Key, #{wait := Wait, service := #{mapping := Mapping}} = Pending}, {SAcc, EAcc}) ->
+                        Heard = [Topic | maps:get(heard, Pending, [])],
+                        #{pending := PAcc} = SAcc,
+                        case mqtt_avatar_light:satisfied(Wait, State, Heard) of
+                            true ->
+                                Values = mqtt_avatar_light:params(State)
+                                    ++ values_or_empty(Mapping, Payload, SAcc),
+                                {SAcc#{pending := maps:remove(Key, PAcc)},
+                                 EAcc ++ [{cancel_timer, Key}
+                                          | stamp(answer_done(Key, Pending, Values, SAcc),
+                                                  timestamp(Payload, SAcc))]};
+                            false ->
+                                {SAcc#{pending := PAcc#{Key := Pending#{heard => Heard}}}, EAcc}
+                        end
+                end, {S, []}, Waiting).
+
+%% The state of the light a command was for (after an optimistic one, as asked).
+light_params(#{component := C, service := #{light := L}}, #{lights := Lights}) ->
+    mqtt_avatar_light:params(maps:get({C, mqtt_avatar_light:command_topic(L)}, Lights, #{}));
+light_params(_Pending, _S) ->
+    [].
+
 values_or_empty(Mapping, Payload, S) ->
     case extract(Mapping, Payload, exclude(S)) of
         {ok, Vs} -> Vs;
@@ -374,6 +426,8 @@ request(#{id := Id, sender := From, receiver := To, context := Ctx,
                             {S, answer_error(Key, Pending, <<"DeviceUnavailable">>,
                                              iolist_to_binary(["device ", To, " is offline (its "
                                                                "availability topic says so)"]))};
+                        {up, _} when is_map_key(light, Service) ->
+                            light_command(Key, Pending, Args, Timeout, P, S);
                         {up, _} ->
                             case checked_payload(Service, Args) of
                                 {ok, Payload} ->
@@ -396,6 +450,37 @@ publish(Key, #{service := #{command_topic := Topic, expect := Expect}} = Pending
         {true, _} ->
             {S#{pending := P#{Key => Pending}},
              [{publish, Topic, Payload, Key}, {start_timer, Key, Timeout}]}
+    end.
+
+%% TurnLightOn/TurnLightOff: mqtt_avatar_light checks the parameters and
+%% makes the publishes; the light's state messages confirm (light_echo/4),
+%% or the PUBACK for a light without a state topic.
+light_command(Key, #{component := C, service := #{light := L, command := {light, OnOff}}} = Pending,
+              Args, Timeout, P, S) ->
+    case mqtt_avatar_light:command(L, OnOff, Args) of
+        {error, Message} ->
+            {S, answer_error(Key, Pending, <<"BadParameter">>, Message)};
+        {ok, Publishes, Wait} ->
+            S1 = case mqtt_avatar_light:optimistic(L) of
+                     true ->
+                         #{lights := Lights} = S,
+                         LKey = {C, mqtt_avatar_light:command_topic(L)},
+                         S#{lights := Lights#{LKey => maps:merge(maps:get(LKey, Lights, #{}),
+                                                                 maps:get(assumed, Wait))}};
+                     false ->
+                         S
+                 end,
+            case maps:get(awaiting, Pending) of
+                false ->
+                    {S1, [{publish, T, Payload, undefined} || {T, Payload} <- Publishes]};
+                true when is_map_key(Key, P) ->
+                    {S, answer_error(Key, Pending, <<"DuplicateRequest">>,
+                                     <<"a request with this SignalID is still waiting for its echo">>)};
+                true ->
+                    {S1#{pending := P#{Key => Pending#{wait => Wait, heard => []}}},
+                     [{publish, T, Payload, Key} || {T, Payload} <- Publishes]
+                     ++ [{start_timer, Key, Timeout}]}
+            end
     end.
 
 find_service(Cat, Type, #{services := Services}) ->

@@ -18,7 +18,7 @@
 %% generator (mqtt_avatar_part writes it as `template' and the text).
 -type source() :: raw | {json, [binary()]} | template | {template, binary()}.
 -type match() :: {raw, binary()} | {json, [binary()], binary()}.
--type expect() :: none | any | match().
+-type expect() :: none | any | match() | light.
 %% How a state message becomes BIL parameters.
 -type mapping() :: #{template => mqtt_avatar_template:template(),
                      values := [{binary(), source()}],
@@ -29,7 +29,9 @@
                      static := [bil:parameter()],
                      kind := command | read | unsupported,
                      command_topic => binary(),
-                     command => {raw, binary()} | {json, mqtt_avatar_json:json()},
+                     command => {raw, binary()} | {json, mqtt_avatar_json:json()}
+                              | {light, on | off},
+                     light => mqtt_avatar_light:light(),
                      args => [{binary(), [binary()]}],
                      state_topic => binary() | undefined,
                      expect => expect(),
@@ -77,7 +79,7 @@
                      <<"MqttExtra">>, <<"MqttArgCheck">>, <<"MqttCode">>,
                      <<"MqttValueTemplate">>, <<"MqttCommandTemplate">>,
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
-                     <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>]).
+                     <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>, <<"MqttLight">>]).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -355,7 +357,47 @@ service(Id, #{category := Cat, type := Type} = E, Inherited, HasStreams) ->
     case get(<<"MqttCommand">>, E) of
         undefined when HasStreams -> {ok, Base#{kind => read}};
         undefined -> {ok, Base#{kind => unsupported}};
+        <<"light:", _/binary>> = Command -> light_service(Id, E, Base, Command);
         Command -> command_service(Id, E, Inherited, Base, Command)
+    end.
+
+%% `MqttCommand' `light:on' or `light:off' with the light's HA config in
+%% `MqttLight' (docs/mqtt.md section 2.7): mqtt_avatar_light makes the
+%% publishes and reads the states, on the topics of that config.
+light_service(Id, E, Base, Command) ->
+    What = "Service",
+    OnOff = case Command of
+                <<"light:on">> -> {ok, on};
+                <<"light:off">> -> {ok, off};
+                _ -> {error, [problem(Id, E, What, <<"MqttCommand">>, <<"must be light:on or light:off">>)]}
+            end,
+    Light = case get(<<"MqttLight">>, E) of
+                undefined ->
+                    {error, [problem(Id, E, What, <<"MqttLight">>,
+                                     <<"a light:on or light:off command needs the light's config">>)]};
+                Text ->
+                    case mqtt_avatar_json:decode(Text) of
+                        {ok, Json} ->
+                            case mqtt_avatar_light:config(Json) of
+                                {ok, L} -> {ok, L};
+                                {error, M} -> {error, [problem(Id, E, What, <<"MqttLight">>, M)]}
+                            end;
+                        {error, R} ->
+                            {error, [problem(Id, E, What, <<"MqttLight">>, mqtt_avatar_json:format_error(R))]}
+                    end
+            end,
+    case collect([OnOff, Light, mapping(Id, E, What)]) of
+        {ok, [O, L1, Mapping]} ->
+            {ok, Base#{kind => command, command => {light, O}, light => L1,
+                       command_topic => mqtt_avatar_light:command_topic(L1), args => [],
+                       state_topic => undefined,
+                       expect => case mqtt_avatar_light:optimistic(L1) of
+                                     true -> none;
+                                     false -> light
+                                 end,
+                       progress => undefined, mapping => Mapping}};
+        Error ->
+            Error
     end.
 
 command_service(Id, E, Inherited, Base, Command) ->
@@ -577,6 +619,7 @@ valid_topic(T) -> binary:match(T, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch.
 topics(Components) ->
     Ts = lists:append([[T || #{topic := T} <- Streams]
                        ++ [T || #{state_topic := T} <- Services, T =/= undefined]
+                       ++ [T || #{light := L} <- Services, T <- mqtt_avatar_light:state_topics(L)]
                        ++ [T || #{topic := T} <- [A || A <- [Avail], A =/= undefined]]
                        || #{streams := Streams, services := Services, availability := Avail}
                               <- Components]),

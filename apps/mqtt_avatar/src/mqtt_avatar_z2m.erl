@@ -47,7 +47,7 @@ device(Base, #{<<"friendly_name">> := Name} = D) when is_binary(Name), Name =/= 
                     Topic = <<Base/binary, "/", Name/binary>>,
                     Description = text(maps:get(<<"description">>, Def, undefined)),
                     Entities = [outlet(E, Description)
-                                || E <- lists:append([expose(Topic, Name, X)
+                                || E <- lists:append([expose(Topic, Name, X, Exposes)
                                                       || X <- Exposes, is_map(X)])],
                     Ieee = case maps:get(<<"ieee_address">>, D, undefined) of
                                I when is_binary(I) -> I;
@@ -71,7 +71,7 @@ device(_Base, _) ->
 
 %% Composite exposes of the other families, and settable numbers and
 %% enums, are read by their family.
-expose(Topic, Dev, #{<<"type">> := Type} = E)
+expose(Topic, Dev, #{<<"type">> := Type} = E, _Exposes)
   when Type =:= <<"cover">>; Type =:= <<"lock">>; Type =:= <<"climate">>; Type =:= <<"fan">> ->
     Ctx = #{topic => Topic, device => Dev},
     case Type of
@@ -80,7 +80,7 @@ expose(Topic, Dev, #{<<"type">> := Type} = E)
         <<"climate">> -> mqtt_avatar_family_climate:from_z2m(E, Ctx);
         <<"fan">> -> mqtt_avatar_family_fan:from_z2m(E, Ctx)
     end;
-expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop, <<"access">> := A} = E)
+expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop, <<"access">> := A} = E, _Exposes)
   when (Type =:= <<"numeric">> orelse Type =:= <<"enum">>), is_binary(Prop), is_integer(A),
        A band ?ACCESS_SET =/= 0, A band ?ACCESS_STATE =/= 0, Prop =/= <<"action">> ->
     Ctx = #{topic => Topic, device => Dev},
@@ -89,18 +89,25 @@ expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop, <<"access">> :=
         <<"enum">> -> mqtt_avatar_family_select:from_z2m(E, Ctx)
     end;
 %% Composite exposes (light, switch) carry their state in a feature.
-expose(Topic, Dev, #{<<"type">> := Type, <<"features">> := Features} = E)
+expose(Topic, Dev, #{<<"type">> := Type, <<"features">> := Features} = E, Exposes)
   when (Type =:= <<"light">> orelse Type =:= <<"switch">>), is_list(Features) ->
     case [F || #{<<"property">> := P} = F <- Features, is_map(F), is_binary(P),
                maps:get(<<"name">>, F, P) =:= <<"state">>] of
         [State | _] ->
             Kind = binary_to_kind(Type),
             Uid = iolist_to_binary([Dev, "/", maps:get(<<"property">>, State)]),
-            [base_entity(Topic, Uid, Kind, State, E)];
+            Entity = base_entity(Topic, Uid, Kind, State, E),
+            case Kind of
+                %% The light as z2m announces it to Home Assistant (JSON schema).
+                light -> [Entity#{light => mqtt_avatar_light:from_z2m(
+                                             Topic, E#{<<"features">> := [F || F <- Features, is_map(F)]},
+                                             [X || X <- Exposes, is_map(X)])}];
+                switch -> [Entity]
+            end;
         [] ->
             []
     end;
-expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop} = E) when is_binary(Prop) ->
+expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop} = E, _Exposes) when is_binary(Prop) ->
     Access = case maps:get(<<"access">>, E, ?ACCESS_STATE) of
                  A when is_integer(A) -> A;
                  _ -> 0
@@ -115,7 +122,7 @@ expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop} = E) when is_bi
             [base_entity(Topic, Uid, sensor, E, E)];
         _ -> []
     end;
-expose(_Topic, _Dev, _E) ->
+expose(_Topic, _Dev, _E, _Exposes) ->
     [].
 
 base_entity(Topic, Uid, Kind, Feature, Expose) ->
