@@ -431,13 +431,7 @@ wait_signal(Va, Pred) ->
 wait_binding(Va, Pred) ->
     evatar_test_fixtures:wait_binding(Va, Pred, ?WAIT).
 
-wait_for(F) -> wait_for(F, 200).
-wait_for(_F, 0) -> ct:fail(condition_not_met);
-wait_for(F, N) ->
-    case F() of
-        true -> ok;
-        false -> timer:sleep(25), wait_for(F, N - 1)
-    end.
+wait_for(F) -> evatar_test_wait:until(F, #{timeout => 5000, interval => 25}).
 
 %% The attachments of an .eml file: {Filename, DecodedBytes}.
 attachments(Eml) ->

@@ -194,14 +194,16 @@ wait_dead(Pid) ->
     receive {'DOWN', Ref, process, Pid, _} -> ok end.
 
 %% The pairing's count of watchers once it is `Want' (10 s at most).
-wait_watchers(Id, Want) -> wait_watchers(Id, Want, 200).
-
-wait_watchers(Id, Want, Tries) ->
-    Pid = evatar_registry:whereis_name(Id),
-    case gen_statem:call(Pid, {inspect, watchers}) of
-        Want -> {ok, Want};
-        _ when Tries > 0 -> timer:sleep(50), wait_watchers(Id, Want, Tries - 1);
-        Other -> {error, Other}
+wait_watchers(Id, Want) ->
+    Probe = fun() ->
+                    case gen_statem:call(evatar_registry:whereis_name(Id), {inspect, watchers}) of
+                        Want -> true;
+                        Other -> {false, Other}
+                    end
+            end,
+    case evatar_test_wait:poll(Probe, #{timeout => 10000, interval => 50}) of
+        ok -> {ok, Want};
+        {error, {wait_timeout, #{last_seen := Other}}} -> {error, Other}
     end.
 
 %% @doc A watcher that dies is removed from its pairing.
