@@ -242,9 +242,9 @@ handle_info({evatar_ha, 1, {ask, Id, ReplyTo}}, S) ->
 handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}}, S)
   when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
     Record = record(Id),
-    Others = [P || P <- lists:usort([maps:get(holder, Record), Active]), is_pid(P),
-                   P =/= Cand, not (ActiveDead andalso P =:= Active)],
-    Blocked = lists:any(fun serving/1, Others),
+    Blocked = lists:any(fun serving/1, [P || P <- evatar_ha_core:blockers(Record, Cand, Active,
+                                                                          ActiveDead),
+                                             is_pid(P)]),
     Result = case evatar_ha_core:vote(Record, Ec, Cand, Claim, Blocked) of
                  {granted, R1} -> true = ets:insert(?VOTES, {Id, R1}), granted;
                  {refused, _} = Refused -> Refused

@@ -31,7 +31,7 @@
 -module(evatar_ha_core).
 
 -export([new/0, handle/3, claim/1, holding/1, electing/1, registering/1]).
--export([next_claim/1, quorum_size/1, new_record/0, vote/5, register/4,
+-export([next_claim/1, quorum_size/1, new_record/0, vote/5, register/4, blockers/4,
          must_fence/3, reconcile/2, after_pause/2]).
 
 -export_type([state/0, ctx/0, event/0, effect/0, claim/0, record/0, refusal/0,
@@ -41,7 +41,10 @@
 %% What one node (a voter) remembers of one pairing: the highest epoch it
 %% promised (voted for, or saw registered), the instance it promised it to
 %% (the holder), and the highest claim it saw.
--type record() :: #{promised := non_neg_integer(), holder := term(), conf := claim()}.
+%% `registered' says whether the holder recorded a configuration (it is an
+%% active that may serve) or was only promised an epoch (a candidate).
+-type record() :: #{promised := non_neg_integer(), holder := term(), conf := claim(),
+                    registered => boolean()}.
 -type refusal() :: stale_claim | {promised, non_neg_integer()} | holder_live.
 -type role() :: starting | active | standby | fenced | handing_over.
 
@@ -128,6 +131,12 @@ next_claim(#core{conf = {E, Seq}} = C) ->
 
 %% @doc One event. See {@link event()} and {@link effect()}.
 -spec handle(event(), ctx(), state()) -> {state(), [effect()]}.
+handle({elect, Why, true}, Ctx, #core{election = #{dead := false} = El} = C) ->
+    %% Running since the active went silent, and now it is known dead (its
+    %% node came back without it): its lease no longer counts on any node,
+    %% so ask again at once. Else a node heard again would keep refusing
+    %% `holder_live' for a process that no longer exists.
+    elect(Ctx, C#core{election = El#{dead := true, why := Why}});
 handle({elect, _Why, _Dead}, _Ctx, #core{election = #{}} = C) ->
     {C, []};
 handle({elect, Why, Dead}, Ctx, C) ->
@@ -294,7 +303,7 @@ quorum_size(Size) -> Size div 2 + 1.
 
 %% @doc A voter's record of a pairing it has heard nothing about.
 -spec new_record() -> record().
-new_record() -> #{promised => 0, holder => undefined, conf => {0, 0}}.
+new_record() -> #{promised => 0, holder => undefined, conf => {0, 0}, registered => false}.
 
 %% @doc Whether a voter grants candidate `Cand' the pairing at epoch `Ec',
 %% the candidate holding claim `Claim'. `Blocked' is whether another
@@ -315,7 +324,7 @@ vote(#{promised := P, holder := H}, Ec, Cand, _Claim, _Blocked)
 vote(_Record, _Ec, _Cand, _Claim, true) ->
     {refused, holder_live};
 vote(#{conf := Conf} = R, Ec, Cand, Claim, false) ->
-    {granted, R#{promised := Ec, holder := Cand, conf := max(Conf, Claim)}}.
+    {granted, R#{promised := Ec, holder := Cand, conf := max(Conf, Claim), registered => false}}.
 
 %% @doc Whether a voter accepts the active `From''s new configuration
 %% `{E, Seq}' (the standby dropped, or a takeover confirmed): not when it
@@ -327,7 +336,19 @@ register(#{promised := P}, E, _Seq, _From) when E < P ->
 register(#{conf := Conf}, E, Seq, _From) when {E, Seq} < Conf ->
     {refused, stale_claim};
 register(R, E, Seq, From) ->
-    {ok, R#{promised := E, holder := From, conf := {E, Seq}}}.
+    {ok, R#{promised := E, holder := From, conf := {E, Seq}, registered => true}}.
+
+%% @doc The instances whose lease blocks a vote for `Cand' while the voter
+%% hears them (the caller decides who it hears): the holder if it recorded
+%% a configuration (an active; a candidate that was only promised an epoch
+%% serves nothing, and a promise to a standby that gave its election up
+%% must not block the pairing for ever), and the active the candidate
+%% followed, unless it saw that process die.
+-spec blockers(record(), term(), term(), ActiveDead :: boolean()) -> [term()].
+blockers(Record, Cand, Active, Dead) ->
+    Holder = [maps:get(holder, Record) || maps:get(registered, Record, true)],
+    [P || P <- lists:usort(Holder ++ [Active]), P =/= undefined, P =/= Cand,
+          not (Dead andalso P =:= Active)].
 
 %% @doc Whether an active must fence itself: in a cluster of 3 or more, when
 %% it hears neither its standby's node nor a majority within the lease.

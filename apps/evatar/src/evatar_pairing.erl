@@ -827,7 +827,12 @@ ha({confirm, _Other, _E, _V}, _State, _Data) ->
 %% Standby: the state, then the events in order. Word from the active ends
 %% any election this standby had started.
 ha({snapshot, Active, _Epoch, Version, State, Claim}, standby, #data{active = Active} = Data) ->
-    become_standby(Version, State, Claim, Data);
+    %% Never back to an older state than the one confirmed (a snapshot
+    %% delivered twice would undo what the active released since).
+    case Version < evatar_ha_commit:version(Data#data.commit) of
+        true -> keep_state_and_data;
+        false -> become_standby(Version, State, Claim, Data)
+    end;
 ha({events, Active, _Epoch, Events}, standby, #data{active = Active, logic = Logic} = Data) ->
     {Core, []} = evatar_ha_core:handle(active_heard, ctx(standby, Data), Data#data.core),
     Data1 = apply_events(Events, remonitor_active(Data#data{active_lost = false, core = Core})),
