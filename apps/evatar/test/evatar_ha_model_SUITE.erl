@@ -1,0 +1,108 @@
+%% @doc The high-availability core under faults, in one process: PropEr
+%% generates schedules (signals from a client; messages delivered late,
+%% dropped, duplicated, delayed; nodes crashed and restarted, paused and
+%% resumed; links cut and healed) for two and three instances of one pairing
+%% in `evatar_ha_sim', which runs them through `evatar_ha_core' and
+%% `evatar_ha_commit' and checks after every command that at most one
+%% instance serves at the current epoch and that no accepted signal is lost
+%% or delivered twice, and at the end that, healed, some instance serves.
+%%
+%% `make test' runs the safety properties on random schedules and liveness
+%% on the fixed cases below (each a freeze the model found and the core now
+%% avoids). `prop_model(N, liveness)' checks liveness on random schedules
+%% too; it still finds freezes after two faults, e.g. the active's node
+%% paused, its standby taking over, that one's standby cut off and its node
+%% crashed: the woken old active holds a stale claim and can neither win
+%% nor learn that nobody else serves, and the catalogue restores only a
+%% pairing that no node runs. Run it by hand:
+%% `proper:quickcheck(evatar_ha_model_SUITE:prop_model(3, liveness), 4000)'.
+-module(evatar_ha_model_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("proper/include/proper.hrl").
+
+-export([all/0, suite/0]).
+-export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1]).
+-export([prop_model/2]).
+
+%% @private
+suite() -> [{timetrap, {minutes, 5}}].
+
+%% @private
+all() -> [stale_promise_freeze, active_node_back_without_it, three_nodes, two_nodes].
+
+%% @doc Three nodes, every fault: 4000 schedules, safety after every command.
+three_nodes(_Config) ->
+    ok = evatar_test_proper:check(prop_model(3, safety), 4000).
+
+%% @doc Two nodes: crashes, pauses and lost messages, no partition (a
+%% two-node partition is outside the delivery guarantee, docs/ha.md): 2000
+%% schedules, safety after every command.
+two_nodes(_Config) ->
+    ok = evatar_test_proper:check(prop_model(2, safety), 2000).
+
+%% @doc The freeze found with network namespaces (issue 18): a standby cut
+%% off alone runs an election and its node promises it the next epoch; after
+%% the heal and a later cut between the active and its new standby, the
+%% active's registration without it is refused by that promise and not
+%% answered by the standby's node. The pairing must be served again within
+%% the bound (an instance on the majority side serves).
+stale_promise_freeze(_Config) ->
+    Cmds = [{tick, 500}, {signal, n1}, {tick, 100}, {isolate, n2}, {signal, n1}, {tick, 800},
+            heal, {tick, 800}, {signal, n1}, {tick, 300}, {cut, n1, n3}, {signal, n1},
+            {tick, 2500}],
+    W = evatar_ha_sim:run(Cmds, evatar_ha_sim:new(3)),
+    [] = maps:get(violations, W),
+    {true, W1} = evatar_ha_sim:settle(W),
+    [] = maps:get(violations, W1).
+
+%% @doc Found by the model: the active's node crashes while its standby's
+%% node is paused; when the standby runs again the active's node is back
+%% (without the instance). Its election, begun as `active silent', must
+%% drop the lease of the process now known dead, or every node that hears
+%% the active's node refuses it for ever (`holder_live').
+active_node_back_without_it(_Config) ->
+    W = evatar_ha_sim:run([{tick, 103}, {crash, n1}, {pause, n2}], evatar_ha_sim:new(3)),
+    {true, W1} = evatar_ha_sim:settle(W),
+    [] = maps:get(violations, W1).
+
+%% @private
+%% `safety' is what make test runs; `liveness' adds, after every command,
+%% that an instance on a node hearing a majority serves once nothing changed
+%% for 2 s, and after the heal that one serves: it still finds freezes
+%% (see the module doc), run it by hand.
+-spec prop_model(2 | 3, safety | liveness) -> proper:test().
+prop_model(N, Mode) ->
+    ?FORALL(Cmds, schedule(N),
+            begin
+                {Live, Violations} =
+                    try evatar_ha_sim:settle(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N))) of
+                        {L, W1} -> {L, maps:get(violations, W1)}
+                    catch
+                        Class:Reason:Stack -> {false, [{Class, Reason, Stack}]}
+                    end,
+                Safety = [V || V <- Violations, element(1, V) =/= not_serving],
+                ?WHENFAIL(io:format("violations: ~p~nlive after heal: ~p~n", [Violations, Live]),
+                          case Mode of
+                              safety -> Safety =:= [];
+                              liveness -> Violations =:= [] andalso Live
+                          end)
+            end).
+
+schedule(N) ->
+    Nodes = lists:sublist([n1, n2, n3], N),
+    list(fault_or_tick(N, Nodes)).
+
+fault_or_tick(N, Nodes) ->
+    Node = oneof(Nodes),
+    Always = [{10, {tick, range(10, 400)}},
+              {6, {signal, Node}},
+              {1, {pause, Node}}, {2, {resume, Node}},
+              {1, {crash, Node}}, {2, {restart, Node}},
+              {1, {drop, range(0, 20)}}, {1, {dup, range(0, 20)}},
+              {1, {delay, Node, range(50, 600)}}],
+    Cuts = [{1, {cut, Node, Node}}, {1, {isolate, Node}}, {2, heal}],
+    frequency(case N of
+                  2 -> Always;
+                  _ -> Always ++ Cuts
+              end).

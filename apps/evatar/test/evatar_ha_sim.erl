@@ -1,0 +1,882 @@
+%% @doc A deterministic simulation of one pairing's instances on two or
+%% three nodes, in one process, wired through the pure high-availability
+%% core: `evatar_ha_core' (elections, registrations, fencing, votes,
+%% reconciling) and `evatar_ha_commit' (versions, replication, outbox,
+%% Acks). The rest of `evatar_pairing''s role machine is mirrored here in
+%% a few lines per reaction, and the pairing's rules are a stand-in: a
+%% signal is routed once (`{deliver, receiver, ...}') and acknowledged to
+%% its sender (`{accepted, sender, Sid}').
+%%
+%% The world: nodes with a voter record each (what `evatar_cluster' keeps),
+%% heartbeats every 50 ms, suspicion after 250 ms, a lease of 150 ms;
+%% messages between nodes with a latency, over links that can be cut; a
+%% node can be paused (its clock stops, messages to it queue) or crashed
+%% (its instance dies, messages to it are lost) and restarted. One sender
+%% client and one receiver client reach every running node.
+%%
+%% Checked after every command ({@link check/1}):
+%% <ul>
+%% <li>at most one instance serves at the highest epoch (role active, not
+%% holding its effects);</li>
+%% <li>no accepted signal is lost: one the sender was told was accepted
+%% (docs/architecture.md 8.9: applied and in the standby's history, then
+%% acknowledged) is held by a live instance, and by the serving instance
+%% of the highest epoch;</li>
+%% <li>no accepted signal is delivered twice: the receiver never gets one
+%% SignalID routed twice (two different routings, which its library could
+%% not tell apart).</li>
+%% </ul>
+%% and, by {@link settle/1}, liveness: once every node runs and hears the
+%% others for long enough, some instance serves.
+-module(evatar_ha_sim).
+
+-export([new/1, run/2, step/2, check/1, settle/1, serving/1]).
+
+-define(HB, 50).
+-define(SUSPECT, 250).
+-define(LEASE, 150).
+-define(LATENCY, 3).
+
+%% ---------------------------------------------------------------------------
+%% The world
+%% ---------------------------------------------------------------------------
+
+%% @doc A cluster of `N' nodes (2 or 3) with the pairing active on the first.
+-spec new(2 | 3) -> map().
+new(N) ->
+    Nodes = lists:sublist([n1, n2, n3], N),
+    W0 = #{now => 0, nodes => maps:from_list([{Nd, node0(Nodes)} || Nd <- Nodes]),
+           names => Nodes, insts => #{}, next_ref => 1, msgs => [], seq => 0, cut => [],
+           sender => #{next => 1, sent => [], acked => [], degraded => [], epoch => 0},
+           receiver => #{got => #{}, epoch => 0}, violations => [], last_change => 0},
+    W1 = start_active(n1, W0),
+    place_all(W1).
+
+node0(Nodes) ->
+    #{status => up, voter => evatar_ha_core:new_record(),
+      heard => maps:from_list([{N, 0} || N <- Nodes]), alive => maps:from_list([{N, true} || N <- Nodes]),
+      quorum => true, inst => undefined, paused_at => undefined}.
+
+%% @doc Runs a list of commands, checking after each; returns the world.
+-spec run([term()], map()) -> map().
+run(Cmds, W) ->
+    lists:foldl(fun(C, Acc) -> check(step(C, Acc)) end, W, Cmds).
+
+%% @doc One command.
+-spec step(term(), map()) -> map().
+step({tick, Ms}, W) -> advance(Ms, W);
+step({signal, N}, W) -> client_send(N, W);
+step({drop, _} = C, W) -> fault(C, W);
+step({dup, _} = C, W) -> fault(C, W);
+step({delay, _, _} = C, W) -> fault(C, W);
+step(C, #{now := Now} = W) -> count_fault(C, W, fault(C, W#{last_change := Now})).
+
+%% The guarantee holds while no more than one of the two instances fails
+%% before a new standby is synced (docs/architecture.md 8.9): a second
+%% failure (a crash, a pause, a cut between the instances' nodes) leaves
+%% what was accepted until then outside it.
+count_fault(C, #{insts := Insts}, #{sender := #{acked := Acked} = Snd} = W) ->
+    Homes = [N || #{node := N} <- maps:values(Insts)],
+    Hit = case C of
+              {crash, N} -> lists:member(N, Homes);
+              {pause, N} -> lists:member(N, Homes);
+              {isolate, N} -> lists:member(N, Homes);
+              {cut, A, B} -> lists:member(A, Homes) andalso lists:member(B, Homes);
+              _ -> false
+          end,
+    case {Hit, maps:get(faults, W, 0)} of
+        {false, _} -> W;
+        {true, 0} -> W#{faults => 1};
+        {true, F} -> W#{faults => F + 1,
+                        sender := Snd#{degraded := lists:usort(Acked ++ maps:get(degraded, Snd))}}
+    end.
+
+fault({cut, A, B}, #{cut := Cut} = W) when A =/= B -> W#{cut := lists:usort([link(A, B) | Cut])};
+fault({cut, _, _}, W) -> W;
+fault({isolate, A}, #{names := Ns, cut := Cut} = W) ->
+    W#{cut := lists:usort([link(A, B) || B <- Ns, B =/= A] ++ Cut)};
+fault(heal, W) -> W#{cut := []};
+fault({pause, N}, W) -> pause(N, W);
+fault({resume, N}, W) -> resume(N, W);
+fault({crash, N}, W) -> crash(N, W);
+fault({restart, N}, W) -> restart(N, W);
+fault({drop, I}, #{msgs := Ms0} = W) ->
+    %% A message lost on its way; never a node's own view of its
+    %% connections (nodedown) nor a monitor's DOWN.
+    case [M || {_, _, _, Msg} = M <- Ms0, element(1, Msg) =/= nodedown,
+               element(1, Msg) =/= event] of
+        [] -> W;
+        Ms -> W#{msgs := Ms0 -- [lists:nth(1 + I rem length(Ms), Ms)]}
+    end;
+fault({dup, I}, #{msgs := Ms0} = W) ->
+    %% Erlang delivers a message once; what comes twice is what is sent
+    %% again: votes and registrations (retried) and their answers, and
+    %% event batches and confirmations (which a gap or a resync repeats).
+    case [M || {_, _, _, Msg} = M <- Ms0, element(1, Msg) =:= vote orelse
+                                           element(1, Msg) =:= register orelse
+                                           element(1, Msg) =:= vote_reply orelse
+                                           element(1, Msg) =:= register_reply orelse
+                                           element(1, Msg) =:= events orelse
+                                           element(1, Msg) =:= confirm] of
+        [] -> W;
+        Ms -> M = lists:nth(1 + I rem length(Ms), Ms),
+              W#{msgs := lists:sort([M | Ms0])}  % twice in a row
+    end;
+fault({delay, N, D}, #{msgs := Ms} = W) ->
+    %% A slow link into N: everything on its way there comes D ms later.
+    Floor = maps:get(floor, W, #{}),
+    Ms1 = [case to_node(To, W) of
+               N -> {At + D, S, To, Msg};
+               _ -> {At, S, To, Msg}
+           end || {At, S, To, Msg} <- Ms],
+    W#{msgs := lists:sort(Ms1), floor => Floor#{N => maps:get(N, Floor, 0) + D}};
+fault(_Cmd, W) -> W.
+
+link(A, B) when A < B -> {A, B};
+link(A, B) -> {B, A}.
+
+connected(A, A, _W) -> true;
+connected(A, B, #{cut := Cut}) -> not lists:member(link(A, B), Cut).
+
+running(N, #{nodes := Nodes}) -> maps:get(status, maps:get(N, Nodes)) =:= up.
+
+%% Time goes by in steps of at most a heartbeat: messages due, timers due,
+%% then every running node's failure detection.
+advance(Ms, #{now := Now} = W) when Ms =< 0 -> W#{now := Now};
+advance(Ms, #{now := Now} = W) ->
+    D = min(Ms, ?HB),
+    W1 = deliver_until(Now + D, W#{now := Now + D}),
+    W2 = fire_timers(W1),
+    W3 = lists:foldl(fun detect/2, W2, maps:get(names, W2)),
+    advance(Ms - D, W3).
+
+%% ---------------------------------------------------------------------------
+%% Messages
+%% ---------------------------------------------------------------------------
+
+%% To is {node, N} (its voter) or {inst, Ref}.
+send(FromNode, To, Msg, W) ->
+    ToNode = to_node(To, W),
+    case ToNode =/= undefined andalso connected(FromNode, ToNode, W) of
+        true -> enqueue_at(maps:get(now, W) + ?LATENCY, To, Msg, W);
+        false -> W
+    end.
+
+%% Erlang keeps the order of messages between two processes: nothing sent
+%% to a node overtakes what was sent to it before (a delay delays the rest).
+enqueue_at(At0, To, Msg, #{msgs := Ms, seq := S} = W) ->
+    Floor = maps:get(floor, W, #{}),
+    Node = to_node(To, W),
+    At = max(At0, maps:get(Node, Floor, 0)),
+    W#{msgs := lists:sort([{At, S, To, Msg} | Ms]), seq := S + 1, floor => Floor#{Node => At}}.
+
+to_node({node, N}, _W) -> N;
+to_node({inst, Ref}, #{insts := Insts}) ->
+    case Insts of
+        #{Ref := #{node := N}} -> N;
+        #{} -> undefined
+    end.
+
+deliver_until(T, #{msgs := [{At, _, To, Msg} | Rest]} = W) when At =< T ->
+    W1 = W#{msgs := Rest},
+    case to_node(To, W1) of
+        undefined ->
+            deliver_until(T, W1);
+        N ->
+            case maps:get(status, maps:get(N, maps:get(nodes, W1))) of
+                up -> deliver_until(T, receive_msg(To, Msg, W1));
+                paused -> deliver_until(T, requeue(To, Msg, W1));
+                down -> deliver_until(T, W1)
+            end
+    end;
+deliver_until(_T, W) ->
+    W.
+
+%% A paused node's messages wait for it (its sockets buffer them).
+requeue(To, Msg, #{paused_q := Q} = W) -> W#{paused_q := Q ++ [{To, Msg}]};
+requeue(To, Msg, W) -> W#{paused_q => [{To, Msg}]}.
+
+%% ---------------------------------------------------------------------------
+%% Failure detection: each node's view, as evatar_cluster keeps it
+%% ---------------------------------------------------------------------------
+
+detect(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
+    case maps:get(N, Nodes) of
+        #{status := up, heard := Heard0, alive := Alive0} = Nd ->
+            Heard = maps:map(fun(M, T) ->
+                                     case M =:= N orelse (running(M, W) andalso connected(N, M, W)) of
+                                         true -> Now;
+                                         false -> T
+                                     end
+                             end, Heard0),
+            Alive = maps:map(fun(M, _) -> M =:= N orelse Now - maps:get(M, Heard) =< ?SUSPECT end,
+                             Heard),
+            Q = evatar_ha_rules:majority(Names, [M || {M, T} <- maps:to_list(Heard),
+                                                     Now - T =< ?LEASE]),
+            W1 = W#{nodes := Nodes#{N := Nd#{heard := Heard, alive := Alive, quorum := Q}}},
+            Lost = [M || M <- Names, maps:get(M, Alive0), not maps:get(M, Alive)],
+            Back = [M || M <- Names, not maps:get(M, Alive0), maps:get(M, Alive)],
+            W2 = lists:foldl(fun(M, Acc) -> inst_event(N, {node_suspected, M}, Acc) end, W1, Lost),
+            W3 = lists:foldl(fun(M, Acc) -> node_back(N, M, Acc) end, W2, Back),
+            case Q =:= maps:get(quorum, Nd) of
+                true -> W3;
+                false -> inst_event(N, {quorum, Q}, W3)
+            end;
+        #{} ->
+            W
+    end.
+
+%% A node heard again gets this node's inventory: instances compare epochs.
+node_back(N, M, W) ->
+    W1 = inst_event(N, {node_alive, M}, W),
+    case inst_on(N, W1) of
+        undefined -> W1;
+        #{ref := Ref, role := Role, epoch := E} ->
+            send(N, {node, M}, {inventory, Ref, Role, E}, W1)
+    end.
+
+heard_within(N, M, Ms, #{nodes := Nodes, now := Now}) ->
+    Now - maps:get(M, maps:get(heard, maps:get(N, Nodes))) =< Ms.
+
+majority_now(N, #{names := Names} = W) ->
+    evatar_ha_rules:majority(Names, [M || M <- Names, heard_within(N, M, ?LEASE, W)]).
+
+pause(N, #{nodes := Nodes, now := Now} = W) ->
+    case maps:get(N, Nodes) of
+        #{status := up} = Nd -> W#{nodes := Nodes#{N := Nd#{status := paused, paused_at := Now}}};
+        #{} -> W
+    end.
+
+%% The node finds it was paused itself: its peers' silence meanwhile says
+%% nothing about them (evatar_ha_rules:discount/3), and an active asks the
+%% cluster again (evatar_ha_core's `paused').
+resume(N, #{nodes := Nodes, now := Now} = W) ->
+    case maps:get(N, Nodes) of
+        #{status := paused, paused_at := At, heard := Heard} = Nd ->
+            Paused = Now - At,
+            Heard1 = maps:map(fun(_, T) -> evatar_ha_rules:discount(T, Paused, Now) end, Heard),
+            W1 = W#{nodes := Nodes#{N := Nd#{status := up, heard := Heard1}}},
+            Q = maps:get(paused_q, W1, []),
+            {Mine, Others} = lists:partition(fun({To, _}) -> to_node(To, W1) =:= N end, Q),
+            W2 = lists:foldl(fun({To, Msg}, Acc) -> receive_msg(To, Msg, Acc) end,
+                             W1#{paused_q => Others}, Mine),
+            case Paused > ?SUSPECT of
+                true -> inst_event(N, stalled, W2);
+                false -> W2
+            end;
+        #{} ->
+            W
+    end.
+
+%% kill -9 of the node: its instance and its votes (kept in memory) go.
+crash(N, #{nodes := Nodes, names := Names} = W) ->
+    Down = [M || M <- Names, maps:get(status, maps:get(M, Nodes)) =:= down],
+    case maps:get(N, Nodes) of
+        #{status := S} = Nd when S =/= down, Down =:= [] ->
+            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W)}}},
+            W1 = case Nd of
+                     #{inst := undefined} -> W0;
+                     #{inst := Ref} -> kill(Ref, W0)
+                 end,
+            %% Its connections close: every other node sees nodedown
+            %% (a paused one when it runs again).
+            W2 = lists:foldl(fun(M, Acc) -> enqueue_at(maps:get(now, Acc), {node, M},
+                                                       {nodedown, N}, Acc)
+                             end, W1, [M || M <- Names, M =/= N]),
+            Nodes1 = maps:get(nodes, W2),
+            W2#{nodes := Nodes1#{N := (maps:get(N, Nodes1))#{inst := undefined}},
+                paused_q => [{To, M} || {To, M} <- maps:get(paused_q, W1, []),
+                                        to_node(To, W1) =/= undefined]};
+        #{} ->
+            W
+    end.
+
+%% A node boots in a second at least: the others have suspected it by then.
+restart(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
+    case maps:get(N, Nodes) of
+        #{status := down, paused_at := At} when Now - At >= 1000 ->
+            W#{nodes := Nodes#{N := (node0(Names))#{heard := maps:from_list([{M, maps:get(now, W)} || M <- Names])}}};
+        #{} ->
+            W
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Instances
+%% ---------------------------------------------------------------------------
+
+inst_on(N, #{nodes := Nodes, insts := Insts}) ->
+    case maps:get(inst, maps:get(N, Nodes)) of
+        undefined -> undefined;
+        Ref -> maps:get(Ref, Insts)
+    end.
+
+new_inst(N, Role, W) ->
+    #{next_ref := R, nodes := Nodes, insts := Insts} = W,
+    Ref = {N, R},
+    I = #{ref => Ref, node => N, role => Role, epoch => 1, core => evatar_ha_core:new(),
+          commit => evatar_ha_commit:new(0), state => #{epoch => 1, applied => []},
+          active => undefined, standby => undefined, active_lost => false, timers => #{},
+          placing => 0},
+    {I, W#{next_ref := R + 1, insts := Insts#{Ref => I},
+           nodes := Nodes#{N := (maps:get(N, Nodes))#{inst := Ref}}}}.
+
+put_inst(#{ref := Ref} = I, #{insts := Insts} = W) -> W#{insts := Insts#{Ref => I}}.
+
+kill(Ref, #{insts := Insts, nodes := Nodes} = W) ->
+    case Insts of
+        #{Ref := #{node := N}} ->
+            Nd = maps:get(N, Nodes),
+            Nodes1 = case Nd of
+                         #{inst := Ref} -> Nodes#{N := Nd#{inst := undefined}};
+                         #{} -> Nodes
+                     end,
+            W1 = W#{insts := maps:remove(Ref, Insts), nodes := Nodes1},
+            %% Monitors: the other instances on running nodes see the
+            %% process die (a crashed node's look like noconnection).
+            Why = case maps:get(status, Nd) of
+                      down -> noconnection;
+                      _ -> killed
+                  end,
+            lists:foldl(fun(#{ref := R2, node := N2} = I2, Acc) ->
+                                %% Across a silent cut nothing comes: the
+                                %% others learn it by suspicion.
+                                case connected(N, N2, Acc) of
+                                    false -> Acc;
+                                    true ->
+                                        %% After whatever it sent before.
+                                        case I2 of
+                                            #{active := Ref} ->
+                                                down_later(R2, {active_down, Why}, Acc);
+                                            #{standby := Ref} ->
+                                                down_later(R2, {standby_down, Why}, Acc);
+                                            #{} -> Acc
+                                        end
+                                end
+                        end, W1, maps:values(maps:get(insts, W1)));
+        #{} ->
+            W
+    end.
+
+down_later(Ref, Event, #{now := Now} = W) ->
+    enqueue_at(Now + ?LATENCY, {inst, Ref}, {event, Event}, W).
+
+start_active(N, W) ->
+    {I, W1} = new_inst(N, active, W),
+    put_inst(I#{placing := 0}, W1).
+
+%% The active places a standby on the next alive node without one.
+place_all(W) ->
+    lists:foldl(fun(#{ref := Ref}, Acc) -> inst_event_ref(Ref, place, Acc) end, W,
+                maps:values(maps:get(insts, W))).
+
+inst_event(N, Event, W) ->
+    case running(N, W) andalso inst_on(N, W) of
+        #{ref := Ref} -> inst_event_ref(Ref, Event, W);
+        _ -> W
+    end.
+
+inst_event_ref(Ref, Event, #{insts := Insts} = W) ->
+    case Insts of
+        #{Ref := #{node := N} = I} ->
+            case maps:get(status, maps:get(N, maps:get(nodes, W))) of
+                up -> handle(Event, I#{now => maps:get(now, W)}, W);
+                paused -> requeue({inst, Ref}, {event, Event}, W);
+                down -> W
+            end;
+        #{} ->
+            W
+    end.
+
+receive_msg({node, N}, Msg, W) -> voter(N, Msg, W);
+receive_msg({inst, Ref}, {event, Event}, W) -> inst_event_ref(Ref, Event, W);
+receive_msg({inst, Ref}, Msg, W) -> inst_event_ref(Ref, {msg, Msg}, W).
+
+fire_timers(#{insts := Insts, now := Now} = W) ->
+    lists:foldl(
+      fun(#{ref := Ref, timers := Ts, node := N}, Acc) ->
+              Due = case running(N, Acc) of
+                        true -> lists:sort([{At, K} || {K, At} <- maps:to_list(Ts), At =< Now]);
+                        false -> []  % a paused node's clock stands still
+                    end,
+              lists:foldl(fun({_, K}, A2) ->
+                                  case maps:get(insts, A2) of
+                                      #{Ref := #{timers := #{K := _} = T2} = I2} ->
+                                          A3 = put_inst(I2#{timers := maps:remove(K, T2)}, A2),
+                                          inst_event_ref(Ref, {timeout, K}, A3);
+                                      #{} -> A2
+                                  end
+                          end, Acc, Due)
+      end, W, maps:values(Insts)).
+
+ctx(#{role := Role, state := #{epoch := E}} = I, #{names := Names}) ->
+    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E, role => Role,
+      reconfirming => maps:get(reconfirming, I, false)}.
+
+%% The voters: evatar_cluster's answers.
+voter(N, {vote, Ec, Cand, Claim, Active, Dead}, #{nodes := Nodes} = W) ->
+    #{voter := Rec} = Nd = maps:get(N, Nodes),
+    Blocked = lists:any(fun(P) -> serving_as_seen(N, P, W) end,
+                        evatar_ha_core:blockers(Rec, Cand, Active, Dead)),
+    case evatar_ha_core:vote(Rec, Ec, Cand, Claim, Blocked) of
+        {granted, R1} ->
+            W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
+            send(N, {inst, Cand}, {vote_reply, Ec, N, granted}, W1);
+        Refused ->
+            send(N, {inst, Cand}, {vote_reply, Ec, N, Refused}, W)
+    end;
+voter(N, {register, Claim, From}, #{nodes := Nodes} = W) ->
+    #{voter := Rec} = Nd = maps:get(N, Nodes),
+    {E, Seq} = Claim,
+    case evatar_ha_core:register(Rec, E, Seq, From) of
+        {ok, R1} ->
+            W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
+            send(N, {inst, From}, {register_reply, Claim, N, ok}, W1);
+        Refused ->
+            send(N, {inst, From}, {register_reply, Claim, N, Refused}, W)
+    end;
+voter(N, {nodedown, M}, #{nodes := Nodes} = W) ->
+    #{alive := Alive, heard := Heard} = Nd = maps:get(N, Nodes),
+    W1 = W#{nodes := Nodes#{N := Nd#{alive := Alive#{M := false}, heard := Heard#{M := -?SUSPECT}}}},
+    case maps:get(M, Alive) of
+        true -> inst_event(N, {node_suspected, M}, W1);
+        false -> W1
+    end;
+voter(N, {inventory, Ref, Role, E}, W) ->
+    inst_event(N, {msg, {peer_instance, Ref, Role, E}}, W);
+voter(N, {start_standby, Active}, #{insts := Insts} = W) ->
+    case inst_on(N, W) of
+        undefined when is_map_key(Active, Insts) ->
+            {I, W1} = new_inst(N, starting, W),
+            W2 = put_inst(timer(offered, 5 * ?SUSPECT + 2000,
+                                I#{active := Active, now => maps:get(now, W)}), W1),
+            send(N, {inst, Active}, {offer, maps:get(ref, I)}, W2);
+        _ ->
+            W
+    end.
+
+serving_as_seen(N, {M, _} = Ref, #{insts := Insts} = W) ->
+    case M =:= N of
+        true -> maps:is_key(Ref, Insts);
+        false -> heard_within(N, M, ?SUSPECT, W)
+    end.
+
+%% ---------------------------------------------------------------------------
+%% One instance's reactions (evatar_pairing's, in short)
+%% ---------------------------------------------------------------------------
+
+handle({timeout, {ha, K}}, I, W) when K =:= election; K =:= register; K =:= deadline ->
+    core({timeout, K}, I, W);
+handle({timeout, {ha, place}}, I, W) ->
+    handle(place, I#{placing := 0}, W);
+handle({timeout, offered}, #{role := starting} = I, W) ->
+    kill(ref(I), put_inst(I, W));
+handle({timeout, _}, I, W) ->
+    put_inst(I, W);
+handle(place, #{role := active, standby := undefined, placing := 0, node := N, ref := Ref} = I,
+       #{names := Names} = W) ->
+    Alive = [M || M <- Names, M =/= N, maps:get(M, maps:get(alive, maps:get(N, maps:get(nodes, W))))],
+    case evatar_ha_rules:standby_node(Names, N, [N | Alive], undefined) of
+        none ->
+            put_inst(I, W);
+        M ->
+            W1 = put_inst(timer({ha, place}, 1000, I#{placing := 1}), W),
+            send(N, {node, M}, {start_standby, Ref}, W1)
+    end;
+handle(place, I, W) ->
+    put_inst(I, W);
+handle({node_alive, _}, #{role := active} = I, W) ->
+    handle(place, I, W);
+handle({node_alive, M}, #{role := standby, active := {M, _} = A, active_lost := true} = I,
+       #{insts := Insts} = W) ->
+    case Insts of
+        #{A := _} -> send(node_of(I), {inst, A}, {resync, ref(I)}, put_inst(I, W));
+        #{} -> handle({active_down, noproc}, I, W)  % monitored again: gone
+    end;
+handle({node_alive, _}, #{role := fenced} = I, W) ->
+    core({elect, fenced, false}, I, W);
+handle({node_suspected, M}, #{role := R, standby := {M, _}} = I, W) when R =/= standby ->
+    handle({standby_down, noconnection}, I, W);
+handle({node_suspected, M}, #{role := standby, active := {M, _}} = I, W) ->
+    core({elect, active_silent, false}, I#{active_lost := true}, W);
+handle({quorum, true}, #{role := standby, active_lost := true} = I, W) ->
+    core({elect, active_silent, false}, I, W);
+handle({quorum, true}, #{role := fenced} = I, W) ->
+    core({elect, fenced, false}, I, W);
+handle({quorum, false}, #{role := active, standby := S, node := N} = I, W) ->
+    Heard = S =/= undefined andalso heard_within(N, element(1, S), ?LEASE, W),
+    case evatar_ha_core:must_fence(length(maps:get(names, W)), majority_now(N, W), Heard) of
+        true -> fence(I, W);
+        false -> put_inst(I, W)
+    end;
+handle(stalled, #{role := active} = I, W) ->
+    core(paused, I, W);
+handle({standby_down, noconnection}, #{role := R} = I, W) when R =/= standby ->
+    I1 = forget_standby(I),
+    core(standby_node_lost, I1, W);
+handle({standby_down, _}, #{role := R} = I, W) when R =/= standby ->
+    I1 = forget_standby(I),
+    {Out, C} = evatar_ha_commit:release_all(maps:get(commit, I1)),
+    W1 = effects(Out, I1#{commit := C}, W),
+    handle(place, maps:get(ref(I1), maps:get(insts, W1)), W1);
+handle({active_down, noconnection}, #{role := standby} = I, W) ->
+    core({elect, active_silent, false}, I#{active_lost := true}, W);
+handle({active_down, _}, #{role := standby} = I, W) ->
+    core({elect, active_died, true}, I#{active_lost := true}, W);
+handle({active_down, _}, #{role := starting} = I, W) ->
+    kill(ref(I), put_inst(I, W));
+handle({msg, {snapshot, _, _, _, _} = Msg}, #{role := starting} = I, W) ->
+    msg(Msg, I, W);
+handle({msg, {dismiss, _} = Msg}, #{role := starting} = I, W) ->
+    msg(Msg, I, W);
+handle(Event, #{role := starting} = I, W) when element(1, Event) =/= timeout,
+                                               element(1, Event) =/= active_down ->
+    %% Postponed, as gen_statem does, until the instance is a standby.
+    put_inst(I#{postponed => [Event | maps:get(postponed, I, [])]}, W);
+handle({msg, Msg}, I, W) ->
+    msg(Msg, I, W);
+handle(_Event, I, W) ->
+    put_inst(I, W).
+
+msg({offer, S}, #{role := active, standby := undefined, core := Core} = I, W) ->
+    case evatar_ha_core:registering(Core) of
+        false -> snapshot_to(I#{standby := S, commit := evatar_ha_commit:unsync(maps:get(commit, I))}, W);
+        true -> send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W))
+    end;
+msg({offer, S}, #{standby := S} = I, W) ->
+    snapshot_to(I, W);
+msg({offer, S}, I, W) ->
+    send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W));
+msg({resync, S}, #{standby := S} = I, W) ->
+    snapshot_to(I, W);
+msg({resync, S}, I, W) ->
+    send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W));
+msg({confirm, S, V}, #{standby := S, commit := C, state := #{applied := A}} = I,
+    #{sender := Snd} = W) ->
+    {Out, C1} = evatar_ha_commit:confirm(V, C),
+    %% A synced standby (running, in touch, not electing) holds everything
+    %% applied before: covered again, and one failure may come again.
+    Covered = [Sid || {Sid, _} <- A],
+    Settled = case maps:get(insts, W) of
+                  #{S := #{role := standby, core := SCore}} -> not evatar_ha_core:electing(SCore);
+                  #{} -> false
+              end,
+    Faults = case Settled andalso connected(node_of(I), element(1, S), W)
+                 andalso running(element(1, S), W) of
+                 true -> 0;
+                 false -> maps:get(faults, W, 0)
+             end,
+    Degraded = case Faults of
+                   0 -> maps:get(degraded, Snd) -- Covered;
+                   _ -> maps:get(degraded, Snd)
+               end,
+    effects(Out, I#{commit := C1}, W#{sender := Snd#{degraded := Degraded}, faults => Faults});
+msg({snapshot, A, V, State, Claim} = Snap, #{role := standby, active := A, commit := C} = I, W) ->
+    case V < evatar_ha_commit:version(C) of
+        true -> put_inst(I, W);  % a duplicate: never back to an older state
+        false -> accept(Snap, State, Claim, I, W)
+    end;
+msg({snapshot, A, _V, State, Claim} = Snap, #{role := starting, active := A} = I, W) ->
+    accept(Snap, State, Claim, I, W);
+msg({events, A, Events}, #{role := standby, active := A} = I, W) ->
+    {Core, []} = evatar_ha_core:handle(active_heard, ctx(I, W), maps:get(core, I)),
+    apply_events(Events, I#{core := Core, active_lost := false}, W);
+msg(Msg, I, W) ->
+    msg2(Msg, I, W).
+
+accept({snapshot, A, V, _, _}, State, Claim, I, W) ->
+    {Core, []} = evatar_ha_core:handle({claim, Claim}, ctx(I, W), maps:get(core, I)),
+    I1 = I#{role := standby, state := State, epoch := maps:get(epoch, State), core := Core,
+            timers := maps:remove(offered, maps:get(timers, I)),
+            commit := evatar_ha_commit:applied(V, maps:get(commit, I)), active_lost := false},
+    W1 = send(node_of(I), {inst, A}, {confirm, ref(I), V},
+              put_inst(maps:remove(postponed, I1), W)),
+    lists:foldl(fun(E, Acc) -> inst_event_ref(ref(I), E, Acc) end, W1,
+                lists:reverse(maps:get(postponed, I, []))).
+
+msg2({events, From, E}, I, W) when is_integer(E) ->
+    other(From, active, E, I, W);
+msg2({dismiss, A}, #{role := R, active := A} = I, W) when R =:= standby; R =:= starting ->
+    kill(ref(I), put_inst(I, W));
+msg2({stale, From, E}, I, W) ->
+    other(From, active, E, I, W);
+msg2({peer_instance, From, Role, E}, I, W) ->
+    other(From, Role, E, I, W);
+msg2({vote_reply, Ec, N, R}, I, W) ->
+    core({vote_reply, Ec, N, R}, I, W);
+msg2({register_reply, Claim, N, R}, I, W) ->
+    core({register_reply, Claim, N, R}, I, W);
+msg2(_Msg, I, W) ->
+    put_inst(I, W).
+
+apply_events([{V, _Now, Event} | Rest], #{commit := C, state := S} = I, W) ->
+    Mine = evatar_ha_commit:version(C),
+    if
+        V =:= Mine + 1 ->
+            {S1, _} = logic(Event, S),
+            apply_events(Rest, I#{state := S1, epoch := maps:get(epoch, S1),
+                                  commit := evatar_ha_commit:applied(V, C)}, W);
+        V =< Mine ->
+            apply_events(Rest, I, W);
+        true ->
+            send(node_of(I), {inst, maps:get(active, I)}, {resync, ref(I)}, put_inst(I, W))
+    end;
+apply_events([], #{commit := C, active := A} = I, W) ->
+    send(node_of(I), {inst, A}, {confirm, ref(I), evatar_ha_commit:version(C)}, put_inst(I, W)).
+
+other(From, _Role, _E, #{ref := From} = I, W) ->
+    put_inst(I, W);
+other(From, Role, E, #{role := MyRole, epoch := MyE} = I, W) when MyRole =/= starting ->
+    Peer = case MyRole of
+               standby -> maps:get(active, I);
+               _ -> maps:get(standby, I)
+           end,
+    Me = #{role => MyRole, epoch => MyE, node => node_of(I), pid => ref(I), peer => Peer},
+    Other = #{role => Role, epoch => E, node => element(1, From), pid => From},
+    case evatar_ha_core:reconcile(Me, Other) of
+        keep when MyRole =:= active, Role =/= standby, MyE > E ->
+            send(node_of(I), {inst, From}, {stale, ref(I), MyE}, put_inst(I, W));
+        keep ->
+            put_inst(I, W);
+        _StepDownOrStop ->
+            kill(ref(I), put_inst(I, W))
+    end;
+other(_From, _Role, _E, I, W) ->
+    put_inst(I, W).
+
+snapshot_to(#{standby := S, core := Core, commit := C, state := State} = I, W) ->
+    {Claim, Core1} = evatar_ha_core:next_claim(Core),
+    I1 = I#{core := Core1, commit := evatar_ha_commit:shipped(C)},
+    send(node_of(I), {inst, S}, {snapshot, ref(I), evatar_ha_commit:version(C), State, Claim},
+         put_inst(I1, W)).
+
+forget_standby(#{commit := C} = I) ->
+    I#{standby := undefined, commit := evatar_ha_commit:unsync(C)}.
+
+fence(I, W) ->
+    I1 = I#{role := fenced},
+    case majority_now(node_of(I), W) of
+        true -> core({elect, fenced, false}, I1, W);
+        false -> put_inst(I1, W)
+    end.
+
+core(Event, #{core := Core} = I, W) ->
+    {Core1, Effects} = evatar_ha_core:handle(Event, ctx(I, W), Core),
+    core_effects(Effects, I#{core := Core1}, W).
+
+core_effects([{vote, N, Ec, Claim, Dead} | Rest], I, W) ->
+    Active = case I of
+                 #{role := standby, active := A} -> A;
+                 #{ref := Ref} -> Ref
+             end,
+    core_effects(Rest, I, send(node_of(I), {node, N}, {vote, Ec, ref(I), Claim, Active, Dead}, W));
+core_effects([{register, N, Claim} | Rest], I, W) ->
+    core_effects(Rest, I, send(node_of(I), {node, N}, {register, Claim, ref(I)}, W));
+core_effects([{timer, K, Ms} | Rest], I, W) ->
+    core_effects(Rest, timer({ha, K}, Ms, I), W);
+core_effects([{pause, Action} | Rest], I, W) ->
+    core_effects(Rest, I#{reconfirming => Action =/= keep}, W);
+
+core_effects([{won, reelect, Ec}], #{role := active} = I, W) ->
+    %% Re-elected while serving: the epoch moves, the clients stay.
+    signal_event({reelected, Ec}, I, W);
+core_effects([{won, Why, Ec}], I, W) ->
+    take_over(Why, Ec, I, W);
+core_effects([{lost, _}], I, W) ->
+    kill(ref(I), put_inst(I, W));
+core_effects([registered], #{standby := undefined, commit := C} = I0, W) ->
+    I = I0#{reconfirming => false},
+    {Out, C1} = evatar_ha_commit:release_all(C),
+    W1 = effects(Out, I#{commit := C1}, W),
+    handle(place, maps:get(ref(I), maps:get(insts, W1)), W1);
+core_effects([registered], I, W) ->
+    put_inst(I#{reconfirming => false}, W);
+core_effects([{fence, _}], #{role := active} = I, W) ->
+    fence(I#{reconfirming => false}, W);
+core_effects(_Done, I, W) ->
+    put_inst(I, W).
+
+take_over(Why, Ec, #{commit := C} = I, W) ->
+    Old = maps:get(active, I),
+    I1 = I#{role := active, active := undefined, active_lost := false, standby := undefined,
+            commit := evatar_ha_commit:unsync(C), placing := 0},
+    W1 = case maps:get(standby, I) of
+             undefined -> W;
+             S -> send(node_of(I), {inst, S}, {dismiss, ref(I)}, W)
+         end,
+    W2 = signal_event({takeover, Ec}, I1, W1),
+    I2 = maps:get(ref(I), maps:get(insts, W2)),
+    case Why of
+        handover ->
+            {Core, []} = evatar_ha_core:handle({claim, {Ec, 1}}, ctx(I2, W2), maps:get(core, I2)),
+            put_inst(I2#{core := Core, standby := Old}, W2);
+        _ ->
+            put_inst(I2, W2)
+    end.
+
+timer(K, Ms, #{timers := Ts, now := Now} = I) ->
+    I#{timers := Ts#{K => Now + Ms}}.
+
+ref(#{ref := R}) -> R.
+node_of(#{node := N}) -> N.
+
+%% ---------------------------------------------------------------------------
+%% The pairing's rules (a stand-in) and the output commit
+%% ---------------------------------------------------------------------------
+
+%% A signal is routed once, with the routing it got (epoch and version:
+%% what the receiver's library tells signals apart by); a resend is only
+%% acknowledged again.
+logic({signal, Sid, Route}, #{applied := Applied} = S) ->
+    case lists:keymember(Sid, 1, Applied) of
+        true -> {S, [{accepted, sender, Sid}]};
+        false -> {S#{applied := Applied ++ [{Sid, Route}]},
+                  [{deliver, receiver, {Sid, Route}}, {accepted, sender, Sid}]}
+    end;
+logic({reelected, Ec}, S) ->
+    {S#{epoch := Ec}, [{log, notice, #{what => reelected}}]};
+logic({takeover, Ec}, S) ->
+    {S#{epoch := Ec}, [{log, notice, #{what => takeover}}]}.
+
+mode(#{standby := undefined, core := Core}) ->
+    case evatar_ha_core:holding(Core) of
+        true -> held;
+        false -> direct
+    end;
+mode(_I) ->
+    replicated.
+
+signal_event(Event, #{state := S, commit := C} = I, W) ->
+    {S1, Effects} = logic(Event, S),
+    Mode = mode(I),
+    {_Reply, Out, C1} = evatar_ha_commit:step(Event, maps:get(now, W), Effects,
+                                              #{sender => sender, receiver => receiver}, Mode, C),
+    I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
+    {Out2, C2} = evatar_ha_commit:flush(Mode, C1),
+    W1 = note_degraded(Mode, Effects, W),
+    effects(Out ++ Out2, I1#{commit := C2}, W1).
+
+degrade(Sid, #{sender := #{sent := Sent, degraded := D} = Snd} = W) ->
+    W#{sender := Snd#{degraded := lists:usort([X || X <- Sent, X =< Sid] ++ D)}}.
+
+note_degraded(direct, Effects, #{sender := Snd} = W) ->
+    W#{sender := Snd#{degraded := lists:usort([Sid || {accepted, _, Sid} <- Effects]
+                                             ++ maps:get(degraded, Snd))}};
+note_degraded(_Mode, _Effects, W) ->
+    W.
+
+%% What reaches the clients and the standby.
+effects([{deliver, receiver, X} | Rest], I, W) ->
+    effects(Rest, I, to_receiver(X, I, W));
+effects([{send, receiver, {signal, X}} | Rest], I, W) ->
+    effects(Rest, I, to_receiver(X, I, W));
+effects([{acks, #{sender := Sid}} | Rest], #{standby := S} = I, W) ->
+    %% Told without a standby that holds it: degraded, not covered by the
+    %% guarantee until a standby is synced again.
+    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 of
+             true -> degrade(Sid, W);
+             false -> W
+         end,
+    effects(Rest, I, to_sender(Sid, I, W1));
+effects([{ship, Events} | Rest], #{standby := S} = I, W) ->
+    effects(Rest, I, send(node_of(I), {inst, S}, {events, ref(I), Events}, W));
+effects([_ | Rest], I, W) ->
+    effects(Rest, I, W);
+effects([], I, W) ->
+    put_inst(I, W).
+
+%% Clients fence by epoch: nothing from an epoch lower than the highest seen.
+to_receiver({Sid, Route}, #{epoch := E}, #{receiver := #{got := Got, epoch := Seen} = R} = W) ->
+    case E >= Seen of
+        true ->
+            Routes = lists:usort([Route | maps:get(Sid, Got, [])]),
+            W#{receiver := R#{got := Got#{Sid => Routes}, epoch := E}};
+        false ->
+            W
+    end.
+
+to_sender(Sid, #{epoch := E}, #{sender := #{sent := Sent, acked := Acked, epoch := Seen} = S} = W) ->
+    case E >= Seen of
+        true ->
+            New = [X || X <- Sent, X =< Sid],
+            W#{sender := S#{acked := lists:usort(New ++ Acked), epoch := E,
+                            sent := Sent -- New}};
+        false ->
+            W
+    end.
+
+%% The sender resends what it was not told was accepted, then a new one,
+%% to the instance serving on node N (if any: else it tries later).
+client_send(N, #{sender := #{next := Next, sent := Sent} = Snd} = W) ->
+    case running(N, W) andalso inst_on(N, W) of
+        #{role := active, ref := Ref} ->
+            W1 = W#{sender := Snd#{next := Next + 1, sent := Sent ++ [Next]}},
+            lists:foldl(fun(Sid, Acc) ->
+                                case maps:get(insts, Acc) of
+                                    #{Ref := #{role := active, epoch := E, commit := C} = I} ->
+                                        Route = {E, evatar_ha_commit:version(C) + 1},
+                                        signal_event({signal, Sid, Route}, I, Acc);
+                                    #{} -> Acc
+                                end
+                        end, W1, Sent ++ [Next]);
+        _ ->
+            W
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Checks
+%% ---------------------------------------------------------------------------
+
+%% @doc The instances serving: active and not holding, on a running node.
+-spec serving(map()) -> [map()].
+serving(#{insts := Insts} = W) ->
+    [I || #{role := active, core := Core, node := N} = I <- maps:values(Insts),
+          running(N, W), not evatar_ha_core:holding(Core)].
+
+%% @doc The safety checks; a violation is recorded in `violations'.
+-spec check(map()) -> map().
+check(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
+        receiver := #{got := Got}} = W) ->
+    Live = maps:values(Insts),
+    MaxE = lists:max([0 | [E || #{epoch := E} <- Live]]),
+    Serving = [I || #{epoch := E} = I <- serving(W), E =:= MaxE],
+    Covered = Acked -- Degraded,
+    V1 = [{two_serving, [R || #{ref := R} <- Serving]} || length(Serving) > 1],
+    V2 = [{lost, Sid} || Sid <- Covered,
+                         not lists:any(fun(#{state := #{applied := A}}) -> lists:keymember(Sid, 1, A) end, Live)],
+    V3 = [{lost_by_active, Sid, R} || #{ref := R, state := #{applied := A}} <- Serving,
+                                      Sid <- Covered, not lists:keymember(Sid, 1, A)],
+    V4 = [{twice, Sid, Routes} || {Sid, Routes} <- maps:to_list(Got), length(Routes) > 1,
+                                  lists:member(Sid, Covered)],
+    V5 = [{not_serving, maps:get(now, W)} || stuck(W)],
+    case V1 ++ V2 ++ V3 ++ V4 ++ V5 of
+        [] -> W;
+        Vs -> W#{violations := maps:get(violations, W) ++ Vs}
+    end.
+
+%% Liveness while a fault lasts: once nothing changed for 2 s, an instance
+%% on a node that hears a majority serves (it, or another one, took over).
+stuck(#{now := Now, last_change := T, names := Names, nodes := Nodes} = W) when Now - T >= 2000 ->
+    WithMajority = [N || N <- Names, running(N, W), maps:get(quorum, maps:get(N, Nodes)),
+                         case inst_on(N, W) of
+                             #{role := starting} -> false;
+                             undefined -> false;
+                             _ -> true
+                         end],
+    WithMajority =/= [] andalso serving(W) =:= [];
+stuck(_W) ->
+    false.
+
+%% @doc Heals everything, lets time run, and says whether some instance
+%% serves and takes a signal.
+-spec settle(map()) -> {boolean(), map()}.
+settle(#{names := Names} = W0) ->
+    W1 = lists:foldl(fun(N, Acc) -> resume(N, restart(N, Acc)) end,
+                     advance(1000, step(heal, W0)), Names),
+    W2 = advance(3000, W1),
+    W3 = lists:foldl(fun(N, Acc) -> client_send(N, Acc) end, W2, Names),
+    W4 = check(advance(1000, W3)),
+    %% An instance left that holds the pairing's state must serve; with none
+    %% left (both failed before a standby was synced) the catalogue restores
+    %% the pairing afresh, outside this model.
+    Holders = [I || #{role := R} = I <- maps:values(maps:get(insts, W4)), R =/= starting],
+    {Holders =:= [] orelse serving(W4) =/= [], W4}.
