@@ -480,7 +480,8 @@ start_proxies(Nodes) ->
 -spec code_path() -> [file:filename()].
 code_path() ->
     %% evatar_test_kit: this module's helpers (await/3) run on a node too.
-    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff, evatar_test_kit],
+    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff, sock_flow,
+            evatar_test_kit],
     Dirs = [filename:join(code:lib_dir(App), "ebin") || App <- Apps]
         ++ [filename:dirname(code:which(?MODULE))],
     lists:usort(Dirs).

@@ -390,7 +390,7 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
                       end,
             ok = agent_bridge_transport:set_max_frame(D1#d.transport, opt(max_frame, D)),
             ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
-            D1a = D1#d{credit = max(1, opt(active_n, D) div 2)},
+            D1a = D1#d{credit = sock_flow:credit(opt(active_n, D))},
             Beat = case V of
                        2 -> [heartbeat_check(D)];
                        %% A port's program is the operator's, and its exit is seen.
@@ -525,7 +525,7 @@ read_on(#d{pairing_pid = Pid, transport = T} = D) ->
             {message_queue_len, Waiting} = process_info(self(), message_queue_len),
             ok = agent_bridge_transport:top_up(T, N - Waiting)
     end,
-    D#d{credit = max(1, N div 2)}.
+    D#d{credit = sock_flow:credit(N)}.
 
 %% A result that keeps the data keeps the read count updated before it.
 with_data(D, keep_state_and_data) -> {keep_state, D};
@@ -539,7 +539,7 @@ resume_reading(#d{pairing_pid = Pid, transport = T} = D) ->
             {keep_state_and_data, [{{timeout, resume}, opt(retry_interval, D), resume}]};
         false ->
             ok = agent_bridge_transport:activate(T, opt(active_n, D)),
-            {keep_state, D#d{credit = max(1, opt(active_n, D) div 2)}}
+            {keep_state, D#d{credit = sock_flow:credit(opt(active_n, D))}}
     end.
 
 pairing_backlog(Pid) when is_pid(Pid), node(Pid) =:= node() ->

@@ -46,36 +46,21 @@ send_fun({_, Port}) ->
 
 %% @doc Lets the next N frames in (`once' for one). Ports cannot be paused.
 -spec activate(t(), once | pos_integer()) -> ok.
-activate({tcp, S}, N) -> ok_or_closed(inet:setopts(S, [{active, N}]));
-activate({tls, S, _}, N) -> ok_or_closed(ssl:setopts(S, [{active, N}]));
+activate({tcp, S}, N) -> ok_or_closed(sock_flow:activate(S, N));
+activate({tls, S, _}, N) -> ok_or_closed(sock_flow:activate(S, N));
 activate({port, _}, _) -> ok.
 
 %% @doc Raises a socket's `{active, N}' count to `Target' frames still to
-%% deliver; a passive socket is left alone (its passive notice is on its
-%% way, and the owner decides then). TLS sockets are read by their own
-%% process, so topping them up gains nothing: they go passive and are
-%% activated again.
+%% deliver (sock_flow:top_up/2: a passive socket, and TLS, are left alone).
 -spec top_up(t(), integer()) -> ok.
-top_up({tcp, S}, Target) ->
-    case inet:getopts(S, [active]) of
-        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Target > Left ->
-            ok_or_closed(inet:setopts(S, [{active, Target - Left}]));
-        _ ->
-            ok
-    end;
+top_up({tcp, S}, Target) -> sock_flow:top_up(S, Target);
 top_up(_, _) -> ok.
 
-%% @doc Whether a socket has stopped delivering frames (`{active, false}');
-%% a closed one counts as passive. A TLS socket's passive notice is never
-%% stale (no top-ups).
+%% @doc Whether a socket has stopped delivering frames (sock_flow:is_passive/1:
+%% a closed one counts as passive, a TLS socket's notice is never stale).
 -spec is_passive(t()) -> boolean().
-is_passive({tcp, S}) ->
-    case inet:getopts(S, [active]) of
-        {ok, [{active, false}]} -> true;
-        {ok, [{active, _}]} -> false;
-        {error, _} -> true
-    end;
-is_passive({tls, _, _}) -> true;
+is_passive({tcp, S}) -> sock_flow:is_passive(S);
+is_passive({tls, S, _}) -> sock_flow:is_passive(S);
 is_passive({port, _}) -> false.
 
 -spec set_max_frame(t(), pos_integer()) -> ok.
@@ -88,9 +73,7 @@ set_max_frame({port, _}, _) -> ok.
 %% last frame. Framing stays on (it applies to our output too); a nonsense
 %% length ends the drain with an error, which is fine.
 -spec drain(t()) -> ok.
-drain({tcp, S}) -> ok_or_closed(inet:setopts(S, [{active, once}]));
-drain({tls, S, _}) -> ok_or_closed(ssl:setopts(S, [{active, once}]));
-drain({port, _}) -> ok.
+drain(T) -> activate(T, once).
 
 %% @doc Half-closes after the queued output; inet delays it until its queue
 %% is empty, TLS's writer until it has written the frames it holds.

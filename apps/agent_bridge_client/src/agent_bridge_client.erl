@@ -292,9 +292,9 @@ handle_event(state_timeout, handshake, handshaking, D) ->
 handle_event(info, {tcp, Sock, Frame}, handshaking, #d{sock = Sock, session = S} = D) ->
     case bil_control:parse_frame(Frame, #{}) of
         {ok, {control, {welcome, Welcome}}} ->
-            ok = agent_bridge_client_sock:setopts(Sock, [{active, active_n(D)}]),
+            ok = sock_flow:activate(Sock, active_n(D)),
             reply_waiter({ok, self()}, D),
-            D1 = D#d{waiter = undefined, reads = max(1, active_n(D) div 2)},
+            D1 = D#d{waiter = undefined, reads = sock_flow:credit(active_n(D))},
             case agent_bridge_client_session:welcomed(Welcome, now_ms(), S) of
                 {ok, Effects, S1} ->
                     {D2, Actions} = run(Effects, D1#d{session = S1}),
@@ -327,11 +327,12 @@ handle_event(info, {tcp, Sock, Frame}, connected, #d{sock = Sock, session = S} =
     end;
 handle_event(info, {tcp_passive, Sock}, connected, #d{sock = Sock} = D) ->
     %% A top-up made just as the socket went passive makes this notice stale.
-    case agent_bridge_client_sock:getopts(Sock, [active]) of
-        {ok, [{active, false}]} ->
-            ok = agent_bridge_client_sock:setopts(Sock, [{active, active_n(D)}]),
-            {keep_state, D#d{reads = max(1, active_n(D) div 2)}};
-        _ ->
+    case sock_flow:is_passive(Sock) of
+        true ->
+            %% A closed socket says so in its own message.
+            _ = sock_flow:activate(Sock, active_n(D)),
+            {keep_state, D#d{reads = sock_flow:credit(active_n(D))}};
+        false ->
             keep_state_and_data
     end;
 handle_event(info, {tcp_closed, Sock}, connected, #d{sock = Sock} = D) ->
@@ -377,7 +378,7 @@ handle_event({call, From}, close, connected, #d{sock = Sock, opts = Opts} = D) -
     %% connection or the timeout ends the wait.
     case agent_bridge_client_sock:send(Sock, bil_control:encode({bye, <<>>})) of
         ok ->
-            _ = agent_bridge_client_sock:setopts(Sock, [{active, true}]),
+            _ = sock_flow:activate(Sock, true),
             {next_state, closing, finish_quietly(D#d{closers = [From]}),
              [{state_timeout, maps:get(close_timeout, Opts, 5000), close},
               {{timeout, silence}, cancel}, {{timeout, ack}, cancel}]};
@@ -401,7 +402,7 @@ handle_event(info, {tcp, Sock, Frame}, closing, #d{sock = Sock} = D) ->
         _ -> keep_state_and_data
     end;
 handle_event(info, {tcp_passive, Sock}, closing, #d{sock = Sock}) ->
-    _ = agent_bridge_client_sock:setopts(Sock, [{active, true}]),
+    _ = sock_flow:activate(Sock, true),
     keep_state_and_data;
 handle_event(info, {tcp_closed, Sock}, closing, #d{sock = Sock} = D) ->
     closed(D);
@@ -556,22 +557,10 @@ reply_waiter(Reply, #d{waiter = From}) -> gen_statem:reply(From, Reply).
 
 active_n(#d{opts = Opts}) -> maps:get(active_n, Opts, 32).
 
-%% Every half batch the socket's `{active, N}' count is topped up to N, so
-%% a busy connection never goes passive and the runtime polls its socket
-%% from the schedulers instead of waking its poll thread for each frame
-%% (bench/EVATAR_BENCH.md).
-read_on(#d{reads = R} = D) when R > 1 ->
-    D#d{reads = R - 1};
-read_on(#d{sock = Sock} = D) ->
-    N = active_n(D),
-    case agent_bridge_client_sock:getopts(Sock, [active]) of
-        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
-            _ = agent_bridge_client_sock:setopts(Sock, [{active, N - Left}]),
-            ok;
-        _ ->
-            ok
-    end,
-    D#d{reads = max(1, N div 2)}.
+%% Every half batch the socket's `{active, N}' count is topped up to N
+%% (sock_flow), so a busy connection never goes passive.
+read_on(#d{reads = R, sock = Sock} = D) ->
+    D#d{reads = sock_flow:read_on(R, Sock, active_n(D))}.
 
 %% Without `ha' the session ends here. With it, reconnect through the
 %% endpoints (starting after this one) unless the refusal is final.

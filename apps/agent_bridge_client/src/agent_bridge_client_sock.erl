@@ -2,10 +2,11 @@
 %% server against a CA file (or the system's CAs) and/or a pinned SHA-256
 %% certificate fingerprint, and can present a client certificate
 %% (docs/clients.md, "TLS"). Nothing of the protocol is sent before the
-%% server passed every check.
+%% server passed every check. Its flow control (`{active, N}') is
+%% sock_flow's, as for every socket reader.
 -module(agent_bridge_client_sock).
 
--export([connect/4, send/2, close/1, setopts/2, getopts/2, fingerprint/1,
+-export([connect/4, send/2, close/1, fingerprint/1,
          controlling_process/2]).
 
 -export_type([sock/0, tls_opts/0]).
@@ -98,11 +99,3 @@ close(S) -> _ = ssl:close(S), ok.
 -spec controlling_process(sock(), pid()) -> ok | {error, term()}.
 controlling_process(S, Pid) when is_port(S) -> gen_tcp:controlling_process(S, Pid);
 controlling_process(S, Pid) -> ssl:controlling_process(S, Pid).
-
--spec setopts(sock(), [gen_tcp:option()]) -> ok | {error, term()}.
-setopts(S, Opts) when is_port(S) -> inet:setopts(S, Opts);
-setopts(S, Opts) -> ssl:setopts(S, Opts).
-
--spec getopts(sock(), [atom()]) -> {ok, [gen_tcp:option()]} | {error, term()}.
-getopts(S, Opts) when is_port(S) -> inet:getopts(S, Opts);
-getopts(S, Opts) -> ssl:getopts(S, Opts).

@@ -37,36 +37,18 @@ send({ssl, S}, Data) -> ssl:send(S, Data).
 
 %% @doc Re-arms `{active, N}' after the socket went passive.
 -spec activate(sock(), pos_integer()) -> ok | {error, term()}.
-activate({tcp, S}, N) -> inet:setopts(S, [{active, N}]);
-activate({ssl, S}, N) -> ssl:setopts(S, [{active, N}]).
+activate({_, S}, N) -> sock_flow:activate(S, N).
 
 %% @doc Raises a reading socket's `{active, N}' count back to N, so that a
-%% busy connection never goes passive: the runtime then polls its socket
-%% from the schedulers instead of waking its poll thread for each read.
-%% TLS sockets and passive ones are left alone.
+%% busy connection never goes passive (sock_flow:top_up/2; TLS sockets
+%% and passive ones are left alone).
 -spec top_up(sock(), pos_integer()) -> ok.
-top_up({tcp, S}, N) ->
-    case inet:getopts(S, [active]) of
-        {ok, [{active, Left}]} when is_integer(Left), Left > 0, Left < N ->
-            _ = inet:setopts(S, [{active, N - Left}]),
-            ok;
-        _ ->
-            ok
-    end;
-top_up({ssl, _}, _) ->
-    ok.
+top_up({_, S}, N) -> sock_flow:top_up(S, N).
 
 %% @doc Whether the socket has stopped delivering data: a passive notice
-%% that a top-up overtook is stale.
+%% that a top-up overtook is stale (sock_flow:is_passive/1).
 -spec is_passive(sock()) -> boolean().
-is_passive({tcp, S}) ->
-    case inet:getopts(S, [active]) of
-        {ok, [{active, false}]} -> true;
-        {ok, [{active, _}]} -> false;
-        {error, _} -> true
-    end;
-is_passive({ssl, _}) ->
-    true.
+is_passive({_, S}) -> sock_flow:is_passive(S).
 
 %% @doc Closes the connection.
 -spec close(sock() | undefined) -> ok.
