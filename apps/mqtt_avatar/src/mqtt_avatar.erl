@@ -26,6 +26,9 @@
 %% `echo_timeout' (5000), `retry' (first delay before joining again, 200).
 %% `timestamp_field': a top-level JSON field of state payloads holding the
 %% reading's time (ms since 1970), used as the signals' Timestamp.
+%% `birth': Home Assistant's birth message, published after every MQTT
+%% connection (default `#{topic => <<"homeassistant/status">>, payload =>
+%% <<"online">>}'; `false' publishes none).
 -type opts() :: #{entity_id := binary(),
                   mqtt := map(),
                   evatar => false | #{endpoints := [agent_bridge_client:endpoint()],
@@ -40,6 +43,7 @@
                   echo_timeout => non_neg_integer(),
                   retry => pos_integer(),
                   timestamp_field => binary(),
+                  birth => false | #{topic => binary(), payload => binary()},
                   restart => restart_backoff:opts(),
                   static_components => [bil:component()]}.
 %% Every problem has `what' (an atom from a fixed set) and `message' (a
@@ -286,13 +290,34 @@ check(Description) ->
 %% ---------------------------------------------------------------------------
 
 prepare(#{entity_id := Id, mqtt := #{host := _, port := _}} = Opts) when is_binary(Id), Id =/= <<>> ->
-    case static(Opts) of
-        {ok, Components} -> {ok, maps:remove(description, Opts#{static_components => Components})};
-        {error, _} = Error -> Error
+    case {birth_ok(maps:get(birth, Opts, false)), static(Opts)} of
+        {false, _} ->
+            {error, [#{what => bad_options,
+                       message => <<"birth must be false or #{topic, payload}: a topic without "
+                                    "+ or # and a binary payload">>}]};
+        {true, Static} ->
+            prepared(Static, Opts)
     end;
 prepare(_Opts) ->
     {error, [#{what => bad_options,
                message => <<"entity_id (a non-empty binary) and mqtt => #{host, port} are required">>}]}.
+
+birth_ok(false) ->
+    true;
+birth_ok(#{} = B) ->
+    Topic = maps:get(topic, B, <<"homeassistant/status">>),
+    is_binary(Topic) andalso Topic =/= <<>>
+        andalso binary:match(Topic, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch
+        andalso is_binary(maps:get(payload, B, <<>>))
+        andalso maps:size(maps:without([topic, payload], B)) =:= 0;
+birth_ok(_) ->
+    false.
+
+prepared(Static, Opts) ->
+    case Static of
+        {ok, Components} -> {ok, maps:remove(description, Opts#{static_components => Components})};
+        {error, _} = Error -> Error
+    end.
 
 static(Opts) ->
     case maps:get(description, Opts, undefined) of

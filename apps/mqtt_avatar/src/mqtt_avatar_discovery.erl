@@ -8,7 +8,14 @@
 
 -export_type([state/0, opts/0, device/0, device_info/0, entity/0, kind/0, problem/0]).
 
--type opts() :: #{homeassistant => binary() | false, zigbee2mqtt => binary() | false}.
+%% Largest discovery config read, in bytes (option max_config_size); the
+%% zigbee2mqtt device list may be larger (up to the JSON decoder's 1 MiB).
+-define(MAX_CONFIG, 65536).
+%% Topics whose last problems are remembered (so not reported again).
+-define(MAX_REPORTED, 4096).
+
+-type opts() :: #{homeassistant => binary() | false, zigbee2mqtt => binary() | false,
+                  max_config_size => pos_integer()}.
 %% An entity: the keys every family has, and its family's own
 %% (mqtt_avatar_family_*: `on'/`off' for on/off actuators, `press' for
 %% buttons...).
@@ -40,6 +47,9 @@
 -type problem() :: #{what := bad_discovery, topic := binary(), message := binary()}.
 -opaque state() :: #{ha_prefix := binary() | false,
                      z2m_base := binary() | false,
+                     max_config := pos_integer(),
+                     %% the problems last reported per topic, not reported again
+                     reported := #{binary() => [binary()]},
                      ha := #{binary() => {device_info(), entity()}},
                      z2m := [device()]}.
 
@@ -49,6 +59,8 @@
 new(Opts) ->
     #{ha_prefix => maps:get(homeassistant, Opts, <<"homeassistant">>),
       z2m_base => maps:get(zigbee2mqtt, Opts, <<"zigbee2mqtt">>),
+      max_config => maps:get(max_config_size, Opts, ?MAX_CONFIG),
+      reported => #{},
       ha => #{}, z2m => []}.
 
 %% @doc The topic filters to subscribe to.
@@ -61,10 +73,28 @@ subscriptions(#{ha_prefix := Ha, z2m_base := Z}) ->
 -spec is_empty(state()) -> boolean().
 is_empty(#{ha := Ha, z2m := Z}) -> map_size(Ha) =:= 0 andalso Z =:= [].
 
-%% @doc One message. `ignore' when the topic is not a discovery topic.
+%% @doc One message. `ignore' when the topic is not a discovery topic. A
+%% problem is given when it appears on its topic, not again while the
+%% topic keeps sending the same mistake (a device re-announcing itself).
 -spec handle(binary(), binary(), state()) ->
           ignore | {changed | unchanged, state(), [problem()]}.
-handle(Topic, Payload, #{z2m_base := Z} = S) when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">> ->
+handle(Topic, Payload, S) ->
+    case handle_one(Topic, Payload, S) of
+        ignore ->
+            ignore;
+        {Changed, #{reported := Reported} = S1, Problems} ->
+            Before = maps:get(Topic, Reported, []),
+            Messages = [M || #{message := M} <- Problems],
+            Reported1 = if
+                            Messages =:= [] -> maps:remove(Topic, Reported);
+                            map_size(Reported) >= ?MAX_REPORTED -> Reported;
+                            true -> Reported#{Topic => Messages}
+                        end,
+            {Changed, S1#{reported := Reported1},
+             [P || #{message := M} = P <- Problems, not lists:member(M, Before)]}
+    end.
+
+handle_one(Topic, Payload, #{z2m_base := Z} = S) when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">> ->
     case mqtt_avatar_z2m:parse(Z, Payload) of
         {ok, Devices, Messages} ->
             Problems = [problem(Topic, M) || M <- Messages],
@@ -75,7 +105,17 @@ handle(Topic, Payload, #{z2m_base := Z} = S) when Z =/= false, Topic =:= <<Z/bin
         {error, M} ->
             {unchanged, S, [problem(Topic, M)]}
     end;
-handle(Topic, Payload, #{ha_prefix := Prefix, ha := Ha} = S) when Prefix =/= false ->
+handle_one(Topic, Payload, #{max_config := Max} = S) when byte_size(Payload) > Max ->
+    case is_ha_config(Topic, S) of
+        true ->
+            {unchanged, S, [problem(Topic, iolist_to_binary(
+                                             ["the config is ", integer_to_list(byte_size(Payload)),
+                                              " bytes, over max_config_size (",
+                                              integer_to_list(Max), " bytes); skipped"]))]};
+        false ->
+            ignore
+    end;
+handle_one(Topic, Payload, #{ha_prefix := Prefix, ha := Ha} = S) when Prefix =/= false ->
     case mqtt_avatar_ha:parse(Prefix, Topic, Payload) of
         ignore ->
             ignore;
@@ -92,8 +132,13 @@ handle(Topic, Payload, #{ha_prefix := Prefix, ha := Ha} = S) when Prefix =/= fal
         {error, M} ->
             {unchanged, S, [problem(Topic, M)]}
     end;
-handle(_Topic, _Payload, _S) ->
+handle_one(_Topic, _Payload, _S) ->
     ignore.
+
+%% Whether a topic is a Home Assistant discovery config's (an empty payload
+%% is read without looking at anything else).
+is_ha_config(_Topic, #{ha_prefix := false}) -> false;
+is_ha_config(Topic, #{ha_prefix := Prefix}) -> mqtt_avatar_ha:parse(Prefix, Topic, <<>>) =/= ignore.
 
 %% @doc Every device discovered, Home Assistant devices first, each sorted
 %% by key; a device's entities in topic order.

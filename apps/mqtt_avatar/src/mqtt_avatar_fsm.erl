@@ -24,6 +24,8 @@
 
 -define(MAX_PROBLEMS, 100).
 -define(MAX_RETRY, 5000).
+-define(BIRTH_TOPIC, <<"homeassistant/status">>).
+-define(BIRTH_PAYLOAD, <<"online">>).
 
 -record(d, {opts :: mqtt_avatar:opts(),
             entity :: binary(),
@@ -38,6 +40,8 @@
             mqtt_up = false :: boolean(),
             retry :: pos_integer(),
             problems = [] :: [map()],
+            %% the problems of the last generated description, reported once
+            generated = [] :: [map()],
             waiters = [] :: [gen_statem:from()]}).
 
 %% ---------------------------------------------------------------------------
@@ -96,7 +100,7 @@ handle_event(internal, start_mqtt, starting, #d{opts = Opts, entity = Entity} = 
 
 %% MQTT session events, in every state.
 handle_event(info, {mqtt_client, Pid, {connected, _}}, State, #d{mqtt = Pid} = D) ->
-    D1 = subscribe(D#d{mqtt_up = true}),
+    D1 = birth(subscribe(D#d{mqtt_up = true})),
     {D2, Actions} = logic({mqtt_status, up}, D1),
     case State of
         starting when D2#d.discovery =/= undefined ->
@@ -270,13 +274,14 @@ rebuild(#d{opts = Opts, entity = Entity, static = Static} = D) ->
                            api_name => maps:get(api_name, Opts, <<"MQTT AVATAR">>)},
                          Devices, []),
     {ok, Spec} = mqtt_avatar_spec:from_description(Full),
-    %% Problems of an unchanged discovery were reported already.
-    D1 = case Full =:= D#d.description of
-             true -> D;
-             false -> lists:foldl(fun problem/2, D, Problems)
-         end,
+    %% A problem is reported when it first appears (a device left out
+    %% because of its config is reported when the config arrives, even if
+    %% the description stays the same), and not again while it lasts.
+    Before = sets:from_list(D#d.generated),
+    D1 = lists:foldl(fun problem/2, D, [P || P <- Problems, not sets:is_element(P, Before)]),
     Changed = Full =/= D#d.description,
-    {D1#d{description = Full, logic = mqtt_avatar_logic:set_spec(Spec, D1#d.logic)}, Changed}.
+    {D1#d{description = Full, generated = Problems,
+          logic = mqtt_avatar_logic:set_spec(Spec, D1#d.logic)}, Changed}.
 
 describe(#d{bridge = undefined} = D) ->
     D;
@@ -308,6 +313,20 @@ subscribe(#d{mqtt = Pid, subscribed = Done, logic = _L} = D) ->
                     problem(#{what => subscribe_failed,
                               message => iolist_to_binary(io_lib:format("~0p", [Reason]))}, D)
             end
+    end.
+
+%% Home Assistant's birth message, after every (re)connection and once
+%% subscribed: devices that announce themselves (configs, states) only when
+%% Home Assistant comes online then announce themselves to us too.
+birth(#d{opts = Opts, mqtt = Pid} = D) ->
+    case maps:get(birth, Opts, #{}) of
+        false ->
+            D;
+        Birth ->
+            Topic = maps:get(topic, Birth, ?BIRTH_TOPIC),
+            Payload = maps:get(payload, Birth, ?BIRTH_PAYLOAD),
+            ok = mqtt_client:publish_async(Pid, Topic, Payload, #{qos => 1}),
+            D
     end.
 
 discovery_filters(#d{discovery = undefined}) -> [];

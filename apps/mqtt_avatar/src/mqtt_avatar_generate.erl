@@ -167,11 +167,23 @@ combined_read(D, Name, SensorParams, Services, Room) ->
         false -> [entry(<<"SENSOR">>, Type, [{P, <<"yes">>} || P <- SensorParams] ++ Room)]
     end.
 
+avail_source({template, Text}) -> <<"template:", Text/binary>>;
+avail_source(V) -> source(V).
+
 availability_params(undefined) ->
     [];
-availability_params(#{topic := T, online := On, offline := Off, value := V}) ->
-    [{<<"MqttAvailabilityTopic">>, T}, {<<"MqttPayloadAvailable">>, On},
-     {<<"MqttPayloadNotAvailable">>, Off}, {<<"MqttAvailabilityValue">>, source(V)}].
+availability_params(#{mode := Mode, entries := Entries}) ->
+    %% The first entry's names are bare, the next ones' end in 2, 3 ...
+    {Params, _} =
+        lists:foldl(fun(#{topic := T, online := On, offline := Off, value := V}, {Acc, N}) ->
+                            S = case N of 1 -> <<>>; _ -> integer_to_binary(N) end,
+                            {Acc ++ [{<<"MqttAvailabilityTopic", S/binary>>, T},
+                                     {<<"MqttPayloadAvailable", S/binary>>, On},
+                                     {<<"MqttPayloadNotAvailable", S/binary>>, Off},
+                                     {<<"MqttAvailabilityValue", S/binary>>, avail_source(V)}],
+                             N + 1}
+                    end, {[], 1}, Entries),
+    Params ++ [{<<"MqttAvailabilityMode">>, atom_to_binary(Mode)} || Mode =/= latest].
 
 %% ---------------------------------------------------------------------------
 %% Helpers

@@ -13,6 +13,9 @@
 -type parsed() :: {entity, mqtt_avatar_discovery:device_info(), mqtt_avatar_discovery:entity()}
                 | remove.
 
+%% Entries of an `availability' list an entity may have (docs/mqtt.md 3.1).
+-define(MAX_AVAILABILITY, 8).
+
 %% @doc The HA components understood.
 -spec components() -> [binary()].
 components() -> mqtt_avatar_family:components().
@@ -225,35 +228,64 @@ device(C, Uid, Avail) ->
               model => undefined, availability => Avail}
     end.
 
+%% HA's `availability' list (each entry with its own payloads, default
+%% online/offline, and `value_template'), with `availability_mode'; or the
+%% single `availability_topic' with the top-level payloads and
+%% `availability_template'.
 availability(C) ->
-    Item = case maps:get(<<"availability">>, C, undefined) of
-               [First | _] when is_map(First) -> expand(First, []);
-               _ -> #{}
-           end,
-    Topic = case maps:get(<<"topic">>, Item, undefined) of
-                T when is_binary(T) -> T;
-                _ -> str(<<"availability_topic">>, C)
+    Items = case maps:get(<<"availability">>, C, undefined) of
+                L when is_list(L), L =/= [] ->
+                    {list, [expand(I, []) || I <- L, is_map(I)]};
+                _ ->
+                    case str(<<"availability_topic">>, C) of
+                        undefined -> none;
+                        T -> {list, [#{<<"topic">> => T,
+                                       <<"payload_available">> => str(<<"payload_available">>, C),
+                                       <<"payload_not_available">> =>
+                                           str(<<"payload_not_available">>, C),
+                                       <<"value_template">> => str(<<"availability_template">>, C)}]}
+                    end
             end,
+    Mode = case str(<<"availability_mode">>, C, <<"latest">>) of
+               <<"latest">> -> {ok, latest};
+               <<"all">> -> {ok, all};
+               <<"any">> -> {ok, any};
+               Other -> {error, <<"availability_mode ", (printable(Other))/binary,
+                                  " is not all, any or latest">>}
+           end,
+    case Items of
+        none ->
+            {ok, undefined};
+        {list, Is} when length(Is) > ?MAX_AVAILABILITY ->
+            {error, <<"more than 8 availability entries">>};
+        {list, Is} ->
+            Entries = [availability_entry(I) || I <- Is],
+            case [M || {error, M} <- [Mode | Entries]] of
+                [] when Entries =:= [] -> {ok, undefined};
+                [] -> {ok, #{mode => element(2, Mode), entries => [E || {ok, E} <- Entries]}};
+                [M | _] -> {error, M}
+            end
+    end.
+
+availability_entry(Item) ->
     Get = fun(K, Default) ->
-                  case maps:get(K, Item, undefined) of
-                      V when is_binary(V) -> V;
-                      _ -> str(K, C, Default)
+                  case str(K, Item) of
+                      undefined -> Default;
+                      V -> V
                   end
           end,
-    case Topic of
+    case str(<<"topic">>, Item) of
         undefined ->
-            {ok, undefined};
-        _ ->
+            {error, <<"an availability entry without topic">>};
+        Topic ->
             case valid_topic(Topic) of
                 false ->
                     {error, <<"availability topic ", (printable(Topic))/binary,
                               " is empty or has a wildcard">>};
                 true ->
-                    Template = case maps:get(<<"value_template">>, Item, undefined) of
-                                   V when is_binary(V) -> V;
-                                   _ -> str(<<"availability_template">>, C)
-                               end,
-                    case path_source(Template) of
+                    %% A plain path is read as one; any other template is
+                    %% rendered at each message and compared with the payloads.
+                    case source(str(<<"value_template">>, Item)) of
                         {ok, Source} ->
                             {ok, #{topic => Topic,
                                    online => Get(<<"payload_available">>, <<"online">>),

@@ -39,9 +39,12 @@
                      last := #{{binary(), pos_integer()} => [bil:parameter()]},
                      avail := #{binary() => {online | offline, integer()}},
                      lights := #{{binary(), binary()} => mqtt_avatar_light:state()},
+                     avail_entries := #{binary() => #{pos_integer() => online | offline}},
+                     states := #{{binary(), binary()} => [bil:parameter()]},
+                     quiet := #{{atom(), binary()} => {integer(), non_neg_integer()}},
                      pending := #{key() => pending()}}.
--type route() :: {stream, binary(), pos_integer()} | {avail, binary()}
-               | {light, binary(), mqtt_avatar_light:light()}.
+-type route() :: {stream, binary(), pos_integer()} | {avail, binary(), pos_integer()}
+               | {state, binary()} | {light, binary(), mqtt_avatar_light:light()}.
 -type pending() :: #{component := binary(),
                      requester := binary(),
                      service := mqtt_avatar_spec:service(),
@@ -53,6 +56,12 @@
 %% Longest payload turned into one parameter value: keeps signals far
 %% below BIL's 64 KiB limit.
 -define(MAX_VALUE, 4096).
+
+%% A topic's unreadable payloads (bad_payload, bad_availability) are
+%% reported at most once in this many ms; the next report says how many
+%% were left out meanwhile (docs/mqtt.md section 6).
+-define(PROBLEM_INTERVAL, 60000).
+-define(RATE_LIMITED, [bad_payload, bad_availability]).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -75,7 +84,7 @@ new(Entity, Spec, EchoTimeout, Opts) ->
                      ts_field => maps:get(timestamp_field, Opts, undefined),
                      comps => #{}, routes => #{},
                      bound => [], mqtt => down, last => #{}, avail => #{}, lights => #{},
-                     pending => #{}}).
+                     avail_entries => #{}, states => #{}, quiet => #{}, pending => #{}}).
 
 %% @doc Replaces the spec (after a new discovery); keeps what is known about
 %% the components that remain.
@@ -90,11 +99,24 @@ set_spec(#{components := Comps}, S) ->
                        end
                end,
     KeepAvail = fun(Id, _) -> maps:is_key(Id, Index) end,
+    Old = maps:get(comps, S, #{}),
+    %% What each availability entry said is kept while the entries stay.
+    SameEntries = fun(Id, _) ->
+                          case {maps:find(Id, Old), maps:find(Id, Index)} of
+                              {{ok, #{availability := A}}, {ok, #{availability := A}}} -> true;
+                              _ -> false
+                          end
+                  end,
+    KeepState = fun({Id, Topic}, _) -> lists:member({state, Id}, maps:get(Topic, Routes, [])) end,
+    KeepQuiet = fun({_, Topic}, _) -> maps:is_key(Topic, Routes) end,
     KeepLight = fun({Id, _}, _) -> maps:is_key(Id, Index) end,
     S#{comps := Index, routes := Routes,
+       lights := maps:filter(KeepLight, maps:get(lights, S)),
        last := maps:filter(KeepLast, maps:get(last, S)),
        avail := maps:filter(KeepAvail, maps:get(avail, S)),
-       lights := maps:filter(KeepLight, maps:get(lights, S))}.
+       avail_entries := maps:filter(SameEntries, maps:get(avail_entries, S)),
+       states := maps:filter(KeepState, maps:get(states, S)),
+       quiet := maps:filter(KeepQuiet, maps:get(quiet, S))}.
 
 %% @doc Last values of every stream: `#{ComponentID => [Param]}'.
 -spec last_values(state()) -> #{binary() => [bil:parameter()]}.
@@ -130,12 +152,12 @@ handle({binding, #{bound := Bound}}, Now, S) ->
                          || {Id, {offline, _}} <- lists:sort(maps:to_list(maps:get(avail, S1)))]),
     {S1, Readings ++ Away};
 handle({mqtt, #{topic := Topic} = Msg}, Now, #{routes := Routes} = S) ->
-    Echo = echo(Msg, S),
-    {S1, E1} = Echo,
-    lists:foldl(fun(Route, {SAcc, EAcc}) ->
-                        {SAcc1, E} = route(Route, Msg, Now, SAcc),
-                        {SAcc1, EAcc ++ E}
-                end, {S1, E1}, maps:get(Topic, Routes, []));
+    {S1, E1, Answered} = echo(Msg, S),
+    {S2, E2} = lists:foldl(fun(Route, {SAcc, EAcc}) ->
+                                   {SAcc1, E} = route(Route, Msg#{answered => Answered}, Now, SAcc),
+                                   {SAcc1, EAcc ++ E}
+                           end, {S1, E1}, maps:get(Topic, Routes, [])),
+    limit_problems(E2, Now, S2);
 handle({signal, #{context := Ctx} = Signal}, Now, S)
   when Ctx =:= request; Ctx =:= request_no_feedback ->
     request(Signal, Now, S);
@@ -179,19 +201,29 @@ handle({echo_timeout, Key}, _Now, #{pending := P} = S) ->
 %% Incoming MQTT messages
 %% ---------------------------------------------------------------------------
 
-add_routes(#{id := Id, streams := Streams, availability := Avail} = C, Routes) ->
+add_routes(#{id := Id, streams := Streams, services := Services, availability := Avail},
+           Routes) ->
     {R0, _} = lists:foldl(fun(#{topic := T}, {Acc, N}) ->
                                   {append(T, {stream, Id, N}, Acc), N + 1}
                           end, {Routes, 1}, Streams),
     %% A light's TurnLightOn and TurnLightOff share its config: one route.
-    Lights = lists:usort([L || #{light := L} <- maps:get(services, C)]),
+    Lights = lists:usort([L || #{light := L} <- Services]),
     R1 = lists:foldl(fun(L, Acc) ->
                              lists:foldl(fun(T, A) -> append(T, {light, Id, L}, A) end, Acc,
                                          mqtt_avatar_light:state_topics(L))
                      end, R0, Lights),
+    %% An actuator's state topics: every message there is its state, asked
+    %% for or not.
+    R2 = lists:foldl(fun(T, Acc) -> append(T, {state, Id}, Acc) end, R1,
+                     lists:usort([T || #{kind := command, state_topic := T} <- Services,
+                                       T =/= undefined])),
     case Avail of
-        #{topic := AT} -> append(AT, {avail, Id}, R1);
-        undefined -> R1
+        #{entries := Entries} ->
+            {R3, _} = lists:foldl(fun(#{topic := T}, {Acc, N}) ->
+                                          {append(T, {avail, Id, N}, Acc), N + 1}
+                                  end, {R2, 1}, Entries),
+            R3;
+        undefined -> R2
     end.
 
 append(K, V, M) -> M#{K => maps:get(K, M, []) ++ [V]}.
@@ -226,20 +258,31 @@ route({stream, Id, N}, #{payload := Payload, retain := Retain, topic := Topic}, 
             {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
                              message => Message}}]}
     end;
-route({light, Id, L}, #{payload := Payload, topic := Topic}, _Now, #{lights := Lights} = S) ->
+route({light, Id, L}, #{payload := Payload, topic := Topic} = Msg, _Now, #{lights := Lights} = S) ->
     Key = {Id, mqtt_avatar_light:command_topic(L)},
-    case mqtt_avatar_light:read(L, Topic, Payload, maps:get(Key, Lights, #{})) of
+    Old = maps:get(Key, Lights, #{}),
+    case mqtt_avatar_light:read(L, Topic, Payload, Old) of
         {ok, New} ->
-            light_echo(Key, Topic, Payload, S#{lights := Lights#{Key => New}});
+            {S1, E} = light_echo(Key, Topic, Payload, S#{lights := Lights#{Key => New}}),
+            Answered = [R || {send, #{context := C, receiver := R}} <- E,
+                             C =:= feedback orelse C =:= progress],
+            {S1, E ++ light_changed(Id, Old, New, Msg#{answered => Answered
+                                                      ++ maps:get(answered, Msg, [])}, S1)};
         {error, Message} ->
             {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
                              message => Message}}]}
     end;
-route({avail, Id}, #{payload := Payload, topic := Topic}, Now, #{comps := Comps, avail := Av} = S) ->
-    #{availability := #{value := Source, online := On, offline := Off}} = maps:get(Id, Comps),
+route({avail, Id, N}, #{payload := Payload, topic := Topic}, Now, S) ->
+    #{comps := Comps, avail_entries := Entries} = S,
+    #{availability := #{mode := Mode, entries := Es}} = maps:get(Id, Comps),
+    #{value := Source, online := On, offline := Off} = lists:nth(N, Es),
     Text = case {text(Payload), Source} of
                {error, _} -> {error, <<"the payload is not UTF-8 text">>};
                {{ok, Plain}, raw} -> {ok, Plain};
+               {{ok, _}, {template, Tpl}} ->
+                   %% Home Assistant's availability_template (checked by the spec).
+                   {ok, Parsed} = mqtt_avatar_template:parse(Tpl),
+                   mqtt_avatar_template:render(Parsed, mqtt_avatar_template:payload_vars(Payload));
                {{ok, Legacy}, {json, Path}} ->
                    %% zigbee2mqtt wrote plain online/offline before it wrote JSON.
                    case json_text(Payload, Path) of
@@ -260,10 +303,34 @@ route({avail, Id}, #{payload := Payload, topic := Topic}, Now, #{comps := Comps,
                   end;
               {error, M} -> {error, M}
           end,
-    case {New, maps:get(Id, Av, undefined)} of
-        {{error, M1}, _} ->
+    case New of
+        {error, M1} ->
             {S, [{problem, #{what => bad_availability, component => Id, topic => Topic,
                              message => M1}}]};
+        _ ->
+            Known = (maps:get(Id, Entries, #{}))#{N => New},
+            available(Id, combine(Mode, New, Known), Now, S#{avail_entries := Entries#{Id => Known}})
+    end;
+route({state, Id}, Msg, _Now, S) ->
+    actuator_state(Id, Msg, S).
+
+%% Home Assistant's availability_mode over the entries heard from so far
+%% (an entry never heard from does not count).
+combine(latest, New, _Known) -> New;
+combine(all, _New, Known) ->
+    case lists:member(offline, maps:values(Known)) of
+        true -> offline;
+        false -> online
+    end;
+combine(any, _New, Known) ->
+    case lists:member(online, maps:values(Known)) of
+        true -> online;
+        false -> offline
+    end.
+
+%% The device's availability is now State: its partners learn a change.
+available(Id, State, Now, #{avail := Av} = S) ->
+    case {State, maps:get(Id, Av, undefined)} of
         {State, {State, _}} ->
             {S, []};
         {online, undefined} ->
@@ -275,6 +342,124 @@ route({avail, Id}, #{payload := Payload, topic := Topic}, Now, #{comps := Comps,
                     end,
             {S#{avail := Av#{Id => {State, Now}}}, availability_events(Id, State, Since, Now, S)}
     end.
+
+%% A message on an actuator's state topic: its state, whoever changed it.
+%% A changed state is an Event StateChanged to the component's partners,
+%% but for the requesters whose request this message answered (they get
+%% its Feedback or Progress). The first state known, retained, is no
+%% change.
+actuator_state(Id, #{topic := Topic, payload := Payload, retain := Retain} = Msg, S) ->
+    #{comps := Comps, states := States} = S,
+    #{services := All} = maps:get(Id, Comps),
+    Services = [Sv || #{kind := command, state_topic := T} = Sv <- All, T =:= Topic],
+    Mappings = lists:usort([M || #{mapping := #{values := Vs, attributes := A} = M} <- Services,
+                                 Vs =/= [] orelse A]),
+    Results = [extract(M, Payload, exclude(S)) || M <- Mappings],
+    case {readable(Payload, needs(Services)), [E || {error, E} <- Results]} of
+        {{error, Message}, _} ->
+            {S, [bad_payload(Id, Topic, Message)]};
+        {ok, [Message | _]} ->
+            {S, [bad_payload(Id, Topic, Message)]};
+        {ok, []} ->
+            Values = dedupe(lists:append([V || {ok, V} <- Results])),
+            Names = [N || #{values := Vs} <- Mappings, {N, _} <- Vs],
+            case [P || {N, _} = P <- Values, lists:member(N, Names)] of
+                [] ->
+                    {S, []};
+                Key ->
+                    Previous = maps:get({Id, Topic}, States, undefined),
+                    S1 = S#{states := States#{{Id, Topic} => Key}},
+                    case Previous of
+                        Key ->
+                            {S1, []};
+                        undefined when Retain ->
+                            {S1, []};
+                        _ ->
+                            [#{static := Static} | _] = Services,
+                            {S1, state_changed(Id, Values, Static, maps:get(answered, Msg, []),
+                                               Msg, S)}
+                    end
+            end
+    end.
+
+%% A light's state (mqtt_avatar_light) changed, as for any actuator.
+light_changed(Id, Old, New, #{retain := Retain} = Msg, S) ->
+    {Before, After} = {mqtt_avatar_light:params(Old), mqtt_avatar_light:params(New)},
+    if
+        After =:= Before; After =:= [] -> [];
+        Before =:= [], Retain -> [];
+        true -> state_changed(Id, After, [], maps:get(answered, Msg, []), Msg, S)
+    end.
+
+state_changed(Id, Values, Static, Answered, #{payload := Payload}, #{comps := Comps} = S) ->
+    #{room := Room} = maps:get(Id, Comps),
+    Params = dedupe([{<<"Component">>, Id}] ++ Values ++ Static
+                    ++ [{<<"Room">>, Room} || Room =/= undefined]),
+    Body = #{category => <<"EVENT">>, type => <<"StateChanged">>, parameters => Params},
+    Stamp = timestamp(Payload, S),
+    [{send, Stamp#{context => event, sender => Id, receiver => R, body => Body}}
+     || R <- partners(Id, S) -- Answered].
+
+%% What reading a state topic's payload takes: JSON, text, or nothing.
+needs(Services) ->
+    Matches = [M || #{expect := E, progress := P} <- Services, M <- [E, P]],
+    Sources = [Src || #{mapping := #{values := Vs}} <- Services, {_, Src} <- Vs],
+    %% (a template reads the payload as text, and as JSON when it is JSON)
+    Json = lists:any(fun({json, _, _}) -> true; (_) -> false end, Matches)
+        orelse lists:any(fun({json, _}) -> true; (_) -> false end, Sources)
+        orelse lists:any(fun(#{mapping := #{attributes := A}}) -> A end, Services),
+    Text = Sources =/= [] orelse lists:any(fun({raw, _}) -> true; (_) -> false end, Matches),
+    if Json -> json; Text -> text; true -> none end.
+
+readable(_Payload, none) ->
+    ok;
+readable(Payload, Needs) ->
+    case {text(Payload), Needs} of
+        {error, _} -> {error, <<"the payload is not UTF-8 text">>};
+        {{ok, _}, text} -> ok;
+        {{ok, _}, json} ->
+            case mqtt_avatar_json:decode(Payload) of
+                {ok, _} -> ok;
+                {error, R} -> {error, mqtt_avatar_json:format_error(R)}
+            end
+    end.
+
+bad_payload(Id, Topic, Message) ->
+    {problem, #{what => bad_payload, component => Id, topic => Topic, message => Message}}.
+
+%% A broken device can send a bad payload many times a second: per topic
+%% and kind, one problem per PROBLEM_INTERVAL, and one per message even
+%% when several entries read the topic.
+limit_problems(Effects, Now, S) ->
+    {Out, _, Quiet} =
+        lists:foldl(
+          fun({problem, #{what := W, topic := T} = P} = E, {Acc, Seen, Q}) ->
+                  case lists:member(W, ?RATE_LIMITED) of
+                      false ->
+                          {[E | Acc], Seen, Q};
+                      true ->
+                          K = {W, T},
+                          case {lists:member(K, Seen), maps:get(K, Q, undefined)} of
+                              {true, _} ->
+                                  {Acc, Seen, Q};
+                              {false, {Last, Left}} when Now - Last < ?PROBLEM_INTERVAL ->
+                                  {Acc, [K | Seen], Q#{K := {Last, Left + 1}}};
+                              {false, Before} ->
+                                  Left = case Before of
+                                             {_, L} -> L;
+                                             undefined -> 0
+                                         end,
+                                  P1 = case Left of
+                                           0 -> P;
+                                           _ -> P#{suppressed => Left}
+                                       end,
+                                  {[{problem, P1} | Acc], [K | Seen], Q#{K => {Now, 0}}}
+                          end
+                  end;
+             (E, {Acc, Seen, Q}) ->
+                  {[E | Acc], Seen, Q}
+          end, {[], [], maps:get(quiet, S)}, Effects),
+    {S#{quiet := Quiet}, lists:reverse(Out)}.
 
 availability_events(Id, State, OfflineSince, Now, #{comps := Comps} = S) ->
     #{room := Room} = maps:get(Id, Comps),
@@ -298,6 +483,12 @@ availability_events(Id, State, OfflineSince, Now, #{comps := Comps} = S) ->
 echo(#{topic := Topic, payload := Payload}, #{pending := P} = S) ->
     Waiting = [{K, V} || {K, #{service := #{state_topic := T}} = V} <- maps:to_list(P),
                          T =:= Topic],
+    Answered = [R || {_, #{requester := R, service := #{expect := E, progress := Pr}}} <- Waiting,
+                     matches(E, Payload) orelse matches(Pr, Payload)],
+    {S1, Effects} = echo(Waiting, Payload, S),
+    {S1, Effects, lists:usort(Answered)}.
+
+echo(Waiting, Payload, S) ->
     lists:foldl(fun({Key, #{service := Service} = Pending}, {SAcc, EAcc}) ->
                         #{expect := Expect, progress := Progress, mapping := Mapping} = Service,
                         case {matches(Expect, Payload), matches(Progress, Payload)} of

@@ -8,8 +8,8 @@
 -export([from_description/1, public/1, is_reserved/1, reserved_names/0,
          parse_source/1, keyword/1, format_problem/1, round_trip/1, is_name/1]).
 
--export_type([spec/0, component/0, service/0, stream/0, availability/0, source/0,
-              expect/0, problem/0, check/0, code/0]).
+-export_type([spec/0, component/0, service/0, stream/0, availability/0, availability_entry/0,
+              availability_mode/0, source/0, expect/0, problem/0, check/0, code/0]).
 
 %% `raw': the whole payload as text; `{json, Path}': a field of the JSON
 %% payload ([] is the whole value).
@@ -52,10 +52,17 @@
                     context := sensor_data | event,
                     on_change := boolean(),
                     mapping := mapping()}.
--type availability() :: #{topic := binary(),
-                          online := binary(),
-                          offline := binary(),
-                          value := source()}.
+%% `{template, Text}': Home Assistant's availability_template, rendered
+%% by mqtt_avatar_template and compared with the payloads.
+-type availability_entry() :: #{topic := binary(),
+                                online := binary(),
+                                offline := binary(),
+                                value := source() | {template, binary()}}.
+%% Home Assistant's `availability_mode': how the entries' payloads make the
+%% device's availability (docs/mqtt.md section 3.1).
+-type availability_mode() :: all | any | latest.
+-type availability() :: #{mode := availability_mode(),
+                          entries := [availability_entry(), ...]}.
 -type component() :: #{id := binary(),
                        services := [service()],
                        streams := [stream()],
@@ -72,9 +79,17 @@
 
 %% Inherited within a component: an entry without one of these takes the
 %% first value written on another entry of the same component.
--define(INHERITED, [<<"MqttStateTopic">>, <<"MqttCommandTopic">>, <<"MqttAvailabilityTopic">>,
-                    <<"MqttPayloadAvailable">>, <<"MqttPayloadNotAvailable">>,
-                    <<"MqttAvailabilityValue">>]).
+-define(INHERITED, [<<"MqttStateTopic">>, <<"MqttCommandTopic">>, <<"MqttAvailabilityMode">>
+                    | [<<AvName/binary, AvSuffix/binary>>
+                       || AvSuffix <- [<<>> | [integer_to_binary(I)
+                                               || I <- lists:seq(2, ?MAX_AVAILABILITY)]],
+                          AvName <- ?AVAILABILITY_NAMES]]).
+%% One availability entry: its topic, payloads and where the payload is.
+%% The first entry's names are bare, the others' end in 2 .. 8 (HA's
+%% `availability' list, in order).
+-define(AVAILABILITY_NAMES, [<<"MqttAvailabilityTopic">>, <<"MqttPayloadAvailable">>,
+                             <<"MqttPayloadNotAvailable">>, <<"MqttAvailabilityValue">>]).
+-define(MAX_AVAILABILITY, 8).
 -define(ENTRY_ONLY, [<<"MqttCommand">>, <<"MqttCommandArgs">>, <<"MqttExpect">>,
                      <<"MqttExtra">>, <<"MqttArgCheck">>, <<"MqttCode">>,
                      <<"MqttValueTemplate">>, <<"MqttCommandTemplate">>,
@@ -582,27 +597,50 @@ value_map(Id, E, What, Text) ->
     end.
 
 availability(Id, Inherited) ->
-    case maps:get(<<"MqttAvailabilityTopic">>, Inherited, undefined) of
-        undefined ->
-            {ok, undefined};
-        Topic ->
-            E = #{category => <<"(component)">>, type => <<>>, parameters => []},
-            Source = maps:get(<<"MqttAvailabilityValue">>, Inherited, <<"raw">>),
-            case {valid_topic(Topic), parse_source(Source)} of
-                {true, {ok, S}} ->
-                    {ok, #{topic => Topic,
-                           online => maps:get(<<"MqttPayloadAvailable">>, Inherited, <<"online">>),
-                           offline => maps:get(<<"MqttPayloadNotAvailable">>, Inherited,
-                                               <<"offline">>),
-                           value => S}};
-                {false, _} ->
-                    {error, [problem(Id, E, "Component", <<"MqttAvailabilityTopic">>,
-                                     <<"a topic must be non-empty, without + or #">>)]};
-                {true, error} ->
-                    {error, [problem(Id, E, "Component", <<"MqttAvailabilityValue">>,
-                                     <<"must be raw or json:field.path">>)]}
-            end
+    E = #{category => <<"(component)">>, type => <<>>, parameters => []},
+    Entries = [availability_entry(Id, E, Suffix, Inherited)
+               || Suffix <- [<<>> | [integer_to_binary(I) || I <- lists:seq(2, ?MAX_AVAILABILITY)]],
+                  maps:is_key(<<"MqttAvailabilityTopic", Suffix/binary>>, Inherited)],
+    Mode = case maps:get(<<"MqttAvailabilityMode">>, Inherited, <<"latest">>) of
+               <<"latest">> -> {ok, latest};
+               <<"all">> -> {ok, all};
+               <<"any">> -> {ok, any};
+               _ -> {error, [problem(Id, E, "Component", <<"MqttAvailabilityMode">>,
+                                     <<"must be all, any or latest">>)]}
+           end,
+    case collect([Mode | Entries]) of
+        {ok, [_]} -> {ok, undefined};
+        {ok, [M | Es]} -> {ok, #{mode => M, entries => Es}};
+        Error -> Error
     end.
+
+availability_entry(Id, E, Suffix, Inherited) ->
+    Get = fun(Name, Default) -> maps:get(<<Name/binary, Suffix/binary>>, Inherited, Default) end,
+    Topic = Get(<<"MqttAvailabilityTopic">>, undefined),
+    case {valid_topic(Topic), availability_source(Get(<<"MqttAvailabilityValue">>, <<"raw">>))} of
+        {true, {ok, S}} ->
+            {ok, #{topic => Topic,
+                   online => Get(<<"MqttPayloadAvailable">>, <<"online">>),
+                   offline => Get(<<"MqttPayloadNotAvailable">>, <<"offline">>),
+                   value => S}};
+        {false, _} ->
+            {error, [problem(Id, E, "Component", <<"MqttAvailabilityTopic", Suffix/binary>>,
+                             <<"a topic must be non-empty, without + or #">>)]};
+        {true, error} ->
+            {error, [problem(Id, E, "Component", <<"MqttAvailabilityValue", Suffix/binary>>,
+                             <<"must be raw, json:field.path or template:TEMPLATE">>)]};
+        {true, {error, Message}} ->
+            {error, [problem(Id, E, "Component", <<"MqttAvailabilityValue", Suffix/binary>>,
+                             Message)]}
+    end.
+
+availability_source(<<"template:", Text/binary>>) ->
+    case mqtt_avatar_template:parse(Text) of
+        {ok, _} -> {ok, {template, Text}};
+        {error, _} = Error -> Error
+    end;
+availability_source(Text) ->
+    parse_source(Text).
 
 topic(Id, E, What, Name, undefined, Missing) ->
     {error, [problem(Id, E, What, Name, Missing)]};
@@ -620,7 +658,8 @@ topics(Components) ->
     Ts = lists:append([[T || #{topic := T} <- Streams]
                        ++ [T || #{state_topic := T} <- Services, T =/= undefined]
                        ++ [T || #{light := L} <- Services, T <- mqtt_avatar_light:state_topics(L)]
-                       ++ [T || #{topic := T} <- [A || A <- [Avail], A =/= undefined]]
+                       ++ [T || #{entries := Es} <- [A || A <- [Avail], A =/= undefined],
+                                #{topic := T} <- Es]
                        || #{streams := Streams, services := Services, availability := Avail}
                               <- Components]),
     lists:usort(Ts).

@@ -57,9 +57,7 @@ device(Base, #{<<"friendly_name">> := Name} = D) when is_binary(Name), Name =/= 
                            name => Name,
                            room => undefined,
                            model => text(maps:get(<<"model">>, Def, undefined)),
-                           availability => #{topic => <<Topic/binary, "/availability">>,
-                                             online => <<"online">>, offline => <<"offline">>,
-                                             value => {json, [<<"state">>]}},
+                           availability => availability(Base, Topic),
                            entities => Entities}}
             end;
         _ ->
@@ -68,6 +66,17 @@ device(Base, #{<<"friendly_name">> := Name} = D) when is_binary(Name), Name =/= 
     end;
 device(_Base, _) ->
     {error, <<"an entry without friendly_name; skipped">>}.
+
+%% A device is reachable when the bridge is up and the device itself is
+%% (zigbee2mqtt's availability feature, when enabled, publishes the latter;
+%% both as JSON `{"state":"online"}', or plain `online' before 1.28). A
+%% topic never heard from does not count (docs/mqtt.md section 3.1).
+availability(Base, Topic) ->
+    Entry = fun(T) -> #{topic => T, online => <<"online">>, offline => <<"offline">>,
+                        value => {json, [<<"state">>]}}
+            end,
+    #{mode => all, entries => [Entry(<<Topic/binary, "/availability">>),
+                               Entry(<<Base/binary, "/bridge/state">>)]}.
 
 %% Composite exposes of the other families, and settable numbers and
 %% enums, are read by their family.

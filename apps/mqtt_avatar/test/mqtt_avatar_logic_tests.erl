@@ -37,12 +37,12 @@ description() ->
                                  {<<"MqttAttributes">>, <<"all">>},
                                  {<<"MqttContext">>, <<"Event">>}])]}]}.
 
+row(CE, CC, PE, PC, Cat, Type) ->
+    #{consumer => #{entity => CE, component => CC}, provider => #{entity => PE, component => PC},
+      category => Cat, type => Type, score => 1, candidates => 1}.
+
 bound() ->
-    Row = fun(CE, CC, PE, PC, Cat, Type) ->
-                  #{consumer => #{entity => CE, component => CC},
-                    provider => #{entity => PE, component => PC},
-                    category => Cat, type => Type, score => 1, candidates => 1}
-          end,
+    Row = fun row/6,
     #{bound => [Row(<<"va">>, <<"LightEmu">>, ?E, <<"Light">>, <<"ACTUATOR">>, <<"TurnLightOn">>),
                 Row(?E, <<"Light">>, <<"va">>, <<"LightEmu">>, <<"ACTUATOR">>, <<"ACTION FEEDBACK">>),
                 Row(?E, <<"Pir">>, <<"va">>, <<"PirEmu">>, <<"SENSOR">>, <<"MotionDetected">>)],
@@ -75,10 +75,13 @@ request_then_echo_test() ->
         mqtt_avatar_logic:handle(request(<<"r1">>, <<"turn light on">>, []), 10, state()),
     ?assertEqual(<<"{\"state\":\"ON\"}">>, iolist_to_binary(Payload)),
     ?assertEqual(1, mqtt_avatar_logic:pending_count(S1)),
-    %% Another state does not answer it.
-    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"OFF\"}">>), 20, S1),
+    %% Another state does not answer it: it is the light's state, changed
+    %% by someone else, an Event to the VA.
+    {S1a, [{send, #{context := event, body := #{type := <<"StateChanged">>}}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"OFF\"}">>), 20, S1),
+    ?assertEqual(1, mqtt_avatar_logic:pending_count(S1a)),
     {S2, [{cancel_timer, Key}, {send, F}]} =
-        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\",\"ts\":777}">>), 30, S1),
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\",\"ts\":777}">>), 30, S1a),
     ?assertMatch(#{context := feedback, sender := <<"Light">>, receiver := <<"LightEmu">>,
                    in_reply_to := <<"r1">>, timestamp := 777,
                    body := #{category := <<"ACTUATOR">>, type := <<"ACTION FEEDBACK">>}}, F),
@@ -90,7 +93,7 @@ request_then_echo_test() ->
 %% A progress-shaped state restarts the wait and reaches the VA as Progress.
 progress_test() ->
     {S1, _} = mqtt_avatar_logic:handle(request(<<"r1">>, <<"TurnLightOn">>, []), 0, state()),
-    {S1, [{start_timer, _, 3000}, {send, #{context := progress, in_reply_to := <<"r1">>}}]} =
+    {_, [{start_timer, _, 3000}, {send, #{context := progress, in_reply_to := <<"r1">>}}]} =
         mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"WARMING\"}">>), 5, S1).
 
 %% No echo: the entry is forgotten and reported; nothing is sent (EVATAR's
@@ -100,7 +103,10 @@ echo_timeout_test() ->
         mqtt_avatar_logic:handle(request(<<"r1">>, <<"TurnLightOn">>, []), 0, state()),
     {S2, [{problem, #{what := no_state_echo}}]} =
         mqtt_avatar_logic:handle({echo_timeout, Key}, 3000, S1),
-    {S2, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>), 3100, S2).
+    %% The late echo is the light's new state, an Event like any other.
+    {_, [{send, #{context := event, receiver := <<"LightEmu">>,
+                  body := #{type := <<"StateChanged">>}}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>), 3100, S2).
 
 %% Arguments go into the JSON command at their path; with no echo
 %% expected, the broker's PUBACK is the feedback.
@@ -297,3 +303,121 @@ value_template_and_extra_test() ->
     ?assertEqual([{<<"Level">>, <<"7.5">>}, {<<"Unit">>, <<"dB">>}, {<<"DeviceClass">>, <<"sound">>}], Ps),
     {_, [{problem, #{what := bad_payload}}]} =
         mqtt_avatar_logic:handle(mqtt(<<"d/state">>, <<"{\"tenths\": \"many\"}">>), 1, S).
+
+%% ---------------------------------------------------------------------------
+%% Actuator state, availability lists, problems (issue 20)
+%% ---------------------------------------------------------------------------
+
+%% The light and a second VA component that only watches it (bound to its
+%% TurnLightOff).
+two_partners() ->
+    #{bound := B} = Bound = bound(),
+    Bound#{bound := B ++ [row(<<"va">>, <<"Watcher">>, ?E, <<"Light">>, <<"ACTUATOR">>,
+                              <<"TurnLightOff">>)]}.
+
+%% A light switched at the wall: every partner gets StateChanged with the
+%% new state; the same state again, or a message without the state field,
+%% says nothing; the first state known, retained, is no change.
+external_state_change_test() ->
+    {ok, Spec} = mqtt_avatar_spec:from_description(description()),
+    S0 = mqtt_avatar_logic:new(?E, Spec, 3000, #{timestamp_field => <<"ts">>}),
+    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"OFF\"}">>, true), 0, S0),
+    {S2, _} = mqtt_avatar_logic:handle({binding, two_partners()}, 0, S1),
+    {S3, Effects} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\",\"ts\":9}">>), 5, S2),
+    ?assertEqual([<<"LightEmu">>, <<"Watcher">>], lists:sort([R || #{receiver := R} <- sends(Effects)])),
+    [#{context := event, sender := <<"Light">>, timestamp := 9,
+       body := #{category := <<"EVENT">>, type := <<"StateChanged">>, parameters := Ps}} | _] =
+        sends(Effects),
+    ?assertEqual([{<<"Component">>, <<"Light">>}, {<<"Light">>, <<"on">>}, {<<"Room">>, <<"kitchen">>}],
+                 Ps),
+    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>), 6, S3),
+    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>, true), 6, S3),
+    {_, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"linkquality\":80}">>), 7, S3).
+
+%% The VA's own request: its requester gets the Feedback and no Event;
+%% the other partner learns the change by the Event.
+own_request_feedback_not_event_test() ->
+    {S1, _} = mqtt_avatar_logic:handle({binding, two_partners()}, 0, state()),
+    {S2, _} = mqtt_avatar_logic:handle(request(<<"r1">>, <<"TurnLightOn">>, []), 0, S1),
+    {_, Effects} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{\"state\":\"ON\"}">>), 5, S2),
+    ?assertEqual([{feedback, <<"LightEmu">>}, {event, <<"Watcher">>}],
+                 [{C, R} || #{context := C, receiver := R} <- sends(Effects)]).
+
+%% An unreadable state payload is bad_payload with no request waiting;
+%% one per topic a minute, the next saying how many were left out.
+bad_state_payload_test() ->
+    S = state(),
+    {S1, [{problem, #{what := bad_payload, topic := <<"l/state">>, component := <<"Light">>} = P}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 0, S),
+    ?assertNot(maps:is_key(suppressed, P)),
+    {S2, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 1000, S1),
+    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<255>>), 2000, S2),
+    %% Another topic has its own allowance.
+    {_, [{problem, #{topic := <<"l/availability">>}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"maybe">>), 2000, S3),
+    {_, [{problem, #{what := bad_payload, suppressed := 2}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 60000, S3).
+
+%% A component with two availability topics, in each of HA's modes.
+avail_state(Mode) ->
+    Entry = fun(Cat, Type, Ps) -> #{category => Cat, type => Type, parameters => Ps} end,
+    Ps = [{<<"MqttCommandTopic">>, <<"b/set">>}, {<<"MqttCommand">>, <<"raw:ON">>},
+          {<<"MqttAvailabilityTopic">>, <<"b/availability">>},
+          {<<"MqttAvailabilityValue">>, <<"json:state">>},
+          {<<"MqttAvailabilityTopic2">>, <<"bridge/state">>},
+          {<<"MqttPayloadAvailable2">>, <<"up">>}, {<<"MqttPayloadNotAvailable2">>, <<"down">>}]
+        ++ [{<<"MqttAvailabilityMode">>, Mode} || Mode =/= <<"latest">>],
+    D = #{entity_id => ?E, api_name => <<>>, entity_type => avatar, context => <<>>,
+          components => [#{id => <<"Light">>, services => [Entry(<<"ACTUATOR">>, <<"TurnLightOn">>, Ps)],
+                           consumes => []}]},
+    {ok, Spec} = mqtt_avatar_spec:from_description(D),
+    #{components := [#{availability := #{mode := _, entries := [_, _]}}]} = Spec,
+    {S1, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, mqtt_avatar_logic:new(?E, Spec, 3000)),
+    {S2, _} = mqtt_avatar_logic:handle({binding, bound()}, 0, S1),
+    S2.
+
+%% Feeds availability messages; the availability after each.
+avail_trace(Mode, Messages) ->
+    {_, Trace} = lists:foldl(
+                   fun({T, P}, {S, Acc}) ->
+                           {S1, _} = mqtt_avatar_logic:handle(mqtt(T, P), 0, S),
+                           {S1, Acc ++ [maps:get(<<"Light">>, mqtt_avatar_logic:availability(S1),
+                                                 unknown)]}
+                   end, {avail_state(Mode), []}, Messages),
+    Trace.
+
+availability_modes_test() ->
+    Dev = fun(P) -> {<<"b/availability">>, P} end,
+    Bridge = fun(P) -> {<<"bridge/state">>, P} end,
+    Msgs = [Bridge(<<"up">>), Dev(<<"{\"state\":\"online\"}">>), Dev(<<"offline">>),
+            Bridge(<<"down">>), Dev(<<"{\"state\":\"online\"}">>), Bridge(<<"up">>)],
+    %% all: offline while any topic says so (a topic not heard from does
+    %% not count); any: online while one says so; latest: the last word.
+    ?assertEqual([online, online, offline, offline, offline, online], avail_trace(<<"all">>, Msgs)),
+    ?assertEqual([online, online, online, offline, online, online], avail_trace(<<"any">>, Msgs)),
+    ?assertEqual([online, online, offline, offline, online, online], avail_trace(<<"latest">>, Msgs)).
+
+%% The bridge going down with the device up is one DeviceDisconnected (mode
+%% all), and its return one DeviceReconnected.
+availability_all_events_test() ->
+    S = avail_state(<<"all">>),
+    {S1, []} = mqtt_avatar_logic:handle(mqtt(<<"b/availability">>, <<"{\"state\":\"online\"}">>), 0, S),
+    {S2, [{send, #{body := #{type := <<"DeviceDisconnected">>}}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"bridge/state">>, <<"down">>), 0, S1),
+    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"b/availability">>, <<"offline">>), 0, S2),
+    {S4, []} = mqtt_avatar_logic:handle(mqtt(<<"bridge/state">>, <<"up">>), 0, S3),
+    {_, [{send, #{body := #{type := <<"DeviceReconnected">>}}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"b/availability">>, <<"online">>), 2000, S4).
+
+%% A bad availability mode or a wildcard in a numbered topic is named.
+availability_checks_test() ->
+    Entry = fun(Ps) -> #{category => <<"ACTUATOR">>, type => <<"X">>, parameters => Ps} end,
+    D = fun(Ps) -> #{components => [#{id => <<"C">>, services => [Entry(Ps)], consumes => []}]} end,
+    {error, [#{parameter := <<"MqttAvailabilityMode">>}]} =
+        mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic">>, <<"a">>},
+                                              {<<"MqttAvailabilityMode">>, <<"most">>}])),
+    {error, [#{parameter := <<"MqttAvailabilityTopic3">>}]} =
+        mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic">>, <<"a">>},
+                                              {<<"MqttAvailabilityTopic3">>, <<"a/#">>}])),
+    {error, [#{parameter := <<"MqttAvailabilityTopic9">>}]} =
+        mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic9">>, <<"a">>}])).

@@ -5,11 +5,13 @@
 %% (the broker then publishes the will) and opened again.
 -module(mqtt_avatar_test_device).
 
--export([start/2, publish/4, mute/2, crash/1, revive/1, stop/1, commands/1]).
+-export([start/2, publish/4, mute/2, crash/1, revive/1, stop/1, commands/1, births/1]).
 
 %% Spec: `availability' (topic or undefined), `discovery' ([{Topic, Json}]),
 %% `commands' (topic filters), `reply' (fun(Topic, Payload) -> [{Topic,
-%% Payload, Retain}])
+%% Payload, Retain}]), `announce_on' (a birth topic: the discovery configs
+%% are then published, not retained, only when `online' arrives there, as
+%% devices that wait for Home Assistant's birth message do)
 start(Port, Spec) ->
     Parent = self(),
     Pid = spawn(fun() -> init(Parent, Port, Spec) end),
@@ -25,6 +27,8 @@ revive(Dev) -> call(Dev, revive).
 stop(Dev) -> call(Dev, stop).
 %% Every command received, oldest first.
 commands(Dev) -> call(Dev, commands).
+%% How many birth messages (`online' on `announce_on') it answered.
+births(Dev) -> call(Dev, births).
 
 call(Dev, Req) ->
     Ref = make_ref(),
@@ -34,7 +38,8 @@ call(Dev, Req) ->
     end.
 
 init(Parent, Port, Spec) ->
-    State = #{port => Port, spec => Spec, muted => false, commands => [], parent => Parent},
+    State = #{port => Port, spec => Spec, muted => false, commands => [], parent => Parent,
+              births => 0},
     Client = connect(State),
     Parent ! {self(), ready},
     loop(State#{client => Client}).
@@ -47,9 +52,10 @@ connect(#{port := Port, spec := Spec}) ->
     {ok, C} = mqtt_client:start(Will#{host => {127, 0, 0, 1}, port => Port, owner => self(),
                                       reconnect => #{min_ms => 100, max_ms => 500}}),
     ok = mqtt_client:await_connected(C, 5000),
+    Birth = maps:get(announce_on, Spec, undefined),
     [ok = mqtt_client:publish(C, T, J, #{qos => 1, retain => true})
-     || {T, J} <- maps:get(discovery, Spec, [])],
-    case maps:get(commands, Spec, []) of
+     || Birth =:= undefined, {T, J} <- maps:get(discovery, Spec, [])],
+    case maps:get(commands, Spec, []) ++ [Birth || Birth =/= undefined] of
         [] -> ok;
         Filters -> {ok, _} = mqtt_client:subscribe(C, [{F, 1} || F <- Filters])
     end,
@@ -60,7 +66,14 @@ connect(#{port := Port, spec := Spec}) ->
     C.
 
 loop(#{client := C, spec := Spec} = S) ->
+    Birth = maps:get(announce_on, Spec, undefined),
     receive
+        {mqtt_client, C, {publish, #{topic := Birth, payload := <<"online">>}}} ->
+            [ok = mqtt_client:publish(C, T, J, #{qos => 1, retain => false})
+             || {T, J} <- maps:get(discovery, Spec, [])],
+            loop(S#{births := maps:get(births, S) + 1});
+        {mqtt_client, C, {publish, #{topic := Birth}}} ->
+            loop(S);
         {mqtt_client, C, {publish, #{topic := T, payload := P}}} ->
             S1 = S#{commands := maps:get(commands, S) ++ [{T, P}]},
             case maps:get(muted, S) of
@@ -99,6 +112,9 @@ loop(#{client := C, spec := Spec} = S) ->
             loop(S#{client := C1});
         {call, From, Ref, commands} ->
             From ! {Ref, maps:get(commands, S)},
+            loop(S);
+        {call, From, Ref, births} ->
+            From ! {Ref, maps:get(births, S)},
             loop(S);
         {call, From, Ref, stop} ->
             case C of

@@ -26,7 +26,7 @@
                       max_unacked_out]).
 -define(AVATAR_KEYS, [entity_id, pairing, endpoints, credential, mqtt, discovery, description,
                       overrides, api_name, settle, discovery_wait, echo_timeout, retry,
-                      timestamp_field, restart]).
+                      timestamp_field, restart, birth]).
 -define(MQTT_TEXT, [client_id, username, password]).
 -define(MQTT_OTHER, [host, port, protocol, clean_start, session_expiry, keepalive, tls, reconnect,
                      inflight_window, retry_interval, connect_timeout, max_packet_size]).
@@ -315,6 +315,7 @@ avatar(E, PairingIds, Pairings, #{listeners := Listeners} = Defaults) when is_ma
              fun(A) -> integers([retry], 1, A) end,
              fun(A) -> submap(mqtt, fun mqtt/1, A) end,
              fun(A) -> submap(discovery, fun discovery/1, A) end,
+             fun(A) -> submap(birth, fun birth/1, A) end,
              fun(A) -> submap(overrides, fun overrides/1, A) end,
              fun(A) -> submap(restart, fun restart/1, A) end,
              fun(A) -> description(A, maps:get(dir, Defaults, ".")) end,
@@ -466,7 +467,8 @@ mqtt(M) ->
 discovery(false) ->
     {ok, false};
 discovery(D) when is_map(D) ->
-    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt]) end,
+    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt, max_config_size]) end,
+           fun(X) -> integers([max_config_size], 1, X) end,
            fun(X) ->
                    lists:foldl(fun(_K, {error, _} = Err) -> Err;
                                   (K, {ok, Acc}) ->
@@ -485,6 +487,15 @@ discovery(D) when is_map(D) ->
            end], D);
 discovery(_) ->
     {error, "must be false or #{homeassistant => \"homeassistant\", zigbee2mqtt => \"zigbee2mqtt\"}"}.
+
+birth(false) ->
+    {ok, false};
+birth(B) ->
+    chain([fun(X) -> unknown(X, [topic, payload]) end,
+           fun(X) -> texts([topic, payload], X) end,
+           fun(#{topic := <<>>}) -> {error, "topic must not be empty"};
+              (X) -> {ok, X}
+           end], B).
 
 overrides(O) ->
     Results = [{K, text(K), override(V)} || {K, V} <- maps:to_list(O)],
