@@ -233,4 +233,4 @@ availability(Va, Type) ->
     ?S:wait_signal(Va, fun(#{context := C, body := #{type := T}}) -> C =:= event andalso T =:= Type end).
 
 %% Generous: the machine running the tests may be busy.
-wait_until(Fun) -> agent_bridge_test_node:wait_until(Fun, 1000).
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).
