@@ -640,7 +640,10 @@ availability_source(<<"template:", Text/binary>>) ->
         {error, _} = Error -> Error
     end;
 availability_source(Text) ->
-    parse_source(Text).
+    case parse_source(Text) of
+        {ok, template} -> error;             % MqttValueTemplate is for values
+        Parsed -> Parsed
+    end.
 
 topic(Id, E, What, Name, undefined, Missing) ->
     {error, [problem(Id, E, What, Name, Missing)]};

@@ -419,5 +419,8 @@ availability_checks_test() ->
     {error, [#{parameter := <<"MqttAvailabilityTopic3">>}]} =
         mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic">>, <<"a">>},
                                               {<<"MqttAvailabilityTopic3">>, <<"a/#">>}])),
+    {error, [#{parameter := <<"MqttAvailabilityValue">>}]} =
+        mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic">>, <<"a">>},
+                                              {<<"MqttAvailabilityValue">>, <<"template">>}])),
     {error, [#{parameter := <<"MqttAvailabilityTopic9">>}]} =
         mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic9">>, <<"a">>}])).
