@@ -41,7 +41,7 @@
                      lights := #{{binary(), binary()} => mqtt_avatar_light:state()},
                      avail_entries := #{binary() => #{pos_integer() => online | offline}},
                      states := #{{binary(), binary()} => [bil:parameter()]},
-                     quiet := #{{atom(), binary()} => {integer(), non_neg_integer()}},
+                     quiet := #{{atom(), binary(), binary()} => {integer(), non_neg_integer()}},
                      pending := #{key() => pending()}}.
 -type route() :: {stream, binary(), pos_integer()} | {avail, binary(), pos_integer()}
                | {state, binary()} | {light, binary(), mqtt_avatar_light:light()}.
@@ -108,7 +108,7 @@ set_spec(#{components := Comps}, S) ->
                           end
                   end,
     KeepState = fun({Id, Topic}, _) -> lists:member({state, Id}, maps:get(Topic, Routes, [])) end,
-    KeepQuiet = fun({_, Topic}, _) -> maps:is_key(Topic, Routes) end,
+    KeepQuiet = fun({_, Topic, _}, _) -> maps:is_key(Topic, Routes) end,
     KeepLight = fun({Id, _}, _) -> maps:is_key(Id, Index) end,
     S#{comps := Index, routes := Routes,
        lights := maps:filter(KeepLight, maps:get(lights, S)),
@@ -427,9 +427,9 @@ readable(Payload, Needs) ->
 bad_payload(Id, Topic, Message) ->
     {problem, #{what => bad_payload, component => Id, topic => Topic, message => Message}}.
 
-%% A broken device can send a bad payload many times a second: per topic
-%% and kind, one problem per PROBLEM_INTERVAL, and one per message even
-%% when several entries read the topic.
+%% A broken device can send a bad payload many times a second: the same
+%% problem (kind, topic, message) once per PROBLEM_INTERVAL, and once per
+%% MQTT message even when several entries read the topic.
 limit_problems(Effects, Now, S) ->
     {Out, _, Quiet} =
         lists:foldl(
@@ -438,7 +438,7 @@ limit_problems(Effects, Now, S) ->
                       false ->
                           {[E | Acc], Seen, Q};
                       true ->
-                          K = {W, T},
+                          K = {W, T, maps:get(message, P, <<>>)},
                           case {lists:member(K, Seen), maps:get(K, Q, undefined)} of
                               {true, _} ->
                                   {Acc, Seen, Q};

@@ -351,7 +351,9 @@ bad_state_payload_test() ->
         mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 0, S),
     ?assertNot(maps:is_key(suppressed, P)),
     {S2, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 1000, S1),
-    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<255>>), 2000, S2),
+    {S3, []} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<"{oops">>), 2000, S2),
+    %% A different mistake is news.
+    {_, [{problem, #{what := bad_payload}}]} = mqtt_avatar_logic:handle(mqtt(<<"l/state">>, <<255>>), 2000, S3),
     %% Another topic has its own allowance.
     {_, [{problem, #{topic := <<"l/availability">>}}]} =
         mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"maybe">>), 2000, S3),
