@@ -239,6 +239,10 @@ format(Command, Result) ->
              generic(maps:without(secret_keys(), R))];
         {{delete, Id}, _} ->
             ["Deleted pairing ", Id, ".\n"];
+        {{mqtt_problems, all}, _} when is_list(R) ->
+            mqtt_avatars_problems(R);
+        {{mqtt_problems, _Name}, _} when is_list(R) ->
+            problems(R, "");
         _ ->
             generic(R)
     end.
@@ -276,6 +280,35 @@ normalise(Term) ->
 evatar_web_json_decode(Bin) ->
     {ok, T} = evatar_web_json:decode(Bin),
     T.
+
+%% Every kept MQTT Avatar as a table row with its problem count, then each
+%% Avatar's problems one a line (a problem is a map, which a table column
+%% cannot show).
+mqtt_avatars_problems([]) ->
+    "No MQTT Avatars on this node.\n";
+mqtt_avatars_problems(Avatars) ->
+    Rows = [maps:without([<<"problems">>], A#{<<"problem_count">> => length(list(<<"problems">>, A))})
+            || A <- Avatars],
+    [generic(Rows),
+     [["\nProblems of ", scalar(maps:get(<<"entity_id">>, A, null)), " (",
+       integer_to_binary(length(list(<<"problems">>, A))), ")\n",
+       problems(list(<<"problems">>, A), "  ")]
+      || A <- Avatars, list(<<"problems">>, A) =/= []]].
+
+%% One line a problem: its time (UTC), what it is, then what else it carries.
+problems([], Indent) ->
+    [Indent, "No problems.\n"];
+problems(Problems, Indent) ->
+    [[Indent, problem_time(maps:get(<<"time">>, P, null)), "  ",
+      scalar(maps:get(<<"what">>, P, <<"?">>)),
+      [["  ", K, ": ", inline(V)]
+       || {K, V} <- lists:sort(maps:to_list(maps:without([<<"time">>, <<"what">>], P)))], "\n"]
+     || P <- Problems].
+
+problem_time(Ms) when is_integer(Ms) ->
+    calendar:system_time_to_rfc3339(Ms, [{unit, millisecond}, {offset, "Z"}]);
+problem_time(Other) ->
+    scalar(Other).
 
 %% The binding report: each bound consumer -> service -> provider, then
 %% each unbound entry with its reason and whatever else it carries (the

@@ -63,3 +63,31 @@ generic_text_test() ->
                                                     message => <<"no such pairing">>,
                                                     status => 404})])),
     ?assertEqual("evatar: refused: not_found (id): no such pairing\n", Error).
+
+%% mqtt_problems without a NAME shows every Avatar's problem count and each
+%% problem on a line of its own (a map column used to vanish from the
+%% table); with a NAME and none it says so; times are UTC dates.
+mqtt_problems_text_test() ->
+    Problem = fun(Topic) -> #{what => bad_discovery, topic => Topic,
+                              reason => <<"no state_topic">>, time => 1795671585650} end,
+    All = [#{entity_id => <<"house">>, state => running, running => true, starts => 1,
+             crashes => 0, next_delay_ms => 1000,
+             problems => [Problem(<<"homeassistant/sensor/a/config">>),
+                          Problem(<<"homeassistant/sensor/b/config">>)]},
+           #{entity_id => <<"flat">>, state => running, running => true, starts => 1,
+             crashes => 0, next_delay_ms => 1000, problems => []}],
+    Text = lists:flatten(io_lib:format("~ts", [evatar_cli:format({mqtt_problems, all}, All)])),
+    ?assertMatch({match, _}, re:run(Text, "PROBLEM_COUNT")),
+    ?assertMatch({match, _}, re:run(Text, "house .* 2 ")),
+    ?assertMatch({match, _}, re:run(Text, "Problems of house \\(2\\)")),
+    [?assertMatch({match, _},
+                  re:run(Text, "2026-11-26T\\d\\d:\\d\\d:\\d\\d\\.650Z  bad_discovery  "
+                               "reason: no state_topic  topic: homeassistant/sensor/" ++ T ++ "/config"))
+     || T <- ["a", "b"]],
+    ?assertEqual(nomatch, re:run(Text, "Problems of flat")),
+    One = lists:flatten(io_lib:format("~ts", [evatar_cli:format({mqtt_problems, <<"house">>},
+                                                                 [Problem(<<"t">>)])])),
+    ?assertMatch({match, _}, re:run(One, "^\\S+Z  bad_discovery  reason: no state_topic  topic: t\n$")),
+    ?assertEqual("No problems.\n",
+                 lists:flatten(io_lib:format("~ts", [evatar_cli:format({mqtt_problems, <<"flat">>},
+                                                                        [])]))).
