@@ -11,9 +11,9 @@ from typing import List, Tuple
 
 import pytest
 
-from evatar import (Actuator, ActuatorEmulator, Binding, Client, ClosedError, ConnectError,
-                    Entry, FeedbackTimeout, Reconnected, RefusedError, Sensor, SensorEmulator,
-                    Signal, SignalError, SyncClient, describe)
+from evatar import (Actuator, ActuatorEmulator, Binding, Client, Closed, ClosedError,
+                    ConnectError, Entry, FeedbackTimeout, Reconnected, RefusedError, Sensor,
+                    SensorEmulator, Signal, SignalError, SyncClient, describe)
 
 from conftest import run
 
@@ -117,6 +117,86 @@ def test_request_feedback_round_trip(endpoint) -> None:  # type: ignore[no-untyp
         assert fb.param("Done") == "yes"
         await va.close()
         await av.close()
+    run(main())
+
+
+def test_actuator_emulator_passes_device_events(endpoint) -> None:  # type: ignore[no-untyped-def]
+    """A device's availability events addressed to an ActuatorEmulator come
+    back on next_event(); the answers to act() do not."""
+    async def main() -> None:
+        va, light = light_va(endpoint, "kitchen", "va-secret", entity="va-dev")
+        av, act = light_avatar(endpoint, "kitchen", "avatar-secret", lambda s: {"Done": "yes"},
+                               entity="7009")
+        try:
+            await va.connect()
+            await av.connect()
+            await describe(va, [light])
+            await describe(av, [act])
+            await va.wait_binding(lambda b: bound(b, "LightEmulator01", "HomeLightActuator01"))
+            await av.wait_binding(lambda b: bound(b, "HomeLightActuator01", "LightEmulator01"))
+            fb = await light.act("TurnLightOn", {"Light": "yes"}, timeout=10)
+            assert fb.param("Done") == "yes"
+            for type, extra in [("DeviceDisconnected", {"Availability": "offline"}),
+                                ("DeviceReconnected", {"Availability": "online",
+                                                       "OfflineSeconds": "2"})]:
+                await av.send(sender="HomeLightActuator01", receiver="LightEmulator01",
+                              context="Event", category="EVENT", type=type,
+                              parameters={"Component": "HomeLightActuator01", **extra})
+            got = [await va.next_signal(10) for _ in range(2)]
+            assert [(s.context, s.type, s.receiver) for s in got] == [
+                ("Event", "DeviceDisconnected", "LightEmulator01"),
+                ("Event", "DeviceReconnected", "LightEmulator01")]
+            assert got[1].param("OfflineSeconds") == "2"
+            # act() still gets its own answer, which is no event.
+            fb = await light.act("TurnLightOn", {"Light": "yes"}, timeout=10)
+            assert fb.param("Done") == "yes"
+        finally:
+            await va.close()
+            await av.close()
+        rest = []
+        while True:
+            ev = await va.next_event(10)
+            if isinstance(ev, Closed):
+                break
+            rest.append(ev)
+        assert not [e for e in rest if isinstance(e, Signal)], rest
+    run(main())
+
+
+def test_closed_event_is_confirmed_and_last(endpoint) -> None:  # type: ignore[no-untyped-def]
+    """After close(), the Closed event an event loop reads says
+    confirmed=True (EVATAR's Bye came), and is the last: next_event() then
+    raises ClosedError instead of returning Closed again."""
+    async def main() -> None:
+        va, light = light_va(endpoint, "kitchen", "va-secret", entity="va-closed")
+        try:
+            await va.connect()
+            await describe(va, [light])
+            await va.wait_binding()
+        except BaseException:
+            await va.close()
+            raise
+        seen: List[Tuple[object, bool]] = []
+
+        async def event_loop() -> None:
+            while True:
+                ev = await va.next_event(30)
+                seen.append((ev, getattr(ev, "confirmed", False)))
+                if isinstance(ev, Closed):
+                    return
+
+        reader = asyncio.ensure_future(event_loop())
+        await asyncio.sleep(0)
+        await va.close()
+        await asyncio.wait_for(reader, 30)
+        closed, confirmed_when_read = seen[-1]
+        assert isinstance(closed, Closed) and closed is va.closed
+        assert closed.reason == "normal" and confirmed_when_read and closed.confirmed
+        with pytest.raises(ClosedError):
+            await va.next_event(5)
+        with pytest.raises(ClosedError):
+            await va.next_event()
+        assert (await va.wait_closed()) is closed
     run(main())
 
 

@@ -14,10 +14,15 @@ nothing twice to the application.
 
 What EVATAR sends arrives as events on :meth:`Client.next_event`:
 :class:`~evatar.bil.Signal`, :class:`~evatar.bil.Binding`,
-:class:`Reconnected` and, last, :class:`Closed`. Signals addressed to a
-component that has a handler (:meth:`Client.on`, used by the emulators) go
+:class:`Reconnected` and, last, :class:`Closed` (once: afterwards
+:meth:`Client.next_event` raises :class:`ClosedError`). Signals addressed to
+a component that has a handler (:meth:`Client.on`, used by the emulators) go
 to the handler instead, except Error signals, which are always events
-(unless they answer a :meth:`Client.request`).
+(unless they answer a :meth:`Client.request`). An
+:class:`~evatar.ActuatorEmulator` keeps only the Progress signals of its
+requests: what else reaches it (a device's ``DeviceDisconnected`` and
+``DeviceReconnected`` events, an answer that came after ``act`` gave up)
+comes back as events.
 """
 
 from __future__ import annotations
@@ -129,9 +134,12 @@ class Reconnected:
 
 @dataclass
 class Closed:
-    """The last event: the session is over. After :meth:`Client.close`,
-    ``confirmed`` says whether EVATAR's Bye came (EVATAR had unregistered
-    the entity) before the close returned."""
+    """The last event: the session is over (delivered once; then
+    :meth:`Client.next_event` raises :class:`ClosedError`). After
+    :meth:`Client.close`, ``confirmed`` says whether EVATAR's Bye came
+    (EVATAR had unregistered the entity) before the close returned: the
+    event is delivered, and :meth:`Client.wait_closed` returns, only once
+    that is known."""
 
     reason: str
     refused: Optional[Refused] = None
@@ -245,6 +253,7 @@ class Client:
         self._description: Optional[bytes] = None
         self._binding_changed = asyncio.Event()
         self._closed_event = asyncio.Event()
+        self._closed_delivered = False
         # Protocol version 2.
         self.session_id: Optional[str] = None
         self.epoch = 0
@@ -428,10 +437,21 @@ class Client:
 
     async def next_event(self, timeout: Optional[float] = None) -> Event:
         """The next event; raises asyncio.TimeoutError after ``timeout`` s.
-        After :class:`Closed` it returns that Closed again."""
-        if self._closed is not None and self._events.empty():
-            return self._closed
-        return await asyncio.wait_for(self._events.get(), timeout)
+        :class:`Closed` is the last event and comes once: once it has been
+        returned, ``next_event`` raises :class:`ClosedError` (as
+        :meth:`next_signal` and ``SensorEmulator.reading`` do), so a loop
+        that does not stop at Closed ends instead of spinning."""
+        if self._closed_delivered and self._events.empty():
+            raise ClosedError(self._closed.reason if self._closed else "closed")
+        ev = await asyncio.wait_for(self._events.get(), timeout)
+        if isinstance(ev, Closed):
+            self._closed_delivered = True
+        return ev
+
+    def _event(self, ev: Event) -> None:
+        """Queues an event for :meth:`next_event` (the emulators pass on
+        what they do not keep)."""
+        self._events.put_nowait(ev)
 
     async def next_signal(self, timeout: Optional[float] = None,
                           match: Optional[Callable[[Signal], bool]] = None) -> Signal:
@@ -511,20 +531,25 @@ class Client:
         if self._closed is not None:
             return
         link = self._link
-        self._finish("normal")
+        # The Closed event waits for EVATAR's Bye, so that its ``confirmed``
+        # is final when the application reads it.
+        self._finish("normal", announce=False)
         reader = self._reader_task
-        if link is not None:
-            try:
-                link.write(encode(Bye()))
-                await asyncio.wait_for(link.writer.drain(), timeout)
-            except (OSError, asyncio.TimeoutError, ConnectionError):
+        try:
+            if link is not None:
+                try:
+                    link.write(encode(Bye()))
+                    await asyncio.wait_for(link.writer.drain(), timeout)
+                except (OSError, asyncio.TimeoutError, ConnectionError):
+                    link.abort()
+                if reader is not None and reader is not asyncio.current_task():
+                    # The reader ends at EVATAR's Bye or at the end of the stream.
+                    await asyncio.wait([reader], timeout=timeout)
                 link.abort()
-            if reader is not None and reader is not asyncio.current_task():
-                # The reader ends at EVATAR's Bye or at the end of the stream.
-                await asyncio.wait([reader], timeout=timeout)
-            link.abort()
-        if reader is not None and reader is not asyncio.current_task() and not reader.done():
-            reader.cancel()
+            if reader is not None and reader is not asyncio.current_task() and not reader.done():
+                reader.cancel()
+        finally:
+            self._announce_closed()
 
     def drop_connection(self) -> None:
         """Breaks the current connection as a network failure would (for
@@ -905,23 +930,30 @@ class Client:
         if self._closed is not None:
             raise ClosedError(self._closed.reason)
 
-    def _finish(self, reason: str, refused: Optional[Refused] = None) -> None:
+    def _finish(self, reason: str, refused: Optional[Refused] = None,
+                announce: bool = True) -> None:
         if self._closed is not None:
             return
         self._closed = Closed(reason, refused)
-        self._closed_event.set()
         self._cancel_ack_timer()
         self._connected.clear()
         for fut in list(self._pending.values()) + list(self._ack_waiters.values()):
             if not fut.done():
                 fut.set_exception(ClosedError(reason))
         self._ack_waiters.clear()
-        self._events.put_nowait(self._closed)
+        if announce:
+            self._announce_closed()
         self._binding_changed.set()
         asyncio.ensure_future(self._notify_room())
         if self._link is not None and reason != "normal":
             self._link.abort()
             self._link = None
+
+    def _announce_closed(self) -> None:
+        if self._closed is None or self._closed_event.is_set():
+            return
+        self._closed_event.set()
+        self._events.put_nowait(self._closed)
 
 
 def _log_failure(task: "asyncio.Future[Any]") -> None:

@@ -131,7 +131,15 @@ class ActuatorEmulator(Emulator):
     so that entry is bound too: it then leaves the Binding report's
     ``unbound`` rows, and signals the device sends on its own to its
     feedback consumer reach this emulator. ``feedback_category`` is that
-    service's category: ``BEHAVIOUR`` for the LEGO robots' behaviours."""
+    service's category: ``BEHAVIOUR`` for the LEGO robots' behaviours.
+
+    The emulator keeps the Progress signals of its requests (the queue
+    ``progress``); every other signal addressed to it that does not answer
+    a pending :meth:`act` comes back on :meth:`Client.next_event`: a
+    device's ``DeviceDisconnected``/``DeviceReconnected`` events (an
+    MQTT Avatar sends them when a device's availability changes), other
+    Events the device sends, an answer arriving after :meth:`act` gave
+    up."""
 
     def __init__(self, client: Client, component_id: str, actions: Sequence[Entry],
                  feedback: ParamsLike = None, feedback_category: str = "ACTUATOR") -> None:
@@ -156,6 +164,8 @@ class ActuatorEmulator(Emulator):
     async def _on_signal(self, signal: Signal) -> None:
         if signal.context == "Progress":
             self.progress.put_nowait(signal)
+        else:
+            self.client._event(signal)
 
 
 Listener = Callable[[Signal], Union[None, Awaitable[None]]]
