@@ -4,7 +4,7 @@
 %% I/O) whose applications start in the release's order (node_config,
 %% evatar, agent_bridge, mqtt_avatar). Group release: the release itself
 %% (rebar3 release, then bin/evatar daemon, eval, stop, foreground). The
-%% MQTT Avatars talk to a real mosquitto (mqtt_broker); VAs join over TCP.
+%% MQTT Avatars talk to a real mosquitto (evatar_test_mosquitto); VAs join over TCP.
 -module(node_config_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -62,11 +62,11 @@ end_per_group(_, _Config) ->
     ok.
 
 init_per_suite(Config) ->
-    {ok, Broker} = mqtt_broker:start(),
+    {ok, Broker} = evatar_test_mosquitto:start(),
     [{broker, Broker} | Config].
 
 end_per_suite(Config) ->
-    ok = mqtt_broker:stop(?config(broker, Config)).
+    ok = evatar_test_mosquitto:stop(?config(broker, Config)).
 
 init_per_testcase(Case, Config) ->
     [{prefix, atom_to_list(Case)} | Config].
@@ -163,7 +163,7 @@ node_restart_brings_everything_back(Config) ->
 %% with a growing delay and reports the crash loop; the node and its
 %% pairing stay up.
 bad_broker_is_a_reported_crash_loop(Config) ->
-    {ok, Broker} = mqtt_broker:start(#{users => [{"home", "right"}]}),
+    {ok, Broker} = evatar_test_mosquitto:start(#{users => [{"home", "right"}]}),
     try
         File = home_file(Config, #{broker_port => maps:get(port, Broker),
                                    mqtt_extra => ", username => \"home\", password => \"wrong\"",
@@ -177,7 +177,7 @@ bad_broker_is_a_reported_crash_loop(Config) ->
                               delay_at_max),
         [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, [])
     after
-        ok = mqtt_broker:stop(Broker)
+        ok = evatar_test_mosquitto:stop(Broker)
     end.
 
 %% Files with mistakes stop the start: node_config refuses, with the file,

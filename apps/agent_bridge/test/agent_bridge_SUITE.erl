@@ -43,10 +43,10 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = agent_bridge_test_node:start([]),
-    Addr = agent_bridge_test_node:listen(test, #{conn => #{handshake_timeout => 500,
+    ok = evatar_test_node:start([]),
+    Addr = evatar_test_node:listen(test, #{conn => #{handshake_timeout => 500,
                                                            linger => 200}}),
-    Small = agent_bridge_test_node:listen(small, #{conn => #{max_out_frames => 50,
+    Small = evatar_test_node:listen(small, #{conn => #{max_out_frames => 50,
                                                              max_out_bytes => 65536,
                                                              pairing_watermark => 20,
                                                              active_n => 4}}),
@@ -59,7 +59,7 @@ end_per_suite(Config) ->
     exit(Av, shutdown),
     %% The suites that run next may count the node's pairings.
     ok = evatar:delete_pairing(<<"bystander">>),
-    agent_bridge_test_node:stop([test, small], [agent_bridge]).
+    evatar_test_node:stop([test, small], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),

@@ -81,11 +81,11 @@ node_setup(File) ->
                                             #{single_line => true,
                                               template => [time, " ", level, " ", pid, " ",
                                                            msg, "\n"]}}}),
-    agent_bridge_test_node:start([]).
+    evatar_test_node:start([]).
 
 %% @private Runs on the node: a listener on 127.0.0.1 at a free port.
 listen(Name, Opts) ->
-    agent_bridge_test_node:listen(Name, Opts#{ip => {127, 0, 0, 1}}).
+    evatar_test_node:listen(Name, Opts#{ip => {127, 0, 0, 1}}).
 
 %% ---------------------------------------------------------------------------
 %% Attacks

@@ -30,16 +30,16 @@ all() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = agent_bridge_test_node:start([]),
+    ok = evatar_test_node:start([]),
     %% Refusals without delay or lockout, and no handshake rate: the loops
     %% below make hundreds of handshakes from 127.0.0.1 in seconds.
-    Addr = agent_bridge_test_node:listen(client_lifecycle,
+    Addr = evatar_test_node:listen(client_lifecycle,
                                          #{handshake => #{rate => infinity, failure_delay => 0,
                                                           max_failures => 1000000}}),
     [{addr, Addr} | Config].
 
 end_per_suite(_Config) ->
-    agent_bridge_test_node:stop([client_lifecycle], [agent_bridge]).
+    evatar_test_node:stop([client_lifecycle], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),

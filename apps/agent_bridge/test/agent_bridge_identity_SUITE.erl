@@ -29,10 +29,10 @@ init_per_suite(Config) ->
     %% (250 ms): on a loaded machine, 100,000 signals can cause one. These
     %% cases are about identity and limits, not fencing.
     ok = application:set_env(evatar, suspect_ms, 10000),
-    ok = agent_bridge_test_node:start([]),
+    ok = evatar_test_node:start([]),
     %% The listener's guard (rate, failure delay, lockout) is tested by
     %% agent_bridge_attack_SUITE; here every refusal must come from the pairing.
-    Addr = agent_bridge_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
+    Addr = evatar_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
                                                                linger => 100},
                                                      handshake => #{rate => infinity,
                                                                     failure_delay => 0,
@@ -46,7 +46,7 @@ end_per_suite(Config) ->
     Holder ! stop,
     ok = evatar:delete_pairing(<<"identity-bystander">>),
     ok = application:unset_env(evatar, suspect_ms),
-    agent_bridge_test_node:stop([identity], [agent_bridge]).
+    evatar_test_node:stop([identity], [agent_bridge]).
 
 %% Every pairing of these cases lists the device `lamp' with its own
 %% credential, and lets unlisted ids join with the role credentials.

@@ -35,20 +35,20 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = agent_bridge_test_node:start([]),
+    ok = evatar_test_node:start([]),
     Priv = ?config(priv_dir, Config),
     Certs = evatar_test_fixtures:bridge_certs(filename:join(Priv, "certs"), ["va", "av"]),
     Rogue = evatar_test_fixtures:bridge_certs(filename:join(Priv, "rogue"), ["va"]),
     Server = #{certfile => file(Certs, "server.pem"), keyfile => file(Certs, "server.key")},
     Conn = #{handshake_timeout => 1000, linger => 200},
-    Open = agent_bridge_test_node:listen(tls_open, #{tls => Server, conn => Conn}),
-    Mutual = agent_bridge_test_node:listen(
+    Open = evatar_test_node:listen(tls_open, #{tls => Server, conn => Conn}),
+    Mutual = evatar_test_node:listen(
                tls_mutual, #{tls => Server#{cacertfile => file(Certs, "ca.pem")}, conn => Conn}),
-    Plain = agent_bridge_test_node:listen(tls_plain_tcp, #{conn => Conn}),
+    Plain = evatar_test_node:listen(tls_plain_tcp, #{conn => Conn}),
     [{certs, Certs}, {rogue, Rogue}, {open, Open}, {mutual, Mutual}, {plain, Plain} | Config].
 
 end_per_suite(_Config) ->
-    agent_bridge_test_node:stop(?LISTENERS, [agent_bridge]).
+    evatar_test_node:stop(?LISTENERS, [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),

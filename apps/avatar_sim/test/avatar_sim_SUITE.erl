@@ -33,11 +33,11 @@ groups() ->
 %% ---------------------------------------------------------------------------
 
 init_per_suite(Config) ->
-    ok = agent_bridge_test_node:start([avatar_sim]),
-    [{addr, agent_bridge_test_node:listen(avatar_sim_test)} | Config].
+    ok = evatar_test_node:start([avatar_sim]),
+    [{addr, evatar_test_node:listen(avatar_sim_test)} | Config].
 
 end_per_suite(_Config) ->
-    agent_bridge_test_node:stop([avatar_sim_test], [avatar_sim, agent_bridge]).
+    evatar_test_node:stop([avatar_sim_test], [avatar_sim, agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Timeout = case Case of muted_device_times_out -> 300; _ -> 5000 end,

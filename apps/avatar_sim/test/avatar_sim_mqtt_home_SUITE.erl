@@ -20,11 +20,11 @@ all() ->
      photos_with_progress, device_power_cut, notifier_over_tcp, stray_hardware_pairing_replaced].
 
 init_per_suite(Config) ->
-    agent_bridge_test_node:start_with_broker([avatar_sim], mqtt_home_suite, Config).
+    evatar_test_node:start_with_broker([avatar_sim], mqtt_home_suite, Config).
 
 end_per_suite(Config) ->
-    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
-    agent_bridge_test_node:stop([mqtt_home_suite], [avatar_sim]).
+    ok = evatar_test_node:stop_broker(?config(broker, Config)),
+    evatar_test_node:stop([mqtt_home_suite], [avatar_sim]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),

@@ -23,9 +23,9 @@ all() ->
 init_per_suite(Config) ->
     case os:cmd(?PYTHON " -c 'import prometheus_client' 2>&1; echo rc=$?") of
         "rc=0\n" ->
-            ok = agent_bridge_test_node:start([]),
+            ok = evatar_test_node:start([]),
             ok = evatar_web_test:start(#{}),
-            Addr = agent_bridge_test_node:listen(metrics_test,
+            Addr = evatar_test_node:listen(metrics_test,
                                                  #{conn => #{handshake_timeout => 2000,
                                                              linger => 200}}),
             [{addr, Addr} | Config];
@@ -36,7 +36,7 @@ init_per_suite(Config) ->
 
 end_per_suite(_Config) ->
     ok = evatar_web_test:stop(),
-    ok = agent_bridge_test_node:stop([metrics_test], [agent_bridge]).
+    ok = evatar_test_node:stop([metrics_test], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),

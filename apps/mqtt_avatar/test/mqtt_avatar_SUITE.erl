@@ -1,5 +1,5 @@
 %% Common Test suite of the MQTT Avatar against a real mosquitto (started
-%% by mqtt_broker on a free loopback port), a real EVATAR pairing behind a
+%% by evatar_test_mosquitto on a free loopback port), a real EVATAR pairing behind a
 %% real agent_bridge listener (port 0), test devices that are real MQTT
 %% clients, and a test VA joined with agent_bridge_client.
 -module(mqtt_avatar_SUITE).
@@ -9,8 +9,7 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, evatar_test_fixtures:va_credential()).
--define(AV_CRED, evatar_test_fixtures:avatar_credential()).
+-define(SETUP, mqtt_avatar_test_setup).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -27,24 +26,18 @@ groups() ->
 %% Setup
 %% ---------------------------------------------------------------------------
 
+%% The setup of every live mqtt_avatar suite: mqtt_avatar_test_setup.
 init_per_suite(Config) ->
-    agent_bridge_test_node:start_with_broker([mqtt_avatar], mqtt_avatar_suite, Config).
+    ?SETUP:init_per_suite(mqtt_avatar_suite, Config).
 
 end_per_suite(Config) ->
-    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
-    agent_bridge_test_node:stop([mqtt_avatar_suite], [mqtt_avatar]).
+    ?SETUP:end_per_suite(mqtt_avatar_suite, Config).
 
 init_per_testcase(Case, Config) ->
-    Name = atom_to_binary(Case),
-    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => 1500}),
-    [{pairing, Name}, {prefix, Name} | Config].
+    ?SETUP:init_per_testcase(atom_to_binary(Case), 1500, Config).
 
 end_per_testcase(_Case, Config) ->
-    [catch mqtt_avatar:stop(A) || A <- cleanup(avatars)],
-    [catch mqtt_avatar_test_device:stop(D) || D <- cleanup(devices)],
-    [catch agent_bridge_client:close(V) || V <- cleanup(vas)],
-    _ = evatar:delete_pairing(?config(pairing, Config)),
-    ok.
+    ?SETUP:end_per_testcase(Config).
 
 %% ---------------------------------------------------------------------------
 %% Round trips
@@ -308,7 +301,7 @@ malformed_inputs(Config) ->
 %% cleanly for the restart, so the broker has no will of its to publish
 %% and the light's availability stays as it was.)
 broker_restart(Config) ->
-    {ok, Broker} = mqtt_broker:start(#{persistence => true}),
+    {ok, Broker} = evatar_test_mosquitto:start(#{persistence => true}),
     Config1 = [{broker, Broker} | Config],
     P = ?config(prefix, Config),
     Light = light_device(Config1),
@@ -320,12 +313,12 @@ broker_restart(Config) ->
                                                       <<"TurnLightOn">>, []), 5000),
     Subscriptions = maps:get(subscriptions, mqtt_avatar:status(A)),
     ok = mqtt_avatar_test_device:stop(Light),
-    ok = mqtt_broker:kill(Broker, term),
+    ok = evatar_test_mosquitto:kill(Broker, term),
     ok = wait_until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= down end),
     {error, #{body := #{type := <<"BrokerUnavailable">>}}} =
         agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
                                                 <<"TurnLightOff">>, []), 5000),
-    {ok, Broker2} = mqtt_broker:start(maps:get(opts, Broker)),
+    {ok, Broker2} = evatar_test_mosquitto:start(maps:get(opts, Broker)),
     try
         ok = wait_until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= up end),
         Subscriptions = maps:get(subscriptions, mqtt_avatar:status(A)),
@@ -342,7 +335,7 @@ broker_restart(Config) ->
         <<"off">> = param(<<"Light">>, FPs),
         true = is_process_alive(A)
     after
-        ok = mqtt_broker:stop(Broker2)
+        ok = evatar_test_mosquitto:stop(Broker2)
     end.
 
 %% ---------------------------------------------------------------------------
@@ -402,30 +395,16 @@ hall_device(Config) ->
 %% ---------------------------------------------------------------------------
 
 avatar(Config, Extra) ->
-    P = ?config(prefix, Config),
-    Opts = maps:merge(#{entity_id => <<"mqtt-home-", P/binary>>,
-                        mqtt => mqtt(Config),
-                        evatar => #{endpoints => [?config(addr, Config)],
-                                    pairing => ?config(pairing, Config), credential => ?AV_CRED},
-                        discovery => #{homeassistant => <<"ha_", P/binary>>, zigbee2mqtt => false},
-                        settle => 200},
-                      Extra),
-    {ok, A} = mqtt_avatar:start(Opts),
-    remember(avatars, A),
-    ok = mqtt_avatar:await_ready(A, 10000),
-    A.
+    ?SETUP:avatar(Config, <<"mqtt-home">>, Extra).
 
 mqtt(Config) ->
     #{host => {127, 0, 0, 1}, port => port(Config)}.
 
 port(Config) ->
-    maps:get(port, ?config(broker, Config)).
+    ?SETUP:broker_port(Config).
 
 va(Config) ->
-    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
-                                           #{pairing => ?config(pairing, Config), role => agent,
-                                             entity_id => <<"test-va">>, credential => ?VA_CRED}),
-    remember(vas, Va),
+    Va = ?SETUP:connect_va(Config, <<"test-va">>),
     ok = agent_bridge_client:describe(Va, va_description()),
     Va.
 
@@ -448,8 +427,7 @@ va_description() ->
              services => [entry(<<"SENSOR">>, <<"Temperature">>, [{<<"Room">>, <<"hall">>}])],
              consumes => []}]}.
 
-entry(Cat, Type, Params) ->
-    #{category => Cat, type => Type, parameters => Params}.
+entry(Cat, Type, Params) -> ?SETUP:entry(Cat, Type, Params).
 
 request(From, To, Type, Params) ->
     #{sender => From, receiver => To, body => entry(<<"ACTUATOR">>, Type, Params)}.
@@ -480,19 +458,8 @@ wait_binding(Va, Pred) ->
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 5000).
 
-param(Name, Params) ->
-    case lists:keyfind(Name, 1, Params) of
-        {_, V} -> V;
-        false -> ct:fail({missing_parameter, Name, Params})
-    end.
+param(Name, Params) -> ?SETUP:param(Name, Params).
 
 wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000}).
 
-remember(Kind, Pid) ->
-    put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).
-
-cleanup(Kind) ->
-    case erase(Kind) of
-        undefined -> [];
-        L -> L
-    end.
+remember(Kind, Pid) -> ?SETUP:remember(Kind, Pid).

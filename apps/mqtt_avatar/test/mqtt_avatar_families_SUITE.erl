@@ -12,8 +12,9 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, evatar_test_fixtures:va_credential()).
--define(AV_CRED, evatar_test_fixtures:avatar_credential()).
+-import(mqtt_avatar_test_setup, [remember/2, entry/3, param/2]).
+
+-define(SETUP, mqtt_avatar_test_setup).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -22,23 +23,16 @@ all() ->
      number_select_scene, vacuum, sensors_named_by_what_they_are, zigbee2mqtt_families].
 
 init_per_suite(Config) ->
-    agent_bridge_test_node:start_with_broker([mqtt_avatar], mqtt_families_suite, Config).
+    ?SETUP:init_per_suite(mqtt_families_suite, Config).
 
 end_per_suite(Config) ->
-    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
-    agent_bridge_test_node:stop([mqtt_families_suite], [mqtt_avatar]).
+    ?SETUP:end_per_suite(mqtt_families_suite, Config).
 
 init_per_testcase(Case, Config) ->
-    Name = atom_to_binary(Case),
-    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => 3000}),
-    [{pairing, Name}, {prefix, Name} | Config].
+    ?SETUP:init_per_testcase(atom_to_binary(Case), 3000, Config).
 
 end_per_testcase(_Case, Config) ->
-    [catch mqtt_avatar:stop(A) || A <- cleanup(avatars)],
-    [catch mqtt_avatar_test_device:stop(D) || D <- cleanup(devices)],
-    [catch agent_bridge_client:close(V) || V <- cleanup(vas)],
-    _ = evatar:delete_pairing(?config(pairing, Config)),
-    ok.
+    ?SETUP:end_per_testcase(Config).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -446,10 +440,7 @@ sensors_named_by_what_they_are(Config) ->
                                 <<"stat_t">> => <<P/binary, "/kitchen/door">>, <<"dev">> => Dev}}],
                     [], undefined),
     _A = avatar(Config),
-    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
-                                           #{pairing => ?config(pairing, Config), role => agent,
-                                             entity_id => <<"kitchen-va">>, credential => ?VA_CRED}),
-    remember(vas, Va),
+    Va = ?SETUP:connect_va(Config, <<"kitchen-va">>),
     Kitchen = [{<<"Room">>, <<"kitchen">>}],
     ok = agent_bridge_client:describe(
            Va, #{entity_id => <<"kitchen-va">>, api_name => <<"KITCHEN VA">>, entity_type => agent,
@@ -626,7 +617,7 @@ device(Config, Configs, Commands, Reply) ->
                 undefined -> Spec;
                 _ -> Spec#{reply => fun(T, Pl) -> [{RT, RP, false} || {RT, RP} <- Reply(T, Pl)] end}
             end,
-    {ok, D} = mqtt_avatar_test_device:start(maps:get(port, ?config(broker, Config)), Spec1),
+    {ok, D} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), Spec1),
     remember(devices, D),
     D.
 
@@ -634,27 +625,13 @@ avatar(Config) ->
     avatar(Config, #{}).
 
 avatar(Config, Extra) ->
-    P = ?config(prefix, Config),
-    Opts = maps:merge(#{entity_id => <<"families-", P/binary>>,
-                        mqtt => #{host => {127, 0, 0, 1}, port => maps:get(port, ?config(broker, Config))},
-                        evatar => #{endpoints => [?config(addr, Config)],
-                                    pairing => ?config(pairing, Config), credential => ?AV_CRED},
-                        discovery => #{homeassistant => <<"ha_", P/binary>>, zigbee2mqtt => false},
-                        settle => 200},
-                      Extra),
-    {ok, A} = mqtt_avatar:start(Opts),
-    remember(avatars, A),
-    ok = mqtt_avatar:await_ready(A, 10000),
-    A.
+    ?SETUP:avatar(Config, <<"families">>, Extra).
 
 %% A VA with one component, Va01, that requests `Requests' (services of
 %% any Avatar component) and receives the streams `Streams' and every
 %% feedback.
 va(Config, Requests, Streams) ->
-    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
-                                           #{pairing => ?config(pairing, Config), role => agent,
-                                             entity_id => <<"test-va">>, credential => ?VA_CRED}),
-    remember(vas, Va),
+    Va = ?SETUP:connect_va(Config, <<"test-va">>),
     Any = [{<<"Room">>, <<"any">>}],
     ok = agent_bridge_client:describe(
            Va, #{entity_id => <<"test-va">>, api_name => <<"TEST VA">>, entity_type => agent,
@@ -705,23 +682,5 @@ stream(Va, Type, Param, Value) ->
                         end),
     Ps.
 
-entry(Cat, Type, Params) ->
-    #{category => Cat, type => Type, parameters => Params}.
-
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 10000).
-
-param(Name, Params) ->
-    case lists:keyfind(Name, 1, Params) of
-        {_, V} -> V;
-        false -> ct:fail({missing_parameter, Name, Params})
-    end.
-
-remember(Kind, Pid) ->
-    put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).
-
-cleanup(Kind) ->
-    case erase(Kind) of
-        undefined -> [];
-        L -> L
-    end.

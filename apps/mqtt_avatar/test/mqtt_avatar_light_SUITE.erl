@@ -1,5 +1,5 @@
 %% Common Test suite of lights through the MQTT Avatar, against a real
-%% mosquitto (mqtt_broker, free loopback port) and a real EVATAR pairing
+%% mosquitto (evatar_test_mosquitto, free loopback port) and a real EVATAR pairing
 %% behind a real agent_bridge listener: bulbs announced in Home
 %% Assistant's three light schemas and by zigbee2mqtt
 %% (mqtt_avatar_test_bulb, real MQTT clients that apply commands and
@@ -12,8 +12,9 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(VA_CRED, evatar_test_fixtures:va_credential()).
--define(AV_CRED, evatar_test_fixtures:avatar_credential()).
+-import(mqtt_avatar_test_setup, [remember/2, entry/3, param/2]).
+
+-define(SETUP, mqtt_avatar_test_setup).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -25,23 +26,16 @@ groups() ->
      {failures, [], [bad_values_and_payloads]}].
 
 init_per_suite(Config) ->
-    agent_bridge_test_node:start_with_broker([mqtt_avatar], mqtt_avatar_light_suite, Config).
+    ?SETUP:init_per_suite(mqtt_avatar_light_suite, Config).
 
 end_per_suite(Config) ->
-    ok = agent_bridge_test_node:stop_broker(?config(broker, Config)),
-    agent_bridge_test_node:stop([mqtt_avatar_light_suite], [mqtt_avatar]).
+    ?SETUP:end_per_suite(mqtt_avatar_light_suite, Config).
 
 init_per_testcase(Case, Config) ->
-    Name = <<"l_", (atom_to_binary(Case))/binary>>,
-    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => 3000}),
-    [{pairing, Name}, {prefix, Name} | Config].
+    ?SETUP:init_per_testcase(<<"l_", (atom_to_binary(Case))/binary>>, 3000, Config).
 
 end_per_testcase(_Case, Config) ->
-    [catch mqtt_avatar:stop(A) || A <- cleanup(avatars)],
-    [catch mqtt_avatar_test_device:stop(D) || D <- cleanup(devices)],
-    [catch agent_bridge_client:close(V) || V <- cleanup(vas)],
-    _ = evatar:delete_pairing(?config(pairing, Config)),
-    ok.
+    ?SETUP:end_per_testcase(Config).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -221,27 +215,13 @@ request(Va, From, To, Type, Params) ->
                                       body => entry(<<"ACTUATOR">>, Type, Params)}, 10000).
 
 avatar(Config, Extra) ->
-    P = ?config(prefix, Config),
-    Opts = maps:merge(#{entity_id => <<"lights-", P/binary>>,
-                        mqtt => #{host => {127, 0, 0, 1}, port => port(Config)},
-                        evatar => #{endpoints => [?config(addr, Config)],
-                                    pairing => ?config(pairing, Config), credential => ?AV_CRED},
-                        discovery => #{homeassistant => <<"ha_", P/binary>>, zigbee2mqtt => false},
-                        settle => 200},
-                      Extra),
-    {ok, A} = mqtt_avatar:start(Opts),
-    remember(avatars, A),
-    ok = mqtt_avatar:await_ready(A, 10000),
-    A.
+    ?SETUP:avatar(Config, <<"lights">>, Extra).
 
-port(Config) -> maps:get(port, ?config(broker, Config)).
+port(Config) -> ?SETUP:broker_port(Config).
 
 %% A VA with one light emulator per room, each wanting a dimmable light.
 va(Config) ->
-    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
-                                           #{pairing => ?config(pairing, Config), role => agent,
-                                             entity_id => <<"light-va">>, credential => ?VA_CRED}),
-    remember(vas, Va),
+    Va = ?SETUP:connect_va(Config, <<"light-va">>),
     Lights = [{<<"KitchenLight">>, <<"kitchen">>}, {<<"HallLight">>, <<"hall">>},
               {<<"BedroomLight">>, <<"bedroom">>}, {<<"GarageLight">>, <<"garage">>}],
     ok = agent_bridge_client:describe(
@@ -269,21 +249,4 @@ provider_of(Va, Consumer) ->
                   provider := #{component := P}} <- maps:get(bound, Report), C =:= Consumer],
     P.
 
-entry(Cat, Type, Params) -> #{category => Cat, type => Type, parameters => Params}.
-
-param(Name, Params) ->
-    case lists:keyfind(Name, 1, Params) of
-        {_, V} -> V;
-        false -> ct:fail({missing_parameter, Name, Params})
-    end.
-
 wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 10000}).
-
-remember(Kind, Pid) ->
-    put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]).
-
-cleanup(Kind) ->
-    case erase(Kind) of
-        undefined -> [];
-        L -> L
-    end.

@@ -1,5 +1,5 @@
 %% @doc The MQTT client against a real mosquitto started by the test (see
-%% mqtt_broker), and against a scripted broker on a real socket for what
+%% evatar_test_mosquitto), and against a scripted broker on a real socket for what
 %% mosquitto cannot be made to do on cue (withhold PUBACKs, ignore PINGREQ).
 -module(mqtt_client_SUITE).
 
@@ -31,7 +31,7 @@ groups() ->
                      keepalive_timeout, malformed_from_broker]}].
 
 init_per_suite(Config) ->
-    case mqtt_broker:available() of
+    case evatar_test_mosquitto:available() of
         true -> Config;
         false -> {skip, mosquitto_not_installed}
     end.
@@ -54,19 +54,19 @@ init_per_testcase(Case, Config) ->
         true ->
             Config;
         false ->
-            {ok, B} = mqtt_broker:start(Opts),
+            {ok, B} = evatar_test_mosquitto:start(Opts),
             [{broker, B} | Config]
     end.
 
 end_per_testcase(_Case, Config) ->
     case ?config(broker, Config) of
         undefined -> ok;
-        B -> mqtt_broker:stop(B)
+        B -> evatar_test_mosquitto:stop(B)
     end,
     %% Brokers replaced during a case are recorded here.
     case get(extra_broker) of
         undefined -> ok;
-        B2 -> mqtt_broker:stop(B2)
+        B2 -> evatar_test_mosquitto:stop(B2)
     end,
     ok.
 
@@ -246,7 +246,7 @@ broker_restart(Config) ->
     {ok, [1]} = mqtt_client:subscribe(Sub, [{<<"home/#">>, 1}]),
     #{payload := <<"on">>, retain := true} = recv(Sub),
     {connected, _} = event(Sub, connected),
-    {ok, B2} = mqtt_broker:restart(B),
+    {ok, B2} = evatar_test_mosquitto:restart(B),
     put(extra_broker, B2),
     {disconnected, _} = event(Sub, disconnected),
     {connected, #{session_present := false}} = event(Sub, connected),
@@ -267,14 +267,14 @@ broker_killed(Config) ->
     Sub = client(Config, Opts),
     {ok, [1]} = mqtt_client:subscribe(Sub, [{<<"k">>, 1}]),
     {connected, _} = event(Sub, connected),
-    ok = mqtt_broker:kill(B, kill),
+    ok = evatar_test_mosquitto:kill(B, kill),
     {disconnected, _} = event(Pub, disconnected),
     {disconnected, _} = event(Sub, disconnected),
     %% Published while the broker is down: queued, sent after reconnect.
     Self = self(),
     spawn_link(fun() -> Self ! {sent, mqtt_client:publish(Pub, <<"k">>, <<"late">>,
                                                           #{qos => 1})} end),
-    {ok, B2} = mqtt_broker:start(maps:get(opts, B)),
+    {ok, B2} = evatar_test_mosquitto:start(maps:get(opts, B)),
     put(extra_broker, B2),
     {connected, _} = event(Sub, connected),
     %% Sub may resubscribe after Pub's message is routed; wait until then.
@@ -303,7 +303,7 @@ subscribe_waits_for_connection(_Config) ->
     {error, timeout} = mqtt_client:await_connected(C, 300),
     Self = self(),
     spawn_link(fun() -> Self ! {subscribed, mqtt_client:subscribe(C, [{<<"w">>, 1}])} end),
-    {ok, B} = mqtt_broker:start(#{port => Port}),
+    {ok, B} = evatar_test_mosquitto:start(#{port => Port}),
     put(extra_broker, B),
     ok = mqtt_client:await_connected(C, 5000),
     receive {subscribed, R} -> {ok, [1]} = R after 5000 -> ct:fail(no_subscribe) end,

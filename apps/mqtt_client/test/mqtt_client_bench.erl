@@ -11,7 +11,7 @@
 %% window full. Options: protocol, payload_size (500), seconds (5), window.
 -spec run(map()) -> map().
 run(Opts) ->
-    {ok, B} = mqtt_broker:start(#{}),
+    {ok, B} = evatar_test_mosquitto:start(#{}),
     try
         V = maps:get(protocol, Opts, v311),
         Secs = maps:get(seconds, Opts, 5),
@@ -29,7 +29,7 @@ run(Opts) ->
         io:format("~p~n", [R]),
         R
     after
-        mqtt_broker:stop(B)
+        evatar_test_mosquitto:stop(B)
     end.
 
 cpu(Pid, F) ->

@@ -58,7 +58,7 @@ demo_from_scratch(Config) ->
 %% @doc On a node already running EVATAR with other pairings, the tour uses
 %% its own listener and pairing, and leaves the rest running as it was.
 demo_on_running_node(Config) ->
-    ok = agent_bridge_test_node:start([]),
+    ok = evatar_test_node:start([]),
     {ok, _} = evatar_test_fixtures:create_pairing(<<"bystander">>, #{}),
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],

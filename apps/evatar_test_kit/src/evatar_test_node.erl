@@ -1,17 +1,13 @@
 %% @doc Test support, not a suite: the EVATAR node that the Common Test
-%% suites of several apps set up alike. Starts evatar, then agent_bridge
-%% (in that order: see start/1), opens bridge listeners on 127.0.0.1 at a
-%% port the system picks, and runs the real mosquitto of mqtt_broker. The
-%% suites' credentials, pairings and other fixtures are in
-%% evatar_test_fixtures (apps/evatar_test_kit).
--module(agent_bridge_test_node).
+%% suites of several apps (agent_bridge, avatar_sim, evatar_web,
+%% mqtt_avatar, reference_agents) set up alike. Starts evatar, then
+%% agent_bridge (in that order: see start/1), opens bridge listeners on
+%% 127.0.0.1 at a port the system picks, and runs a real mosquitto
+%% (evatar_test_mosquitto). The suites' credentials, pairings and other
+%% fixtures are in evatar_test_fixtures.
+-module(evatar_test_node).
 
 -export([start/1, start_with_broker/3, stop/2, listen/1, listen/2, stop_broker/1]).
-%% Moved to evatar_test_fixtures (apps/evatar_test_kit); kept as calls to it
-%% for the suites written before the move. New code calls
-%% evatar_test_fixtures.
--export([va_credential/0, avatar_credential/0, create_pairing/2, wait_binding/3,
-         wait_signal/3]).
 
 %% @doc Starts evatar, agent_bridge (without a default listener) and Apps.
 -spec start([atom()]) -> ok.
@@ -21,8 +17,7 @@ start(Apps) ->
     %% leaving agent_bridge running, which ensure_all_started would not notice.
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
-    [{ok, _} = application:ensure_all_started(App) || App <- Apps],
-    ok.
+    lists:foreach(fun(App) -> {ok, _} = application:ensure_all_started(App) end, Apps).
 
 %% @doc For a suite of an MQTT side: start/1, a listener Name and a
 %% mosquitto on free loopback ports; Config with their `addr' and `broker',
@@ -57,32 +52,12 @@ listen(Name, Opts) ->
     Addr.
 
 start_broker() ->
-    case mqtt_broker:available() of
+    case evatar_test_mosquitto:available() of
         false -> {skip, "mosquitto is not installed (Debian package mosquitto)"};
-        true -> {ok, _} = mqtt_broker:start(#{})
+        true -> {ok, _} = evatar_test_mosquitto:start(#{})
     end.
 
 %% @doc Stops the broker of start_with_broker/3.
--spec stop_broker(mqtt_broker:broker()) -> ok.
+-spec stop_broker(evatar_test_mosquitto:broker()) -> ok.
 stop_broker(Broker) ->
-    ok = mqtt_broker:stop(Broker).
-
-%% @doc evatar_test_fixtures:va_credential/0.
--spec va_credential() -> binary().
-va_credential() -> evatar_test_fixtures:va_credential().
-
-%% @doc evatar_test_fixtures:avatar_credential/0.
--spec avatar_credential() -> binary().
-avatar_credential() -> evatar_test_fixtures:avatar_credential().
-
-%% @doc evatar_test_fixtures:create_pairing/2.
--spec create_pairing(binary(), map()) -> {ok, pid()}.
-create_pairing(Id, Opts) -> evatar_test_fixtures:create_pairing(Id, Opts).
-
-%% @doc evatar_test_fixtures:wait_binding/3.
--spec wait_binding(pid(), fun((map()) -> boolean()), timeout()) -> map().
-wait_binding(C, Pred, Timeout) -> evatar_test_fixtures:wait_binding(C, Pred, Timeout).
-
-%% @doc evatar_test_fixtures:wait_signal/3.
--spec wait_signal(pid(), fun((map()) -> boolean()), timeout()) -> map().
-wait_signal(C, Pred, Timeout) -> evatar_test_fixtures:wait_signal(C, Pred, Timeout).
+    ok = evatar_test_mosquitto:stop(Broker).

@@ -1,0 +1,104 @@
+%% @doc Test support, not a suite: the setup the live suites of
+%% mqtt_avatar share (mqtt_avatar_SUITE, _families_SUITE, _light_SUITE and
+%% those that reuse mqtt_avatar_SUITE's helpers). One EVATAR node with a
+%% bridge listener and a real mosquitto (evatar_test_node), a pairing per
+%% case, and the case's Avatars, test devices and VAs, remembered as they
+%% start and stopped when the case ends. Only mqtt_avatar's suites use it,
+%% so it lives in this app's test directory (the rule of
+%% apps/evatar_test_kit/README.md).
+-module(mqtt_avatar_test_setup).
+
+-export([init_per_suite/2, end_per_suite/2, init_per_testcase/3, end_per_testcase/1,
+         remember/2, avatar/3, connect_va/2, broker_port/1, entry/3, param/2]).
+
+-type config() :: [{atom(), term()}].
+
+%% @doc A node with mqtt_avatar, a bridge listener `Listener' and a
+%% mosquitto: Config with `addr' and `broker', or the suite's skip.
+-spec init_per_suite(atom(), config()) -> config() | {skip, string()}.
+init_per_suite(Listener, Config) ->
+    evatar_test_node:start_with_broker([mqtt_avatar], Listener, Config).
+
+%% @doc Stops what init_per_suite/2 started.
+-spec end_per_suite(atom(), config()) -> ok.
+end_per_suite(Listener, Config) ->
+    ok = evatar_test_node:stop_broker(proplists:get_value(broker, Config)),
+    evatar_test_node:stop([Listener], [mqtt_avatar]).
+
+%% @doc The case's pairing `Name' (also the prefix of its topics and ids),
+%% with feedback_timeout `FeedbackMs'.
+-spec init_per_testcase(binary(), pos_integer(), config()) -> config().
+init_per_testcase(Name, FeedbackMs, Config) ->
+    {ok, _} = evatar_test_fixtures:create_pairing(Name, #{feedback_timeout => FeedbackMs}),
+    [{pairing, Name}, {prefix, Name} | Config].
+
+%% @doc Stops the case's Avatars, devices and VAs, and deletes its pairing.
+-spec end_per_testcase(config()) -> ok.
+end_per_testcase(Config) ->
+    [catch mqtt_avatar:stop(A) || A <- forget(avatars)],
+    [catch mqtt_avatar_test_device:stop(D) || D <- forget(devices)],
+    [catch agent_bridge_client:close(V) || V <- forget(vas)],
+    _ = evatar:delete_pairing(proplists:get_value(pairing, Config)),
+    ok.
+
+%% @doc Remembers a process of kind `avatars', `devices' or `vas' (a
+%% bulb is a device) for end_per_testcase/1 to stop.
+-spec remember(avatars | devices | vas, pid()) -> ok.
+remember(Kind, Pid) ->
+    _ = put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]),
+    ok.
+
+forget(Kind) ->
+    case erase(Kind) of
+        undefined -> [];
+        L -> L
+    end.
+
+%% @doc An MQTT Avatar `<<EntityPrefix, "-", Prefix>>' on the suite's
+%% mosquitto and listener, joined to the case's pairing, reading Home
+%% Assistant discovery under `ha_<Prefix>'; `Extra' overrides options.
+%% Remembered, and ready when returned.
+-spec avatar(config(), binary(), map()) -> pid().
+avatar(Config, EntityPrefix, Extra) ->
+    P = proplists:get_value(prefix, Config),
+    Opts = maps:merge(#{entity_id => <<EntityPrefix/binary, "-", P/binary>>,
+                        mqtt => #{host => {127, 0, 0, 1}, port => broker_port(Config)},
+                        evatar => #{endpoints => [proplists:get_value(addr, Config)],
+                                    pairing => proplists:get_value(pairing, Config),
+                                    credential => evatar_test_fixtures:avatar_credential()},
+                        discovery => #{homeassistant => <<"ha_", P/binary>>, zigbee2mqtt => false},
+                        settle => 200},
+                      Extra),
+    {ok, A} = mqtt_avatar:start(Opts),
+    ok = remember(avatars, A),
+    ok = mqtt_avatar:await_ready(A, 10000),
+    A.
+
+%% @doc A VA `EntityId' joined to the case's pairing (not yet described);
+%% remembered.
+-spec connect_va(config(), binary()) -> pid().
+connect_va(Config, EntityId) ->
+    {ok, Va} = agent_bridge_client:connect([proplists:get_value(addr, Config)],
+                                           #{pairing => proplists:get_value(pairing, Config),
+                                             role => agent, entity_id => EntityId,
+                                             credential => evatar_test_fixtures:va_credential()}),
+    ok = remember(vas, Va),
+    Va.
+
+%% @doc The port of the suite's mosquitto.
+-spec broker_port(config()) -> inet:port_number().
+broker_port(Config) ->
+    maps:get(port, proplists:get_value(broker, Config)).
+
+%% @doc A service or Consumes entry.
+-spec entry(binary(), binary(), [{binary(), binary()}]) -> map().
+entry(Cat, Type, Params) ->
+    #{category => Cat, type => Type, parameters => Params}.
+
+%% @doc A parameter's value; fails the case when it is missing.
+-spec param(binary(), [{binary(), term()}]) -> term().
+param(Name, Params) ->
+    case lists:keyfind(Name, 1, Params) of
+        {_, V} -> V;
+        false -> ct:fail({missing_parameter, Name, Params})
+    end.
