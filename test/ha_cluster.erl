@@ -282,13 +282,12 @@ node_setup(#{log := Log, env := Env, bridge_port := Port, conn := Conn} = Setup)
             ok = logger:add_primary_filter(no_progress, {fun logger_filters:progress/2, stop}),
             ok = logger:set_primary_config(level, info)
     end,
-    ok = application:set_env(Env, [{persistent, true}]),
-    {ok, _} = application:ensure_all_started(agent_bridge),
     Listener = maps:get(listener, Setup, #{}),
     %% Loopback, unless the node has an address of its own (ha_netns).
     Ip = maps:get(ip, Setup, {127, 0, 0, 1}),
-    {ok, _} = agent_bridge:start_listener(ha, Listener#{ip => Ip, port => Port, conn => Conn}),
-    ok.
+    evatar_test_cluster:start_evatar(#{env => Env, listener => ha,
+                                       listener_opts => Listener#{ip => Ip, port => Port,
+                                                                  conn => Conn}}).
 
 %% @private Halts this node when its standard input closes: the controller
 %% that started it (the owner of the pipe) is gone. Started by -eval.
@@ -479,12 +478,8 @@ start_proxies(Nodes) ->
 %% of this build and the test support.
 -spec code_path() -> [file:filename()].
 code_path() ->
-    %% evatar_test_kit: this module's helpers (await/3) run on a node too.
-    Apps = [bil, evatar_protocol, evatar, agent_bridge, restart_backoff, sock_flow,
-            evatar_test_kit],
-    Dirs = [filename:join(code:lib_dir(App), "ebin") || App <- Apps]
-        ++ [filename:dirname(code:which(?MODULE))],
-    lists:usort(Dirs).
+    %% This module's node_setup/1 and watchdog run on the nodes.
+    evatar_test_cluster:code_path([?MODULE]).
 
 args(#nd{dist_port = DP, links = Links}, #s{opts = Opts, nodes = Nodes}) ->
     Dist = case maps:get(dist, Opts) of
@@ -507,17 +502,12 @@ args(#nd{dist_port = DP, links = Links}, #s{opts = Opts, nodes = Nodes}) ->
                  #{} -> []
              end,
     Config ++
-    ["-setcookie", atom_to_list(erlang:get_cookie()),
-     "-kernel", "inet_dist_listen_min", integer_to_list(DP),
-     "-kernel", "inet_dist_listen_max", integer_to_list(DP),
-     %% As config/vm.args.src: EVATAR does not use global, whose default
-     %% answer to a cut link is to cut more links.
-     "-kernel", "prevent_overlapping_partitions", "false",
-     %% Like a release (config/vm.args.src): distribution on loopback only.
-     "-kernel", "inet_dist_use_interface", "{127,0,0,1}",
-     "+K", "true"]
+    ["+K", "true"]
         ++ Input ++ Epmd ++ LinkArgs ++ Dist
-        ++ lists:append([["-pa", D] || D <- code_path()]).
+        %% Cookie, distribution on loopback at DP, no overlapping-partition
+        %% handling, code path: evatar_test_cluster's, as every test node.
+        ++ evatar_test_cluster:node_args(#{cookie => erlang:get_cookie(), dist_port => DP,
+                                           code_path => code_path()}).
 
 log_file(#nd{short = Short}, #s{opts = Opts}) ->
     filename:join(maps:get(dir, Opts), Short ++ ".log").

@@ -335,17 +335,11 @@ code_path(#s{opts = Opts}) ->
 launch(#nd{i = I, ns = Ns, name = Name, ip = {A, B, C, D}} = Nd, #s{opts = Opts} = S) ->
     Out = filename:join(maps:get(dir, Opts), "evns" ++ integer_to_list(I) ++ ".out"),
     Args = [os:find_executable("ip"), "netns", "exec", Ns,
-            os:find_executable("erl"), "-name", atom_to_list(Name),
-            "-setcookie", atom_to_list(erlang:get_cookie()),
-            "-kernel", "inet_dist_listen_min", integer_to_list(?DIST_PORT),
-            "-kernel", "inet_dist_listen_max", integer_to_list(?DIST_PORT),
-            %% As config/vm.args.src: global's answer to a cut link is to
-            %% cut more links.
-            "-kernel", "prevent_overlapping_partitions", "false",
-            "-kernel", "inet_dist_use_interface",
-            lists:flatten(io_lib:format("{~b,~b,~b,~b}", [A, B, C, D])),
-            "+K", "true", "-noinput"]
-        ++ lists:append([["-pa", P] || P <- code_path(S)])
+            os:find_executable("erl"), "-name", atom_to_list(Name), "+K", "true", "-noinput"]
+        %% Distribution on the node's own address only, at ?DIST_PORT.
+        ++ evatar_test_cluster:node_args(#{cookie => erlang:get_cookie(),
+                                           interface => {A, B, C, D}, dist_port => ?DIST_PORT,
+                                           code_path => code_path(S)})
         ++ ["-eval", "ha_cluster:watchdog()"],
     %% Its epmd starts inside the namespace, on the namespace's own port 4369.
     Cmd = "unset ERL_EPMD_ADDRESS ERL_FLAGS ERL_AFLAGS ERL_ZFLAGS; exec "

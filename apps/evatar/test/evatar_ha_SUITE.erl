@@ -288,9 +288,7 @@ start_cluster(TC, N) ->
     Names = [list_to_atom("ha" ++ integer_to_list(I) ++ "_" ++ atom_to_list(TC) ++ "_" ++ Unique)
              || I <- lists:seq(1, N)],
     Nodes = [list_to_atom(atom_to_list(Name) ++ "@127.0.0.1") || Name <- Names],
-    Paths = lists:append([["-pa", P] || P <- code:get_path(),
-                                        not lists:prefix(code:lib_dir(), P)]),
-    Started = [start_node(Name, Paths) || Name <- Names],
+    Started = [start_node(Name) || Name <- Names],
     _ = [setup_node(P, Nodes) || {P, _} <- Started],
     Info = [#{peer => P, node => Node, addr => listener(P)} || {P, Node} <- Started],
     ok = wait_until(fun() ->
@@ -302,17 +300,13 @@ start_cluster(TC, N) ->
                     end),
     Info.
 
-start_node(Name, Paths) ->
+%% The arguments, code path (with this suite's directory: its funs run on
+%% the nodes) and start are evatar_test_cluster's, as for test/ha_cluster.
+start_node(Name) ->
+    Args = evatar_test_cluster:node_args(#{cookie => cookie(cluster),
+                                           code_path => evatar_test_cluster:code_path([?MODULE])}),
     {ok, P, Node} = peer:start(#{name => Name, host => "127.0.0.1", longnames => true,
-                                 connection => standard_io,
-                                 args => ["-setcookie", atom_to_list(cookie(cluster)),
-                                          %% Loopback only, as a release.
-                                          "-kernel", "inet_dist_use_interface", "{127,0,0,1}",
-                                          %% global would turn one isolated node
-                                          %% into a full split (EVATAR does not
-                                          %% use global).
-                                          "-kernel", "prevent_overlapping_partitions",
-                                          "false" | Paths]}),
+                                 connection => standard_io, args => Args}),
     {P, Node}.
 
 setup_node(P, Nodes) ->
@@ -333,11 +327,11 @@ setup_node(P, Nodes) ->
     %% No rebalancing: the cases assert where pairings go after their faults.
     Env = [{cluster, Nodes}, {heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
            {resume_timeout, 10000}, {rebalance, false}],
-    _ = [ok = peer:call(P, application, set_env, [evatar, K, V]) || {K, V} <- Env],
-    ok = peer:call(P, application, set_env, [agent_bridge, listeners, []]),
-    {ok, _} = peer:call(P, application, ensure_all_started, [agent_bridge]),
-    {ok, _} = peer:call(P, agent_bridge, start_listener,
-                        [ha, #{ip => {127, 0, 0, 1}, port => 0, conn => #{heartbeat => 100}}]),
+    ok = peer:call(P, evatar_test_cluster, start_evatar,
+                   [#{env => [{evatar, Env}, {agent_bridge, [{listeners, []}]}],
+                      listener => ha,
+                      listener_opts => #{ip => {127, 0, 0, 1}, port => 0,
+                                         conn => #{heartbeat => 100}}}]),
     ok.
 
 log_dir() ->

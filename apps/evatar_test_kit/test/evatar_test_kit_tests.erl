@@ -60,3 +60,24 @@ proper_factor_scales_numtests_test() ->
 secrets_differ_test() ->
     ?assertEqual(48, length(evatar_test_fixtures:secret())),
     ?assertNotEqual(evatar_test_fixtures:secret(), evatar_test_fixtures:secret()).
+
+%% Every harness's nodes get the cookie, distribution on the one interface
+%% (loopback unless told), the port when one is given, and the code path.
+cluster_node_args_test() ->
+    ?assertEqual(["-setcookie", "c1", "-kernel", "inet_dist_use_interface", "{127,0,0,1}",
+                  "-kernel", "prevent_overlapping_partitions", "false", "-pa", "/a", "-pa", "/b"],
+                 evatar_test_cluster:node_args(#{cookie => c1, code_path => ["/a", "/b"]})),
+    ?assertEqual(["-setcookie", "c2", "-kernel", "inet_dist_use_interface", "{10,7,0,2}",
+                  "-kernel", "prevent_overlapping_partitions", "false",
+                  "-kernel", "inet_dist_listen_min", "4370",
+                  "-kernel", "inet_dist_listen_max", "4370"],
+                 evatar_test_cluster:node_args(#{cookie => c2, code_path => [],
+                                                 interface => {10, 7, 0, 2},
+                                                 dist_port => 4370})).
+
+%% The code path holds the apps a node runs, the kit and the callers' dirs.
+cluster_code_path_test() ->
+    Path = evatar_test_cluster:code_path([?MODULE]),
+    [?assert(lists:member(filename:join(code:lib_dir(App), "ebin"), Path))
+     || App <- [evatar, agent_bridge, evatar_test_kit]],
+    ?assert(lists:member(filename:dirname(code:which(?MODULE)), Path)).
