@@ -81,3 +81,26 @@ cluster_code_path_test() ->
     [?assert(lists:member(filename:join(code:lib_dir(App), "ebin"), Path))
      || App <- [evatar, agent_bridge, evatar_test_kit]],
     ?assert(lists:member(filename:dirname(code:which(?MODULE)), Path)).
+
+%% The public_key fallback for the broker's TLS CA makes a CA that a client
+%% verifying the server (and its 127.0.0.1 address) accepts.
+mosquitto_public_key_ca_verifies_test_() ->
+    case evatar_test_mosquitto:available() of
+        false ->
+            [];
+        true ->
+            {timeout, 60,
+             fun() ->
+                     {ok, B} = evatar_test_mosquitto:start(#{tls => true, cert_tool => public_key}),
+                     try
+                         {ok, _} = application:ensure_all_started(ssl),
+                         #{tls_port := Port, cacertfile := Ca} = B,
+                         {ok, S} = ssl:connect({127, 0, 0, 1}, Port,
+                                               [{verify, verify_peer}, {cacertfile, Ca},
+                                                {server_name_indication, disable}], 10000),
+                         ok = ssl:close(S)
+                     after
+                         ok = evatar_test_mosquitto:stop(B)
+                     end
+             end}
+    end.
