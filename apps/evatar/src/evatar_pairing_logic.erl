@@ -880,8 +880,9 @@ remember(Id, #entity{seen = Seen, seen_q = Q} = Entity, #st{config = Config}) ->
 
 %% Resumes the session `SessionId' of `EntityId': the entity is attached
 %% again and everything delivered after `Received' is delivered again (with
-%% the current epoch). An unknown session is a fresh join; the reply says
-%% which: `{ok, Resumed, LastAccepted}'. A known session presented with a
+%% the current epoch). An unknown session, or one that never described
+%% itself, is a fresh join; the reply says which: `{ok, Resumed,
+%% LastAccepted}'. A known session presented with a
 %% newer epoch than this instance's is refused (`stale_epoch'): this
 %% instance is behind one the client has already talked to.
 resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
@@ -899,6 +900,23 @@ resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
                           {log, notice, #{what => resume_refused, entity => EntityId,
                                           reason => stale_epoch,
                                           client_epoch => ClientEpoch}}]};
+                #{EntityId := #entity{session = SessionId, role = Role,
+                                      description = undefined}}
+                  when is_binary(SessionId) ->
+                    %% Joined but never described (its description was lost
+                    %% with the connection that carried it): `Resumed' true
+                    %% would tell the client its description is held, and
+                    %% its signals would all be refused NotDescribed until
+                    %% the join timeout. It starts afresh, as an unknown
+                    %% session does, and describes itself again.
+                    {St1, LeaveEffects} = leave(EntityId, replaced, Now, St),
+                    {St2, JoinEffects} = join1(Role, EntityId, Credential, SessionId, Now, St1),
+                    case lists:keytake(reply, 1, JoinEffects) of
+                        {value, {reply, ok}, Rest} ->
+                            {St2, [{reply, {ok, false, <<>>}} | LeaveEffects ++ Rest]};
+                        {value, _Refusal, _} ->
+                            {St2, LeaveEffects ++ JoinEffects}
+                    end;
                 #{EntityId := #entity{session = SessionId, role = Role} = Entity}
                   when is_binary(SessionId) ->
                     %% A client that saw more than this history holds
