@@ -11,7 +11,7 @@
 -export([description/1, public_description/1, description_xml/1, print_description/1,
          problems/1, print_problems/1, status/1]).
 -export([discover/2, generate/2, read_description/1, check/1]).
--export([decode_json/1, encode_json/1, json_text/1]).
+-export([decode_json/1, encode_json/1, json_text/1, discovery_max_device_list/0]).
 
 -export_type([opts/0, avatar/0, problem/0, json/0]).
 
@@ -106,6 +106,12 @@ reconfigure(EntityId, Changes) ->
         [Keeper] -> mqtt_avatar_keeper:reconfigure(Keeper, maps:with([description, overrides], Changes));
         [] -> {error, not_found}
     end.
+
+%% @doc The `discovery' option `max_device_list_size' (zigbee2mqtt's
+%% bridge/devices): its default and the largest value accepted, in bytes
+%% (docs/mqtt.md section 6).
+-spec discovery_max_device_list() -> {Default :: pos_integer(), Limit :: pos_integer()}.
+discovery_max_device_list() -> mqtt_avatar_discovery:max_device_list_limit().
 
 %% @doc Checks options as `start/1' would (the required keys, a
 %% hand-written description and its file) without starting anything.

@@ -6,16 +6,23 @@
 
 -export([new/1, subscriptions/1, handle/3, devices/1, is_empty/1]).
 
+-export([max_device_list_limit/0]).
+
 -export_type([state/0, opts/0, device/0, device_info/0, entity/0, kind/0, problem/0]).
 
 %% Largest discovery config read, in bytes (option max_config_size); the
-%% zigbee2mqtt device list may be larger (up to the JSON decoder's 1 MiB).
+%% zigbee2mqtt device list has its own limit (max_device_list_size).
 -define(MAX_CONFIG, 65536).
+%% zigbee2mqtt's bridge/devices, one message for the whole network: about
+%% 5 KB a device, so 4 MiB holds some 800 (docs/mqtt.md section 2.2); the
+%% option may raise it to 64 MiB.
+-define(MAX_DEVICE_LIST, 4194304).
+-define(MAX_DEVICE_LIST_LIMIT, 67108864).
 %% Topics whose last problems are remembered (so not reported again).
 -define(MAX_REPORTED, 4096).
 
 -type opts() :: #{homeassistant => binary() | false, zigbee2mqtt => binary() | false,
-                  max_config_size => pos_integer()}.
+                  max_config_size => pos_integer(), max_device_list_size => pos_integer()}.
 %% An entity: the keys every family has, and its family's own
 %% (mqtt_avatar_family_*: `on'/`off' for on/off actuators, `press' for
 %% buttons...).
@@ -48,6 +55,7 @@
 -opaque state() :: #{ha_prefix := binary() | false,
                      z2m_base := binary() | false,
                      max_config := pos_integer(),
+                     max_device_list := pos_integer(),
                      %% the problems last reported per topic, not reported again
                      reported := #{binary() => [binary()]},
                      ha := #{binary() => {device_info(), entity()}},
@@ -60,8 +68,16 @@ new(Opts) ->
     #{ha_prefix => maps:get(homeassistant, Opts, <<"homeassistant">>),
       z2m_base => maps:get(zigbee2mqtt, Opts, <<"zigbee2mqtt">>),
       max_config => maps:get(max_config_size, Opts, ?MAX_CONFIG),
+      max_device_list => case maps:get(max_device_list_size, Opts, ?MAX_DEVICE_LIST) of
+                             N when is_integer(N), N >= 1, N =< ?MAX_DEVICE_LIST_LIMIT -> N;
+                             _ -> ?MAX_DEVICE_LIST
+                         end,
       reported => #{},
       ha => #{}, z2m => []}.
+
+%% @doc The default and the largest value of `max_device_list_size'.
+-spec max_device_list_limit() -> {Default :: pos_integer(), Limit :: pos_integer()}.
+max_device_list_limit() -> {?MAX_DEVICE_LIST, ?MAX_DEVICE_LIST_LIMIT}.
 
 %% @doc The topic filters to subscribe to.
 -spec subscriptions(state()) -> [binary()].
@@ -94,8 +110,16 @@ handle(Topic, Payload, S) ->
              [P || #{message := M} = P <- Problems, not lists:member(M, Before)]}
     end.
 
-handle_one(Topic, Payload, #{z2m_base := Z} = S) when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">> ->
-    case mqtt_avatar_z2m:parse(Z, Payload) of
+handle_one(Topic, Payload, #{z2m_base := Z, max_device_list := Max} = S)
+  when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">>, byte_size(Payload) > Max ->
+    {unchanged, S, [problem(Topic, iolist_to_binary(
+                                     ["the device list is ", integer_to_list(byte_size(Payload)),
+                                      " bytes, over max_device_list_size (", integer_to_list(Max),
+                                      " bytes); ignored, the last list read stays (raise the "
+                                      "discovery option max_device_list_size, docs/mqtt.md section 6)"]))]};
+handle_one(Topic, Payload, #{z2m_base := Z, max_device_list := Max} = S)
+  when Z =/= false, Topic =:= <<Z/binary, "/bridge/devices">> ->
+    case mqtt_avatar_z2m:parse(Z, Payload, #{max_size => Max}) of
         {ok, Devices, Messages} ->
             Problems = [problem(Topic, M) || M <- Messages],
             case Devices =:= maps:get(z2m, S) of
@@ -115,8 +139,9 @@ handle_one(Topic, Payload, #{max_config := Max} = S) when byte_size(Payload) > M
         false ->
             ignore
     end;
-handle_one(Topic, Payload, #{ha_prefix := Prefix, ha := Ha} = S) when Prefix =/= false ->
-    case mqtt_avatar_ha:parse(Prefix, Topic, Payload) of
+handle_one(Topic, Payload, #{ha_prefix := Prefix, ha := Ha, max_config := Max} = S)
+  when Prefix =/= false ->
+    case mqtt_avatar_ha:parse(Prefix, Topic, Payload, #{max_size => Max}) of
         ignore ->
             ignore;
         {ok, remove} ->

@@ -34,10 +34,9 @@ abbreviations() ->
 from_ha(C, Base) ->
     Str = fun(K, D) -> mqtt_avatar_ha:str(K, C, D) end,
     mqtt_avatar_ha:require(command_topic, Base, fun() ->
-        Max = mqtt_avatar_ha:number(<<"speed_range_max">>, C, <<"100">>),
         Specs = [{<<"Percentage">>, <<"SetFanPercentage">>, <<"percentage_command_topic">>,
                   <<"percentage_state_topic">>, <<"percentage_value_template">>,
-                  mqtt_avatar_part:range(<<"0">>, Max)},
+                  <<"0..100">>},
                  {<<"PresetMode">>, <<"SetFanPresetMode">>, <<"preset_mode_command_topic">>,
                   <<"preset_mode_state_topic">>, <<"preset_mode_value_template">>,
                   mqtt_avatar_part:one_of(mqtt_avatar_ha:strings(<<"preset_modes">>, C))},
@@ -50,7 +49,8 @@ from_ha(C, Base) ->
               mqtt_avatar_ha:settings(C, [{<<"Oscillation">>, <<>>, <<"oscillation_command_topic">>,
                                            <<"oscillation_state_topic">>,
                                            <<"oscillation_value_template">>, <<>>}])} of
-            {{ok, Settings}, {ok, Osc}} ->
+            {{ok, Settings0}, {ok, Osc}} ->
+                Settings = [speed_range(C, S) || S <- Settings0],
                 {ok, maps:merge(Base#{json_command => false, settings => Settings,
                                       oscillation => [O#{map => mqtt_avatar_part:map_text(
                                                                   [{OscOn, <<"yes">>},
@@ -61,6 +61,29 @@ from_ha(C, Base) ->
             {_, {error, _} = E} -> E
         end
     end).
+
+%% HA's speed_range_min..speed_range_max (default 1..100): the VA's
+%% Percentage 0..100 is scaled to it on the wire, and back (MqttScale).
+speed_range(C, #{param := <<"Percentage">>} = S) ->
+    Lo = integer_key(<<"speed_range_min">>, C, 1),
+    Hi = integer_key(<<"speed_range_max">>, C, 100),
+    case {Lo, Hi} of
+        {1, 100} -> S;
+        _ when Lo >= 1, Lo =< Hi ->
+            Range = iolist_to_binary([integer_to_binary(Lo), "..", integer_to_binary(Hi)]),
+            maps:map(fun(K, V) when K =:= control; K =:= state -> V#{scale => Range};
+                        (_, V) -> V
+                     end, S);
+        _ -> S
+    end;
+speed_range(_C, S) ->
+    S.
+
+integer_key(Key, C, Default) ->
+    case maps:get(Key, C, Default) of
+        N when is_integer(N), N >= 0, N < 1000000 -> N;
+        _ -> Default
+    end.
 
 %% @doc The entity of a zigbee2mqtt `fan' expose (features `state' and
 %% `mode').

@@ -4,7 +4,7 @@
 %% of mqtt_avatar_discovery. Pure; never raises on input.
 -module(mqtt_avatar_ha).
 
--export([parse/3, template/1, components/0]).
+-export([parse/3, parse/4, template/1, components/0]).
 %% For the families (mqtt_avatar_family_*): reading their keys.
 -export([str/2, str/3, topic/2, source/1, command_template/1, require/3, on_off/1, bool/3,
          number/3, strings/2,
@@ -24,29 +24,35 @@ components() -> mqtt_avatar_family:components().
 %% discovery configs; `{error, Message}' says what is wrong with one that is.
 -spec parse(binary(), binary(), binary()) -> {ok, parsed()} | ignore | {error, binary()}.
 parse(Prefix, Topic, Payload) ->
+    parse(Prefix, Topic, Payload, #{}).
+
+%% @doc As `parse/3', the JSON decoded with `Opts' (`max_size').
+-spec parse(binary(), binary(), binary(), mqtt_avatar_json:opts()) ->
+          {ok, parsed()} | ignore | {error, binary()}.
+parse(Prefix, Topic, Payload, Opts) ->
     PrefixParts = binary:split(Prefix, <<"/">>, [global]),
     Parts = binary:split(Topic, <<"/">>, [global]),
     case lists:split(min(length(PrefixParts), length(Parts)), Parts) of
-        {PrefixParts, Rest} -> config_topic(Rest, Payload);
+        {PrefixParts, Rest} -> config_topic(Rest, Payload, Opts);
         _ -> ignore
     end.
 
-config_topic([Component, Object, <<"config">>], Payload) ->
-    config(Component, undefined, Object, Payload);
-config_topic([Component, Node, Object, <<"config">>], Payload) ->
-    config(Component, Node, Object, Payload);
-config_topic(_, _) ->
+config_topic([Component, Object, <<"config">>], Payload, Opts) ->
+    config(Component, undefined, Object, Payload, Opts);
+config_topic([Component, Node, Object, <<"config">>], Payload, Opts) ->
+    config(Component, Node, Object, Payload, Opts);
+config_topic(_, _, _) ->
     ignore.
 
-config(_Component, _Node, _Object, <<>>) ->
+config(_Component, _Node, _Object, <<>>, _Opts) ->
     {ok, remove};
-config(Component, Node, Object, Payload) ->
+config(Component, Node, Object, Payload, Opts) ->
     case mqtt_avatar_family:module(Component) of
         error ->
             {error, iolist_to_binary(["component ", printable(Component), " is not supported "
                                       "(supported: ", lists:join(", ", components()), "); skipped"])};
         {ok, Kind, _Mod} ->
-            case mqtt_avatar_json:decode(Payload) of
+            case mqtt_avatar_json:decode(Payload, Opts) of
                 {ok, Json} when is_map(Json) ->
                     entity(Component, Kind, Node, Object,
                            expand(Json, mqtt_avatar_family:abbreviations(Component)));

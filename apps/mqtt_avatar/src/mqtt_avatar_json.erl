@@ -8,7 +8,7 @@
 
 -export([decode/1, decode/2, encode/1, get_path/2, to_text/1, format_error/1]).
 
--export_type([json/0, error_reason/0]).
+-export_type([json/0, error_reason/0, opts/0]).
 
 -type json() :: #{binary() => json()} | [json()] | binary() | number()
               | true | false | null.
@@ -96,9 +96,11 @@ to_text(V) -> iolist_to_binary(encode(V)).
 
 %% @doc One line for a person.
 -spec format_error(error_reason()) -> binary().
+format_error({too_large, _}) ->
+    %% Valid or not, it was not read: no byte offset.
+    <<"the payload is over the size limit of JSON decoding (1 MiB unless raised), not read">>;
 format_error({Code, Offset}) ->
     Text = case Code of
-               too_large -> "payload too large for JSON decoding";
                not_binary -> "not a binary";
                unexpected_end -> "the text ends before the JSON value does";
                unexpected_char -> "unexpected character";

@@ -163,7 +163,7 @@ handle({signal, #{context := Ctx} = Signal}, Now, S)
     request(Signal, Now, S);
 handle({signal, #{context := error, body := #{type := Code, parameters := Ps}} = Signal}, _Now, S) ->
     {S, [{problem, #{what => evatar_error, code => Code,
-                     message => proplists:get_value(<<"Message">>, Ps, <<>>),
+                     message => with_advice(proplists:get_value(<<"Message">>, Ps, <<>>)),
                      signal => maps:get(in_reply_to, Signal)}}]};
 handle({signal, #{context := Ctx, sender := From}}, _Now, S) ->
     {S, [{problem, #{what => unexpected_signal, context => Ctx, sender => From,
@@ -690,7 +690,9 @@ checked_payload(Service, Params) ->
             case check_code(maps:get(code, Service, undefined), Params) of
                 ok ->
                     Local = maps:get(code, Service, undefined) =/= undefined,
-                    Args = [P || {N, _} = P <- Params, N =/= <<"Code">> orelse not Local],
+                    Scale = maps:get(scale, maps:get(mapping, Service, #{}), []),
+                    Args = [to_device(P, Scale) || {N, _} = P <- Params,
+                                                   N =/= <<"Code">> orelse not Local],
                     case command_payload(Service, Args) of
                         {ok, Payload} ->
                             render_command(maps:get(command_template, Service, undefined),
@@ -878,7 +880,9 @@ extract(#{values := Values, attributes := Attributes, map := Map} = Mapping, Pay
                                                       not lists:member(K, Exclude)];
                         _ -> []
                     end,
-            Params = [{N, translate(V, Map)} || {N, V} <- Mapped ++ Attrs],
+            Scale = maps:get(scale, Mapping, []),
+            Params = [{N, translate(V, Map)} || {N, V} <- [from_device(P, Scale) || P <- Mapped]
+                                                           ++ Attrs],
             case {[M || {error, M} <- Mapped0], [N || {N, V} <- Params, byte_size(V) > ?MAX_VALUE]} of
                 {[M | _], _} -> {error, M};
                 {[], []} -> {ok, dedupe(Params)};
@@ -914,6 +918,42 @@ json_text(Payload, Path) ->
         {error, R} ->
             {error, mqtt_avatar_json:format_error(R)}
     end.
+
+%% A description refused for one of the pairing's limits: which option
+%% raises it, and how (docs/mqtt.md section 6, "Limits").
+with_advice(Message) ->
+    case [O || O <- [<<"max_consumes">>, <<"max_binding_report">>, <<"max_id_length">>],
+               binary:match(Message, <<"(", O/binary, ")">>) =/= nomatch] of
+        [Option | _] ->
+            <<Message/binary, ": the new description was not taken (the Avatar runs on its last "
+              "accepted one); raise the pairing option ", Option/binary, " (PUT /api/pairings/ID "
+              "recreates the pairing with it; the node configuration file's pairings entry counts "
+              "only when the pairing is created), or leave entities out with overrides (skip); "
+              "docs/mqtt.md section 6, Limits">>;
+        [] ->
+            Message
+    end.
+
+%% MqttScale, as HA scales a fan's percentage to its speed_range Lo..Hi:
+%% the device gets ceil(Lo - 1 + Pct * (Hi - Lo + 1) / 100), and its value
+%% V reads as (V - Lo + 1) * 100 div (Hi - Lo + 1) per cent. A value that
+%% is not a number is left as it is (MqttArgCheck refuses it in a request).
+to_device({N, V} = P, Scale) ->
+    case {lists:keyfind(N, 1, Scale), mqtt_avatar_json:decode(V)} of
+        {{_, Lo, Hi}, {ok, Pct}} when is_number(Pct) ->
+            {N, integer_to_binary(ceiling(Lo - 1 + Pct * (Hi - Lo + 1) / 100))};
+        _ -> P
+    end.
+
+from_device({N, V} = P, Scale) ->
+    case {lists:keyfind(N, 1, Scale), mqtt_avatar_json:decode(V)} of
+        {{_, Lo, Hi}, {ok, X}} when is_number(X) ->
+            {N, integer_to_binary(floor((X - Lo + 1) * 100 / (Hi - Lo + 1)))};
+        _ -> P
+    end.
+
+%% ceil/1 without float noise: 60 * 10 / 100 is 6.000000000000001.
+ceiling(X) -> ceil(round(X * 1000000) / 1000000).
 
 %% BIL's yes/no for JSON booleans; the text of everything else.
 scalar(V) -> yes_no(V).

@@ -14,9 +14,12 @@
 
 %% Where a value is set: a command topic, and the JSON field the value
 %% goes in (`undefined': the payload is the value itself).
--type control() :: #{topic := binary(), field := binary() | undefined, template => binary()}.
+%% `scale': MqttScale text (`Lo..Hi'): the device's range of a value the
+%% VA sets and reads as a percentage.
+-type control() :: #{topic := binary(), field := binary() | undefined, template => binary(),
+                     scale => binary()}.
 %% Where a value is read: a state topic and the payload source.
--type state() :: #{topic := binary(), source := mqtt_avatar_spec:source()}.
+-type state() :: #{topic := binary(), source := mqtt_avatar_spec:source(), scale => binary()}.
 %% A value the VA sets (`control') and reads (`state'), as parameter
 %% `param', with service `service' and MqttArgCheck text `check'.
 -type setting() :: #{param := binary(), service := binary(), check := binary(),
@@ -104,13 +107,16 @@ match({template, _}, _Expected) -> <<"any">>;
 match({json, Path}, Expected) -> <<"json:", (join_path(Path))/binary, "=", Expected/binary>>.
 
 %% @doc An MqttMap translating the entity's `state_on'/`state_off' to
-%% `ToOn'/`ToOff' (`<<>>' when nothing needs translating or cannot be).
+%% `ToOn'/`ToOff' as HA does (`<<>>' when nothing needs translating or
+%% cannot be). A device writing `true'/`false' is mapped both as it wrote
+%% them (a raw payload) and as yes/no (a JSON boolean arrives so).
 -spec on_off_map(map(), binary(), binary()) -> binary().
 on_off_map(#{state_on := On, state_off := Off}, ToOn, ToOff) ->
-    case lists:all(fun plain_token/1, [On, Off]) andalso
-        {bool_key(On), bool_key(Off)} =/= {ToOn, ToOff} of
-        true -> <<(bool_key(On))/binary, "=", ToOn/binary, " ", (bool_key(Off))/binary, "=",
-                  ToOff/binary>>;
+    case lists:all(fun plain_token/1, [On, Off]) of
+        true ->
+            Pairs = [{F, T} || {From, T} <- [{On, ToOn}, {Off, ToOff}],
+                               F <- lists:usort([From, bool_key(From)]), F =/= T],
+            iolist_to_binary(lists:join(" ", [[F, "=", T] || {F, T} <- Pairs]));
         false -> <<>>
     end.
 
@@ -239,7 +245,12 @@ setter(Type, Arg, Caps, #{topic := Topic, field := Field} = Control, Check, Echo
     command(Type, Topic, Command, [{Arg, <<"yes">>}] ++ Caps ++ Room
                                   ++ [{<<"MqttCommandArgs">>, Args},
                                       {<<"MqttArgCheck">>, CheckText}]
-                                  ++ echo(Echo) ++ command_template(Control)).
+                                  ++ echo(Echo) ++ command_template(Control)
+                                  ++ scale(Arg, Control)).
+
+%% MqttScale of `Param' when the control or state has a device range.
+scale(Param, #{scale := Range}) -> [{<<"MqttScale">>, <<Param/binary, "=", Range/binary>>}];
+scale(_Param, _) -> [].
 
 echo(undefined) ->
     [{<<"MqttExpect">>, <<"none">>}];
@@ -259,7 +270,7 @@ echo({Param, #{topic := T, source := Source}, Map, Expected}) ->
                                                    context => sensor_data | event,
                                                    room := [bil:parameter()],
                                                    extra => [bil:parameter()]}) -> bil:entry().
-watch(Type, Param, #{topic := T, source := Source}, Map, Opts) ->
+watch(Type, Param, #{topic := T, source := Source} = State, Map, Opts) ->
     entry(<<"SENSOR">>, Type,
           maps:get(room, Opts)
           ++ [{<<"MqttStateTopic">>, T}]
@@ -267,6 +278,7 @@ watch(Type, Param, #{topic := T, source := Source}, Map, Opts) ->
           ++ [{<<"MqttMap">>, Map} || Map =/= <<>>]
           ++ [{<<"MqttContext">>, <<"Event">>} || maps:get(context, Opts, sensor_data) =:= event]
           ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, Opts, false)]
+          ++ scale(Param, State)
           ++ maps:get(extra, Opts, [])).
 
 %% @doc A family's part: its services, a stream per state it reads
@@ -319,17 +331,25 @@ valued(E, Verb, Arg, Caps, Check, Device, #{room := Room} = Ctx) ->
     Read = [entry(<<"SENSOR">>, <<"Read", Name/binary>>, [{Arg, <<"yes">>}] ++ Room) || State =/= []],
     #{services => [Set | Read], consumes => Streams, sensor => [], feedback => Device}.
 
-%% @doc An MqttArgCheck list `a|b|c' of the values (`<<>>', no check but
-%% presence, when one cannot be written there: a space or `|' in it).
+%% @doc An MqttArgCheck list `a|b|c' of the values, each percent-encoded
+%% where MqttArgCheck could not hold it as written (a space, `|', `%' or a
+%% control character: `Spotify%20Connect'), so every option is checked
+%% (`<<>>', no check but presence, only for no values or an empty one).
 -spec one_of([binary()] | undefined) -> binary().
 one_of(undefined) -> <<>>;
 one_of(Values) ->
-    case lists:all(fun(V) -> V =/= <<>> andalso
-                                 binary:match(V, [<<" ">>, <<"|">>, <<"\t">>, <<"\n">>]) =:= nomatch
-                   end, Values) of
-        true when Values =/= [] -> iolist_to_binary(lists:join("|", Values));
+    case lists:all(fun(V) -> V =/= <<>> end, Values) of
+        true when Values =/= [] -> iolist_to_binary(lists:join("|", [escape(V) || V <- Values]));
         _ -> <<>>
     end.
+
+escape(V) ->
+    << <<(escape_byte(B))/binary>> || <<B>> <= V >>.
+
+escape_byte(B) when B =< 32; B =:= $|; B =:= $%; B =:= 127 ->
+    list_to_binary(io_lib:format("%~2.16.0B", [B]));
+escape_byte(B) ->
+    <<B>>.
 
 %% @doc An MqttArgCheck range `Lo..Hi' from two JSON numbers in either
 %% order (a cover whose open position is below its closed one).

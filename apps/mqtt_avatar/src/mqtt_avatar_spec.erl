@@ -20,7 +20,10 @@
 -type match() :: {raw, binary()} | {json, [binary()], binary()}.
 -type expect() :: none | any | match() | light.
 %% How a state message becomes BIL parameters.
+%% `scale': MqttScale, `{Param, Lo, Hi}': the device writes Param in
+%% Lo..Hi, BIL carries it as a percentage (HA's fan speed_range).
 -type mapping() :: #{template => mqtt_avatar_template:template(),
+                     scale => [{binary(), integer(), integer()}],
                      values := [{binary(), source()}],
                      attributes := boolean(),
                      map := [{binary(), binary()}]}.
@@ -79,6 +82,8 @@
 
 %% Inherited within a component: an entry without one of these takes the
 %% first value written on another entry of the same component.
+-define(IS_HEX(C), ((C >= $0 andalso C =< $9) orelse (C >= $a andalso C =< $f)
+                    orelse (C >= $A andalso C =< $F))).
 -define(INHERITED, [<<"MqttStateTopic">>, <<"MqttCommandTopic">>, <<"MqttAvailabilityMode">>
                     | [<<AvName/binary, AvSuffix/binary>>
                        || AvSuffix <- [<<>> | [integer_to_binary(I)
@@ -94,7 +99,8 @@
                      <<"MqttExtra">>, <<"MqttArgCheck">>, <<"MqttCode">>,
                      <<"MqttValueTemplate">>, <<"MqttCommandTemplate">>,
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
-                     <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>, <<"MqttLight">>]).
+                     <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>, <<"MqttLight">>,
+                     <<"MqttScale">>]).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -280,12 +286,24 @@ check_token(T) ->
                         _ -> error
                     end;
                 [_] ->
-                    case [V || V <- binary:split(Spec, <<"|">>, [global]), V =/= <<>>] of
+                    case [unescape(V) || V <- binary:split(Spec, <<"|">>, [global]), V =/= <<>>] of
                         [] -> error;
                         Vs -> name_check(P, {one_of, Vs})
                     end
             end
     end.
+
+%% A value of an MqttArgCheck list: `%XX' is the byte XX (so a value may
+%% hold a space, `|' or `%'); a `%' not followed by two hex digits is
+%% itself.
+unescape(V) -> unescape(V, <<>>).
+
+unescape(<<"%", H1, H2, Rest/binary>>, Acc) when ?IS_HEX(H1), ?IS_HEX(H2) ->
+    unescape(Rest, <<Acc/binary, (binary_to_integer(<<H1, H2>>, 16))>>);
+unescape(<<C, Rest/binary>>, Acc) ->
+    unescape(Rest, <<Acc/binary, C>>);
+unescape(<<>>, Acc) ->
+    Acc.
 
 name_check(P, Check) ->
     case is_name(P) of
@@ -551,9 +569,43 @@ mapping(Id, E, What) ->
                    {undefined, _} -> {ok, #{}};
                    {T, _} -> template(Id, E, What, <<"MqttValueTemplate">>, T)
                end,
-    case collect([Values, Attributes, Map, Template]) of
-        {ok, [Vs, A, Mp, Tpl]} -> {ok, Tpl#{values => Vs, attributes => A, map => Mp}};
+    Scale = case get(<<"MqttScale">>, E) of
+                undefined -> {ok, []};
+                Sc -> scale(Id, E, What, Sc)
+            end,
+    case collect([Values, Attributes, Map, Template, Scale]) of
+        {ok, [Vs, A, Mp, Tpl, []]} -> {ok, Tpl#{values => Vs, attributes => A, map => Mp}};
+        {ok, [Vs, A, Mp, Tpl, Scs]} -> {ok, Tpl#{values => Vs, attributes => A, map => Mp,
+                                                 scale => Scs}};
         Error -> Error
+    end.
+
+%% MqttScale: `Param=Lo..Hi' tokens, integers Lo =< Hi.
+scale(Id, E, What, Text) ->
+    token_list(Id, E, What, <<"MqttScale">>, Text, fun scale_token/1,
+               <<"expected Param=Lo..Hi tokens (integers, Lo =< Hi)">>).
+
+%% One or more space-separated tokens, each read by `Parse' (`error' when
+%% it cannot), or the problem `Message' of parameter `Name'.
+token_list(Id, E, What, Name, Text, Parse, Message) ->
+    Parsed = [Parse(T) || T <- tokens(Text)],
+    case lists:member(error, Parsed) of
+        false when Parsed =/= [] -> {ok, Parsed};
+        _ -> {error, [problem(Id, E, What, Name, Message)]}
+    end.
+
+scale_token(T) ->
+    case binary:split(T, <<"=">>) of
+        [P, Spec] ->
+            case [number(X) || X <- binary:split(Spec, <<"..">>)] of
+                [{ok, L}, {ok, H}] when is_integer(L), is_integer(H), L =< H, H - L < 1000000 ->
+                    case is_name(P) of
+                        true -> {P, L, H};
+                        false -> error
+                    end;
+                _ -> error
+            end;
+        _ -> error
     end.
 
 template(Id, E, What, Name, Text) ->
@@ -572,12 +624,8 @@ command_template(Id, E) ->
     end.
 
 values(Id, E, What, Text) ->
-    Parsed = [value_token(T) || T <- tokens(Text)],
-    case lists:member(error, Parsed) of
-        false when Parsed =/= [] -> {ok, Parsed};
-        _ -> {error, [problem(Id, E, What, <<"MqttValue">>,
-                              <<"expected Param=raw, Param=json:field.path or Param=template tokens">>)]}
-    end.
+    token_list(Id, E, What, <<"MqttValue">>, Text, fun value_token/1,
+               <<"expected Param=raw, Param=json:field.path or Param=template tokens">>).
 
 value_token(Token) ->
     case binary:split(Token, <<"=">>) of

@@ -6,7 +6,7 @@
 %% availability on `.../availability'. Pure; never raises on input.
 -module(mqtt_avatar_z2m).
 
--export([parse/2]).
+-export([parse/2, parse/3]).
 %% For the families (mqtt_avatar_family_*): reading their exposes.
 -export([setting/4, entity/3, text/1]).
 
@@ -24,7 +24,13 @@
 -spec parse(binary(), binary()) ->
           {ok, [mqtt_avatar_discovery:device()], [binary()]} | {error, binary()}.
 parse(Base, Payload) ->
-    case mqtt_avatar_json:decode(Payload) of
+    parse(Base, Payload, #{}).
+
+%% @doc As `parse/2', the JSON decoded with `Opts' (`max_size').
+-spec parse(binary(), binary(), mqtt_avatar_json:opts()) ->
+          {ok, [mqtt_avatar_discovery:device()], [binary()]} | {error, binary()}.
+parse(Base, Payload, Opts) ->
+    case mqtt_avatar_json:decode(Payload, Opts) of
         {ok, List} when is_list(List) ->
             Results = [device(Base, D) || D <- List],
             {ok, [Dev || {ok, Dev} <- Results, Dev =/= skip], [M || {error, M} <- Results]};

@@ -149,3 +149,55 @@ availability_template_test() ->
         mqtt_avatar_discovery:handle(<<"homeassistant/switch/q/config">>,
                                      enc(Config#{<<"avty_tpl">> => <<"{% for x in value_json %}{{ x }}{% endfor %}">>}), S00),
     ?assertMatch({match, _}, re:run(M, <<"value template \\{% for">>)).
+
+%% ---------------------------------------------------------------------------
+%% zigbee2mqtt's device list size (max_device_list_size, docs/mqtt.md 6)
+%% ---------------------------------------------------------------------------
+
+%% A zigbee2mqtt bridge/devices list of N copies of a sensor, padded with a
+%% long description, as real lists are.
+devices(N) ->
+    Dev = fun(I) ->
+                  #{<<"friendly_name">> => iolist_to_binary(["sensor_", integer_to_list(I)]),
+                    <<"ieee_address">> => iolist_to_binary(["0x", integer_to_list(I)]),
+                    <<"type">> => <<"EndDevice">>,
+                    <<"definition">> =>
+                        #{<<"model">> => <<"WSDCGQ11LM">>,
+                          <<"description">> => binary:copy(<<"Aqara temperature sensor ">>, 200),
+                          <<"exposes">> => [#{<<"type">> => <<"numeric">>, <<"name">> => <<"temperature">>,
+                                              <<"property">> => <<"temperature">>, <<"access">> => 1,
+                                              <<"unit">> => <<"°C"/utf8>>}]}}
+          end,
+    enc([Dev(I) || I <- lists:seq(1, N)]).
+
+%% Over 1 MiB (the JSON decoder's default, the limit before), under the
+%% 4 MiB default of max_device_list_size: read whole.
+large_device_list_is_read_by_default_test() ->
+    Payload = devices(300),
+    ?assert(byte_size(Payload) > 1048576),
+    ?assert(byte_size(Payload) < 4194304),
+    {changed, S, []} = mqtt_avatar_discovery:handle(<<"zigbee2mqtt/bridge/devices">>, Payload,
+                                                    mqtt_avatar_discovery:new(#{})),
+    ?assertEqual(300, length(mqtt_avatar_discovery:devices(S))).
+
+%% Over max_device_list_size: one problem that gives the size, the limit
+%% and the option, and the state is kept; raised, the same list is read.
+over_max_device_list_size_is_named_test() ->
+    Payload = devices(20),
+    S0 = mqtt_avatar_discovery:new(#{max_device_list_size => 1000}),
+    {unchanged, _, [#{what := bad_discovery, message := M}]} =
+        mqtt_avatar_discovery:handle(<<"zigbee2mqtt/bridge/devices">>, Payload, S0),
+    Expected = iolist_to_binary(["the device list is ", integer_to_list(byte_size(Payload)),
+                                 " bytes, over max_device_list_size (1000 bytes)"]),
+    ?assertMatch({0, _}, binary:match(M, Expected)),
+    ?assert(mqtt_avatar_discovery:is_empty(S0)),
+    {changed, _, []} = mqtt_avatar_discovery:handle(<<"zigbee2mqtt/bridge/devices">>, Payload,
+                                                    mqtt_avatar_discovery:new(
+                                                      #{max_device_list_size => 1048576})).
+
+%% The JSON decoder's own limit is not reported as a syntax error at byte 0.
+too_large_json_is_not_a_syntax_error_test() ->
+    {error, R} = mqtt_avatar_json:decode(<<"[1]">>, #{max_size => 2}),
+    M = mqtt_avatar_json:format_error(R),
+    ?assertEqual(nomatch, binary:match(M, <<"at byte">>)),
+    ?assertNotEqual(nomatch, binary:match(M, <<"size limit">>)).

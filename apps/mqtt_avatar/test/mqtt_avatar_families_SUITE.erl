@@ -206,6 +206,9 @@ fan(Config) ->
     Fan = device(Config, [{<<"fan">>, <<"fan">>,
                            #{<<"name">> => <<"Ceiling fan">>,
                              <<"cmd_t">> => T(<<"on/set">>), <<"stat_t">> => T(<<"on">>),
+                             %% HA's own fan example: true/false, speeds 1..10.
+                             <<"pl_on">> => <<"true">>, <<"pl_off">> => <<"false">>,
+                             <<"spd_rng_min">> => 1, <<"spd_rng_max">> => 10,
                              <<"pct_cmd_t">> => T(<<"pct/set">>), <<"pct_stat_t">> => T(<<"pct">>),
                              <<"pr_mode_cmd_t">> => T(<<"preset/set">>), <<"pr_mode_stat_t">> => T(<<"preset">>),
                              <<"pr_modes">> => [<<"breeze">>, <<"sleep">>],
@@ -230,6 +233,8 @@ fan(Config) ->
     <<"60">> = param(<<"Percentage">>, ok(request(Va, F, <<"SetFanPercentage">>,
                                                   [{<<"Percentage">>, <<"60">>}]))),
     <<"60">> = param(<<"Percentage">>, stream(Va, <<"FanPercentage">>, <<"Percentage">>, <<"60">>)),
+    <<"BadParameter">> = error_code(request(Va, F, <<"SetFanPercentage">>,
+                                            [{<<"Percentage">>, <<"101">>}])),
     <<"sleep">> = param(<<"PresetMode">>, ok(request(Va, F, <<"SetFanPresetMode">>,
                                                      [{<<"PresetMode">>, <<"sleep">>}]))),
     <<"BadParameter">> = error_code(request(Va, F, <<"SetFanPresetMode">>,
@@ -241,7 +246,8 @@ fan(Config) ->
                                                 [{<<"Direction">>, <<"reverse">>}]))),
     <<"off">> = param(<<"State">>, ok(request(Va, F, <<"TurnFanOff">>, []))),
     Cmds = [C || {_, C} <- mqtt_avatar_test_device:commands(Fan)],
-    [<<"ON">>, <<"60">>, <<"sleep">>, <<"swing">>, <<"still">>, <<"reverse">>, <<"OFF">>] = Cmds.
+    %% The percentage went out in the device's range (60 % of 1..10 is 6).
+    [<<"true">>, <<"6">>, <<"sleep">>, <<"swing">>, <<"still">>, <<"reverse">>, <<"false">>] = Cmds.
 
 %% A door lock that takes time (locking, then locked: the request is done
 %% at locked) and an alarm panel with a local code: a wrong or missing
@@ -351,7 +357,8 @@ number_select_scene(Config) ->
                                {<<"select">>, <<"source">>,
                                 #{<<"name">> => <<"Source">>, <<"cmd_t">> => S(<<"source/set">>),
                                   <<"stat_t">> => S(<<"source">>),
-                                  <<"ops">> => [<<"radio">>, <<"tv">>], <<"dev">> => Dev}}],
+                                  <<"ops">> => [<<"radio">>, <<"tv">>, <<"Spotify Connect">>],
+                                  <<"dev">> => Dev}}],
                       [S(<<"+/set">>)],
                       fun(Topic, Cmd) -> [{binary:part(Topic, 0, byte_size(Topic) - 4), Cmd}] end),
     Scene = device(Config, [{<<"scene">>, <<"movie">>,
@@ -371,6 +378,10 @@ number_select_scene(Config) ->
     <<"BadParameter">> = error_code(request(Va, Sp, <<"SetVolume">>, [{<<"Value">>, <<"loud">>}])),
     <<"tv">> = param(<<"Option">>, ok(request(Va, Sp, <<"SelectSource">>, [{<<"Option">>, <<"tv">>}]))),
     <<"BadParameter">> = error_code(request(Va, Sp, <<"SelectSource">>, [{<<"Option">>, <<"vinyl">>}])),
+    %% An option with a space is allowed, and still checked.
+    <<"Spotify Connect">> = param(<<"Option">>, ok(request(Va, Sp, <<"SelectSource">>,
+                                                           [{<<"Option">>, <<"Spotify Connect">>}]))),
+    <<"BadParameter">> = error_code(request(Va, Sp, <<"SelectSource">>, [{<<"Option">>, <<"Spotify">>}])),
     <<"7.5">> = param(<<"Value">>, ok(request(Va, Sp, <<"ReadVolume">>, [], <<"SENSOR">>))),
     %% The volume went out through its command template.
     [{_, <<"{\"volume\": 7.5}">>} | _] = mqtt_avatar_test_device:commands(Speaker),

@@ -426,3 +426,115 @@ availability_checks_test() ->
                                               {<<"MqttAvailabilityValue">>, <<"template">>}])),
     {error, [#{parameter := <<"MqttAvailabilityTopic9">>}]} =
         mqtt_avatar_spec:from_description(D([{<<"MqttAvailabilityTopic9">>, <<"a">>}])).
+%% Select options with spaces or `|' (percent-encoded), fan speed ranges
+%% (MqttScale), on/off maps of devices writing true/false
+%% ---------------------------------------------------------------------------
+
+%% One service setting `Arg' raw on `t/set', checked by `Check', echoed on
+%% `t/state', with `More' parameters.
+one_service_state(Arg, Check, More) ->
+    Entry = fun(Cat, Type, Ps) -> #{category => Cat, type => Type, parameters => Ps} end,
+    D = #{entity_id => ?E, api_name => <<>>, entity_type => avatar, context => <<>>,
+          components =>
+              [#{id => <<"Light">>,
+                 services => [Entry(<<"ACTUATOR">>, <<"Set">>,
+                                    [{<<"MqttCommandTopic">>, <<"t/set">>},
+                                     {<<"MqttCommand">>, <<"raw:">>},
+                                     {<<"MqttCommandArgs">>, Arg},
+                                     {<<"MqttArgCheck">>, Check},
+                                     {<<"MqttStateTopic">>, <<"t/state">>},
+                                     {<<"MqttExpect">>, <<"any">>},
+                                     {<<"MqttValue">>, <<Arg/binary, "=raw">>} | More])],
+                 consumes => [Entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>, [{<<"Feedback">>, <<"yes">>}])]}]},
+    {ok, Spec} = mqtt_avatar_spec:from_description(D),
+    S0 = mqtt_avatar_logic:new(?E, Spec, 3000, #{}),
+    {S1, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, S0),
+    {S2, _} = mqtt_avatar_logic:handle({binding, bound()}, 0, S1),
+    S2.
+
+publishes(Effects) -> [P || {publish, _, P, _} <- Effects].
+
+error_type(Effects) ->
+    [T || #{body := #{category := <<"ERROR">>, type := T}} <- sends(Effects)].
+
+select_options_with_spaces_and_bars_are_checked_test() ->
+    Check = <<"Option=", (mqtt_avatar_part:one_of([<<"Radio">>, <<"Spotify Connect">>,
+                                                    <<"A|B">>, <<"50%">>]))/binary>>,
+    ?assertEqual(<<"Option=Radio|Spotify%20Connect|A%7CB|50%25">>, Check),
+    S = one_service_state(<<"Option">>, Check, []),
+    Ask = fun(V) -> {_, Effects} = mqtt_avatar_logic:handle(
+                                     request(<<"r">>, <<"Set">>, [{<<"Option">>, V}]), 1, S),
+                    Effects
+          end,
+    [?assertEqual([V], publishes(Ask(V))) || V <- [<<"Spotify Connect">>, <<"A|B">>, <<"50%">>,
+                                                    <<"radio">>]],
+    [?assertEqual({[], [<<"BadParameter">>]}, {publishes(Ask(V)), error_type(Ask(V))})
+     || V <- [<<"Cassette">>, <<"Spotify">>, <<"A">>, <<"50%25">>]],
+    %% A `%' not followed by two hex digits (hand-written) is itself.
+    S2 = one_service_state(<<"Option">>, <<"Option=100%|5%x">>, []),
+    [?assertMatch({_, [{publish, _, V, _} | _]},
+                  mqtt_avatar_logic:handle(request(<<"r">>, <<"Set">>, [{<<"Option">>, V}]), 1, S2))
+     || V <- [<<"100%">>, <<"5%x">>]].
+
+fan_percentage_is_scaled_to_the_speed_range_test() ->
+    S = one_service_state(<<"Percentage">>, <<"Percentage=0..100">>,
+                          [{<<"MqttScale">>, <<"Percentage=1..10">>}]),
+    Pub = fun(Pct) -> {_, Effects} = mqtt_avatar_logic:handle(
+                                       request(<<"r">>, <<"Set">>, [{<<"Percentage">>, Pct}]), 1, S),
+                      publishes(Effects)
+          end,
+    %% HA: ceil(percentage * 10 / 100) on the wire.
+    ?assertEqual([[<<"6">>], [<<"1">>], [<<"10">>], [<<"0">>], [<<"1">>]],
+                 [Pub(P) || P <- [<<"60">>, <<"10">>, <<"100">>, <<"0">>, <<"1">>]]),
+    ?assertEqual([], Pub(<<"101">>)),
+    Mapping = #{values => [{<<"Percentage">>, raw}], attributes => false, map => [],
+                scale => [{<<"Percentage">>, 1, 10}]},
+    ?assertEqual([{ok, [{<<"Percentage">>, V}]} || V <- [<<"60">>, <<"10">>, <<"100">>, <<"0">>]],
+                 [mqtt_avatar_logic:extract(Mapping, P) || P <- [<<"6">>, <<"1">>, <<"10">>, <<"0">>]]),
+    %% A bad MqttScale is a problem of the description.
+    Entry = fun(Ps) -> #{category => <<"SENSOR">>, type => <<"X">>, parameters => Ps} end,
+    Bad = #{entity_id => ?E, api_name => <<>>, entity_type => avatar, context => <<>>,
+            components => [#{id => <<"C">>, services => [],
+                             consumes => [Entry([{<<"MqttStateTopic">>, <<"t">>},
+                                                 {<<"MqttValue">>, <<"P=raw">>},
+                                                 {<<"MqttScale">>, <<"P=10..1">>}])]}]},
+    ?assertMatch({error, [#{parameter := <<"MqttScale">>}]}, mqtt_avatar_spec:from_description(Bad)).
+
+on_off_map_of_true_false_devices_test() ->
+    Map = fun(On, Off) -> mqtt_avatar_part:on_off_map(#{state_on => On, state_off => Off},
+                                                      <<"on">>, <<"off">>)
+          end,
+    ?assertEqual(<<"true=on yes=on false=off no=off">>, Map(<<"true">>, <<"false">>)),
+    ?assertEqual(<<"ON=on OFF=off">>, Map(<<"ON">>, <<"OFF">>)),
+    ?assertEqual(<<>>, Map(<<"on">>, <<"off">>)),
+    {ok, Spec} = mqtt_avatar_spec:from_description(
+                   (description())#{components =>
+                       [#{id => <<"C">>, services => [],
+                          consumes => [#{category => <<"SENSOR">>, type => <<"FanState">>,
+                                         parameters => [{<<"MqttStateTopic">>, <<"f">>},
+                                                        {<<"MqttValue">>, <<"State=raw">>},
+                                                        {<<"MqttMap">>, Map(<<"true">>, <<"false">>)}]}]}]}),
+    #{components := [#{streams := [#{mapping := M}]}]} = Spec,
+    ?assertEqual({ok, [{<<"State">>, <<"on">>}]}, mqtt_avatar_logic:extract(M, <<"true">>)),
+    ?assertEqual({ok, [{<<"State">>, <<"off">>}]}, mqtt_avatar_logic:extract(M, <<"false">>)).
+
+%% A description refused for a pairing limit: the problem names the option
+%% to raise.
+refused_description_names_the_option_test() ->
+    Refusal = fun(Message) ->
+                      {_, [{problem, #{what := evatar_error, message := M}}]} =
+                          mqtt_avatar_logic:handle(
+                            {signal, #{context => error, in_reply_to => <<"d1">>,
+                                       body => #{category => <<"ERROR">>,
+                                                 type => <<"DescriptionRefused">>,
+                                                 parameters => [{<<"Message">>, Message}]}}},
+                            0, state()),
+                      M
+              end,
+    M = Refusal(<<"538 Consumes entries, over the pairing's 256 (max_consumes)">>),
+    ?assertMatch({0, _}, binary:match(M, <<"538 Consumes entries">>)),
+    ?assertNotEqual(nomatch, binary:match(M, <<"raise the pairing option max_consumes">>)),
+    ?assertNotEqual(nomatch, binary:match(Refusal(<<"... 2000000 bytes, over its 1048576 "
+                                                    "(max_binding_report)">>),
+                                          <<"raise the pairing option max_binding_report">>)),
+    ?assertEqual(<<"not bound">>, Refusal(<<"not bound">>)).

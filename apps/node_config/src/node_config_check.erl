@@ -467,8 +467,17 @@ mqtt(M) ->
 discovery(false) ->
     {ok, false};
 discovery(D) when is_map(D) ->
-    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt, max_config_size]) end,
+    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt, max_config_size, max_device_list_size]) end,
            fun(X) -> integers([max_config_size], 1, X) end,
+           fun(#{max_device_list_size := N} = X) ->
+                   {_Default, Limit} = mqtt_avatar:discovery_max_device_list(),
+                   case is_integer(N) andalso N >= 1 andalso N =< Limit of
+                       true -> {ok, X};
+                       false -> {error, io_lib:format("max_device_list_size must be an integer "
+                                                      "from 1 to ~b (bytes)", [Limit])}
+                   end;
+              (X) -> {ok, X}
+           end,
            fun(X) ->
                    lists:foldl(fun(_K, {error, _} = Err) -> Err;
                                   (K, {ok, Acc}) ->
