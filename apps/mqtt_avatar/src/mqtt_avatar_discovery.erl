@@ -58,7 +58,9 @@
                      max_device_list := pos_integer(),
                      %% the problems last reported per topic, not reported again
                      reported := #{binary() => [binary()]},
-                     ha := #{binary() => {device_info(), entity()}},
+                     %% by config topic; a device-based config's
+                     %% components by {topic, component key}
+                     ha := #{binary() | {binary(), binary()} => {device_info(), entity()}},
                      z2m := [device()]}.
 
 %% @doc Discovery on the given prefixes (defaults: `homeassistant' and
@@ -145,9 +147,19 @@ handle_one(Topic, Payload, #{ha_prefix := Prefix, ha := Ha, max_config := Max} =
         ignore ->
             ignore;
         {ok, remove} ->
-            case maps:is_key(Topic, Ha) of
-                true -> {changed, S#{ha := maps:remove(Topic, Ha)}, []};
-                false -> {unchanged, S, []}
+            Gone = [K || K <- maps:keys(Ha), K =:= Topic orelse of_device(K, Topic)],
+            case Gone of
+                [] -> {unchanged, S, []};
+                _ -> {changed, S#{ha := maps:without(Gone, Ha)}, []}
+            end;
+        {ok, {entities, Entities, Messages}} ->
+            Problems = [problem(Topic, M) || M <- Messages],
+            Old = maps:filter(fun(K, _) -> of_device(K, Topic) end, Ha),
+            New = maps:from_list([{{Topic, Key}, {Info, E}} || {Key, Info, E} <- Entities]),
+            case Old =:= New of
+                true -> {unchanged, S, Problems};
+                false -> {changed, S#{ha := maps:merge(maps:without(maps:keys(Old), Ha), New)},
+                          Problems}
             end;
         {ok, {entity, Info, Entity}} ->
             case maps:get(Topic, Ha, undefined) of
@@ -184,6 +196,10 @@ devices(#{ha := Ha, z2m := Z}) ->
                           end, #{}, lists:sort(maps:to_list(Ha))),
     [D || {_, D} <- lists:sort(maps:to_list(Grouped))]
         ++ [D || {_, D} <- lists:sort([{K, D} || #{key := K} = D <- Z])].
+
+%% A key of a component of the device-based config on `Topic'.
+of_device({Topic, _Key}, Topic) -> true;
+of_device(_, _) -> false.
 
 problem(Topic, Message) ->
     #{what => bad_discovery, topic => Topic, message => Message}.

@@ -10,7 +10,12 @@
          number/3, strings/2,
          read/2, settings/2]).
 
+%% `{entities, [{ComponentKey, Info, Entity}], Problems}': a device-based
+%% discovery message (`<prefix>/device/<id>/config' with `cmps'), one
+%% entity per component read, and what was wrong with the others.
 -type parsed() :: {entity, mqtt_avatar_discovery:device_info(), mqtt_avatar_discovery:entity()}
+                | {entities, [{binary(), mqtt_avatar_discovery:device_info(),
+                               mqtt_avatar_discovery:entity()}], [binary()]}
                 | remove.
 
 %% Entries of an `availability' list an entity may have (docs/mqtt.md 3.1).
@@ -37,6 +42,10 @@ parse(Prefix, Topic, Payload, Opts) ->
         _ -> ignore
     end.
 
+config_topic([<<"device">>, Object, <<"config">>], Payload, Opts) ->
+    device_config(undefined, Object, Payload, Opts);
+config_topic([<<"device">>, Node, Object, <<"config">>], Payload, Opts) ->
+    device_config(Node, Object, Payload, Opts);
 config_topic([Component, Object, <<"config">>], Payload, Opts) ->
     config(Component, undefined, Object, Payload, Opts);
 config_topic([Component, Node, Object, <<"config">>], Payload, Opts) ->
@@ -62,6 +71,64 @@ config(Component, Node, Object, Payload, Opts) ->
                     {error, mqtt_avatar_json:format_error(R)}
             end
     end.
+
+%% HA's device-based discovery: one message for a device, its components
+%% in `cmps' (`components'), each with its platform in `p' (`platform').
+%% Every other top-level key (`dev', `o', `avty', `stat_t', `~', `qos'...)
+%% is shared: a component takes it unless it sets the key itself, as HA
+%% does. A component with no key but its platform is one HA removes: left
+%% out. Each component is then read as a config of its platform.
+device_config(_Node, _Object, <<>>, _Opts) ->
+    {ok, remove};
+device_config(Node, Object, Payload, Opts) ->
+    case mqtt_avatar_json:decode(Payload, Opts) of
+        {ok, Json} when is_map(Json) ->
+            Cmps = maps:get(<<"cmps">>, Json, maps:get(<<"components">>, Json, undefined)),
+            Shared = maps:without([<<"cmps">>, <<"components">>], Json),
+            case Cmps of
+                M when is_map(M) ->
+                    Results = [device_component(Node, Object, Key, Shared, C)
+                               || {Key, C} <- lists:sort(maps:to_list(M))],
+                    {ok, {entities, [E || {ok, E} <- Results], [P || {error, P} <- Results]}};
+                _ ->
+                    {error, <<"a device discovery config needs cmps, an object of components">>}
+            end;
+        {ok, _} ->
+            {error, <<"the config is not a JSON object">>};
+        {error, R} ->
+            {error, mqtt_avatar_json:format_error(R)}
+    end.
+
+device_component(Node, Object, Key, Shared, C) when is_map(C) ->
+    Own = maps:without([<<"p">>, <<"platform">>], C),
+    case maps:get(<<"p">>, C, maps:get(<<"platform">>, C, undefined)) of
+        _ when map_size(Own) =:= 0 ->
+            skip;
+        Platform when is_binary(Platform) ->
+            In = fun(M) -> <<"component ", (printable(Key))/binary, ": ", M/binary>> end,
+            case mqtt_avatar_family:module(Platform) of
+                error ->
+                    {error, In(iolist_to_binary(["platform ", printable(Platform),
+                                                 " is not supported (supported: ",
+                                                 lists:join(", ", components()), "); skipped"]))};
+                {ok, Kind, _Mod} ->
+                    %% HA's object id of a device's component is its key.
+                    Parent = case Node of
+                                 undefined -> Object;
+                                 _ -> <<Node/binary, "/", Object/binary>>
+                             end,
+                    Merged = expand(maps:merge(Shared, Own), mqtt_avatar_family:abbreviations(Platform)),
+                    case entity(Platform, Kind, Parent, Key, Merged) of
+                        {ok, {entity, Info, E}} -> {ok, {Key, Info, E}};
+                        {error, M} -> {error, In(M)}
+                    end
+            end;
+        _ ->
+            {error, <<"component ", (printable(Key))/binary, ": p (platform) must be a component "
+                      "name such as sensor">>}
+    end;
+device_component(_Node, _Object, Key, _Shared, _C) ->
+    {error, <<"component ", (printable(Key))/binary, " is not a JSON object">>}.
 
 %% The keys every family shares; the family reads the rest.
 entity(Component, Kind, Node, Object, C) ->

@@ -491,7 +491,7 @@ echo(#{topic := Topic, payload := Payload}, #{pending := P} = S) ->
 echo(Waiting, Payload, S) ->
     lists:foldl(fun({Key, #{service := Service} = Pending}, {SAcc, EAcc}) ->
                         #{expect := Expect, progress := Progress, mapping := Mapping} = Service,
-                        case {matches(Expect, Payload), matches(Progress, Payload)} of
+                        case {matches(Expect, Payload, Mapping), matches(Progress, Payload, Mapping)} of
                             {true, _} ->
                                 Values = values_or_empty(Mapping, Payload, SAcc),
                                 #{pending := PAcc} = SAcc,
@@ -559,6 +559,19 @@ timestamp(Payload, #{ts_field := Field}) ->
 %% Answers are only signals.
 stamp(Sends, Stamp) ->
     [{send, maps:merge(Signal, Stamp)} || {send, Signal} <- Sends].
+
+%% A state template's value (MqttExpect template:TEXT): what the template
+%% renders of the payload, compared as raw: is.
+matches({template, Text}, Payload, #{template := T}) ->
+    case mqtt_avatar_template:value(T, mqtt_avatar_template:payload_vars(Payload)) of
+        {ok, V} when is_binary(V); is_number(V); is_boolean(V) ->
+            same(string:trim(scalar(V)), Text) orelse same(mqtt_avatar_json:to_text(V), Text);
+        _ -> false
+    end;
+matches({template, _}, _Payload, _Mapping) ->
+    false;
+matches(Match, Payload, _Mapping) ->
+    matches(Match, Payload).
 
 matches(none, _) -> false;
 matches(undefined, _) -> false;
@@ -895,7 +908,12 @@ one_value(Name, raw, Text, _Json, _Payload, _Mapping) ->
 one_value(Name, template, _Text, _Json, Payload, #{template := T}) ->
     %% HA's state template: `value' and `value_json' of the payload.
     case mqtt_avatar_template:value(T, mqtt_avatar_template:payload_vars(Payload)) of
-        {ok, undefined} -> [];
+        {ok, undefined} ->
+            %% HA's own examples write `{{ value.x }}', which reads nothing
+            %% of a text payload: say so rather than send no state.
+            {error, <<"the value template of ", Name/binary, " gave nothing for this payload "
+                      "(it reads a field the payload does not have; `value' is the payload's "
+                      "text, write value_json.x for a field of a JSON payload)">>};
         {ok, null} -> [];
         {ok, V} when is_binary(V); is_number(V); is_boolean(V) -> [{Name, scalar(V)}];
         {ok, V} -> [{Name, clean(mqtt_avatar_template:to_text(V))}];

@@ -102,8 +102,9 @@ value_params(#{value := V}, Param, Map) ->
 %% @doc An MqttExpect text: the payload (or its field) equal to `Expected'.
 -spec match(mqtt_avatar_spec:source(), binary()) -> binary().
 match(raw, Expected) -> <<"raw:", Expected/binary>>;
-%% What a template makes of a message cannot be matched beforehand.
-match({template, _}, _Expected) -> <<"any">>;
+%% What the state template renders (MqttValueTemplate), so a lock is not
+%% done at `unlocking' because its state has a template.
+match({template, _}, Expected) -> <<"template:", Expected/binary>>;
 match({json, Path}, Expected) -> <<"json:", (join_path(Path))/binary, "=", Expected/binary>>.
 
 %% @doc An MqttMap translating the entity's `state_on'/`state_off' to

@@ -17,7 +17,8 @@
 %% `{template, Text}' is how discovery hands such a template to the
 %% generator (mqtt_avatar_part writes it as `template' and the text).
 -type source() :: raw | {json, [binary()]} | template | {template, binary()}.
--type match() :: {raw, binary()} | {json, [binary()], binary()}.
+%% `{template, Text}': the entry's MqttValueTemplate renders Text.
+-type match() :: {raw, binary()} | {json, [binary()], binary()} | {template, binary()}.
 -type expect() :: none | any | match() | light.
 %% How a state message becomes BIL parameters.
 %% `scale': MqttScale, `{Param, Lo, Hi}': the device writes Param in
@@ -512,7 +513,7 @@ expect(Id, E, Default, StateTopic) ->
             case match(V) of
                 {ok, M} -> {ok, M};
                 error -> {error, [problem(Id, E, "Service", <<"MqttExpect">>,
-                                          <<"must be none, any, raw:TEXT or json:PATH=TEXT">>)]}
+                                          <<"must be none, any, raw:TEXT, json:PATH=TEXT or template:TEXT">>)]}
             end;
         _ ->
             {error, [problem(Id, E, "Service", <<"MqttExpect">>,
@@ -525,12 +526,14 @@ optional_match(Id, E, Name) ->
         V -> case match(V) of
                  {ok, M} -> {ok, M};
                  error -> {error, [problem(Id, E, "Service", Name,
-                                           <<"must be raw:TEXT or json:PATH=TEXT">>)]}
+                                           <<"must be raw:TEXT, json:PATH=TEXT or template:TEXT">>)]}
              end
     end.
 
 match(<<"raw:", Text/binary>>) ->
     {ok, {raw, Text}};
+match(<<"template:", Text/binary>>) ->
+    {ok, {template, Text}};
 match(<<"json:", Rest/binary>>) ->
     case binary:split(Rest, <<"=">>) of
         [Path, Value] ->

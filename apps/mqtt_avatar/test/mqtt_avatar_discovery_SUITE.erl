@@ -17,7 +17,8 @@ all() ->
     [ha_json_light, tasmota_outlet, sensors_and_events, siren_notify_button, zigbee2mqtt_devices,
      malformed_discovery, config_removed, overrides, generated_bil_validates,
      printed_bil_reads_back, families_validate, hand_written_checks, public_description_binds,
-     empty_topic_with_base, prop_discovery_never_crashes, prop_payload_mapping_never_crashes].
+     empty_topic_with_base, ha_device_discovery, prop_discovery_never_crashes,
+     prop_payload_mapping_never_crashes].
 
 %% ---------------------------------------------------------------------------
 %% Home Assistant
@@ -42,6 +43,60 @@ ha_json_light(_Config) ->
     #{type := <<"ACTION FEEDBACK">>, parameters := FbPs} = Fb,
     <<"LightSwitch">> = p(<<"Device">>, FbPs),
     ok = mqtt_avatar:check(D).
+
+%% @doc HA's device-based discovery (`homeassistant/device/<id>/config',
+%% HA's own example): each `cmps' entry is a component of its platform
+%% `p', taking the shared keys (`dev', `stat_t', `avty_t'...) unless it
+%% sets them; a bad entry is a problem and the others stay; an entry with
+%% only `p' is left out; the empty config removes them all.
+ha_device_discovery(_Config) ->
+    Topic = <<"homeassistant/device/0AFFD2/config">>,
+    Cfg = #{<<"dev">> => #{<<"ids">> => <<"0AFFD2">>, <<"name">> => <<"Hall Multisensor">>,
+                           <<"mf">> => <<"Bla electronics">>, <<"sa">> => <<"Hall">>},
+            <<"o">> => #{<<"name">> => <<"bla2mqtt">>, <<"sw">> => <<"2.1">>},
+            <<"cmps">> =>
+                #{<<"some_unique_component_id1">> =>
+                      #{<<"p">> => <<"sensor">>, <<"device_class">> => <<"temperature">>,
+                        <<"unit_of_measurement">> => <<"°C"/utf8>>,
+                        <<"value_template">> => <<"{{ value_json.temperature }}">>,
+                        <<"unique_id">> => <<"temp01ae_t">>},
+                  <<"some_unique_id2">> =>
+                      #{<<"p">> => <<"sensor">>, <<"device_class">> => <<"humidity">>,
+                        <<"unit_of_measurement">> => <<"%">>,
+                        <<"value_template">> => <<"{{ value_json.humidity }}">>,
+                        <<"unique_id">> => <<"temp01ae_h">>},
+                  <<"relay">> =>
+                      #{<<"platform">> => <<"switch">>, <<"cmd_t">> => <<"hall/relay/set">>,
+                        <<"stat_t">> => <<"hall/relay">>, <<"unique_id">> => <<"relay01">>},
+                  <<"gone">> => #{<<"p">> => <<"sensor">>},
+                  <<"bad">> => #{<<"p">> => <<"teleporter">>, <<"unique_id">> => <<"x">>}},
+            <<"state_topic">> => <<"sensorBedroom/state">>,
+            <<"avty_t">> => <<"hall/status">>, <<"qos">> => 2},
+    {D, Problems} = mqtt_avatar:generate([{Topic, enc(Cfg)}], #{}),
+    [#{topic := Topic, message := M}] = Problems,
+    {match, _} = re:run(M, <<"component bad: platform teleporter is not supported">>),
+    [#{id := <<"HallMultisensor">>, services := Services, consumes := Consumes}] = components(D),
+    Streams = [C || #{category := <<"SENSOR">>} = C <- Consumes],
+    Types = [T || #{type := T} <- Streams],
+    true = lists:member(<<"Temperature">>, Types) andalso lists:member(<<"Humidity">>, Types),
+    %% The shared state topic, the component's own template, the device's
+    %% room and availability.
+    [<<"sensorBedroom/state">>] = lists:usort([p(<<"MqttStateTopic">>, Ps) || #{parameters := Ps} <- Streams]),
+    true = lists:member(<<"Temperature=json:temperature">>,
+                        [p(<<"MqttValue">>, Ps) || #{parameters := Ps} <- Streams]),
+    [<<"hall">>] = lists:usort([p(<<"Room">>, Ps) || #{parameters := Ps} <- Streams]),
+    %% The switch keeps its own state topic.
+    [SwPs] = [Ps || #{type := <<"TurnSwitchOn">>, parameters := Ps} <- Services]
+        ++ [Ps || #{type := <<"SwitchOn">>, parameters := Ps} <- Services],
+    <<"hall/relay">> = p(<<"MqttStateTopic">>, SwPs),
+    <<"hall/status">> = p(<<"MqttAvailabilityTopic">>, SwPs),
+    ok = mqtt_avatar:check(D),
+    %% The empty config removes every component of the device.
+    {D2, []} = mqtt_avatar:generate([{Topic, enc(Cfg)}, {Topic, <<>>}], #{}),
+    [] = components(D2),
+    %% A device config without cmps is named as such.
+    {_, [#{message := M3}]} = mqtt_avatar:generate([{Topic, enc(maps:remove(<<"cmps">>, Cfg))}], #{}),
+    {match, _} = re:run(M3, <<"needs cmps">>).
 
 %% @doc A Tasmota-style plug (raw ON/OFF on cmnd/ and stat/ topics, LWT
 %% with Online/Offline) becomes a socket switch whose Appliance is `any'.

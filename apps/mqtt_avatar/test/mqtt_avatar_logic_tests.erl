@@ -438,13 +438,15 @@ one_service_state(Arg, Check, More) ->
           components =>
               [#{id => <<"Light">>,
                  services => [Entry(<<"ACTUATOR">>, <<"Set">>,
-                                    [{<<"MqttCommandTopic">>, <<"t/set">>},
-                                     {<<"MqttCommand">>, <<"raw:">>},
-                                     {<<"MqttCommandArgs">>, Arg},
-                                     {<<"MqttArgCheck">>, Check},
-                                     {<<"MqttStateTopic">>, <<"t/state">>},
-                                     {<<"MqttExpect">>, <<"any">>},
-                                     {<<"MqttValue">>, <<Arg/binary, "=raw">>} | More])],
+                                    More ++
+                                    [P || {N, _} = P <- [{<<"MqttCommandTopic">>, <<"t/set">>},
+                                                         {<<"MqttCommand">>, <<"raw:">>},
+                                                         {<<"MqttCommandArgs">>, Arg},
+                                                         {<<"MqttArgCheck">>, Check},
+                                                         {<<"MqttStateTopic">>, <<"t/state">>},
+                                                         {<<"MqttExpect">>, <<"any">>},
+                                                         {<<"MqttValue">>, <<Arg/binary, "=raw">>}],
+                                          not lists:keymember(N, 1, More)])],
                  consumes => [Entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>, [{<<"Feedback">>, <<"yes">>}])]}]},
     {ok, Spec} = mqtt_avatar_spec:from_description(D),
     S0 = mqtt_avatar_logic:new(?E, Spec, 3000, #{}),
@@ -538,3 +540,34 @@ refused_description_names_the_option_test() ->
                                                     "(max_binding_report)">>),
                                           <<"raise the pairing option max_binding_report">>)),
     ?assertEqual(<<"not bound">>, Refusal(<<"not bound">>)).
+
+%% A lock whose state has a template (not a plain path): the generated
+%% Unlock waits for the template's value UNLOCK, so `unlocking' does not
+%% finish it; a template that reads nothing of the payload is a problem,
+%% not a silent missing state.
+lock_with_state_template_is_done_at_unlocked_test() ->
+    Tpl = <<"{{ value_json.x if value_json is defined else value }}">>,
+    Expect = mqtt_avatar_part:match({template, Tpl}, <<"UNLOCK">>),
+    ?assertEqual(<<"template:UNLOCK">>, Expect),
+    S = one_service_state(<<"Pin">>, <<"Pin">>,
+                          [{<<"MqttExpect">>, Expect}, {<<"MqttValueTemplate">>, Tpl},
+                           {<<"MqttValue">>, <<"State=template">>},
+                           {<<"MqttMap">>, <<"UNLOCK=unlocked UNLOCKING=unlocking">>}]),
+    {S1, [{publish, <<"t/set">>, _, _} | _]} =
+        mqtt_avatar_logic:handle(request(<<"r">>, <<"Set">>, [{<<"Pin">>, <<"1">>}]), 1, S),
+    {S2, E2} = mqtt_avatar_logic:handle(mqtt(<<"t/state">>, <<"{\"x\":\"UNLOCKING\"}">>), 2, S1),
+    ?assertEqual([], [Sg || #{context := feedback} = Sg <- sends(E2)]),
+    {_, E3} = mqtt_avatar_logic:handle(mqtt(<<"t/state">>, <<"{\"x\":\"UNLOCK\"}">>), 3, S2),
+    [#{body := #{parameters := Ps}}] = [Sg || #{context := feedback} = Sg <- sends(E3)],
+    ?assertEqual(<<"unlocked">>, proplists:get_value(<<"State">>, Ps)),
+    %% HA's lock example: `{{ value.x }}' on a plain payload reads nothing.
+    {ok, Spec} = mqtt_avatar_spec:from_description(
+                   (description())#{components =>
+                       [#{id => <<"C">>, services => [],
+                          consumes => [#{category => <<"SENSOR">>, type => <<"LockState">>,
+                                         parameters => [{<<"MqttStateTopic">>, <<"l">>},
+                                                        {<<"MqttValue">>, <<"State=template">>},
+                                                        {<<"MqttValueTemplate">>, <<"{{ value.x }}">>}]}]}]}),
+    #{components := [#{streams := [#{mapping := M}]}]} = Spec,
+    {error, Why} = mqtt_avatar_logic:extract(M, <<"UNLOCKED">>),
+    ?assertNotEqual(nomatch, binary:match(Why, <<"gave nothing">>)).
