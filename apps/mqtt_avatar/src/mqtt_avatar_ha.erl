@@ -117,7 +117,10 @@ device_component(Node, Object, Key, Shared, C) when is_map(C) ->
                                  undefined -> Object;
                                  _ -> <<Node/binary, "/", Object/binary>>
                              end,
-                    Merged = expand(maps:merge(Shared, Own), mqtt_avatar_family:abbreviations(Platform)),
+                    %% Keys in full before merging (a component's `stat_t'
+                    %% overrides a shared `state_topic'), then `~' once.
+                    Abbr = mqtt_avatar_family:abbreviations(Platform),
+                    Merged = expand(maps:merge(expand(Shared, Abbr), expand(Own, Abbr)), Abbr),
                     case entity(Platform, Kind, Parent, Key, Merged) of
                         {ok, {entity, Info, E}} -> {ok, {Key, Info, E}};
                         {error, M} -> {error, In(M)}

@@ -483,8 +483,9 @@ availability_events(Id, State, OfflineSince, Now, #{comps := Comps} = S) ->
 echo(#{topic := Topic, payload := Payload}, #{pending := P} = S) ->
     Waiting = [{K, V} || {K, #{service := #{state_topic := T}} = V} <- maps:to_list(P),
                          T =:= Topic],
-    Answered = [R || {_, #{requester := R, service := #{expect := E, progress := Pr}}} <- Waiting,
-                     matches(E, Payload) orelse matches(Pr, Payload)],
+    Answered = [R || {_, #{requester := R, service := #{expect := E, progress := Pr} = Sv}} <- Waiting,
+                     matches(E, Payload, maps:get(mapping, Sv, #{}))
+                         orelse matches(Pr, Payload, maps:get(mapping, Sv, #{}))],
     {S1, Effects} = echo(Waiting, Payload, S),
     {S1, Effects, lists:usort(Answered)}.
 

@@ -243,7 +243,10 @@ unknown_keys_test() ->
     has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\", "
         "mqtt => #{host => \"h\", port => 1, user => \"x\"}}]}.", "mqtt: unknown key user"),
     has(?PAIRING ?AVATAR(", overrides => #{\"x\" => #{rooms => \"a\"}}"), "override \"x\": unknown key rooms"),
-    has(?PAIRING ?AVATAR(", discovery => #{home => \"a\"}"), "discovery: unknown key home").
+    has(?PAIRING ?AVATAR(", discovery => #{home => \"a\"}"), "discovery: unknown key home"),
+    %% zigbee2mqtt's device list limit, bounded (docs/mqtt.md section 6).
+    has(?PAIRING ?AVATAR(", discovery => #{max_device_list_size => 67108865}"),
+        "max_device_list_size must be an integer from 1 to 67108864 (bytes)").
 
 wrong_types_test() ->
     has("{listeners, [#{port => \"7400\"}]}.", "port must be an integer"),
