@@ -86,8 +86,7 @@
                %% Standby: resumes held until it takes over or hears its active.
                held = [] :: [{gen_statem:from(), term(), integer()}],
                %% Starting: the peers asked and their answers.
-               asks = 0 :: non_neg_integer(),
-               answers = [] :: [{node(), evatar_ha_proto_v1:instance_info()}],
+               start :: evatar_ha_roles:starting() | undefined,
                %% The live tail's watchers (evatar_tap): [] costs nothing.
                watchers = [] :: [evatar_tap:watcher()],
                %% This pairing's own counters once active here (evatar_metrics).
@@ -170,25 +169,9 @@ handle_event(Type, Event, _State, #data{id = Id}) ->
 %% ---------------------------------------------------------------------------
 
 starting(internal, load, #data{id = Id, mode = Mode} = Data) ->
-    case {Mode, evatar_registry:previous(Id), peers()} of
-        {create, none, _} ->
-            become_active(Data);
-        {{standby_for, Active}, none, _} ->
-            offer_to(Active, Data);
-        {_, _Previous, []} ->
-            %% A restart with nobody to ask: start afresh, as a lone node does.
-            become_active(Data);
-        {_, Previous, Peers} ->
-            ?LOG_NOTICE(#{what => pairing_restarted, pairing => Id, previous => Previous}),
-            ask_peers(Peers, Data)
-    end;
-starting(info, {evatar_ha, 1, {instance, Id, Node, Info}},
-         #data{id = Id, answers = Answers, asks = N} = Data) ->
-    Data1 = Data#data{answers = [{Node, Info} | Answers]},
-    case length(Data1#data.answers) >= N of
-        true -> decide_start(Data1);
-        false -> {keep_state, Data1}
-    end;
+    start(evatar_ha_roles:start(Mode, evatar_registry:previous(Id), peers(), suspect_ms()), Data);
+starting(info, {evatar_ha, 1, {instance, Id, Node, Info}}, #data{id = Id} = Data) ->
+    start_event({instance, Node, Info}, Data);
 starting(info, {evatar_ha, 1, {snapshot, Active, _Epoch, Version, State, Claim}},
          #data{active = Active} = Data) ->
     become_standby(Version, State, Claim, Data);
@@ -201,33 +184,30 @@ starting({call, From}, {inspect, ha}, Data) ->
 starting(_Type, _Event, _Data) ->
     {keep_state_and_data, [postpone]}.
 
-ask_peers(Peers, #data{id = Id} = Data) ->
-    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
-    {keep_state, timer({ha, asked}, 2 * evatar_cluster:opt(suspect_ms),
-                       Data#data{asks = length(Peers), answers = []})}.
+%% evatar_ha_roles decides how this instance starts; this executes it.
+start_event(Event, #data{start = S} = Data) ->
+    start(evatar_ha_roles:starting(Event, suspect_ms(), S), Data).
 
-offer_to(Active, #data{commit = C} = Data) ->
+start({S, Effects}, Data) ->
+    start_effects(Effects, Data#data{start = S}).
+
+start_effects([{log, Level, Report} | Rest], #data{id = Id} = Data) ->
+    ?LOG(Level, Report#{pairing => Id}),
+    start_effects(Rest, Data);
+start_effects([{ask, Peers} | Rest], #data{id = Id} = Data) ->
+    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
+    start_effects(Rest, Data);
+start_effects([{timer, Key, Ms} | Rest], Data) ->
+    start_effects(Rest, timer({ha, Key}, Ms, Data));
+start_effects([{offer, Active}], #data{commit = C} = Data) ->
     Mon = erlang:monitor(process, Active),
     ok = evatar_ha_proto_v1:offer(Active, self(), evatar_ha_commit:version(C)),
-    {keep_state, timer({ha, offered}, 5 * evatar_cluster:opt(suspect_ms) + 2000,
-                       Data#data{active = Active, active_mon = Mon})}.
-
-%% A restarted instance: an active elsewhere takes it as its standby; a
-%% standby elsewhere is about to take over (ask again); nobody: start afresh.
-decide_start(#data{answers = Answers} = Data) ->
-    Infos = [I || {_, I} <- Answers, is_map(I)],
-    case [I || #{role := R} = I <- Infos, R =:= active orelse R =:= fenced] of
-        [#{pid := Active} | _] ->
-            offer_to(Active, Data);
-        [] ->
-            case [I || #{role := standby} = I <- Infos] of
-                [_ | _] when Data#data.asks > 0 ->
-                    {keep_state, timer({ha, retry_ask}, evatar_cluster:opt(suspect_ms),
-                                       Data#data{answers = []})};
-                _ ->
-                    become_active(Data)
-            end
-    end.
+    {keep_state, timer({ha, offered}, 5 * suspect_ms() + 2000,
+                       Data#data{active = Active, active_mon = Mon})};
+start_effects([become_active], Data) ->
+    become_active(Data);
+start_effects([], Data) ->
+    {keep_state, Data}.
 
 %% ---------------------------------------------------------------------------
 %% Timers: one map, keyed by what each is for
@@ -244,8 +224,8 @@ timeout(_Key, State, _Data) when State =:= fenced; State =:= handing_over ->
 timeout(_Key, _State, _Data) ->
     keep_state_and_data.
 
-ha_timeout(asked, starting, Data) -> decide_start(Data);
-ha_timeout(retry_ask, starting, Data) -> ask_peers(peers(), Data);
+ha_timeout(asked, starting, Data) -> start_event({timeout, asked}, Data);
+ha_timeout(retry_ask, starting, Data) -> start_event({timeout, retry_ask, peers()}, Data);
 ha_timeout(offered, starting, Data) -> stop_instance(no_snapshot, Data);
 ha_timeout(election, State, Data) -> core({timeout, election}, State, Data);
 ha_timeout(register, State, Data) -> core({timeout, register}, State, Data);
@@ -881,22 +861,15 @@ ha({register_reply, _Id, Claim, Node, Result}, State, Data) ->
 ha(_Body, _State, _Data) ->
     keep_state_and_data.
 
-apply_events([{V, Now, Event} | Rest], #data{commit = C} = Data) ->
-    Mine = evatar_ha_commit:version(C),
-    if
-        V =:= Mine + 1 ->
-            {Logic1, _Effects} = evatar_pairing_logic:handle(Event, Now, Data#data.logic),
-            apply_events(Rest, Data#data{logic = Logic1, commit = evatar_ha_commit:applied(V, C)});
-        V =< Mine ->
-            apply_events(Rest, Data);
-        true ->
-            ok = evatar_ha_proto_v1:resync(Data#data.active, self(), Mine),
-            Data
-    end;
-apply_events([], #data{active = Active, logic = Logic, commit = C} = Data) ->
-    ok = evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(Logic),
-                                    evatar_ha_commit:version(C)),
-    Data.
+%% evatar_ha_roles applies the batch; this confirms it, or asks again.
+apply_events(Events, #data{active = Active, logic = Logic0, commit = C0} = Data) ->
+    Apply = fun(Event, Now, L) -> element(1, evatar_pairing_logic:handle(Event, Now, L)) end,
+    {Logic, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, Logic0, C0),
+    ok = case Answer of
+             {confirm, V} -> evatar_ha_proto_v1:confirm(Active, evatar_pairing_logic:epoch(Logic), V);
+             {resync, Mine} -> evatar_ha_proto_v1:resync(Active, self(), Mine)
+         end,
+    Data#data{logic = Logic, commit = C}.
 
 %% What this instance does about another instance of its pairing
 %% (evatar_ha_core:reconcile/2).
@@ -1093,26 +1066,20 @@ paused(Data) ->
 arm_held(#data{timers = #{{ha, held} := _}} = Data) ->
     Data;
 arm_held(Data) ->
-    timer({ha, held}, max(5, evatar_cluster:opt(heartbeat_ms) div 2), Data).
+    timer({ha, held}, evatar_ha_roles:held_poll_ms(evatar_cluster:opt(heartbeat_ms)), Data).
 
-%% A held resume is answered NotActive once the active was heard after it
-%% came (the active is alive: the client had another reason to leave it),
-%% or after suspect_ms + 2 heartbeats (at most 800 ms) without a decision.
+%% evatar_ha_roles:held_due/3 says which held resumes are answered NotActive.
 check_held(#data{held = Held, active = Active, core = Core} = Data) ->
-    Now = erlang:monotonic_time(millisecond),
-    Max = min(800, evatar_cluster:opt(suspect_ms) + 2 * evatar_cluster:opt(heartbeat_ms)),
-    Electing = evatar_ha_core:electing(Core) orelse Data#data.active_lost,
-    {Go, Keep} = lists:partition(
-                   fun({_, _, Since}) ->
-                           Now - Since > Max orelse
-                               (not Electing andalso is_pid(Active)
-                                andalso evatar_cluster:heard_after(node(Active), Since))
-                   end, Held),
-    _ = [gen_statem:reply(From, {error, {not_active, node_of(Active)}}) || {From, _, _} <- Go],
-    Data1 = Data#data{held = Keep},
+    Ctx = #{suspect_ms => suspect_ms(), heartbeat_ms => evatar_cluster:opt(heartbeat_ms),
+            electing => evatar_ha_core:electing(Core) orelse Data#data.active_lost,
+            heard_after => fun(Since) -> is_pid(Active) andalso
+                                             evatar_cluster:heard_after(node(Active), Since)
+                           end},
+    {Go, Keep} = evatar_ha_roles:held_due(Held, erlang:monotonic_time(millisecond), Ctx),
+    Data1 = reply_held(Data#data{held = Go}),
     case Keep of
-        [] -> Data1;
-        _ -> arm_held(Data1)
+        [] -> Data1#data{held = []};
+        _ -> arm_held(Data1#data{held = Keep})
     end.
 
 reply_held(#data{held = Held, active = Active} = Data) ->
@@ -1191,6 +1158,8 @@ send_handover(Data) ->
 
 peers() ->
     [N || N <- evatar_cluster:alive_nodes(), N =/= node()].
+
+suspect_ms() -> evatar_cluster:opt(suspect_ms).
 
 epoch(undefined) -> 0;
 epoch(Logic) -> evatar_pairing_logic:epoch(Logic).

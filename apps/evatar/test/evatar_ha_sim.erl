@@ -2,8 +2,9 @@
 %% three nodes, in one process, wired through the pure high-availability
 %% core: `evatar_ha_core' (elections, registrations, fencing, votes,
 %% reconciling) and `evatar_ha_commit' (versions, replication, outbox,
-%% Acks). The rest of `evatar_pairing''s role machine is mirrored here in
-%% a few lines per reaction, and the pairing's rules are a stand-in: a
+%% Acks), and `evatar_ha_roles' (the standby's apply). The rest of
+%% `evatar_pairing''s role machine is mirrored here in a few lines per
+%% reaction, and the pairing's rules are a stand-in: a
 %% signal is routed once (`{deliver, receiver, ...}') and acknowledged to
 %% its sender (`{accepted, sender, Sid}').
 %%
@@ -608,20 +609,17 @@ msg2({register_reply, Claim, N, R}, I, W) ->
 msg2(_Msg, I, W) ->
     put_inst(I, W).
 
-apply_events([{V, _Now, Event} | Rest], #{commit := C, state := S} = I, W) ->
-    Mine = evatar_ha_commit:version(C),
-    if
-        V =:= Mine + 1 ->
-            {S1, _} = logic(Event, S),
-            apply_events(Rest, I#{state := S1, epoch := maps:get(epoch, S1),
-                                  commit := evatar_ha_commit:applied(V, C)}, W);
-        V =< Mine ->
-            apply_events(Rest, I, W);
-        true ->
-            send(node_of(I), {inst, maps:get(active, I)}, {resync, ref(I)}, put_inst(I, W))
-    end;
-apply_events([], #{commit := C, active := A} = I, W) ->
-    send(node_of(I), {inst, A}, {confirm, ref(I), evatar_ha_commit:version(C)}, put_inst(I, W)).
+%% The standby's apply is the pairing's own (evatar_ha_roles), over the
+%% stand-in rules.
+apply_events(Events, #{commit := C0, state := S0, active := A} = I, W) ->
+    Apply = fun(Event, _Now, S) -> element(1, logic(Event, S)) end,
+    {S, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, S0, C0),
+    I1 = I#{state := S, epoch := maps:get(epoch, S), commit := C},
+    Msg = case Answer of
+              {confirm, V} -> {confirm, ref(I), V};
+              {resync, _Mine} -> {resync, ref(I)}
+          end,
+    send(node_of(I), {inst, A}, Msg, put_inst(I1, W)).
 
 other(From, _Role, _E, #{ref := From} = I, W) ->
     put_inst(I, W);
