@@ -388,10 +388,13 @@ value_source(C) ->
 source(Template) ->
     case path_source(Template) of
         {ok, S} -> {ok, S};
-        {error, Plain} ->
+        {error, _} ->
             case mqtt_avatar_template:parse(Template) of
                 {ok, _} -> {ok, {template, Template}};
-                {error, M} -> {error, <<Plain/binary, " (", M/binary, ")">>}
+                {error, M} -> {error, <<"value template ", (printable(Template))/binary,
+                                        " is not supported: ", M/binary, " (docs/mqtt.md "
+                                        "section 2.3 lists the forms supported; an override "
+                                        "can set MqttValueTemplate)">>}
             end
     end.
 

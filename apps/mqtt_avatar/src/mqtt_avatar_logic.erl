@@ -299,7 +299,9 @@ route({avail, Id, N}, #{payload := Payload, topic := Topic}, Now, S) ->
                   case {X =:= string:casefold(On), X =:= string:casefold(Off)} of
                       {true, _} -> online;
                       {_, true} -> offline;
-                      _ -> {error, <<"neither the available nor the not-available payload">>}
+                      _ -> {error, <<"got ", (quoted(T))/binary, ", neither the available (",
+                                     (quoted(On))/binary, ") nor the not-available (",
+                                     (quoted(Off))/binary, ") payload">>}
                   end;
               {error, M} -> {error, M}
           end,
@@ -1041,3 +1043,10 @@ partners(Id, #{entity := E, bound := Bound}) ->
                         provider := #{component := P}} <- Bound, CE =:= E, CC =:= Id]
                 ++ [C || #{provider := #{entity := PE, component := PC},
                            consumer := #{component := C}} <- Bound, PE =:= E, PC =:= Id]).
+
+%% A payload (UTF-8 text) quoted in a problem: at most 64 characters of it.
+quoted(Text) ->
+    case string:length(Text) > 64 of
+        true -> <<"'", (unicode:characters_to_binary(string:slice(Text, 0, 64)))/binary, "...'">>;
+        false -> <<"'", (unicode:characters_to_binary(Text))/binary, "'">>
+    end.

@@ -156,8 +156,11 @@ availability_test() ->
     {_, [{send, On}]} = mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"ONLINE">>), 61000, S2),
     #{body := #{type := <<"DeviceReconnected">>, parameters := Ps}} = On,
     ?assertEqual(<<"60">>, proplists:get_value(<<"OfflineSeconds">>, Ps)),
-    {_, [{problem, #{what := bad_availability}}]} =
-        mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"sleeping">>), 0, S).
+    {_, [{problem, #{what := bad_availability, message := M}}]} =
+        mqtt_avatar_logic:handle(mqtt(<<"l/availability">>, <<"sleeping">>), 0, S),
+    %% It names what came and what was expected.
+    ?assertEqual(<<"got 'sleeping', neither the available ('online') nor the not-available "
+                   "('offline') payload">>, M).
 
 %% Readings become events (this stream's context) to the bound emulator,
 %% with the static Room and the JSON attributes; a retained reading equal
