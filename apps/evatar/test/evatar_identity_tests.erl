@@ -199,8 +199,9 @@ detached_listed_entity_kept_test() ->
     {St3, E} = h({join, avatar, <<"lamp">>, <<"cv">>, <<"s2">>}, St2),
     ?assertEqual([{error, bad_credential}], reply(E)),
     ?assertEqual([<<"lamp">>], evatar_pairing_logic:entity_ids(St3)),
+    %% Its owner comes back (never described, it starts afresh: Resumed false).
     {_, E2} = h({resume, avatar, <<"lamp">>, <<"lamp-key">>, <<"s1">>, 0, 1}, St3),
-    ?assertEqual([{ok, true, <<>>}], reply(E2)).
+    ?assertEqual([{ok, false, <<>>}], reply(E2)).
 
 describe_refuses_bad_components_test() ->
     St0 = evatar_pairing_logic:new(?P, config(#{max_consumes => 2})),
