@@ -186,7 +186,15 @@ handle({register_reply, Claim, Node, ok}, Ctx,
        #core{reg = #{claim := Claim, ok := Ok} = Reg} = C) ->
     Ok1 = lists:usort([Node | Ok]),
     case length(Ok1) >= quorum(Ctx) of
-        true -> {C#core{reg = undefined, hold = false}, [registered]};
+        true ->
+            %% Accepted: a re-election begun because one node refused it
+            %% (a stale promise) is moot. Left running, it could be won
+            %% after a standby was placed with this claim, and move the
+            %% configuration above the claim that standby holds: its
+            %% election would be refused stale_claim for good, and what it
+            %% confirmed lost.
+            {C#core{reg = undefined, hold = false, election = end_reelect(C#core.election)},
+             [registered]};
         false -> {C#core{reg = Reg#{ok := Ok1}}, []}
     end;
 handle({register_reply, Claim, _Node, {refused, {promised, P}}}, #{role := active} = Ctx,
@@ -237,6 +245,9 @@ handle({claim, Claim}, _Ctx, C) ->
     {C#core{conf = Claim, election = undefined, reg = undefined, hold = false}, []}.
 
 %% ---------------------------------------------------------------------------
+
+end_reelect(#{why := reelect}) -> undefined;
+end_reelect(El) -> El.
 
 fresh(Why, Dead) ->
     #{epoch => 0, granted => [], replied => [], dead => Dead, why => Why, attempt => 0}.

@@ -22,14 +22,16 @@
 -include_lib("proper/include/proper.hrl").
 
 -export([all/0, suite/0]).
--export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1]).
--export([prop_model/2]).
+-export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1,
+         reelection_after_registered/1]).
+-export([prop_model/2, prop_live/2]).
 
 %% @private
 suite() -> [{timetrap, {minutes, 5}}].
 
 %% @private
-all() -> [stale_promise_freeze, active_node_back_without_it, three_nodes, two_nodes].
+all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_registered,
+          three_nodes, two_nodes].
 
 %% @doc Three nodes, every fault: 4000 schedules, safety after every command.
 three_nodes(_Config) ->
@@ -64,6 +66,23 @@ stale_promise_freeze(_Config) ->
 active_node_back_without_it(_Config) ->
     W = evatar_ha_sim:run([{tick, 103}, {crash, n1}, {pause, n2}], evatar_ha_sim:new(3)),
     {true, W1} = evatar_ha_sim:settle(W),
+    [] = maps:get(violations, W1).
+
+%% @doc Found by the liveness runs (a signal lost after one fault): an
+%% active cut from its standby registers a configuration without it; after
+%% the heal one node refuses it for the standby's stale promise, and the
+%% active stands for election above it, while the other two accept. The
+%% registration succeeds first and the active places a new standby with its
+%% claim; the election, left running, was won next and moved the
+%% configuration to a new epoch above that standby's claim, so when the
+%% active's node crashed the standby was refused `stale_claim' and what it
+%% had confirmed was lost. An accepted registration now ends that election.
+reelection_after_registered(_Config) ->
+    Cmds = [{tick, 214}, {signal, n1}, {tick, 189}, {tick, 239}, {cut, n1, n2}, {tick, 258},
+            heal, {tick, 253}, {crash, n1}],
+    W = evatar_ha_sim:run(Cmds, evatar_ha_sim:new(3)),
+    [] = maps:get(violations, W),
+    {{ok, _}, W1} = evatar_ha_sim:live(W, false, 2000),
     [] = maps:get(violations, W1).
 
 %% @private
@@ -106,3 +125,34 @@ fault_or_tick(N, Nodes) ->
                   2 -> Always;
                   _ -> Always ++ Cuts
               end).
+
+%% @private
+%% Liveness after the faults stop (docs/ha.md section 6): any schedule, then
+%% every link heals and paused nodes run again; a crashed node boots again,
+%% or (three nodes) stays down with a majority up. Within `BoundMs' of that
+%% exactly one instance serves, holding every accepted signal, and a signal
+%% sent then is accepted and routed once; safety holds all along.
+-spec prop_live(2 | 3, pos_integer()) -> proper:test().
+prop_live(N, BoundMs) ->
+    ?FORALL({Cmds, Restart}, {schedule(N), restart(N)},
+            begin
+                {Result, Safety} =
+                    try evatar_ha_sim:live(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N)),
+                                           Restart, BoundMs) of
+                        {R, W} -> {R, [V || V <- maps:get(violations, W),
+                                            element(1, V) =/= not_serving]}
+                    catch
+                        Class:Reason:Stack -> {crashed, [{Class, Reason, Stack}]}
+                    end,
+                ?WHENFAIL(io:format("result: ~p~nviolations: ~p~n", [Result, Safety]),
+                          aggregate([bucket(Result)],
+                                    Safety =:= [] andalso is_tuple(Result)
+                                    andalso element(1, Result) =:= ok))
+            end).
+
+restart(2) -> true;
+restart(_) -> boolean().
+
+bucket({ok, restored}) -> restored;
+bucket({ok, Ms}) -> {served_within_ms, 100 * (Ms div 100)};
+bucket(Other) -> Other.
