@@ -73,40 +73,71 @@ count_cases() {
   else note "$name: $p passed, $f failed"; fi
 }
 
-check xref rebar3 xref
-check dialyzer rebar3 dialyzer
-
-step eunit rebar3 eunit --cover; count_cases eunit $?
-step ct rebar3 ct --cover; count_cases ct $?
-
 # The clients in other languages (clients/*, docs/clients.md) run their own
-# suites against real nodes started from the default profile's build. Each
-# script ends with the same `N passed, N failed' line, which is added in.
-external() {
-  local name=$1 script=$2 rc=0 line p f
-  [ -f "$script" ] || return 0
-  step "$name" bash "$script" || rc=$?
-  line=$(sed -E 's/\x1b\[[0-9;]*m//g' "$REPORT/$name.log" | grep -E '^[0-9]+ passed, [0-9]+ failed$' | tail -1)
-  if [ -n "$line" ]; then
-    p=$(echo "$line" | cut -d' ' -f1); f=$(echo "$line" | cut -d' ' -f3)
-  else
-    p=0; f=0
-  fi
-  if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
-  if [ "$p" -eq 0 ] && [ "$f" -eq 0 ]; then f=1; fi
-  passed=$((passed + p)); failed=$((failed + f))
-  note "$name: $p passed, $f failed"
+# suites against real nodes started from the default profile's build, which
+# xref has just compiled. Each script ends with the same `N passed, N
+# failed' line, which is added in. They run one after the other in the
+# background while dialyzer and EUnit run (those read _build/default and
+# build _build/test; the clients' nodes only read _build/default, on free
+# ports), and are counted once both are done.
+clients_run() {
+  local script name
+  for script in clients/*/run-tests.sh; do
+    name="clients-$(basename "$(dirname "$script")")"
+    # Not step(): its output would interleave with dialyzer's and EUnit's.
+    local rc=0 t0=$SECONDS
+    bash "$script" > "$REPORT/$name.log" 2>&1 < /dev/null || rc=$?
+    echo "$rc $((SECONDS - t0))" > "$REPORT/$name.status"
+  done
 }
 
+clients_count() {
+  local script name rc took line p f
+  for script in clients/*/run-tests.sh; do
+    name="clients-$(basename "$(dirname "$script")")"
+    echo
+    echo "== $name: bash $script (run beside dialyzer and EUnit)"
+    cat "$REPORT/$name.log" 2>/dev/null
+    read -r rc took < "$REPORT/$name.status" 2>/dev/null || { rc=1; took=?; }
+    echo "== $name took $took s"
+    line=$(sed -E 's/\x1b\[[0-9;]*m//g' "$REPORT/$name.log" 2>/dev/null | grep -E '^[0-9]+ passed, [0-9]+ failed$' | tail -1)
+    if [ -n "$line" ]; then
+      p=$(echo "$line" | cut -d' ' -f1); f=$(echo "$line" | cut -d' ' -f3)
+    else
+      p=0; f=0
+    fi
+    if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+    if [ "$p" -eq 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+    passed=$((passed + p)); failed=$((failed + f))
+    note "$name: $p passed, $f failed"
+  done
+}
+
+check xref rebar3 xref
+
+clients_pid=
 if ls clients/*/run-tests.sh >/dev/null 2>&1; then
+  rm -f "$REPORT"/clients-*.status
   if step compile rebar3 compile; then
-    for script in clients/*/run-tests.sh; do
-      external "clients-$(basename "$(dirname "$script")")" "$script"
-    done
+    clients_run &
+    clients_pid=$!
   else
     failed=$((failed + 1)); note "compile for the client suites: FAILED (see $REPORT/compile.log)"
   fi
 fi
+
+check dialyzer rebar3 dialyzer
+
+step eunit rebar3 eunit --cover; count_cases eunit $?
+
+if [ -n "$clients_pid" ]; then
+  t0=$SECONDS
+  wait "$clients_pid"
+  echo "== waited $((SECONDS - t0)) s for the client suites"
+  clients_count
+fi
+
+step ct rebar3 ct --cover; count_cases ct $?
 
 if step cover rebar3 cover --verbose; then
   note "cover: report in _build/test/cover/index.html"
