@@ -21,8 +21,9 @@
 -export([start/4, starting/3]).
 -export([apply_events/4]).
 -export([held_due/3, held_poll_ms/1]).
+-export([meet/2]).
 
--export_type([starting/0, start_event/0, start_effect/0, held/1, held_ctx/0]).
+-export_type([starting/0, start_event/0, start_effect/0, held/1, held_ctx/0, meeting/0]).
 
 %% The peers asked and their answers so far.
 -opaque starting() :: #{asks := non_neg_integer(),
@@ -39,6 +40,11 @@
                       | {ask, [node()]}
                       | {timer, asked | retry_ask, non_neg_integer()}
                       | {log, notice, map()}.
+
+%% What an instance does about another instance of its pairing: nothing,
+%% tell the other it is stale (this active's epoch is higher), step down
+%% (close its clients and go) or stop.
+-type meeting() :: keep | tell_stale | step_down | stop.
 
 %% A resume held by a standby: who asked, what, and since when
 %% (monotonic milliseconds).
@@ -100,6 +106,20 @@ decide(SuspectMs, #{asks := Asks, answers := Answers} = S) ->
                 [_ | _] when Asks > 0 -> {S#{answers := []}, [{timer, retry_ask, SuspectMs}]};
                 _ -> {S, [become_active]}
             end
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Two instances meet
+%% ---------------------------------------------------------------------------
+
+%% @doc What this instance does about another instance of its pairing it
+%% heard of ({@link evatar_ha_core:reconcile/2}); an active that keeps
+%% tells a lower-epoch active or fenced one at once that it is stale.
+-spec meet(evatar_ha_core:instance(), evatar_ha_core:instance()) -> meeting().
+meet(#{role := MyRole, epoch := MyE} = Me, #{role := Role, epoch := E} = Other) ->
+    case evatar_ha_core:reconcile(Me, Other) of
+        keep when MyRole =:= active, Role =/= standby, MyE > E -> tell_stale;
+        Verdict -> Verdict
     end.
 
 %% ---------------------------------------------------------------------------

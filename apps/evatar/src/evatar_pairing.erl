@@ -887,15 +887,14 @@ other_instance(Pid, Role, Epoch, State, #data{logic = Logic} = Data) ->
            end,
     Me = #{role => MyRole, epoch => MyEpoch, node => node(), pid => self(), peer => Peer},
     Other = #{role => Role, epoch => Epoch, node => node(Pid), pid => Pid},
-    case evatar_ha_core:reconcile(Me, Other) of
+    case evatar_ha_roles:meet(Me, Other) of
         step_down ->
             _ = [evatar_ha_proto_v1:dismiss(P, self()) || P <- [Data#data.standby],
                                                           is_pid(P), P =/= Pid],
             step_down({newer_instance, node(Pid), Epoch}, Data);
         stop ->
             stop_instance({newer_instance, node(Pid), Epoch}, Data);
-        keep when MyRole =:= active, Role =/= standby, MyEpoch > Epoch ->
-            %% Let the stale one know at once.
+        tell_stale ->
             ok = evatar_ha_proto_v1:stale(Pid, self(), MyEpoch),
             keep_state_and_data;
         keep ->

@@ -38,6 +38,16 @@ restart_finds_standby_test() ->
     {S4, []} = evatar_ha_roles:starting({instance, b, none}, ?S, element(1, evatar_ha_roles:start(create, prev, [b, c], ?S))),
     ?assertMatch({_, [become_active]}, evatar_ha_roles:starting({timeout, asked}, ?S, S4)).
 
+%% Two actives: the lower epoch steps down, the higher tells it so; a
+%% standby of another active stops for a higher epoch.
+meet_test() ->
+    Me = #{role => active, epoch => 3, node => a, pid => p1},
+    ?assertEqual(tell_stale, evatar_ha_roles:meet(Me, #{role => fenced, epoch => 2, node => b, pid => p2})),
+    ?assertEqual(keep, evatar_ha_roles:meet(Me, #{role => standby, epoch => 2, node => b, pid => p2})),
+    ?assertEqual(step_down, evatar_ha_roles:meet(Me, #{role => active, epoch => 4, node => b, pid => p2})),
+    ?assertEqual(stop, evatar_ha_roles:meet(#{role => standby, epoch => 3, node => a, pid => p1, peer => p3},
+                                            #{role => active, epoch => 4, node => b, pid => p2})).
+
 info(Role, Pid) -> #{pid => Pid, role => Role, epoch => 1, peer => undefined}.
 
 %% Events apply in version order; one seen already is skipped; a gap

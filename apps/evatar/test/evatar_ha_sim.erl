@@ -2,7 +2,8 @@
 %% three nodes, in one process, wired through the pure high-availability
 %% core: `evatar_ha_core' (elections, registrations, fencing, votes,
 %% reconciling) and `evatar_ha_commit' (versions, replication, outbox,
-%% Acks), and `evatar_ha_roles' (the standby's apply). The rest of
+%% Acks), and `evatar_ha_roles' (the standby's apply, two instances
+%% meeting). The rest of
 %% `evatar_pairing''s role machine is mirrored here in a few lines per
 %% reaction, and the pairing's rules are a stand-in: a
 %% signal is routed once (`{deliver, receiver, ...}') and acknowledged to
@@ -680,8 +681,8 @@ other(From, Role, E, #{role := MyRole, epoch := MyE} = I, W) when MyRole =/= sta
            end,
     Me = #{role => MyRole, epoch => MyE, node => node_of(I), pid => ref(I), peer => Peer},
     Other = #{role => Role, epoch => E, node => element(1, From), pid => From},
-    case evatar_ha_core:reconcile(Me, Other) of
-        keep when MyRole =:= active, Role =/= standby, MyE > E ->
+    case evatar_ha_roles:meet(Me, Other) of
+        tell_stale ->
             send(node_of(I), {inst, From}, {stale, ref(I), MyE}, put_inst(I, W));
         keep ->
             put_inst(I, W);
