@@ -1,13 +1,12 @@
 %% @doc A deterministic simulation of one pairing's instances on two or
-%% three nodes, in one process, wired through the pure high-availability
-%% core: `evatar_ha_core' (elections, registrations, fencing, votes,
-%% reconciling) and `evatar_ha_commit' (versions, replication, outbox,
-%% Acks), and `evatar_ha_roles' (the standby's apply, two instances
-%% meeting). The rest of
-%% `evatar_pairing''s role machine is mirrored here in a few lines per
-%% reaction, and the pairing's rules are a stand-in: a
-%% signal is routed once (`{deliver, receiver, ...}') and acknowledged to
-%% its sender (`{accepted, sender, Sid}').
+%% three nodes, in one process, running the code the node runs for each
+%% instance: the role machine `evatar_ha_instance' (with `evatar_ha_serving',
+%% `evatar_ha_core', `evatar_ha_roles') and the output commit
+%% `evatar_ha_commit'. This module executes their effects on a simulated
+%% world instead of processes, as `evatar_pairing' does in the node; the
+%% pairing's rules are a stand-in: a signal is routed once
+%% (`{deliver, receiver, ...}') and acknowledged to its sender
+%% (`{accepted, sender, Sid}').
 %%
 %% The world: nodes with a voter record each (what `evatar_cluster' keeps),
 %% heartbeats every 50 ms, suspicion after 250 ms, a lease of 150 ms;
@@ -51,8 +50,7 @@ new(N) ->
            names => Nodes, insts => #{}, next_ref => 1, msgs => [], seq => 0, cut => [],
            sender => #{next => 1, sent => [], acked => [], degraded => [], epoch => 0},
            receiver => #{got => #{}, epoch => 0}, violations => [], last_change => 0},
-    W1 = start_active(n1, W0),
-    place_all(W1).
+    start_active(n1, W0).
 
 node0(Nodes) ->
     #{status => up, voter => evatar_ha_core:new_record(),
@@ -256,7 +254,12 @@ node_back(N, M, W) ->
     case inst_on(N, W1) of
         undefined -> W1;
         #{ref := Ref, role := Role, epoch := E} ->
-            send(N, {node, M}, {inventory, Ref, Role, E}, W1)
+            %% The registry's role: a handover under way is the active.
+            Shown = case Role of
+                        handing_over -> active;
+                        _ -> Role
+                    end,
+            send(N, {node, M}, {inventory, Ref, Shown, E}, W1)
     end.
 
 heard_within(N, M, Ms, #{nodes := Nodes, now := Now}) ->
@@ -361,13 +364,12 @@ inst_on(N, #{nodes := Nodes, insts := Insts}) ->
         Ref -> maps:get(Ref, Insts)
     end.
 
-new_inst(N, Role, W) ->
+new_inst(N, W) ->
     #{next_ref := R, nodes := Nodes, insts := Insts} = W,
     Ref = {N, R},
-    I = #{ref => Ref, node => N, role => Role, epoch => 1, core => evatar_ha_core:new(),
-          commit => evatar_ha_commit:new(0), state => #{epoch => 1, applied => []},
-          active => undefined, standby => undefined, active_lost => false, timers => #{},
-          placing => 0},
+    I = sync(#{ref => Ref, node => N, inst => evatar_ha_instance:new(p, Ref, undefined),
+               commit => evatar_ha_commit:new(0), state => #{epoch => 1, applied => []},
+               epoch => 1, timers => #{}, mons => #{}, postponed => []}),
     {I, W#{next_ref := R + 1, insts := Insts#{Ref => I},
            nodes := Nodes#{N := (maps:get(N, Nodes))#{inst := Ref}}}}.
 
@@ -388,22 +390,20 @@ kill(Ref, #{insts := Insts, nodes := Nodes} = W) ->
                       down -> noconnection;
                       _ -> killed
                   end,
-            lists:foldl(fun(#{ref := R2, node := N2} = I2, Acc) ->
+            lists:foldl(fun(#{ref := R2, node := N2, mons := Mons}, Acc) ->
                                 %% Across a silent cut nothing comes: the
                                 %% others learn it by suspicion, and the
-                                %% monitor fires when the connection is
-                                %% back or replaced (pend/4).
-                                Down = case I2 of
-                                           #{active := Ref} -> {active_down, Why};
-                                           #{standby := Ref} -> {standby_down, Why};
-                                           #{} -> none
-                                       end,
-                                case {Down, connected(N, N2, Acc)} of
-                                    {none, _} -> Acc;
-                                    %% After whatever it sent before.
-                                    {_, true} -> down_later(R2, Down, Acc);
-                                    {_, false} -> pend(N, {inst, R2}, {event, Down}, Acc)
-                                end
+                                %% monitors fire when the connection is
+                                %% back or replaced (pend/4); else after
+                                %% whatever it sent before.
+                                lists:foldl(
+                                  fun({Which, _}, A2) ->
+                                          Down = {down, Which, Why, Ref},
+                                          case connected(N, N2, A2) of
+                                              true -> down_later(R2, Down, A2);
+                                              false -> pend(N, {inst, R2}, {event, Down}, A2)
+                                          end
+                                  end, Acc, [M || {_, R3} = M <- maps:to_list(Mons), R3 =:= Ref])
                         end, W1, maps:values(maps:get(insts, W1)));
         #{} ->
             W
@@ -413,13 +413,8 @@ down_later(Ref, Event, #{now := Now} = W) ->
     enqueue_at(Now + ?LATENCY, {inst, Ref}, {event, Event}, W).
 
 start_active(N, W) ->
-    {I, W1} = new_inst(N, active, W),
-    put_inst(I#{placing := 0}, W1).
-
-%% The active places a standby on the next alive node without one.
-place_all(W) ->
-    lists:foldl(fun(#{ref := Ref}, Acc) -> inst_event_ref(Ref, place, Acc) end, W,
-                maps:values(maps:get(insts, W))).
+    {I, W1} = new_inst(N, W),
+    handle({start, create, none}, I#{now => maps:get(now, W)}, W1).
 
 inst_event(N, Event, W) ->
     case running(N, W) andalso inst_on(N, W) of
@@ -460,10 +455,6 @@ fire_timers(#{insts := Insts, now := Now} = W) ->
                           end, Acc, Due)
       end, W, maps:values(Insts)).
 
-ctx(#{role := Role, state := #{epoch := E}} = I, #{names := Names}) ->
-    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E, role => Role,
-      reconfirming => maps:get(reconfirming, I, false)}.
-
 %% The voters: evatar_cluster's answers.
 voter(N, {vote, Ec, Cand, Claim, Active, Dead}, #{nodes := Nodes} = W) ->
     #{voter := Rec} = Nd = maps:get(N, Nodes),
@@ -472,9 +463,9 @@ voter(N, {vote, Ec, Cand, Claim, Active, Dead}, #{nodes := Nodes} = W) ->
     case evatar_ha_core:vote(Rec, Ec, Cand, Claim, Blocked) of
         {granted, R1} ->
             W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
-            send(N, {inst, Cand}, {vote_reply, Ec, N, granted}, W1);
+            send(N, {inst, Cand}, {vote_reply, p, Ec, N, granted}, W1);
         Refused ->
-            send(N, {inst, Cand}, {vote_reply, Ec, N, Refused}, W)
+            send(N, {inst, Cand}, {vote_reply, p, Ec, N, Refused}, W)
     end;
 voter(N, {register, Claim, From}, #{nodes := Nodes} = W) ->
     #{voter := Rec} = Nd = maps:get(N, Nodes),
@@ -482,9 +473,9 @@ voter(N, {register, Claim, From}, #{nodes := Nodes} = W) ->
     case evatar_ha_core:register(Rec, E, Seq, From) of
         {ok, R1} ->
             W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
-            send(N, {inst, From}, {register_reply, Claim, N, ok}, W1);
+            send(N, {inst, From}, {register_reply, p, Claim, N, ok}, W1);
         Refused ->
-            send(N, {inst, From}, {register_reply, Claim, N, Refused}, W)
+            send(N, {inst, From}, {register_reply, p, Claim, N, Refused}, W)
     end;
 voter(N, {nodedown, M}, #{nodes := Nodes} = W) ->
     #{alive := Alive, heard := Heard} = Nd = maps:get(N, Nodes),
@@ -498,10 +489,8 @@ voter(N, {inventory, Ref, Role, E}, W) ->
 voter(N, {start_standby, Active}, #{insts := Insts} = W) ->
     case inst_on(N, W) of
         undefined when is_map_key(Active, Insts) ->
-            {I, W1} = new_inst(N, starting, W),
-            W2 = put_inst(timer(offered, 5 * ?SUSPECT + 2000,
-                                I#{active := Active, now => maps:get(now, W)}), W1),
-            send(N, {inst, Active}, {offer, maps:get(ref, I)}, W2);
+            {I, W1} = new_inst(N, W),
+            handle({start, {standby_for, Active}, none}, I#{now => maps:get(now, W)}, W1);
         _ ->
             W
     end.
@@ -513,100 +502,136 @@ serving_as_seen(N, {M, _} = Ref, #{insts := Insts} = W) ->
     end.
 
 %% ---------------------------------------------------------------------------
-%% One instance's reactions (evatar_pairing's, in short)
+%% One instance: evatar_ha_instance decides (the code the node runs); this
+%% executes its effects on the simulated world, as evatar_pairing does on
+%% processes
 %% ---------------------------------------------------------------------------
 
-handle({timeout, {ha, K}}, I, W) when K =:= election; K =:= register; K =:= deadline ->
-    core({timeout, K}, I, W);
-handle({timeout, {ha, place}}, I, W) ->
-    handle(place, I#{placing := 0}, W);
-handle({timeout, offered}, #{role := starting} = I, W) ->
+handle({down, Which, Why, Ref}, #{mons := Mons} = I, W) ->
+    case Mons of
+        #{Which := Ref} -> handle({down, Which, Why}, I#{mons := maps:remove(Which, Mons)}, W);
+        #{} -> put_inst(I, W)  % demonitored meanwhile: its DOWN never comes
+    end;
+handle(Event, #{inst := Inst, ref := Ref} = I, W) ->
+    {Inst1, Effects} = evatar_ha_instance:handle(ha_event(Event), view(I, W), Inst),
+    W1 = ha_effects(Effects, Event, sync(I#{inst := Inst1}), W),
+    %% As gen_statem does: postponed events come again once the state changed.
+    case maps:get(insts, W1) of
+        #{Ref := #{inst := Inst2, postponed := [_ | _] = P} = I2} ->
+            case evatar_ha_instance:role(Inst2) =/= evatar_ha_instance:role(Inst) of
+                true -> lists:foldl(fun(E, Acc) -> inst_event_ref(Ref, E, Acc) end,
+                                    put_inst(I2#{postponed := []}, W1), lists:reverse(P));
+                false -> W1
+            end;
+        #{} ->
+            W1
+    end.
+
+ha_event({timeout, _} = E) -> E;
+ha_event({msg, _} = E) -> E;
+ha_event({start, _, _} = E) -> E;
+ha_event({down, _, _} = E) -> E;
+ha_event(ClusterEvent) -> {cluster, ClusterEvent}.
+
+%% What the instance sees: this node's view of the cluster (evatar_cluster's).
+view(#{node := N, state := #{epoch := E}, commit := C}, #{names := Names, nodes := Nodes} = W) ->
+    Alive = maps:get(alive, maps:get(N, Nodes)),
+    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E,
+      version => evatar_ha_commit:version(C), confirmed => evatar_ha_commit:confirmed(C),
+      synced => evatar_ha_commit:synced(C),
+      alive => [M || M <- Names, M =:= N orelse maps:get(M, Alive)],
+      majority => majority_now(N, W), heard => [M || M <- Names, heard_within(N, M, ?LEASE, W)],
+      standby_opt => true, client_ack_timeout => 5000, handover_on_silent_link => true}.
+
+%% The role, core and peers, as the checks read them.
+sync(#{inst := Inst} = I) ->
+    I#{role => evatar_ha_instance:role(Inst), core => evatar_ha_instance:core(Inst),
+       active => evatar_ha_instance:active(Inst), standby => evatar_ha_instance:standby(Inst)}.
+
+ha_effects([{stop, _} | _], _Event, I, W) ->
     kill(ref(I), put_inst(I, W));
-handle({timeout, _}, I, W) ->
-    put_inst(I, W);
-handle(place, #{role := active, standby := undefined, placing := 0, node := N, ref := Ref} = I,
-       #{names := Names} = W) ->
-    Alive = [M || M <- Names, M =/= N, maps:get(M, maps:get(alive, maps:get(N, maps:get(nodes, W))))],
-    case evatar_ha_rules:standby_node(Names, N, [N | Alive], undefined) of
-        none ->
-            put_inst(I, W);
-        M ->
-            W1 = put_inst(timer({ha, place}, 1000, I#{placing := 1}), W),
-            send(N, {node, M}, {start_standby, Ref}, W1)
-    end;
-handle(place, I, W) ->
-    put_inst(I, W);
-handle({node_alive, _}, #{role := active} = I, W) ->
-    handle(place, I, W);
-handle({node_alive, M}, #{role := standby, active := {M, _} = A, active_lost := true} = I,
-       #{insts := Insts} = W) ->
-    case Insts of
-        #{A := _} -> send(node_of(I), {inst, A}, {resync, ref(I)}, put_inst(I, W));
-        #{} -> handle({active_down, noproc}, I, W)  % monitored again: gone
-    end;
-handle({node_alive, _}, #{role := fenced} = I, W) ->
-    core({elect, fenced, false}, I, W);
-handle({node_suspected, M}, #{role := R, standby := {M, _}} = I, W) when R =/= standby ->
-    handle({standby_down, noconnection}, I, W);
-handle({node_suspected, M}, #{role := standby, active := {M, _}} = I, W) ->
-    core({elect, active_silent, false}, I#{active_lost := true}, W);
-handle({quorum, true}, #{role := standby, active_lost := true} = I, W) ->
-    core({elect, active_silent, false}, I, W);
-handle({quorum, true}, #{role := fenced} = I, W) ->
-    core({elect, fenced, false}, I, W);
-handle({quorum, false}, #{role := active, standby := S, node := N} = I, W) ->
-    Heard = S =/= undefined andalso heard_within(N, element(1, S), ?LEASE, W),
-    case evatar_ha_core:must_fence(length(maps:get(names, W)), majority_now(N, W), Heard) of
-        true -> fence(I, W);
-        false -> put_inst(I, W)
-    end;
-handle(stalled, #{role := active} = I, W) ->
-    core(paused, I, W);
-handle({standby_down, noconnection}, #{role := R} = I, W) when R =/= standby ->
-    I1 = forget_standby(I),
-    core(standby_node_lost, I1, W);
-handle({standby_down, _}, #{role := R} = I, W) when R =/= standby ->
-    I1 = forget_standby(I),
-    {Out, C} = evatar_ha_commit:release_all(maps:get(commit, I1)),
-    W1 = effects(Out, I1#{commit := C}, W),
-    handle(place, maps:get(ref(I1), maps:get(insts, W1)), W1);
-handle({active_down, noconnection}, #{role := standby} = I, W) ->
-    core({elect, active_silent, false}, I#{active_lost := true}, W);
-handle({active_down, _}, #{role := standby} = I, W) ->
-    core({elect, active_died, true}, I#{active_lost := true}, W);
-handle({active_down, _}, #{role := starting} = I, W) ->
-    kill(ref(I), put_inst(I, W));
-handle({msg, {snapshot, _, _, _, _} = Msg}, #{role := starting} = I, W) ->
-    msg(Msg, I, W);
-handle({msg, {dismiss, _} = Msg}, #{role := starting} = I, W) ->
-    msg(Msg, I, W);
-handle(Event, #{role := starting} = I, W) when element(1, Event) =/= timeout,
-                                               element(1, Event) =/= active_down ->
-    %% Postponed, as gen_statem does, until the instance is a standby.
-    put_inst(I#{postponed => [Event | maps:get(postponed, I, [])]}, W);
-handle({msg, Msg}, I, W) ->
-    msg(Msg, I, W);
-handle(_Event, I, W) ->
+ha_effects([postpone | Rest], Event, #{postponed := P} = I, W) ->
+    ha_effects(Rest, Event, I#{postponed := [Event | P]}, W);
+ha_effects([E | Rest], Event, I, W) ->
+    W1 = ha_effect(E, I, put_inst(I, W)),
+    ha_effects(Rest, Event, maps:get(ref(I), maps:get(insts, W1)), W1);
+ha_effects([], _Event, I, W) ->
     put_inst(I, W).
 
-msg({offer, S}, #{role := active, standby := undefined, core := Core} = I, W) ->
-    case evatar_ha_core:registering(Core) of
-        false -> snapshot_to(I#{standby := S, commit := evatar_ha_commit:unsync(maps:get(commit, I))}, W);
-        true -> send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W))
+ha_effect({send, To, Msg}, I, W) ->
+    send(node_of(I), {inst, To}, peer_msg(Msg, I), W);
+ha_effect({start_standby, M}, I, W) ->
+    send(node_of(I), {node, M}, {start_standby, ref(I)}, W);
+ha_effect({vote, M, Ec, Claim, Active, Dead}, I, W) ->
+    send(node_of(I), {node, M}, {vote, Ec, ref(I), Claim, Active, Dead}, W);
+ha_effect({register, M, Claim}, I, W) ->
+    send(node_of(I), {node, M}, {register, Claim, ref(I)}, W);
+ha_effect({monitor, Which, To}, #{mons := Mons} = I, #{insts := Insts} = W) ->
+    W1 = put_inst(I#{mons := Mons#{Which => To}}, W),
+    case Insts of
+        #{To := _} -> W1;
+        #{} -> down_later(ref(I), {down, Which, noproc, To}, W1)  % gone already
     end;
-msg({offer, S}, #{standby := S} = I, W) ->
-    snapshot_to(I, W);
-msg({offer, S}, I, W) ->
-    send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W));
-msg({resync, S}, #{standby := S} = I, W) ->
-    snapshot_to(I, W);
-msg({resync, S}, I, W) ->
-    send(node_of(I), {inst, S}, {dismiss, ref(I)}, put_inst(I, W));
-msg({confirm, S, V}, #{standby := S, commit := C, state := #{applied := A}} = I,
-    #{sender := Snd} = W) ->
+ha_effect({demonitor, Which}, #{mons := Mons} = I, W) ->
+    put_inst(I#{mons := maps:remove(Which, Mons)}, W);
+ha_effect({timer, K, Ms}, I, W) ->
+    put_inst(timer(K, Ms, I), W);
+ha_effect({ensure_timer, K, Ms}, #{timers := Ts} = I, W) ->
+    case Ts of
+        #{K := _} -> W;
+        #{} -> put_inst(timer(K, Ms, I), W)
+    end;
+ha_effect({cancel_timer, K}, #{timers := Ts} = I, W) ->
+    put_inst(I#{timers := maps:remove(K, Ts)}, W);
+ha_effect(new_logic, I, W) ->
+    put_inst(I#{state := #{epoch => 1, applied => []}, epoch := 1}, W);
+ha_effect({install, V, State}, #{commit := C} = I, W) ->
+    put_inst(I#{state := State, epoch := maps:get(epoch, State),
+                commit := evatar_ha_commit:applied(V, C)}, W);
+ha_effect({apply, Events}, I, W) ->
+    apply_events(Events, I, W);
+ha_effect({logic, Event, Mode}, I, W) ->
+    logic_step(Event, Mode, I, W);
+ha_effect({release, V}, I, W) ->
+    release(V, I, W);
+ha_effect(release_all, #{commit := C} = I, W) ->
+    {Out, C1} = evatar_ha_commit:release_all(C),
+    effects(Out, I#{commit := C1}, W);
+ha_effect({flush, Mode}, #{commit := C} = I, W) ->
+    {Out, C1} = evatar_ha_commit:flush(Mode, C),
+    effects(Out, I#{commit := C1}, W);
+ha_effect({flush_maybe, Mode}, #{commit := C} = I, W) ->
+    {Out, C1} = evatar_ha_commit:flush_maybe(0, Mode, C),
+    effects(Out, I#{commit := C1}, W);
+ha_effect(unsync, #{commit := C} = I, W) ->
+    put_inst(I#{commit := evatar_ha_commit:unsync(C)}, W);
+ha_effect({synced_at, V}, #{commit := C} = I, W) ->
+    put_inst(I#{commit := evatar_ha_commit:synced_at(V, C)}, W);
+ha_effect(reset_commit, #{commit := C} = I, W) ->
+    put_inst(I#{commit := evatar_ha_commit:reset(C)}, W);
+ha_effect({snapshot, To, Claim}, #{commit := C, state := State} = I, W) ->
+    Msg = {snapshot, ref(I), maps:get(epoch, State), evatar_ha_commit:version(C), State, Claim},
+    send(node_of(I), {inst, To}, Msg, put_inst(I#{commit := evatar_ha_commit:shipped(C)}, W));
+ha_effect(_NothingHere, _I, W) ->
+    %% Clients, logs, metrics, the registry and timers of the rules are not
+    %% modelled: the stand-in rules have no timers, and a client reaches
+    %% whichever instance serves on a node.
+    W.
+
+%% evatar_ha_proto_v1's messages, with the sender and its epoch.
+peer_msg({offer, V}, I) -> {offer, ref(I), V};
+peer_msg(dismiss, I) -> {dismiss, ref(I)};
+peer_msg({resync, V}, I) -> {resync, ref(I), V};
+peer_msg({confirm, V}, #{epoch := E} = I) -> {confirm, ref(I), E, V};
+peer_msg({stale, E}, I) -> {stale, ref(I), E};
+peer_msg({handover, V}, #{epoch := E} = I) -> {handover, ref(I), E, V};
+peer_msg({handover_done, Ec, Claim}, I) -> {handover_done, ref(I), Ec, Claim}.
+
+%% The standby confirmed `V'. A synced standby (running, in touch, not
+%% electing) holds everything applied before: covered again, and one
+%% failure may come again.
+release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender := Snd} = W) ->
     {Out, C1} = evatar_ha_commit:confirm(V, C),
-    %% A synced standby (running, in touch, not electing) holds everything
-    %% applied before: covered again, and one failure may come again.
     Covered = [Sid || {Sid, _} <- A],
     Settled = case maps:get(insts, W) of
                   #{S := #{role := standby, core := SCore}} -> not evatar_ha_core:electing(SCore);
@@ -621,44 +646,7 @@ msg({confirm, S, V}, #{standby := S, commit := C, state := #{applied := A}} = I,
                    0 -> maps:get(degraded, Snd) -- Covered;
                    _ -> maps:get(degraded, Snd)
                end,
-    effects(Out, I#{commit := C1}, W#{sender := Snd#{degraded := Degraded}, faults => Faults});
-msg({snapshot, A, V, State, Claim} = Snap, #{role := standby, active := A, commit := C} = I, W) ->
-    case V < evatar_ha_commit:version(C) of
-        true -> put_inst(I, W);  % a duplicate: never back to an older state
-        false -> accept(Snap, State, Claim, I, W)
-    end;
-msg({snapshot, A, _V, State, Claim} = Snap, #{role := starting, active := A} = I, W) ->
-    accept(Snap, State, Claim, I, W);
-msg({events, A, Events}, #{role := standby, active := A} = I, W) ->
-    {Core, []} = evatar_ha_core:handle(active_heard, ctx(I, W), maps:get(core, I)),
-    apply_events(Events, I#{core := Core, active_lost := false}, W);
-msg(Msg, I, W) ->
-    msg2(Msg, I, W).
-
-accept({snapshot, A, V, _, _}, State, Claim, I, W) ->
-    {Core, []} = evatar_ha_core:handle({claim, Claim}, ctx(I, W), maps:get(core, I)),
-    I1 = I#{role := standby, state := State, epoch := maps:get(epoch, State), core := Core,
-            timers := maps:remove(offered, maps:get(timers, I)),
-            commit := evatar_ha_commit:applied(V, maps:get(commit, I)), active_lost := false},
-    W1 = send(node_of(I), {inst, A}, {confirm, ref(I), V},
-              put_inst(maps:remove(postponed, I1), W)),
-    lists:foldl(fun(E, Acc) -> inst_event_ref(ref(I), E, Acc) end, W1,
-                lists:reverse(maps:get(postponed, I, []))).
-
-msg2({events, From, E}, I, W) when is_integer(E) ->
-    other(From, active, E, I, W);
-msg2({dismiss, A}, #{role := R, active := A} = I, W) when R =:= standby; R =:= starting ->
-    kill(ref(I), put_inst(I, W));
-msg2({stale, From, E}, I, W) ->
-    other(From, active, E, I, W);
-msg2({peer_instance, From, Role, E}, I, W) ->
-    other(From, Role, E, I, W);
-msg2({vote_reply, Ec, N, R}, I, W) ->
-    core({vote_reply, Ec, N, R}, I, W);
-msg2({register_reply, Claim, N, R}, I, W) ->
-    core({register_reply, Claim, N, R}, I, W);
-msg2(_Msg, I, W) ->
-    put_inst(I, W).
+    effects(Out, I#{commit := C1}, W#{sender := Snd#{degraded := Degraded}, faults => Faults}).
 
 %% The standby's apply is the pairing's own (evatar_ha_roles), over the
 %% stand-in rules.
@@ -667,100 +655,10 @@ apply_events(Events, #{commit := C0, state := S0, active := A} = I, W) ->
     {S, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, S0, C0),
     I1 = I#{state := S, epoch := maps:get(epoch, S), commit := C},
     Msg = case Answer of
-              {confirm, V} -> {confirm, ref(I), V};
-              {resync, _Mine} -> {resync, ref(I)}
+              {confirm, V} -> {confirm, ref(I), maps:get(epoch, S), V};
+              {resync, Mine} -> {resync, ref(I), Mine}
           end,
     send(node_of(I), {inst, A}, Msg, put_inst(I1, W)).
-
-other(From, _Role, _E, #{ref := From} = I, W) ->
-    put_inst(I, W);
-other(From, Role, E, #{role := MyRole, epoch := MyE} = I, W) when MyRole =/= starting ->
-    Peer = case MyRole of
-               standby -> maps:get(active, I);
-               _ -> maps:get(standby, I)
-           end,
-    Me = #{role => MyRole, epoch => MyE, node => node_of(I), pid => ref(I), peer => Peer},
-    Other = #{role => Role, epoch => E, node => element(1, From), pid => From},
-    case evatar_ha_roles:meet(Me, Other) of
-        tell_stale ->
-            send(node_of(I), {inst, From}, {stale, ref(I), MyE}, put_inst(I, W));
-        keep ->
-            put_inst(I, W);
-        _StepDownOrStop ->
-            kill(ref(I), put_inst(I, W))
-    end;
-other(_From, _Role, _E, I, W) ->
-    put_inst(I, W).
-
-snapshot_to(#{standby := S, core := Core, commit := C, state := State} = I, W) ->
-    {Claim, Core1} = evatar_ha_core:next_claim(Core),
-    I1 = I#{core := Core1, commit := evatar_ha_commit:shipped(C)},
-    send(node_of(I), {inst, S}, {snapshot, ref(I), evatar_ha_commit:version(C), State, Claim},
-         put_inst(I1, W)).
-
-forget_standby(#{commit := C} = I) ->
-    I#{standby := undefined, commit := evatar_ha_commit:unsync(C)}.
-
-fence(I, W) ->
-    I1 = I#{role := fenced},
-    case majority_now(node_of(I), W) of
-        true -> core({elect, fenced, false}, I1, W);
-        false -> put_inst(I1, W)
-    end.
-
-core(Event, #{core := Core} = I, W) ->
-    {Core1, Effects} = evatar_ha_core:handle(Event, ctx(I, W), Core),
-    core_effects(Effects, I#{core := Core1}, W).
-
-core_effects([{vote, N, Ec, Claim, Dead} | Rest], I, W) ->
-    Active = case I of
-                 #{role := standby, active := A} -> A;
-                 #{ref := Ref} -> Ref
-             end,
-    core_effects(Rest, I, send(node_of(I), {node, N}, {vote, Ec, ref(I), Claim, Active, Dead}, W));
-core_effects([{register, N, Claim} | Rest], I, W) ->
-    core_effects(Rest, I, send(node_of(I), {node, N}, {register, Claim, ref(I)}, W));
-core_effects([{timer, K, Ms} | Rest], I, W) ->
-    core_effects(Rest, timer({ha, K}, Ms, I), W);
-core_effects([{pause, Action} | Rest], I, W) ->
-    core_effects(Rest, I#{reconfirming => Action =/= keep}, W);
-
-core_effects([{won, reelect, Ec}], #{role := active} = I, W) ->
-    %% Re-elected while serving: the epoch moves, the clients stay.
-    signal_event({reelected, Ec}, I, W);
-core_effects([{won, Why, Ec}], I, W) ->
-    take_over(Why, Ec, I, W);
-core_effects([{lost, _}], I, W) ->
-    kill(ref(I), put_inst(I, W));
-core_effects([registered], #{standby := undefined, commit := C} = I0, W) ->
-    I = I0#{reconfirming => false},
-    {Out, C1} = evatar_ha_commit:release_all(C),
-    W1 = effects(Out, I#{commit := C1}, W),
-    handle(place, maps:get(ref(I), maps:get(insts, W1)), W1);
-core_effects([registered], I, W) ->
-    put_inst(I#{reconfirming => false}, W);
-core_effects([{fence, _}], #{role := active} = I, W) ->
-    fence(I#{reconfirming => false}, W);
-core_effects(_Done, I, W) ->
-    put_inst(I, W).
-
-take_over(Why, Ec, #{commit := C} = I, W) ->
-    Old = maps:get(active, I),
-    I1 = I#{role := active, active := undefined, active_lost := false, standby := undefined,
-            commit := evatar_ha_commit:unsync(C), placing := 0},
-    W1 = case maps:get(standby, I) of
-             undefined -> W;
-             S -> send(node_of(I), {inst, S}, {dismiss, ref(I)}, W)
-         end,
-    W2 = signal_event({takeover, Ec}, I1, W1),
-    I2 = maps:get(ref(I), maps:get(insts, W2)),
-    case Why of
-        handover ->
-            {Core, []} = evatar_ha_core:handle({claim, {Ec, 1}}, ctx(I2, W2), maps:get(core, I2)),
-            put_inst(I2#{core := Core, standby := Old}, W2);
-        _ ->
-            put_inst(I2, W2)
-    end.
 
 timer(K, Ms, #{timers := Ts, now := Now} = I) ->
     I#{timers := Ts#{K => Now + Ms}}.
@@ -786,23 +684,21 @@ logic({reelected, Ec}, S) ->
 logic({takeover, Ec}, S) ->
     {S#{epoch := Ec}, [{log, notice, #{what => takeover}}]}.
 
-mode(#{standby := undefined, core := Core}) ->
-    case evatar_ha_core:holding(Core) of
-        true -> held;
-        false -> direct
-    end;
-mode(_I) ->
-    replicated.
+%% A client's signal: applied, then flushed at once (the mailbox of a
+%% simulated instance is always empty).
+signal_event(Event, #{inst := Inst} = I, W) ->
+    Mode = evatar_ha_instance:mode(Inst),
+    W1 = logic_step(Event, Mode, I, W),
+    #{commit := C} = I1 = maps:get(ref(I), maps:get(insts, W1)),
+    {Out, C1} = evatar_ha_commit:flush(Mode, C),
+    effects(Out, I1#{commit := C1}, W1).
 
-signal_event(Event, #{state := S, commit := C} = I, W) ->
+logic_step(Event, Mode, #{state := S, commit := C} = I, W) ->
     {S1, Effects} = logic(Event, S),
-    Mode = mode(I),
     {_Reply, Out, C1} = evatar_ha_commit:step(Event, maps:get(now, W), Effects,
                                               #{sender => sender, receiver => receiver}, Mode, C),
     I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
-    {Out2, C2} = evatar_ha_commit:flush(Mode, C1),
-    W1 = note_degraded(Mode, Effects, W),
-    effects(Out ++ Out2, I1#{commit := C2}, W1).
+    effects(Out, I1, note_degraded(Mode, Effects, W)).
 
 degrade(Sid, #{sender := #{sent := Sent, degraded := D} = Snd} = W) ->
     W#{sender := Snd#{degraded := lists:usort([X || X <- Sent, X =< Sid] ++ D)}}.
@@ -826,8 +722,8 @@ effects([{acks, #{sender := Sid}} | Rest], #{standby := S} = I, W) ->
              false -> W
          end,
     effects(Rest, I, to_sender(Sid, I, W1));
-effects([{ship, Events} | Rest], #{standby := S} = I, W) ->
-    effects(Rest, I, send(node_of(I), {inst, S}, {events, ref(I), Events}, W));
+effects([{ship, Events} | Rest], #{standby := S, epoch := E} = I, W) ->
+    effects(Rest, I, send(node_of(I), {inst, S}, {events, ref(I), E, Events}, W));
 effects([_ | Rest], I, W) ->
     effects(Rest, I, W);
 effects([], I, W) ->

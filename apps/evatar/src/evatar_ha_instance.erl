@@ -1,0 +1,405 @@
+%% @doc Internal. The role machine of one instance of a pairing, pure: what
+%% an instance does on each message of another instance, each event of the
+%% cluster, the loss of its peer instance, each of its timers and each
+%% decision of `evatar_ha_core' (take over, step down, fence, place a
+%% standby, hand over). {@link handle/3} maps an event, a snapshot of the
+%% cluster and of the instance's own state ({@link view()}) to the new
+%% state and a list of effects, in the manner of rabbitmq/ra's `ra_server';
+%% `evatar_pairing' executes them on pids, monitors and timers, and the
+%% model (`evatar_ha_sim') on its simulated nodes. An instance (`me',
+%% `active', `standby') is any term: a pid in the node, `{Node, Ref}' in
+%% the model. The pairing's rules, their state and the output commit stay
+%% with the caller: effects name what to do with them (`{logic, ..}',
+%% `{release, V}', `{flush, Mode}', `{snapshot, To, Claim}', ...). This
+%% module takes every event and decides starting, the messages between
+%% instances and the cluster's events; `evatar_ha_serving' what each
+%% outcome of `evatar_ha_core' means and what only a serving active does
+%% (placement, fencing, silent links, handover, the rebalancer's moves).
+%%
+%% ```
+%%  starting --start/4, answers--> active | (offer) --snapshot--> standby
+%%  active  --silent link, rebalancer--> handing_over --handover_done--> standby
+%%          <--------------- aborted (timer) ------------
+%%  active  --fence (no majority, refused)--> fenced --won again--> active
+%%  standby --won (election, handover)--> active
+%%  any     --lost, dismissed, newer instance met--> stop
+%% '''
+-module(evatar_ha_instance).
+
+-export([new/3, handle/3]).
+-export([role/1, active/1, standby/1, core/1, mode/1, electing/1, reconfirming/1,
+         silent_poll_ms/1, node_of/1]).
+
+-export_type([state/0, role/0, view/0, event/0, effect/0, peer_msg/0]).
+
+-type role() :: starting | active | handing_over | standby | fenced.
+-type peer() :: term().
+
+%% What the caller sees when an event comes: the cluster (configured
+%% nodes, alive nodes, whether it hears a majority and which nodes it heard
+%% within the lease), the options, and its own state's epoch, version,
+%% highest version confirmed by the standby and whether that one is synced.
+%% Confirmations and event batches need only the options and the state.
+-type view() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
+                  suspect_ms := pos_integer(), epoch := non_neg_integer(),
+                  version := non_neg_integer(), confirmed := non_neg_integer(),
+                  synced := boolean(),
+                  alive => [node()], majority => boolean(), heard => [node()],
+                  standby_opt => boolean(), client_ack_timeout => pos_integer(),
+                  handover_on_silent_link => boolean()}.
+
+-type event() :: {start, evatar_pairing:mode(), Previous :: term()}
+               | {instance, node(), evatar_ha_proto_v1:instance_info()}
+               | {msg, tuple()}
+               | {cluster, term()}
+               | {down, active | standby, Why :: term()}
+               | {timeout, atom()}
+               | {silent, [{binary(), integer()}], NowMs :: integer()}
+               | paused.
+
+%% A message to another instance (evatar_ha_proto_v1 in the node).
+-type peer_msg() :: {offer, non_neg_integer()} | dismiss | {resync, non_neg_integer()}
+                  | {confirm, non_neg_integer()} | {stale, non_neg_integer()}
+                  | {handover, non_neg_integer()}
+                  | {handover_done, pos_integer(), evatar_ha_core:claim()}.
+
+-type effect() :: {send, peer(), peer_msg()}
+                | {ask, [node()]}
+                | {start_standby, node()}
+                | {vote, node(), pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
+                | {register, node(), evatar_ha_core:claim()}
+                | {monitor, active | standby, peer()} | {demonitor, active | standby}
+                | {timer, atom(), non_neg_integer()} | {ensure_timer, atom(), non_neg_integer()}
+                | {cancel_timer, atom()}
+                | new_logic | {install, non_neg_integer(), term()} | {apply, [term()]}
+                | {logic, term(), evatar_ha_commit:mode()}
+                | arm_logic_timers | cancel_logic_timers
+                | {release, non_neg_integer()} | release_all | {flush, evatar_ha_commit:mode()}
+                | {flush_maybe, evatar_ha_commit:mode()}
+                | unsync | {synced_at, non_neg_integer()} | reset_commit
+                | {snapshot, peer(), evatar_ha_core:claim()}
+                | {drop, binary(), silent_link, binary()}
+                | {disconnect_all, atom(), binary()}
+                | {standby_node, node()}
+                | serving | pause_seen | publish | reconfirmed | reply_held | serve_held
+                | {metric, atom()} | {metric, atom(), term()} | {log, logger:level(), map()}
+                | postpone | {stop, term()}.
+
+-include("evatar_ha_instance.hrl").
+
+-opaque state() :: #inst{}.
+
+%% @doc A starting instance `Me' of pairing `Id', which prefers to place
+%% its standby on `StandbyNode' (the pairing option, or undefined).
+-spec new(term(), peer(), node() | undefined) -> state().
+new(Id, Me, StandbyNode) -> #inst{id = Id, me = Me, standby_node = StandbyNode}.
+
+-spec role(state()) -> role().
+role(#inst{role = R}) -> R.
+-spec active(state()) -> peer() | undefined.
+active(#inst{active = A}) -> A.
+-spec standby(state()) -> peer() | undefined.
+standby(#inst{standby = S}) -> S.
+-spec core(state()) -> evatar_ha_core:state().
+core(#inst{core = C}) -> C.
+%% @doc Whether an election runs, or the standby lost its active.
+-spec electing(state()) -> boolean().
+electing(#inst{core = C, active_lost = L}) -> L orelse evatar_ha_core:electing(C).
+%% @doc Whether inspections wait for a reconfirmation after a pause.
+-spec reconfirming(state()) -> boolean().
+reconfirming(#inst{reconfirming = R}) -> R.
+
+%% @doc How the output commit runs now: `replicated' with a standby,
+%% `held' while a registration holds effects, else `direct'.
+-spec mode(state()) -> evatar_ha_commit:mode().
+mode(S) -> evatar_ha_serving:mode(S).
+
+%% @doc How often silent client links are looked for.
+-spec silent_poll_ms(ClientAckTimeout :: pos_integer()) -> pos_integer().
+silent_poll_ms(Timeout) -> evatar_ha_serving:silent_poll_ms(Timeout).
+
+%% @doc The node of an instance: a pid's, or the model's `{Node, Ref}'.
+-spec node_of(peer()) -> node() | undefined.
+node_of(Peer) -> evatar_ha_serving:node_of(Peer).
+
+%% @doc One event; see {@link event()} and {@link effect()}.
+-spec handle(event(), view(), state()) -> {state(), [effect()]}.
+handle(Event, View, #inst{role = starting} = S) ->
+    starting(Event, View, S);
+handle({msg, Msg}, View, S) ->
+    msg(Msg, View, S);
+handle({cluster, Event}, View, S) ->
+    cluster(Event, View, S);
+handle({down, standby, Why}, View, S) ->
+    standby_down(Why, View, S);
+handle({down, active, Why}, View, #inst{role = standby} = S) ->
+    active_down(Why, View, S#inst{watching = false});
+handle({down, active, _Why}, _View, S) ->
+    {S#inst{watching = false}, []};
+handle({timeout, Key}, View, S) ->
+    timeout(Key, View, S);
+handle({silent, Unacked, Now}, View, #inst{role = active} = S) ->
+    evatar_ha_serving:silent(Unacked, Now, View, S);
+handle(paused, View, #inst{role = active} = S) ->
+    evatar_ha_serving:paused(View, S);
+handle(_Event, _View, S) ->
+    {S, []}.
+
+%% ---------------------------------------------------------------------------
+%% Starting: ask the peers, or offer to be the standby of the active found
+%% ---------------------------------------------------------------------------
+
+starting({start, Mode, Previous}, V, S) ->
+    started(evatar_ha_roles:start(Mode, Previous, peers(V, S), suspect(V)), V, S);
+starting({instance, Node, Info}, V, #inst{start = St} = S) ->
+    started(evatar_ha_roles:starting({instance, Node, Info}, suspect(V), St), V, S);
+starting({timeout, asked}, V, #inst{start = St} = S) ->
+    started(evatar_ha_roles:starting({timeout, asked}, suspect(V), St), V, S);
+starting({timeout, retry_ask}, V, #inst{start = St} = S) ->
+    started(evatar_ha_roles:starting({timeout, retry_ask, peers(V, S)}, suspect(V), St), V, S);
+starting({timeout, offered}, _V, S) ->
+    evatar_ha_serving:stop(no_snapshot, S, []);
+starting({timeout, _}, _V, S) ->
+    {S, []};
+starting({msg, {snapshot, A, _E, Version, State, Claim}}, V, #inst{active = A} = S) ->
+    become_standby(Version, State, Claim, V, S);
+starting({msg, {dismiss, A}}, _V, #inst{active = A} = S) ->
+    evatar_ha_serving:stop(dismissed, S, []);
+starting({down, active, _}, _V, S) ->
+    evatar_ha_serving:stop(active_gone, S, []);
+starting(_Event, _V, S) ->
+    {S, [postpone]}.
+
+started({St, Effects}, V, S) ->
+    start_effects(Effects, V, S#inst{start = St}, []).
+
+start_effects([{offer, Active} | _], V, S, Acc) ->
+    {S#inst{active = Active, watching = true},
+     lists:reverse(Acc, [{monitor, active, Active}, {send, Active, {offer, version(V)}},
+                         {timer, offered, 5 * suspect(V) + 2000}])};
+start_effects([become_active | _], V, S, Acc) ->
+    S1 = S#inst{role = active},
+    {S2, Place} = evatar_ha_serving:place_soon(V, S1),
+    {S2, lists:reverse(Acc, [new_logic, {log, info, #{what => pairing_started}}, serving
+                             | left_starting([publish | Place])])};
+start_effects([E | Rest], V, S, Acc) ->
+    start_effects(Rest, V, S, [E | Acc]);   % ask, timer, log: as they are
+start_effects([], _V, S, Acc) ->
+    {S, lists:reverse(Acc)}.
+
+left_starting(Effects) ->
+    [{cancel_timer, K} || K <- [asked, retry_ask, offered]] ++ Effects.
+
+become_standby(Version, State, Claim, V, #inst{active = A, core = Core} = S) ->
+    {Core1, []} = evatar_ha_core:handle({claim, Claim}, evatar_ha_serving:core_ctx(standby, V), Core),
+    {S#inst{role = standby, core = Core1, active_lost = false},
+     [{install, Version, State}, {send, A, {confirm, Version}},
+      {log, info, #{what => standby_synced, active => node_of(A), version => Version}}
+      | left_starting([publish])]}.
+
+%% ---------------------------------------------------------------------------
+%% Messages between instances (evatar_ha_proto_v1)
+%% ---------------------------------------------------------------------------
+
+%% Active: a new instance offers to be the standby; it gets a snapshot
+%% unless a registration runs.
+msg({offer, Sb, _}, _V, #inst{role = active, standby = undefined, core = Core} = S) ->
+    case evatar_ha_core:registering(Core) of
+        false ->
+            S1 = S#inst{standby = Sb, placing = false},
+            {S2, Snap} = snapshot_to(S1),
+            {S2, [{monitor, standby, Sb}, unsync, Snap, publish]};
+        true ->
+            {S, [{send, Sb, dismiss}]}
+    end;
+msg({offer, Sb, _}, _V, #inst{standby = Sb} = S) ->
+    snapshot(S);
+msg({offer, Other, _}, _V, S) ->
+    {S, [{send, Other, dismiss}]};
+msg({resync, Sb, _}, _V, #inst{standby = Sb} = S) ->
+    snapshot(S);
+msg({resync, Other, _}, _V, S) ->
+    {S, [{send, Other, dismiss}]};
+msg({confirm, Sb, _E, Version}, V, #inst{standby = Sb, role = Role} = S) ->
+    case Role of
+        handing_over ->
+            {S1, Effects} = evatar_ha_serving:send_handover(V#{confirmed := max(Version, confirmed(V))}, S),
+            {S1, [{release, Version} | Effects]};
+        _ ->
+            {S, [{release, Version}]}
+    end;
+msg({confirm, _, _, _}, _V, S) ->
+    {S, []};
+msg({rebalance, Move}, V, #inst{role = active, standby = Sb, core = Core} = S) when Sb =/= undefined ->
+    %% Only with a synced standby and no registration or election under
+    %% way; else the rebalancer's next round plans again.
+    case synced(V) andalso not evatar_ha_core:holding(Core) andalso not evatar_ha_core:electing(Core) of
+        true -> evatar_ha_serving:rebalance(Move, V, S);
+        false -> {S, []}
+    end;
+
+%% Standby: the state, then the events in order. Word from the active ends
+%% any election this standby had started.
+msg({snapshot, A, _E, Version, State, Claim}, V, #inst{role = standby, active = A} = S) ->
+    %% Never back to an older state than the one confirmed (a snapshot
+    %% delivered twice would undo what the active released since).
+    case Version < version(V) of
+        true -> {S, []};
+        false -> become_standby(Version, State, Claim, V, S)
+    end;
+msg({events, A, _E, Events}, V, #inst{role = standby, active = A, core = Core} = S) ->
+    {Core1, []} = evatar_ha_core:handle(active_heard, evatar_ha_serving:core_ctx(standby, V), Core),
+    {S1, Watch} = watch_active(S#inst{active_lost = false, core = Core1}),
+    {S1, Watch ++ [{apply, Events}]};
+msg({events, From, E, _}, V, S) ->
+    other_instance(From, active, E, V, S);
+msg({dismiss, A}, _V, #inst{role = standby, active = A} = S) ->
+    evatar_ha_serving:stop(dismissed, S, []);
+msg({handover, A, E, Version}, V, #inst{role = standby, active = A} = S) ->
+    case {epoch(V), version(V)} of
+        {E, Version} -> evatar_ha_serving:core({handover_asked}, V, S#inst{active_lost = true});
+        _ -> {S, []}
+    end;
+msg({handover_done, New, _E, Claim}, V, #inst{role = handing_over, standby = New, core = Core} = S) ->
+    {Core1, []} = evatar_ha_core:handle({claim, Claim}, evatar_ha_serving:core_ctx(standby, V), Core),
+    Moved = <<"the pairing moved to ", (atom_to_binary(node_of(New)))/binary>>,
+    {S#inst{role = standby, active = New, watching = true, standby = undefined, core = Core1,
+            reconfirming = false},
+     [{log, warning, #{what => handed_over, to => node_of(New)}},
+      {disconnect_all, not_active, Moved}, {demonitor, standby}, {monitor, active, New},
+      {cancel_timer, handover}, cancel_logic_timers, reset_commit, publish, reconfirmed]};
+msg({stale, From, E}, V, S) ->
+    other_instance(From, active, E, V, S);
+msg({peer_instance, Pid, Role, E}, V, S) when is_atom(Role), is_integer(E) ->
+    other_instance(Pid, Role, E, V, S);
+msg({vote_reply, _Id, Ec, Node, Result}, V, S) ->
+    evatar_ha_serving:core({vote_reply, Ec, Node, Result}, V, S);
+msg({register_reply, _Id, Claim, Node, Result}, V, S) ->
+    evatar_ha_serving:core({register_reply, Claim, Node, Result}, V, S);
+msg(_Msg, _V, S) ->
+    {S, []}.
+
+%% A new standby gets the whole state and a new claim: the configuration
+%% with it as the standby.
+snapshot(S) ->
+    {S1, Snap} = snapshot_to(S),
+    {S1, [Snap]}.
+
+snapshot_to(#inst{standby = Sb, core = Core} = S) ->
+    {Claim, Core1} = evatar_ha_core:next_claim(Core),
+    {S#inst{core = Core1}, {snapshot, Sb, Claim}}.
+
+%% What this instance does about another instance of its pairing
+%% (evatar_ha_roles:meet/2).
+other_instance(Me, _Role, _E, _V, #inst{me = Me} = S) ->
+    {S, []};
+other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
+    {MyRole, Peer} = case R of
+                         standby -> {standby, S#inst.active};
+                         fenced -> {fenced, S#inst.standby};
+                         _ -> {active, S#inst.standby}
+                     end,
+    Mine = #{role => MyRole, epoch => epoch(V), node => node_of(Me), pid => Me, peer => Peer},
+    Other = #{role => Role, epoch => E, node => node_of(Pid), pid => Pid},
+    Why = {newer_instance, node_of(Pid), E},
+    case evatar_ha_roles:meet(Mine, Other) of
+        step_down -> evatar_ha_serving:step_down(Why, S, [{send, P, dismiss} || P <- [S#inst.standby],
+                                                              P =/= undefined, P =/= Pid]);
+        stop -> evatar_ha_serving:stop(Why, S, []);
+        tell_stale -> {S, [{send, Pid, {stale, epoch(V)}}]};
+        keep -> {S, []}
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Failure detection (evatar_cluster's events) and the peer's DOWN
+%% ---------------------------------------------------------------------------
+
+cluster({node_alive, _}, V, #inst{role = active} = S) ->
+    evatar_ha_serving:place(V, S);
+cluster({Lost, Node}, V, #inst{role = R, standby = Sb} = S)
+  when (Lost =:= node_suspected orelse Lost =:= node_down), R =/= standby, Sb =/= undefined ->
+    case node_of(Sb) of
+        Node -> standby_down(noconnection, V, S);
+        _ -> {S, []}
+    end;
+cluster({Lost, Node}, V, #inst{role = standby, active = A} = S)
+  when Lost =:= node_suspected; Lost =:= node_down ->
+    case node_of(A) of
+        Node -> evatar_ha_serving:core({elect, active_silent, false}, V, S#inst{active_lost = true});
+        _ -> {S, []}
+    end;
+cluster({node_alive, Node}, V, #inst{role = standby, active = A, active_lost = true} = S) ->
+    case node_of(A) of
+        Node ->
+            %% The active's node is back: pick up the replication again (an
+            %% election under way goes on: the nodes decide).
+            {S1, Watch} = watch_active(S),
+            {S1, [{send, A, {resync, version(V)}} | Watch]};
+        _ ->
+            {S, []}
+    end;
+cluster({quorum, true}, V, #inst{role = standby, active_lost = true} = S) ->
+    evatar_ha_serving:core({elect, active_silent, false}, V, S);
+cluster({quorum, false}, V, #inst{role = active} = S) ->
+    evatar_ha_serving:maybe_fence(V, S);
+cluster(stalled, V, #inst{role = active} = S) ->
+    %% This node was stopped for longer than suspect_ms: the pairing may
+    %% have another active by now, or (far more often) not.
+    evatar_ha_serving:paused(V, S);
+cluster({quorum, true}, V, #inst{role = fenced} = S) ->
+    evatar_ha_serving:core({elect, fenced, false}, V, S);
+cluster({node_alive, _}, V, #inst{role = fenced} = S) ->
+    evatar_ha_serving:core({elect, fenced, false}, V, S);
+cluster(_Event, _V, S) ->
+    {S, []}.
+
+%% The standby's process died (its node is up): it cannot take over, so go
+%% on without it at once. Its node is lost or silent: it may be taking over
+%% (a partition looks the same), so first the cluster must accept a
+%% configuration without it (evatar_ha_core); everything stays held until then.
+standby_down(Why, V, #inst{standby = Sb} = S) ->
+    Log = {log, warning, #{what => standby_lost, standby => node_of(Sb), reason => Why}},
+    {S1, Forget} = evatar_ha_serving:forget_standby(S),
+    case Why of
+        noconnection ->
+            {S2, Effects} = evatar_ha_serving:core(standby_node_lost, V, S1),
+            {S2, [Log | Forget] ++ Effects ++ [publish]};
+        _ ->
+            {S2, Place} = evatar_ha_serving:place(V, S1),
+            {S2, [Log | Forget] ++ [release_all, publish | Place]}
+    end.
+
+active_down(noconnection, V, S) ->
+    evatar_ha_serving:core({elect, active_silent, false}, V, S#inst{active_lost = true});
+active_down(Why, V, S) ->
+    %% The process died and its node is up: its lease counts no more.
+    evatar_ha_serving:core({elect, {active_died, Why}, true}, V, S#inst{active_lost = true}).
+
+watch_active(#inst{watching = false, active = A} = S) when A =/= undefined ->
+    {S#inst{watching = true}, [{monitor, active, A}]};
+watch_active(S) ->
+    {S, []}.
+
+%% ---------------------------------------------------------------------------
+%% Timers
+%% ---------------------------------------------------------------------------
+
+timeout(K, V, S) when K =:= election; K =:= register; K =:= deadline ->
+    evatar_ha_serving:core({timeout, K}, V, S);
+timeout(place, V, S) ->
+    evatar_ha_serving:place(V, S#inst{placing = false});
+timeout(handover, _V, #inst{role = handing_over} = S) ->
+    {S#inst{role = active}, [{log, warning, #{what => handover_aborted}}]};
+timeout(_Key, _V, S) ->
+    {S, []}.
+
+%% ---------------------------------------------------------------------------
+
+peers(#{alive := Alive}, #inst{me = Me}) ->
+    [N || N <- Alive, N =/= node_of(Me)].
+
+suspect(#{suspect_ms := Ms}) -> Ms.
+epoch(#{epoch := E}) -> E.
+version(#{version := Ver}) -> Ver.
+confirmed(#{confirmed := C}) -> C.
+synced(#{synced := Synced}) -> Synced.

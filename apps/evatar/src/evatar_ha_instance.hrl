@@ -1,0 +1,14 @@
+%% The state of evatar_ha_instance (private to it and evatar_ha_serving).
+-record(inst, {id :: term(),
+               me :: term(),
+               role = starting :: starting | active | handing_over | standby | fenced,
+               %% Standby and starting: its active; active: its standby.
+               active :: term(),
+               standby :: term(),
+               watching = false :: boolean(),   % the active is monitored
+               active_lost = false :: boolean(),
+               placing = false :: boolean(),
+               standby_node :: node() | undefined,
+               core = evatar_ha_core:new() :: evatar_ha_core:state(),
+               start :: evatar_ha_roles:starting() | undefined,
+               reconfirming = false :: boolean()}).
