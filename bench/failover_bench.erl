@@ -1,5 +1,5 @@
 %% @doc Failover benchmark of EVATAR's high availability (issue 5), on a
-%% cluster of real OS-process nodes on this machine (test/ha_cluster.erl).
+%% cluster of real OS-process nodes on this machine (test/evatar_test_cluster.erl).
 %%
 %% a. Failover time: from the fault to the first signal delivered through
 %%    the new active. A pairing is active on one node with its standby on
@@ -50,7 +50,7 @@ main() -> main([]).
 %% `{dir, Dir}' (node logs; default a fresh directory under /tmp).
 -spec main([term()]) -> ok.
 main(Opts) ->
-    _ = ha_cluster:ensure_distributed(),
+    _ = evatar_test_cluster:ensure_distributed(),
     Quick = lists:member(quick, Opts),
     Trials = proplists:get_value(trials, Opts, case Quick of true -> 5; false -> 50 end),
     Dir = proplists:get_value(dir, Opts, temp_dir()),
@@ -89,8 +89,8 @@ failover(Fault, Trials, Dir0) ->
     Dir = filename:join(Dir0, atom_to_list(Fault)),
     ok = filelib:ensure_path(Dir),
     %% No proxies: node-to-node links are direct, as in a deployment.
-    {ok, C} = ha_cluster:start(#{dir => Dir, prefix => "fo" ++ atom_to_list(Fault),
-                                 links => false, conn => #{}}),
+    {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "fo" ++ atom_to_list(Fault),
+                                          net => none, conn => #{}}),
     Shell = open_port({spawn, "/bin/sh"}, [binary, stderr_to_stdout]),
     try
         io:format("~s: ", [name(Fault)]),
@@ -99,43 +99,43 @@ failover(Fault, Trials, Dir0) ->
         Times
     after
         port_close(Shell),
-        ha_cluster:stop(C)
+        evatar_test_cluster:stop(C)
     end.
 
 trial(C, Shell, Fault, K) ->
-    N = length(ha_cluster:nodes(C)),
+    N = length(evatar_test_cluster:nodes(C)),
     A = 1 + (K - 1) rem N,
     Id = iolist_to_binary(io_lib:format("fo-~s-~b", [Fault, K])),
-    ok = ha_pairing:create(C, A, Id),
-    {ok, A, #{epoch := E0}} = ha_pairing:active(C, Id),
-    {ok, Pair} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id,
-                                       #{sensor_interval => ?SENSOR_MS, notify => self()}),
+    ok = evatar_test_pairing:create(C, A, Id),
+    {ok, A, #{epoch := E0}} = evatar_test_pairing:active(C, Id),
+    {ok, Pair} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(C), Id,
+                                                #{sensor_interval => ?SENSOR_MS, notify => self()}),
     VaName = entity(Pair),
     ok = await_signals(VaName, E0, 20, 30000),
     flush(VaName),
-    OsPid = ha_cluster:os_pid(C, A),
+    OsPid = evatar_test_cluster:os_pid(C, A),
     Sig = case Fault of kill -> "KILL"; stall -> "STOP" end,
     Wall = calendar:system_time_to_rfc3339(erlang:system_time(millisecond),
                                            [{unit, millisecond}]),
     T0 = erlang:monotonic_time(microsecond),
     true = port_command(Shell, ["kill -", Sig, " ", OsPid, "\n"]),
     Result = first_after(VaName, E0, 60000),
-    #{va := #{reconnects := VaRe}, av := #{reconnects := AvRe}} = ha_traffic:history(Pair),
-    ha_traffic:close(Pair),
+    #{va := #{reconnects := VaRe}, av := #{reconnects := AvRe}} = evatar_test_traffic:history(Pair),
+    evatar_test_traffic:close(Pair),
     %% Repair, and leave one healthy pairing less behind.
     case Fault of
         kill ->
             %% The cluster notices the exit of the OS process by itself.
-            ok = ha_cluster:await(fun() -> node_down(C, A) end, 10000, {down, A}),
-            ok = ha_cluster:restart(C, A);
+            ok = evatar_test_cluster:await(fun() -> node_down(C, A) end, 10000, {down, A}),
+            ok = evatar_test_cluster:restart(C, A);
         stall ->
-            ok = ha_cluster:stall(C, A),
-            ok = ha_cluster:resume(C, A)
+            ok = evatar_test_cluster:stall(C, A),
+            ok = evatar_test_cluster:resume(C, A)
     end,
-    ok = ha_cluster:await_formed(C, 60000),
-    _ = ha_pairing:await_healthy(C, Id, 60000),
-    case ha_pairing:active(C, Id) of
-        {ok, I, _} -> _ = ha_pairing:delete(C, I, Id);
+    ok = evatar_test_cluster:await_formed(C, 60000),
+    _ = evatar_test_pairing:await_healthy(C, Id, 60000),
+    case evatar_test_pairing:active(C, Id) of
+        {ok, I, _} -> _ = evatar_test_pairing:delete(C, I, Id);
         _ -> ok
     end,
     Ms = case Result of
@@ -156,7 +156,7 @@ reconnect(#{at := At, endpoint := {_, Port}} = R, T0) ->
 entity(#{pairing := Id}) -> <<Id/binary, "-va">>.
 
 node_down(C, I) ->
-    [S] = [S || #{i := J, status := S} <- ha_cluster:info(C), J =:= I],
+    [S] = [S || #{i := J, status := S} <- evatar_test_cluster:info(C), J =:= I],
     S =:= down.
 
 await_signals(Va, Epoch, N, Timeout) ->
@@ -168,20 +168,20 @@ await_signals_loop(_Va, _Epoch, 0, _Deadline) ->
 await_signals_loop(Va, Epoch, N, Deadline) ->
     Left = max(0, Deadline - erlang:monotonic_time(millisecond)),
     receive
-        {ha_traffic, Va, {received, _, Epoch, _}} -> await_signals_loop(Va, Epoch, N - 1, Deadline)
+        {evatar_test_traffic, Va, {received, _, Epoch, _}} -> await_signals_loop(Va, Epoch, N - 1, Deadline)
     after Left ->
             {error, no_traffic}
     end.
 
 flush(Va) ->
-    receive {ha_traffic, Va, _} -> flush(Va)
+    receive {evatar_test_traffic, Va, _} -> flush(Va)
     after 0 -> ok
     end.
 
 first_after(Va, E0, Timeout) ->
     receive
-        {ha_traffic, Va, {received, _, Epoch, T}} when is_integer(Epoch), Epoch > E0 -> {ok, T};
-        {ha_traffic, Va, _} -> first_after(Va, E0, Timeout)
+        {evatar_test_traffic, Va, {received, _, Epoch, T}} when is_integer(Epoch), Epoch > E0 -> {ok, T};
+        {evatar_test_traffic, Va, _} -> first_after(Va, E0, Timeout)
     after Timeout ->
             timeout
     end.
@@ -266,46 +266,46 @@ pauses(Lengths, Dir0) ->
 pauses(N, Lengths, Dir0) ->
     Dir = filename:join(Dir0, "pauses" ++ integer_to_list(N)),
     ok = filelib:ensure_path(Dir),
-    {ok, C} = ha_cluster:start(#{dir => Dir, n => N, prefix => "fp" ++ integer_to_list(N),
-                                 links => false, conn => #{}}),
+    {ok, C} = evatar_test_cluster:start(#{dir => Dir, n => N, prefix => "fp" ++ integer_to_list(N),
+                                          net => none, conn => #{}}),
     Shell = open_port({spawn, "/bin/sh"}, [binary, stderr_to_stdout]),
     try
         [pause_trial(C, Shell, N, Ms) || Ms <- Lengths]
     after
         port_close(Shell),
-        ha_cluster:stop(C)
+        evatar_test_cluster:stop(C)
     end.
 
 pause_trial(C, Shell, N, Ms) ->
     Id = iolist_to_binary(io_lib:format("fp-~b-~b", [N, Ms])),
-    ok = ha_pairing:create(C, 1, Id),
-    {ok, 1, #{epoch := E0}} = ha_pairing:active(C, Id),
-    {ok, Pair} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id,
-                                       #{sensor_interval => ?SENSOR_MS, notify => self()}),
+    ok = evatar_test_pairing:create(C, 1, Id),
+    {ok, 1, #{epoch := E0}} = evatar_test_pairing:active(C, Id),
+    {ok, Pair} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(C), Id,
+                                                #{sensor_interval => ?SENSOR_MS, notify => self()}),
     VaName = entity(Pair),
     ok = await_signals(VaName, E0, 20, 30000),
-    OsPid = ha_cluster:os_pid(C, 1),
+    OsPid = evatar_test_cluster:os_pid(C, 1),
     true = port_command(Shell, ["kill -STOP ", OsPid, "\n"]),
     timer:sleep(Ms),
     flush(VaName),
     T0 = erlang:monotonic_time(microsecond),
     true = port_command(Shell, ["kill -CONT ", OsPid, "\n"]),
-    Flows = receive {ha_traffic, VaName, {received, _, _, T}} -> (T - T0) / 1000
+    Flows = receive {evatar_test_traffic, VaName, {received, _, _, T}} -> (T - T0) / 1000
             after 60000 -> timeout
             end,
-    {ok, _} = ha_traffic:round_trip(Pair, 60000),
-    {ok, I, #{epoch := E1}} = ha_pairing:await_active(C, Id, fun(_, _) -> true end, 60000),
-    #{va := #{reconnects := VaRe}, av := #{reconnects := AvRe}} = ha_traffic:history(Pair),
+    {ok, _} = evatar_test_traffic:round_trip(Pair, 60000),
+    {ok, I, #{epoch := E1}} = evatar_test_pairing:await_active(C, Id, fun(_, _) -> true end, 60000),
+    #{va := #{reconnects := VaRe}, av := #{reconnects := AvRe}} = evatar_test_traffic:history(Pair),
     Reasons = [maps:get(reason, R, undefined) || R <- VaRe ++ AvRe],
     Fenced = [R || {refused, <<"Fenced">>, _} = R <- Reasons] =/= []
         orelse (I =:= 1 andalso E1 =/= E0),
-    ha_traffic:close(Pair),
+    evatar_test_traffic:close(Pair),
     io:format("  ~-8b ~-9b ~8s ~8s ~8b ~10s  ~s~n",
               [N, Ms, yes_no(I =/= 1), yes_no(Fenced), length(Reasons), fmt(Flows),
                reasons(Reasons)]),
-    ok = ha_cluster:await_formed(C, 60000),
-    _ = N > 1 andalso ha_pairing:await_healthy(C, Id, 60000),
-    _ = ha_pairing:delete(C, I, Id),
+    ok = evatar_test_cluster:await_formed(C, 60000),
+    _ = N > 1 andalso evatar_test_pairing:await_healthy(C, Id, 60000),
+    _ = evatar_test_pairing:delete(C, I, Id),
     ok.
 
 yes_no(true) -> "yes";
@@ -328,13 +328,13 @@ tls_cost(Dir0, Quick) ->
     Dir = filename:join(Dir0, "tls"),
     Certs = filename:join(Dir, "certs"),
     ok = filelib:ensure_path(Dir),
-    Script = filename:join([ha_cluster:repo_root(), "scripts", "gen-dist-certs.sh"]),
+    Script = filename:join([evatar_test_cluster:repo_root(), "scripts", "gen-dist-certs.sh"]),
     Out = os:cmd("bash " ++ Script ++ " " ++ Certs ++ " 127.0.0.1 localhost >/dev/null 2>&1; echo $?"),
     "0\n" = Out,
     Scale = case Quick of true -> 10; false -> 1 end,
     Tcp = dist_figures(#{dir => filename:join(Dir, "tcp"), prefix => "fbtcp"}, Scale),
     Tls = dist_figures(#{dir => filename:join(Dir, "tls"), prefix => "fbtls",
-                         backend => peer, control => stdio, dist => inet_tls,
+                         launcher => peer, control => stdio, dist => inet_tls,
                          ssl_optfile => filename:join(Certs, "ssl_dist.conf")}, Scale),
     io:format("~nb. Distribution over TCP (inet_tcp_dist) and over TLS (inet_tls_dist), "
               "between two nodes~n~n"),
@@ -355,22 +355,22 @@ fmt_ratio(_, _) -> "-".
 
 dist_figures(Opts, Scale) ->
     ok = filelib:ensure_path(maps:get(dir, Opts)),
-    {ok, C} = ha_cluster:start(Opts#{n => 2, links => false}),
+    {ok, C} = evatar_test_cluster:start(Opts#{n => 2, net => none}),
     try
-        N2 = ha_cluster:node(C, 2),
+        N2 = evatar_test_cluster:node(C, 2),
         Rounds = 20000 div Scale,
-        {ok, RttUs} = ha_cluster:call(C, 1, ?MODULE, dist_ping_pong, [N2, Rounds], 120000),
-        {ok, MBs} = ha_cluster:call(C, 1, ?MODULE, dist_bulk, [N2, 65536, 2000 div Scale],
-                                    120000),
+        {ok, RttUs} = evatar_test_cluster:call(C, 1, ?MODULE, dist_ping_pong, [N2, Rounds], 120000),
+        {ok, MBs} = evatar_test_cluster:call(C, 1, ?MODULE, dist_bulk, [N2, 65536, 2000 div Scale],
+                                             120000),
         Id = <<"fb-tls-cost">>,
-        ok = ha_pairing:create(C, 1, Id),
-        {ok, Pair} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id, #{notify => self()}),
+        ok = evatar_test_pairing:create(C, 1, Id),
+        {ok, Pair} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(C), Id, #{notify => self()}),
         ReqMs = request_latency(Pair, 1000 div Scale),
         PerS = stream(Pair, 5000 div Scale),
-        ha_traffic:close(Pair),
+        evatar_test_traffic:close(Pair),
         #{rtt_us => RttUs, bulk_mbs => MBs, req_ms => ReqMs, stream_per_s => PerS}
     after
-        ha_cluster:stop(C)
+        evatar_test_cluster:stop(C)
     end.
 
 %% The median of N sequential round trips, in ms (a median: one slow round
@@ -378,7 +378,7 @@ dist_figures(Opts, Scale) ->
 request_latency(Pair, N) ->
     Times = [begin
                  T0 = erlang:monotonic_time(microsecond),
-                 {ok, _} = ha_traffic:round_trip(Pair, 30000),
+                 {ok, _} = evatar_test_traffic:round_trip(Pair, 30000),
                  (erlang:monotonic_time(microsecond) - T0) / 1000
              end || _ <- lists:seq(1, N)],
     percentile(lists:sort(Times), 50).
@@ -389,7 +389,7 @@ stream(#{av := Av, pairing := Id} = _Pair, N) ->
     Va = <<Id/binary, "-va">>,
     flush(Va),
     T0 = erlang:monotonic_time(microsecond),
-    ok = ha_traffic:burst(Av, N),
+    ok = evatar_test_traffic:burst(Av, N),
     case count_arrivals(Va, N, 120000) of
         {ok, T1} -> N / ((T1 - T0) / 1000000);
         timeout -> undefined
@@ -398,7 +398,7 @@ stream(#{av := Av, pairing := Id} = _Pair, N) ->
 count_arrivals(_Va, 0, _Timeout) ->
     {ok, erlang:monotonic_time(microsecond)};
 count_arrivals(Va, N, Timeout) ->
-    receive {ha_traffic, Va, {received, _, _, _}} -> count_arrivals(Va, N - 1, Timeout)
+    receive {evatar_test_traffic, Va, {received, _, _, _}} -> count_arrivals(Va, N - 1, Timeout)
     after Timeout -> timeout
     end.
 

@@ -1,17 +1,26 @@
 %% @doc Partition benchmark: the longest time a pairing of the majority side
 %% goes without a round trip, for three kinds of partition of a real network
-%% (each node an OS process in a network namespace of its own,
-%% test/ha_netns.erl), after a first partition left a stale promise behind
-%% (test/ha_partition.erl, docs/architecture.md section 8.5). It runs the
+%% (each node an OS process in a network namespace of its own:
+%% evatar_test_cluster's netns backend, evatar_test_net_netns), after a first partition left a stale promise behind
+%% (evatar_test_partition, docs/architecture.md section 8.5). It runs the
 %% same scenario on this build and, when given one, on an earlier build
 %% (`{before, Dir}': a source tree compiled with `rebar3 compile'), and
 %% prints both side by side. Needs root and `ip'. Run through
 %% scripts/bench-partition.sh (`make bench-partition').
 %%
+%% A last row measures a rebalancing (evatar_test_partition:rebalance/3,
+%% this build only): six pairings, two active on each node; node 3 is cut
+%% from the others until every pairing failed over away from it, then it
+%% returns with rebalancing on (the release's rebalance_delay_ms 5000 and
+%% rebalance_batch 2) and the rebalancer moves actives and standbys back to
+%% it by planned handovers: the longest time a pairing's VA went without a
+%% round trip from the return until every node holds two actives and two
+%% standbys, and what was lost or duplicated (both must be 0).
+%%
 %% Options: `{before, Dir}'; `{trials, N}' (default 1: each trial runs the
 %% scenario once per kind on a fresh cluster); `{cut_ms, Ms}' (default
-%% 8000); `{kinds, [nodes | all | link]}'; `quick' (cut 3000 ms, kinds
-%% nodes only).
+%% 8000); `{kinds, [nodes | all | link | rebalance]}'; `quick' (cut 3000
+%% ms, kinds nodes and rebalance only).
 -module(partition_bench).
 
 -export([main/1]).
@@ -24,7 +33,7 @@
 
 -spec main([term()]) -> ok.
 main(Opts) ->
-    case ha_netns:available() of
+    case evatar_test_net_netns:available() of
         ok -> run(Opts);
         {skip, Why} -> io:format("partition_bench: not run: ~s~n", [Why])
     end.
@@ -33,8 +42,9 @@ run(Opts) ->
     Quick = lists:member(quick, Opts),
     Trials = proplists:get_value(trials, Opts, 1),
     CutMs = proplists:get_value(cut_ms, Opts, case Quick of true -> 3000; false -> 8000 end),
-    Kinds = proplists:get_value(kinds, Opts, case Quick of true -> [nodes];
-                                                         false -> [nodes, all, link] end),
+    Kinds = proplists:get_value(kinds, Opts, case Quick of true -> [nodes, rebalance];
+                                                         false -> [nodes, all, link, rebalance]
+                                             end),
     Builds = [{"after (this build)", #{}}]
         ++ case proplists:get_value(before, Opts) of
                undefined -> [];
@@ -43,14 +53,17 @@ run(Opts) ->
                                          filename:join([Dir, "_build", "default", "lib", "*",
                                                         "ebin"]))}}]
            end,
-    _ = ha_cluster:ensure_distributed(),
+    _ = evatar_test_cluster:ensure_distributed(),
     io:format("partition_bench: 3 nodes in network namespaces, 3 pairings (one active on "
-              "each node), a request every 20 ms per pairing; release timings 50/250/150 ms, "
-              "bridge heartbeat 150 ms; first partition 2000 ms, measured partition ~b ms; "
+              "each node; six, two on each, for the rebalancing), a request every 20 ms per "
+              "pairing; release timings 50/250/150 ms, bridge heartbeat 150 ms; first "
+              "partition 2000 ms, measured partition ~b ms; "
               "~b trial(s); load average before: ~s~n",
               [CutMs, Trials, loadavg()]),
+    %% The build before the stale-promise fix had no rebalancer.
     Results = [{Kind, Name, [trial(Kind, Build, CutMs, T) || T <- lists:seq(1, Trials)]}
-               || Kind <- Kinds, {Name, Build} <- Builds],
+               || Kind <- Kinds, {Name, Build} <- Builds,
+                  Kind =/= rebalance orelse Build =:= #{}],
     io:format("~nlongest unserved time of a majority-side pairing (ms; per pairing in "
               "brackets; the pairing that held the stale promise first):~n~n"),
     io:format("| partition | build | longest | per trial [p1, p2, p3] | lost | duplicated |~n"
@@ -61,6 +74,12 @@ run(Opts) ->
                     lists:sum([L || #{lost := L} <- Rs]),
                     lists:sum([D || #{duplicated := D} <- Rs])])
          || {Kind, Name, Rs} <- Results],
+    _ = [io:format("~nrebalancing: every node held two actives and two standbys ~s ms after "
+                   "node 3 returned (rebalance_delay_ms 5000 included); {actives, standbys} per "
+                   "node before: ~s~n", [lists:join(", ", [integer_to_list(S) || #{spread_ms := S} <- Rs]),
+                                          lists:join("; ", [io_lib:format("~w", [B])
+                                                            || #{counts_before := B} <- Rs])])
+         || {rebalance, _, Rs} <- Results],
     io:format("~nload average after: ~s~n", [loadavg()]),
     ok.
 
@@ -69,30 +88,40 @@ trial(Kind, Build, CutMs, T) ->
                          atom_to_list(Kind) ++ "-" ++ integer_to_list(T) ++ "-"
                          ++ integer_to_list(erlang:unique_integer([positive]))]),
     ok = filelib:ensure_path(Dir),
-    {ok, Net} = ha_netns:start(Build#{dir => Dir, evatar => ?EVATAR, conn => ?CONN}),
+    {ok, Net} = evatar_test_cluster:start(Build#{dir => Dir, net => netns, prefix => "evns",
+                                                 evatar => ?EVATAR, conn => ?CONN}),
     try
-        Ids = [<<"bench-", (integer_to_binary(K))/binary>> || K <- [1, 2, 3]],
-        _ = [ok = ha_pairing:create(Net, K, Id) || {K, Id} <- lists:enumerate(Ids)],
+        %% One pairing active on each node; two for the rebalancing.
+        Ids = [<<"bench-", (integer_to_binary(K))/binary>>
+                   || K <- lists:seq(1, case Kind of rebalance -> 6; _ -> 3 end)],
+        _ = [ok = evatar_test_pairing:create(Net, (K - 1) rem 3 + 1, Id)
+             || {K, Id} <- lists:enumerate(Ids)],
         Pairs = [begin
-                     {ok, P} = ha_traffic:start_pair(ha_netns:endpoints(Net), Id,
-                                                     #{request_interval => 20}),
+                     {ok, P} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(Net), Id,
+                                                              #{request_interval => 20}),
                      P
                  end || Id <- Ids],
-        {ok, R} = ha_partition:run(Net, Pairs, Kind, #{first_ms => 2000, cut_ms => CutMs}),
-        _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
-        _ = [ha_traffic:settle(P, 30000) || P <- Pairs],
-        Check = ha_checker:check_pairs([ha_traffic:history(P) || P <- Pairs]),
-        _ = [ha_traffic:close(P) || P <- Pairs],
-        #{max => maps:get(max, R), gaps => [G || {_, G} <- maps:get(unserved, R)],
+        {ok, R} = case Kind of
+                      rebalance -> evatar_test_partition:rebalance(Net, Pairs, #{node => 3});
+                      _ -> evatar_test_partition:run(Net, Pairs, Kind, #{first_ms => 2000,
+                                                                          cut_ms => CutMs})
+                  end,
+        _ = [ok = evatar_test_traffic:stop_traffic(P) || P <- Pairs],
+        _ = [evatar_test_traffic:settle(P, 30000) || P <- Pairs],
+        Check = evatar_test_checker:check_pairs([evatar_test_traffic:history(P) || P <- Pairs]),
+        _ = [evatar_test_traffic:close(P) || P <- Pairs],
+        (maps:with([spread_ms, counts_before], R))#{
+          max => maps:get(max, R), gaps => [G || {_, G} <- maps:get(unserved, R)],
           lost => length(maps:get(lost, Check)),
           duplicated => length(maps:get(duplicated, Check))}
     after
-        ha_netns:stop(Net)
+        evatar_test_cluster:stop(Net)
     end.
 
 kind_name(nodes) -> "(a) node cut from the other nodes";
 kind_name(all) -> "(b) node cut from everything";
-kind_name(link) -> "(c) one link between two nodes cut".
+kind_name(link) -> "(c) one link between two nodes cut";
+kind_name(rebalance) -> "(d) a node returns: rebalancing by planned handover (6 pairings)".
 
 fmt(never) -> "never served again";
 fmt(Ms) -> integer_to_list(Ms).

@@ -10,10 +10,8 @@
 #   scripts/bench-brokers.sh '[{sizes, [1000]}, {systems, [evatar, mosquitto]}]'
 # Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-
-REBAR=${REBAR:-rebar3}
-BASE=${REBAR_BASE_DIR:-_build}
+# shellcheck source=scripts/bench-lib.sh
+source "$(dirname "$0")/bench-lib.sh"
 OPTS=${1:-[]}
 [ "$OPTS" = quick ] && OPTS='[quick]'
 
@@ -64,7 +62,7 @@ if [ "$(ulimit -n)" != unlimited ] && [ "$(ulimit -n)" -lt 4200 ]; then
   exit 1
 fi
 
-"$REBAR" as bench compile
+bench_compile
 
 # --- leftovers ---------------------------------------------------------------
 RUN_DIR=$(mktemp -d /tmp/broker_bench.XXXXXX)
@@ -89,11 +87,4 @@ trap cleanup EXIT
 
 # No busy-waiting schedulers in the generator: on a small machine their
 # spinning would take CPU from the system under test.
-erl +sbwt none +sbwtdcpu none +sbwtdio none +P 2000000 +Q 1000000 -noshell \
-  -pa "$BASE"/bench/lib/*/ebin -pa "$BASE"/bench/extras/bench \
-  -eval "try broker_bench:main($OPTS) of
-           ok -> halt(0)
-         catch C:R:S ->
-           io:format(standard_error, \"broker_bench failed: ~p:~p~n~p~n\", [C, R, S]),
-           halt(1)
-         end."
+run_bench broker_bench "$OPTS" +sbwt none +sbwtdcpu none +sbwtdio none +P 2000000 +Q 1000000

@@ -7,10 +7,8 @@
 #   scripts/bench-evatar.sh '[{sizes, [1000]}, {modes, [raw]}, no_idle]'
 # Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-
-REBAR=${REBAR:-rebar3}
-BASE=${REBAR_BASE_DIR:-_build}
+# shellcheck source=scripts/bench-lib.sh
+source "$(dirname "$0")/bench-lib.sh"
 OPTS=${1:-[]}
 
 # 10,000 idle pairings with both ends in this node hold 40,000 sockets.
@@ -27,7 +25,7 @@ if ! ulimit -n "$WANT" 2>/dev/null; then
        "and say how many." >&2
 fi
 
-"$REBAR" as bench compile
+bench_compile
 
 # +P and +Q: room for 10,000 pairings (six processes and four sockets
 # each, both ends in this node).
@@ -35,11 +33,4 @@ fi
 # EVATAR_BENCH_SCHED_FLAGS (e.g. "" for the VM's defaults) to compare.
 SCHED=${EVATAR_BENCH_SCHED_FLAGS-+sbwt none +sbwtdcpu none +sbwtdio none}
 # shellcheck disable=SC2086
-exec erl +P 2000000 +Q 1000000 $SCHED -noshell \
-  -pa "$BASE"/bench/lib/*/ebin -pa "$BASE"/bench/extras/bench \
-  -eval "try evatar_bench:main($OPTS) of
-           ok -> halt(0)
-         catch C:R:S ->
-           io:format(standard_error, \"evatar_bench failed: ~p:~p~n~p~n\", [C, R, S]),
-           halt(1)
-         end."
+run_bench evatar_bench "$OPTS" +P 2000000 +Q 1000000 $SCHED

@@ -10,25 +10,11 @@
 #   scripts/bench-failover.sh '[{trials, 100}, kill]'
 # Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
 set -euo pipefail
-cd "$(dirname "$0")/.."
-
-REBAR=${REBAR:-rebar3}
-BASE=${REBAR_BASE_DIR:-_build}
+# shellcheck source=scripts/bench-lib.sh
+source "$(dirname "$0")/bench-lib.sh"
 OPTS=${1:-[]}
 
-"$REBAR" as bench compile
-
-# The benchmark drives the cluster with the multi-node test support of
-# test/ (ha_cluster and friends); the nodes load it from the same place.
-OUT="$BASE/bench/extras/failover"
-mkdir -p "$OUT"
-erlc -o "$OUT" test/ha_cluster.erl test/ha_proxy.erl test/ha_epmd.erl \
-  test/ha_traffic.erl test/ha_pairing.erl test/ha_checker.erl bench/failover_bench.erl
-
-exec erl -noshell -pa "$BASE"/bench/lib/*/ebin -pa "$OUT" \
-  -eval "try failover_bench:main($OPTS) of
-           ok -> halt(0)
-         catch C:R:S ->
-           io:format(standard_error, \"failover_bench failed: ~p:~p~n~p~n\", [C, R, S]),
-           halt(1)
-         end."
+# The cluster harness (evatar_test_cluster and its helpers) is the test
+# kit's, built with the bench profile; the nodes load it from there.
+bench_compile
+run_bench failover_bench "$OPTS"

@@ -5,7 +5,7 @@
 # first partition that left a stale promise behind (docs/architecture.md
 # section 8.5), on this build and on the build before the fix of that
 # freeze, side by side. Every node is an OS process in a network namespace
-# of its own (test/ha_netns.erl): needs root and iproute2's `ip'.
+# of its own (test/evatar_test_netns.erl): needs root and iproute2's `ip'.
 # Usage: scripts/bench-partition.sh [ERLANG_OPTION_LIST]
 #   scripts/bench-partition.sh                  # three kinds, 8 s partitions (about 5 minutes)
 #   scripts/bench-partition.sh '[quick]'        # one kind, 3 s partitions
@@ -15,18 +15,11 @@
 # runs this build only. Honours REBAR (default rebar3) and REBAR_BASE_DIR
 # (default _build); the earlier build is kept in $REBAR_BASE_DIR/partition-before/.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-
-REBAR=${REBAR:-rebar3}
-BASE=${REBAR_BASE_DIR:-_build}
+# shellcheck source=scripts/bench-lib.sh
+source "$(dirname "$0")/bench-lib.sh"
 OPTS=${1:-[]}
 
-"$REBAR" as bench compile
-
-OUT="$BASE/bench/extras/partition"
-mkdir -p "$OUT"
-erlc -o "$OUT" test/ha_cluster.erl test/ha_netns.erl test/ha_partition.erl \
-  test/ha_traffic.erl test/ha_pairing.erl test/ha_checker.erl bench/partition_bench.erl
+bench_compile
 
 BEFORE=none
 REV=${EVATAR_BEFORE:-}
@@ -47,10 +40,4 @@ if [ -n "$REV" ] && [ "$REV" != none ]; then
 fi
 
 if [ "$BEFORE" = none ]; then ARGS="$OPTS"; else ARGS="[{before, \"$BEFORE\"} | $OPTS]"; fi
-exec erl -noshell -pa "$BASE"/bench/lib/*/ebin -pa "$OUT" \
-  -eval "try partition_bench:main($ARGS) of
-           ok -> halt(0)
-         catch C:R:S ->
-           io:format(standard_error, \"partition_bench failed: ~p:~p~n~p~n\", [C, R, S]),
-           halt(1)
-         end."
+run_bench partition_bench "$ARGS"

@@ -121,8 +121,8 @@ wrong_cookie_cannot_connect(Config) ->
     [[pang] = attack(Config, C, [{net_adm, ping, [Node]}])
      || C <- ["evatar_dev_cookie", Guess, "nocookie"]],
     Log = console_log(Env),
-    ok = ha_cluster:await(fun() -> count(Log(), "Connection attempt from node") >= 3 end,
-                          ?WAIT, rejections_logged),
+    ok = evatar_test_cluster:await(fun() -> count(Log(), "Connection attempt from node") >= 3 end,
+                                   ?WAIT, rejections_logged),
     ?assertMatch({match, _}, re:run(Log(), "rejected", [])),
     [pong, Node] = attack(Config, binary_to_list(Cookie),
                           [{net_adm, ping, [Node]}, {erpc, call, [Node, erlang, node, []]}]).
@@ -187,8 +187,8 @@ wide_epmd_reported(Config) ->
         _ ->
             Port = integer_to_list(?config(epmd_port, Config)),
             "" = os:cmd("ERL_EPMD_PORT=" ++ Port ++ " epmd -daemon"),
-            ok = ha_cluster:await(fun() -> reachable({127, 0, 0, 2}, list_to_integer(Port)) =:= ok
-                                  end, ?WAIT, wide_epmd),
+            ok = evatar_test_cluster:await(fun() -> reachable({127, 0, 0, 2}, list_to_integer(Port)) =:= ok
+                                           end, ?WAIT, wide_epmd),
             Env = node_env(Config, "wide", []),
             {0, Out} = rel(Config, Env, ["daemon"]),
             true = ets:insert(?config(nodes, Config), {node, Env}),
@@ -215,7 +215,7 @@ cluster_sh_shares_one_cookie(Config) ->
          {"EVATAR_BASE_PORT", integer_to_list(Base)},
          {"EVATAR_DIST_BASE", integer_to_list(DistBase)},
          {"ERL_EPMD_PORT", integer_to_list(?config(epmd_port, Config))}],
-    Script = filename:join([ha_cluster:repo_root(), "scripts", "cluster.sh"]),
+    Script = filename:join([evatar_test_cluster:repo_root(), "scripts", "cluster.sh"]),
     try
         {0, Started} = run(Config, Env, "bash", [Script, "start", "2"]),
         ct:pal("~s", [Started]),
@@ -228,8 +228,8 @@ cluster_sh_shares_one_cookie(Config) ->
                                        "\"$EVATAR_REL/bin/evatar\" eval 'evatar:cluster_status().'"]),
                          S
                  end,
-        ok = ha_cluster:await(fun() -> string:find(Status(), "quorum => true") =/= nomatch end,
-                              ?WAIT, cluster_formed),
+        ok = evatar_test_cluster:await(fun() -> string:find(Status(), "quorum => true") =/= nomatch end,
+                                       ?WAIT, cluster_formed),
         ?assertMatch({match, _}, re:run(Status(), "up => \\[[^]]*n1@[^]]*n2@"))
     after
         {_, Stopped} = run(Config, Env, "bash", [Script, "stop", "2"]),
@@ -312,7 +312,7 @@ read_until(Port, Want, Acc) ->
 %% A port P with P and the N - 1 ports after it free (scripts/cluster.sh
 %% gives node I the port BASE + I).
 consecutive_free(N) ->
-    [P] = ha_cluster:free_ports(1),
+    [P] = evatar_test_cluster:free_ports(1),
     Free = [gen_tcp:listen(P + I, [{ip, {127, 0, 0, 1}}]) || I <- lists:seq(1, N)],
     _ = [gen_tcp:close(L) || {ok, L} <- Free],
     case lists:all(fun(R) -> element(1, R) =:= ok end, Free) of

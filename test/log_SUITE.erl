@@ -6,13 +6,13 @@
 %% configuration names none) dropped every event of the pairings' domain
 %% [evatar, pairing].
 %%
-%% Three EVATAR nodes run as OS processes (ha_cluster) with the logger
+%% Three EVATAR nodes run as OS processes (evatar_test_cluster) with the logger
 %% configuration of config/sys.config.src (its `kernel' section, variables
 %% at their defaults), so their `default' handler is the release's, writing
 %% to each node's standard output (a file). On every node log_capture keeps
 %% what that handler receives. The refusal is a Hello with a wrong
 %% credential over a real socket; the fencing, the active's node cut off
-%% from the two others by ha_proxy; the feedback timeout, an Avatar that
+%% from the two others by evatar_test_proxy; the feedback timeout, an Avatar that
 %% never answers a request.
 -module(log_SUITE).
 
@@ -30,24 +30,24 @@ all() ->
     [dev_config_logs_the_same, refusal, feedback_timeout, fencing].
 
 init_per_suite(Config) ->
-    Dist = ha_cluster:ensure_distributed(),
+    Dist = evatar_test_cluster:ensure_distributed(),
     Dir = ?config(priv_dir, Config),
     File = filename:join(Dir, "logger.config"),
     ok = file:write_file(File, io_lib:format("~tp.~n", [[{kernel, release_kernel_env()}]])),
-    {ok, C} = ha_cluster:start(#{dir => Dir, prefix => "lg", evatar => ?TIMING,
-                                 config => File}),
-    _ = [ok = ha_cluster:call(C, I, log_capture, install, []) || I <- [1, 2, 3]],
+    {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "lg", evatar => ?TIMING,
+                                          config => File}),
+    _ = [ok = evatar_test_cluster:call(C, I, log_capture, install, []) || I <- [1, 2, 3]],
     [{dist, Dist}, {cluster, C}, {dir, Dir} | Config].
 
 end_per_suite(Config) ->
-    ok = ha_cluster:stop(?config(cluster, Config)),
-    ha_cluster:release_distribution(?config(dist, Config)).
+    ok = evatar_test_cluster:stop(?config(cluster, Config)),
+    evatar_test_cluster:release_distribution(?config(dist, Config)).
 
 init_per_testcase(Case, Config) ->
     [{pairing, <<"log-", (atom_to_binary(Case))/binary>>} | Config].
 
 end_per_testcase(_Case, Config) ->
-    ha_pairing:reset(?config(cluster, Config), ?config(pairing, Config), ?WAIT).
+    evatar_test_pairing:reset(?config(cluster, Config), ?config(pairing, Config), ?WAIT).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -56,7 +56,7 @@ end_per_testcase(_Case, Config) ->
 %% config/sys.config (development, rebar3 shell, make demo) configures the
 %% logger as the release does.
 dev_config_logs_the_same(_Config) ->
-    {ok, [Dev]} = file:consult(filename:join([ha_cluster:repo_root(), "config", "sys.config"])),
+    {ok, [Dev]} = file:consult(filename:join([evatar_test_cluster:repo_root(), "config", "sys.config"])),
     {kernel, DevKernel} = lists:keyfind(kernel, 1, Dev),
     ?assertEqual(proplists:get_value(logger, release_kernel_env()),
                  proplists:get_value(logger, DevKernel)).
@@ -66,9 +66,9 @@ dev_config_logs_the_same(_Config) ->
 refusal(Config) ->
     C = ?config(cluster, Config),
     Id = ?config(pairing, Config),
-    ok = ha_pairing:create(C, 1, Id),
+    ok = evatar_test_pairing:create(C, 1, Id),
     Entity = <<Id/binary, "-intruder">>,
-    {Ip, Port} = ha_cluster:endpoint(C, 1),
+    {Ip, Port} = evatar_test_cluster:endpoint(C, 1),
     {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
     ok = gen_tcp:send(S, bil_control:encode(
                            {hello, #{pairing => Id, role => agent, entity_id => Entity,
@@ -92,17 +92,17 @@ refusal(Config) ->
 feedback_timeout(Config) ->
     C = ?config(cluster, Config),
     Id = ?config(pairing, Config),
-    ok = ha_pairing:create(C, 1, Id, #{feedback_timeout => 300}),
-    Ep = [ha_cluster:endpoint(C, 1)],
-    Opts = maps:with([agent_credential, avatar_credential], ha_traffic:pairing_opts()),
+    ok = evatar_test_pairing:create(C, 1, Id, #{feedback_timeout => 300}),
+    Ep = [evatar_test_cluster:endpoint(C, 1)],
+    Opts = maps:with([agent_credential, avatar_credential], evatar_test_traffic:pairing_opts()),
     {ok, Av} = agent_bridge_client:connect(Ep, #{pairing => Id, role => avatar,
                                                  entity_id => <<Id/binary, "-av">>,
                                                  credential => maps:get(avatar_credential, Opts)}),
-    ok = agent_bridge_client:describe(Av, ha_traffic:avatar_description(<<Id/binary, "-av">>)),
+    ok = agent_bridge_client:describe(Av, evatar_test_traffic:avatar_description(<<Id/binary, "-av">>)),
     {ok, Va} = agent_bridge_client:connect(Ep, #{pairing => Id, role => agent,
                                                  entity_id => <<Id/binary, "-va">>,
                                                  credential => maps:get(agent_credential, Opts)}),
-    ok = agent_bridge_client:describe(Va, ha_traffic:va_description(<<Id/binary, "-va">>)),
+    ok = agent_bridge_client:describe(Va, evatar_test_traffic:va_description(<<Id/binary, "-va">>)),
     ok = await_bound(Va),
     SigId = <<Id/binary, "-r1">>,
     {ok, #{context := feedback, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
@@ -113,7 +113,7 @@ feedback_timeout(Config) ->
                                                     parameters => []}}, ?WAIT),
     %% A call to the pairing returns after the step that timed out, logging
     %% included, is over.
-    {ok, _} = ha_cluster:call(C, 1, evatar, ha_status, [Id]),
+    {ok, _} = evatar_test_cluster:call(C, 1, evatar, ha_status, [Id]),
     Mine = fun(#{msg := {report, #{what := feedback_timeout} = R}}) ->
                    maps:get(signal, R, undefined) =:= SigId;
               (_) -> false
@@ -131,22 +131,22 @@ feedback_timeout(Config) ->
 fencing(Config) ->
     C = ?config(cluster, Config),
     Id = ?config(pairing, Config),
-    ok = ha_pairing:create(C, 1, Id),
-    {ok, 1, #{epoch := E0}} = ha_pairing:active(C, Id),
-    ok = ha_cluster:isolate(C, 1),
-    {ok, _, _} = ha_pairing:await_active(C, Id, fun(I, #{epoch := E}) -> I =/= 1 andalso E > E0 end,
-                                         ?WAIT),
+    ok = evatar_test_pairing:create(C, 1, Id),
+    {ok, 1, #{epoch := E0}} = evatar_test_pairing:active(C, Id),
+    ok = evatar_test_cluster:isolate(C, 1),
+    {ok, _, _} = evatar_test_pairing:await_active(C, Id, fun(I, #{epoch := E}) -> I =/= 1 andalso E > E0 end,
+                                                  ?WAIT),
     %% The role is published after the fencing was logged.
-    ok = ha_cluster:await(fun() ->
-                                  case ha_cluster:call(C, 1, evatar, ha_status, [Id]) of
+    ok = evatar_test_cluster:await(fun() ->
+                                  case evatar_test_cluster:call(C, 1, evatar, ha_status, [Id]) of
                                       {ok, #{role := active}} -> false;
                                       {ok, #{}} -> true;
                                       _ -> false
                                   end
                           end, ?WAIT, {fenced, Id}),
-    ok = ha_cluster:heal(C, flush),
-    ok = ha_cluster:await_formed(C, ?WAIT),
-    ok = ha_pairing:await_healthy(C, Id, ?WAIT),
+    ok = evatar_test_cluster:heal(C, flush),
+    ok = evatar_test_cluster:await_formed(C, ?WAIT),
+    ok = evatar_test_pairing:await_healthy(C, Id, ?WAIT),
     Fenced = fun(#{msg := {report, #{what := fenced, pairing := P}}}) -> P =:= Id;
                 (_) -> false
              end,
@@ -165,7 +165,7 @@ fencing(Config) ->
 %% The kernel section of config/sys.config.src, each ${NAME:-default}
 %% replaced by its default, as bin/evatar does with no variable set.
 release_kernel_env() ->
-    Src = filename:join([ha_cluster:repo_root(), "config", "sys.config.src"]),
+    Src = filename:join([evatar_test_cluster:repo_root(), "config", "sys.config.src"]),
     {ok, Bin} = file:read_file(Src),
     Filled = re:replace(Bin, "\\$\\{[A-Z_]+:-([^}]*)\\}", "\\1", [global, {return, list}]),
     {ok, Tokens, _} = erl_scan:string(Filled),
@@ -177,16 +177,16 @@ release_kernel_env() ->
 %% after them.
 settled(C, I, Pred) ->
     Id = erlang:unique_integer([positive]),
-    ok = ha_cluster:call(C, I, log_capture, marker, [Id]),
+    ok = evatar_test_cluster:call(C, I, log_capture, marker, [Id]),
     IsMarker = fun(#{msg := {report, #{what := log_capture_marker, id := M}}}) -> M =:= Id;
                   (_) -> false
                end,
-    ok = ha_cluster:await(fun() -> lists:any(IsMarker, events(C, I)) end, ?WAIT,
-                          {marker, I}),
+    ok = evatar_test_cluster:await(fun() -> lists:any(IsMarker, events(C, I)) end, ?WAIT,
+                                   {marker, I}),
     [E || E <- events(C, I), Pred(E)].
 
 events(C, I) ->
-    case ha_cluster:call(C, I, log_capture, events, []) of
+    case evatar_test_cluster:call(C, I, log_capture, events, []) of
         Events when is_list(Events) -> Events
     end.
 
@@ -200,20 +200,20 @@ one_line(#{line := Line}) ->
     end.
 
 %% The node's own default handler wrote exactly one line with both
-%% strings to its standard output (ha_cluster's NAME.out), by the time a
+%% strings to its standard output (evatar_test_cluster's NAME.out), by the time a
 %% marker logged after it is there too.
 in_node_output(Config, I, What, Key) ->
     C = ?config(cluster, Config),
     Out = filename:join(?config(dir, Config),
-                        hd(string:split(atom_to_list(ha_cluster:node(C, I)), "@")) ++ ".out"),
+                        hd(string:split(atom_to_list(evatar_test_cluster:node(C, I)), "@")) ++ ".out"),
     Marker = "marker-" ++ integer_to_list(erlang:unique_integer([positive])),
-    ok = ha_cluster:call(C, I, log_capture, marker, [list_to_binary(Marker)]),
+    ok = evatar_test_cluster:call(C, I, log_capture, marker, [list_to_binary(Marker)]),
     Lines = fun() ->
                     {ok, Bin} = file:read_file(Out),
                     string:split(Bin, "\n", all)
             end,
-    ok = ha_cluster:await(fun() -> lists:any(fun(L) -> string:find(L, Marker) =/= nomatch end,
-                                             Lines())
+    ok = evatar_test_cluster:await(fun() -> lists:any(fun(L) -> string:find(L, Marker) =/= nomatch end,
+                                                      Lines())
                           end, ?WAIT, {marker_in, Out}),
     case [L || L <- Lines(), string:find(L, What) =/= nomatch,
                string:find(L, Key) =/= nomatch] of

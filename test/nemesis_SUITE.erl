@@ -7,7 +7,7 @@
 %% streams sensor data, all through HA clients of the bridge that know
 %% every node; and power cuts (kill -9 of every node at once, then all
 %% started again). Afterwards every signal is classified as Jepsen's RabbitMQ
-%% checker does (ha_checker): ok, lost, duplicated, unexpected (and
+%% checker does (evatar_test_checker): ok, lost, duplicated, unexpected (and
 %% recovered, unconfirmed). The run passes with zero lost, zero duplicated
 %% and zero unexpected, every pairing back to one active and one synced
 %% standby, and no client given up. Signals in flight at a power cut may
@@ -17,7 +17,10 @@
 %% The nemesis keeps a majority of nodes working most of the time (one
 %% fault at a time, each repaired before the next), so the cluster makes
 %% progress; unavailability while a fault lasts is allowed, loss is not.
-%% Partitions go through ha_proxy, as in ha_SUITE.
+%% Partitions go through evatar_test_proxy, as in ha_SUITE. The nodes run
+%% with the release's rebalancing: a node that returns gets its share of
+%% actives and standbys back by planned handovers while the faults go on,
+%% and those moves must lose and duplicate nothing too.
 %%
 %% The normal run (`make test') lasts EVATAR_SOAK_SECONDS=45 seconds of
 %% faults; `make soak' sets it as long as asked. EVATAR_NEMESIS_SEED
@@ -51,18 +54,18 @@ init_per_group(_, Config) ->
     Config.
 
 init_nemesis(Config) ->
-    Dist = ha_cluster:ensure_distributed(),
+    Dist = evatar_test_cluster:ensure_distributed(),
     Dir = filename:join(?config(priv_dir, Config), "nemesis"),
     ok = filelib:ensure_path(Dir),
     %% Detection as in ha_SUITE (see there); the nemesis is the faults.
-    {ok, C} = ha_cluster:start(#{dir => Dir, prefix => "nem",
-                                 evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000},
-                                            {lease_ms, 600}]}),
+    {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "nem",
+                                          evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000},
+                                                     {lease_ms, 600}]}),
     [{cluster, C}, {dist, Dist} | Config].
 
 end_per_group(nemesis, Config) ->
-    ok = ha_cluster:stop(?config(cluster, Config)),
-    ha_cluster:release_distribution(?config(dist, Config));
+    ok = evatar_test_cluster:stop(?config(cluster, Config)),
+    evatar_test_cluster:release_distribution(?config(dist, Config));
 end_per_group(_, _Config) ->
     ok.
 
@@ -76,14 +79,14 @@ checker_classifies(_Config) ->
     Sent = [<<"a">>, <<"b">>, <<"c">>, <<"d">>, <<"e">>, <<"f">>],
     Accepted = [<<"a">>, <<"b">>, <<"c">>, <<"d">>],
     Delivered = [<<"a">>, <<"b">>, <<"b">>, <<"e">>, <<"zz">>],
-    R = ha_checker:classify(Sent, Accepted, Delivered),
+    R = evatar_test_checker:classify(Sent, Accepted, Delivered),
     ?assertMatch(#{ok := 1, lost := [<<"c">>, <<"d">>], duplicated := [<<"b">>],
                    unexpected := [<<"zz">>], recovered := 1, unconfirmed := 1}, R),
-    ?assertNot(ha_checker:passed(R)),
-    Clean = ha_checker:classify(Sent, Accepted, [<<"a">>, <<"b">>, <<"c">>, <<"d">>]),
-    ?assert(ha_checker:passed(Clean)),
+    ?assertNot(evatar_test_checker:passed(R)),
+    Clean = evatar_test_checker:classify(Sent, Accepted, [<<"a">>, <<"b">>, <<"c">>, <<"d">>]),
+    ?assert(evatar_test_checker:passed(Clean)),
     ?assertMatch(#{ok := 4, unconfirmed := 2}, Clean),
-    ?assertNot(ha_checker:passed(ha_checker:classify([<<"x">>], [<<"x">>], []))),
+    ?assertNot(evatar_test_checker:passed(evatar_test_checker:classify([<<"x">>], [<<"x">>], []))),
     ok.
 
 %% Across a power cut at 100: a signal acknowledged before it and never
@@ -106,10 +109,10 @@ checker_power_cut(_Config) ->
                         {<<"q">>, 1}, {<<"r">>, 1}],
            received_at => #{<<"c">> => [120, 70], <<"d">> => [180, 170], <<"q">> => [95],
                             <<"r">> => [135]}},
-    R = ha_checker:check_pairs([#{va => Va, av => Av}], [100]),
+    R = evatar_test_checker:check_pairs([#{va => Va, av => Av}], [100]),
     ?assertMatch(#{lost := [<<"b">>, <<"fb-r">>], duplicated := [<<"d">>], lost_at_cut := 2,
                    duplicated_at_cut := 1}, R),
-    ?assertNot(ha_checker:passed(R)),
+    ?assertNot(evatar_test_checker:passed(R)),
     ok.
 
 %% Randomized faults for EVATAR_SOAK_SECONDS while traffic flows; then zero
@@ -120,36 +123,40 @@ random_faults(Config) ->
     ct:pal("nemesis seed ~p (EVATAR_NEMESIS_SEED=~s to replay), ~b s of faults among ~p",
            [Seed, seed_string(Seed), seconds(), fault_kinds()]),
     _ = rand:seed(exsss, Seed),
-    N = length(ha_cluster:nodes(C)),
+    N = length(evatar_test_cluster:nodes(C)),
     Ids = [iolist_to_binary(io_lib:format("nem-~b", [K])) || K <- lists:seq(1, ?PAIRINGS)],
-    _ = [ok = ha_pairing:create(C, 1 + (K - 1) rem N, Id)
+    _ = [ok = evatar_test_pairing:create(C, 1 + (K - 1) rem N, Id)
          || {K, Id} <- lists:enumerate(Ids)],
-    Pairs = [begin {ok, P} = ha_traffic:start_pair(ha_cluster:endpoints(C), Id, ?TRAFFIC), P end
+    Pairs = [begin {ok, P} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(C), Id, ?TRAFFIC), P end
              || Id <- Ids],
     Start = erlang:monotonic_time(millisecond),
     Log = nemesis(C, Ids, Start + seconds() * 1000, []),
     ct:pal("faults (~b), at ms from the start:~n~s",
            [length(Log), [io_lib:format("  ~6b ~p~n", [T - Start, F]) || {T, F} <- Log]]),
     %% Repair what may still be broken, then let every pairing recover.
-    ok = ha_cluster:heal(C, flush),
-    _ = [ok = ha_cluster:resume(C, I) || #{i := I, status := stalled} <- ha_cluster:info(C)],
-    _ = [ok = ha_cluster:restart(C, I) || #{i := I, status := down} <- ha_cluster:info(C)],
-    ok = ha_cluster:await_formed(C, 120000),
+    ok = evatar_test_cluster:heal(C, flush),
+    _ = [ok = evatar_test_cluster:resume(C, I) || #{i := I, status := stalled} <- evatar_test_cluster:info(C)],
+    _ = [ok = evatar_test_cluster:restart(C, I) || #{i := I, status := down} <- evatar_test_cluster:info(C)],
+    ok = evatar_test_cluster:await_formed(C, 120000),
     %% One deadline for all pairings: they recover (and settle) together.
-    _ = ha_cluster:await(fun() -> lists:all(fun(Id) -> ha_pairing:healthy(C, Id) end, Ids) end,
-                         60000, all_healthy),
-    Healthy = [{Id, ha_pairing:await_healthy(C, Id, 1000)} || Id <- Ids],
-    _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
+    %% Rebalancing is on (the release's default), so a node's return may
+    %% still move pairings by planned handovers: every pairing must be seen
+    %% healthy at one moment, not each of them again a second later.
+    Healthy = evatar_test_cluster:await(
+                fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
+                60000, all_healthy),
+    Roles = [{Id, evatar_test_pairing:roles(C, Id)} || Id <- Ids],
+    _ = [ok = evatar_test_traffic:stop_traffic(P) || P <- Pairs],
     Cuts = [At || {_, {power_cut, At}} <- Log],
     %% Signals in flight at a power cut never arrive: wait for all others.
-    Settled = pmap(fun(P) -> {maps:get(pairing, P), ha_traffic:settle(P, Cuts, 45000)} end,
+    Settled = pmap(fun(P) -> {maps:get(pairing, P), evatar_test_traffic:settle(P, Cuts, 45000)} end,
                    Pairs),
-    Histories = [ha_traffic:history(P) || P <- Pairs],
-    Result = ha_checker:check_pairs(Histories, Cuts),
-    _ = [ct:pal("~s: ~s; history in ~s", [maps:get(pairing, P), ha_checker:format(R),
-                                         ha_traffic:dump(P, H)])
+    Histories = [evatar_test_traffic:history(P) || P <- Pairs],
+    Result = evatar_test_checker:check_pairs(Histories, Cuts),
+    _ = [ct:pal("~s: ~s; history in ~s", [maps:get(pairing, P), evatar_test_checker:format(R),
+                                         evatar_test_traffic:dump(P, H)])
          || {P, H} <- lists:zip(Pairs, Histories),
-            R <- [ha_checker:check_pairs([H])], not ha_checker:passed(R)],
+            R <- [evatar_test_checker:check_pairs([H])], not evatar_test_checker:passed(R)],
     Sent = lists:sum([length(maps:get(sent, H)) || #{va := Va, av := Av} <- Histories,
                                                    H <- [Va, Av]]),
     Reconnects = lists:sum([length(maps:get(reconnects, H)) || #{va := Va, av := Av} <- Histories,
@@ -162,13 +169,13 @@ random_faults(Config) ->
                            end, #{}, [Sig || #{va := Va, av := Av} <- Histories, H <- [Va, Av],
                                              Sig <- maps:get(mediator, H)]),
     Summary = io_lib:format("~b faults, ~b signals sent, ~b reconnections; ~s; from EVATAR: ~s",
-                            [length(Log), Sent, Reconnects, ha_checker:format(Result),
+                            [length(Log), Sent, Reconnects, evatar_test_checker:format(Result),
                              [io_lib:format("~s ~b ", [T, X]) || {T, X} <- maps:to_list(Mediator)]]),
     ct:pal("~s", [Summary]),
     ct:comment("~s", [hd(string:split(lists:flatten(Summary), "\n"))]),
-    ?assertEqual([], [X || {_, R} = X <- Healthy, R =/= ok]),
+    ?assertEqual(ok, Healthy, Roles),
     ?assertEqual([], [X || {_, R} = X <- Settled, R =/= ok]),
-    ?assert(ha_checker:passed(Result)),
+    ?assert(evatar_test_checker:passed(Result)),
     ?assertEqual([], [{E, R} || #{va := Va, av := Av} <- Histories, H <- [Va, Av],
                                 #{entity := E, closed := R} <- [H], R =/= undefined]),
     ?assert(Sent > 0),
@@ -195,20 +202,20 @@ nemesis(C, Ids, Deadline, Log) ->
                     end,
             timer:sleep(500 + rand:uniform(2500)),
             ok = repair(C, Fault),
-            _ = ha_cluster:await_formed(C, 20000),
-            _ = ha_cluster:await(fun() -> lists:all(fun(Id) -> ha_pairing:healthy(C, Id) end,
-                                                    Ids) end, 20000, healthy),
+            _ = evatar_test_cluster:await_formed(C, 20000),
+            _ = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end,
+                                                             Ids) end, 20000, healthy),
             timer:sleep(rand:uniform(1500)),
             nemesis(C, Ids, Deadline, [{T, Fault} | Log])
     end.
 
 %% Half of the faults hit the node holding an active instance.
 choose(C, Ids) ->
-    N = length(ha_cluster:nodes(C)),
+    N = length(evatar_test_cluster:nodes(C)),
     Target = case rand:uniform(2) of
                  1 ->
                      Id = lists:nth(rand:uniform(length(Ids)), Ids),
-                     case ha_pairing:active(C, Id) of
+                     case evatar_test_pairing:active(C, Id) of
                          {ok, I, _} -> I;
                          {error, _} -> rand:uniform(N)
                      end;
@@ -247,28 +254,28 @@ other(I, N) ->
     Others = lists:seq(1, N) -- [I],
     lists:nth(rand:uniform(length(Others)), Others).
 
-apply_fault(C, {kill, I}) -> ha_cluster:kill(C, I);
-apply_fault(C, {stall, I}) -> ha_cluster:stall(C, I);
-apply_fault(C, {isolate, I, _}) -> ha_cluster:isolate(C, I);
+apply_fault(C, {kill, I}) -> evatar_test_cluster:kill(C, I);
+apply_fault(C, {stall, I}) -> evatar_test_cluster:stall(C, I);
+apply_fault(C, {isolate, I, _}) -> evatar_test_cluster:isolate(C, I);
 apply_fault(C, {cut_link, I, J, _}) ->
     %% A partial partition: I and J lose each other, the third node still
     %% sees both.
-    ha_cluster:cut(C, [{I, J}]);
-apply_fault(C, power_cut) -> ha_cluster:power_cut(C);
+    evatar_test_cluster:cut(C, [{I, J}]);
+apply_fault(C, power_cut) -> evatar_test_cluster:power_cut(C);
 apply_fault(C, {kill_and_stall_other, I, J}) ->
     %% Two nodes down at once for a moment: no majority, no progress, and
     %% still nothing may be lost.
-    ok = ha_cluster:kill(C, I),
-    ha_cluster:stall(C, J).
+    ok = evatar_test_cluster:kill(C, I),
+    evatar_test_cluster:stall(C, J).
 
-repair(C, {kill, I}) -> ha_cluster:restart(C, I);
-repair(C, {stall, I}) -> ha_cluster:resume(C, I);
-repair(C, {isolate, _, Mode}) -> ha_cluster:heal(C, Mode);
-repair(C, {cut_link, _, _, Mode}) -> ha_cluster:heal(C, Mode);
-repair(C, {power_cut, _}) -> ha_cluster:restart_all(C);
+repair(C, {kill, I}) -> evatar_test_cluster:restart(C, I);
+repair(C, {stall, I}) -> evatar_test_cluster:resume(C, I);
+repair(C, {isolate, _, Mode}) -> evatar_test_cluster:heal(C, Mode);
+repair(C, {cut_link, _, _, Mode}) -> evatar_test_cluster:heal(C, Mode);
+repair(C, {power_cut, _}) -> evatar_test_cluster:restart_all(C);
 repair(C, {kill_and_stall_other, I, J}) ->
-    ok = ha_cluster:resume(C, J),
-    ha_cluster:restart(C, I).
+    ok = evatar_test_cluster:resume(C, J),
+    evatar_test_cluster:restart(C, I).
 
 pmap(F, Items) ->
     Parent = self(),

@@ -1,10 +1,10 @@
 %% @doc Partitions of a real network: three EVATAR nodes, each an OS process
-%% in a network namespace of its own (test/ha_netns.erl), linked by links
-%% of their own, with VA and Avatar clients reaching them over TCP; a
+%% in a network namespace of its own (evatar_test_cluster with `net =>
+%% netns': evatar_test_net_netns), linked by links of their own, with VA and Avatar clients reaching them over TCP; a
 %% partition takes links down. Each case first leaves a stale promise
 %% behind (a standby cut off with its node, which promised it the next
 %% epoch), then cuts the active of that pairing from its current standby
-%% (test/ha_partition.erl): the side with a majority must keep serving every
+%% (evatar_test_partition): the side with a majority must keep serving every
 %% pairing through the partition, with nothing lost or duplicated
 %% (docs/ha.md section 6, docs/architecture.md section 8.5). A last case cuts
 %% a node off until its pairings failed over and checks that the
@@ -39,17 +39,17 @@ all() ->
     [node_cut_from_nodes, node_cut_from_everything, one_link_cut, rebalance_after_return].
 
 init_per_suite(Config) ->
-    case ha_netns:available() of
+    case evatar_test_net_netns:available() of
         ok ->
-            Dist = ha_cluster:ensure_distributed(),
+            Dist = evatar_test_cluster:ensure_distributed(),
             Dir = filename:join(?config(priv_dir, Config), "netns"),
             ok = filelib:ensure_path(Dir),
-            case ha_netns:start(#{dir => Dir, evatar => ?EVATAR,
+            case evatar_test_cluster:start(#{dir => Dir, net => netns, prefix => "evns", evatar => ?EVATAR,
                                   conn => #{heartbeat => 100}}) of
                 {ok, Net} ->
                     [{net, Net}, {dist, Dist} | Config];
                 {error, Why} ->
-                    ha_cluster:release_distribution(Dist),
+                    evatar_test_cluster:release_distribution(Dist),
                     ct:fail({netns_cluster, Why})
             end;
         {skip, Why} ->
@@ -57,8 +57,8 @@ init_per_suite(Config) ->
     end.
 
 end_per_suite(Config) ->
-    ok = ha_netns:stop(?config(net, Config)),
-    ha_cluster:release_distribution(?config(dist, Config)).
+    ok = evatar_test_cluster:stop(?config(net, Config)),
+    evatar_test_cluster:release_distribution(?config(dist, Config)).
 
 init_per_testcase(Case, Config) ->
     Net = ?config(net, Config),
@@ -69,22 +69,22 @@ init_per_testcase(Case, Config) ->
     Ids = [iolist_to_binary([atom_to_list(Case), "-", integer_to_list(K)]) || K <- lists:seq(1, N)],
     %% As many pairings active on each node, each with its standby on the
     %% next node.
-    _ = [ok = ha_pairing:create(Net, (K - 1) rem 3 + 1, Id) || {K, Id} <- lists:enumerate(Ids)],
+    _ = [ok = evatar_test_pairing:create(Net, (K - 1) rem 3 + 1, Id) || {K, Id} <- lists:enumerate(Ids)],
     Pairs = [begin
-                 {ok, P} = ha_traffic:start_pair(ha_netns:endpoints(Net), Id,
-                                                 #{request_interval => 20,
-                                                   sensor_interval => 100}),
+                 {ok, P} = evatar_test_traffic:start_pair(evatar_test_cluster:endpoints(Net), Id,
+                                                          #{request_interval => 20,
+                                                            sensor_interval => 100}),
                  P
              end || Id <- Ids],
     [{ids, Ids}, {pairs, Pairs} | Config].
 
 end_per_testcase(_Case, Config) ->
     Net = ?config(net, Config),
-    ok = ha_netns:heal(Net),
-    ok = set_env(Net, [{rebalance, false}]),
-    _ = [ha_traffic:close(P) || P <- ?config(pairs, Config)],
-    _ = [ha_pairing:delete(Net, I, Id) || Id <- ?config(ids, Config),
-                                         {active, _, I} <- ha_pairing:roles(Net, Id)],
+    ok = evatar_test_cluster:heal(Net),
+    ok = evatar_test_cluster:set_env(Net, evatar, [{rebalance, false}]),
+    _ = [evatar_test_traffic:close(P) || P <- ?config(pairs, Config)],
+    _ = [evatar_test_pairing:delete(Net, I, Id) || Id <- ?config(ids, Config),
+                                         {active, _, I} <- evatar_test_pairing:roles(Net, Id)],
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -109,7 +109,7 @@ partition(Kind, Config) ->
     Pairs = ?config(pairs, Config),
     Ids = ?config(ids, Config),
     {ok, #{stale_promise := {Epoch, Promised}} = R} =
-        ha_partition:run(Net, Pairs, Kind, ?SCENARIO),
+        evatar_test_partition:run(Net, Pairs, Kind, ?SCENARIO),
     ct:pal("~p: ~p", [Kind, R]),
     ct:comment("longest unserved ~p ms", [maps:get(max, R)]),
     %% The scenario did leave the stale promise it is about.
@@ -126,50 +126,23 @@ partition(Kind, Config) ->
 rebalance_after_return(Config) ->
     Net = ?config(net, Config),
     Pairs = ?config(pairs, Config),
-    Ids = ?config(ids, Config),
-    ok = ha_netns:cut_nodes(Net, 3),
-    OnlyOneAndTwo = fun() ->
-                            lists:all(fun(Id) ->
-                                              R = ha_pairing:roles(Net, Id),
-                                              [I || {active, _, I} <- R, I =/= 3] =/= []
-                                                  andalso [I || {standby, _, I} <- R, I =/= 3]
-                                                  =/= []
-                                      end, Ids)
-                    end,
-    ok = ha_cluster:await(OnlyOneAndTwo, ?TIMEOUT, failed_over_from_3),
-    ct:pal("before the return: ~p", [counts(Net, Ids)]),
-    ok = set_env(Net, [{rebalance, true}, {rebalance_delay_ms, 1000}]),
-    ok = ha_netns:heal(Net),
-    Even = fun() ->
-                   ha_partition:await_healthy(Net, Ids, 1000) =:= ok andalso
-                       counts(Net, Ids) =:= #{1 => {2, 2}, 2 => {2, 2}, 3 => {2, 2}}
-           end,
-    ok = ha_cluster:await(Even, ?TIMEOUT, spread_evenly),
-    _ = [{ok, _} = ha_traffic:round_trip(P, ?TIMEOUT) || P <- Pairs],
+    {ok, R} = evatar_test_partition:rebalance(
+                Net, Pairs, #{node => 3, timeout => ?TIMEOUT,
+                              env => [{rebalance, true}, {rebalance_delay_ms, 1000}]}),
+    ct:pal("rebalance: ~p", [R]),
+    ?assertEqual(#{1 => {2, 2}, 2 => {2, 2}, 3 => {2, 2}}, maps:get(counts_after, R)),
     check(rebalance, Pairs).
-
-%% {actives, standbys} per node index.
-counts(Net, Ids) ->
-    Roles = lists:append([ha_pairing:roles(Net, Id) || Id <- Ids]),
-    maps:from_list([{I, {length([x || {active, _, J} <- Roles, J =:= I]),
-                         length([x || {standby, _, J} <- Roles, J =:= I])}}
-                    || I <- [1, 2, 3]]).
-
-set_env(Net, Env) ->
-    _ = [ok = ha_cluster:call(Net, I, application, set_env, [evatar, K, V])
-         || I <- [1, 2, 3], {K, V} <- Env],
-    ok.
 
 %% Every signal a sender was told was accepted arrived once, and no
 %% request was answered by EVATAR's Timeout feedback.
 check(Kind, Pairs) ->
-    _ = [ok = ha_traffic:stop_traffic(P) || P <- Pairs],
-    Settled = [ha_traffic:settle(P, ?TIMEOUT) || P <- Pairs],
-    Histories = [ha_traffic:history(P) || P <- Pairs],
-    Result = ha_checker:check_pairs(Histories),
+    _ = [ok = evatar_test_traffic:stop_traffic(P) || P <- Pairs],
+    Settled = [evatar_test_traffic:settle(P, ?TIMEOUT) || P <- Pairs],
+    Histories = [evatar_test_traffic:history(P) || P <- Pairs],
+    Result = evatar_test_checker:check_pairs(Histories),
     ct:pal("~p: ~s; histories in ~s",
-           [Kind, ha_checker:format(Result),
-            [[ha_traffic:dump(P, H), " "] || {P, H} <- lists:zip(Pairs, Histories)]]),
-    ?assert(ha_checker:passed(Result)),
+           [Kind, evatar_test_checker:format(Result),
+            [[evatar_test_traffic:dump(P, H), " "] || {P, H} <- lists:zip(Pairs, Histories)]]),
+    ?assert(evatar_test_checker:passed(Result)),
     ?assertEqual([ok || _ <- Pairs], Settled),
     ?assertEqual([], [S || #{va := Va} <- Histories, S <- maps:get(mediator, Va)]).

@@ -40,7 +40,7 @@ groups() ->
                     release_refuses_another_nodes_data_dir]}].
 
 init_per_group(release, Config) ->
-    Root = ha_cluster:repo_root(),
+    Root = evatar_test_cluster:repo_root(),
     Log = filename:join(?config(priv_dir, Config), "rebar3_release.log"),
     "0\n" = os:cmd("cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo $?"),
     %% The nodes' HOME holds their cookie, as an installed node's does
@@ -89,8 +89,8 @@ starts_everything_from_the_file(Config) ->
     {ok, {{127, 0, 0, 1}, Port}} = peer:call(Peer, agent_bridge, address, [<<"main">>]),
     [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, []),
     Avatar = await_running(Peer, 1),
-    ok = ha_cluster:await(fun() -> up =:= maps:get(mqtt, peer:call(Peer, mqtt_avatar, status, [Avatar]))
-                          end, 60000, mqtt_up),
+    ok = evatar_test_cluster:await(fun() -> up =:= maps:get(mqtt, peer:call(Peer, mqtt_avatar, status, [Avatar]))
+                                   end, 60000, mqtt_up),
     {ok, Va} = agent_bridge_client:connect([{{127, 0, 0, 1}, Port}],
                                            #{pairing => <<"home">>, role => agent,
                                              entity_id => <<"test-va">>, credential => ?VA_CRED}),
@@ -169,12 +169,12 @@ bad_broker_is_a_reported_crash_loop(Config) ->
                                    mqtt_extra => ", username => \"home\", password => \"wrong\"",
                                    restart => "#{min_ms => 100, max_ms => 400}"}),
         {Peer, _} = boot(Config, File),
-        ok = ha_cluster:await(fun() -> [] =/= [R || #{what := crash_loop} = R <- logged(Peer)] end,
-                              60000, crash_loop),
+        ok = evatar_test_cluster:await(fun() -> [] =/= [R || #{what := crash_loop} = R <- logged(Peer)] end,
+                                       60000, crash_loop),
         [#{crashes := N} | _] = [R || #{what := crash_loop} = R <- logged(Peer)],
         ?assert(N >= 3),
-        ok = ha_cluster:await(fun() -> maps:get(next_delay_ms, kept(Peer)) =:= 400 end, 60000,
-                              delay_at_max),
+        ok = evatar_test_cluster:await(fun() -> maps:get(next_delay_ms, kept(Peer)) =:= 400 end, 60000,
+                                       delay_at_max),
         [#{id := <<"home">>}] = peer:call(Peer, evatar, pairings, [])
     after
         ok = evatar_test_mosquitto:stop(Broker)
@@ -325,8 +325,8 @@ env(Name, Env) ->
     Value.
 
 await_not_running(Config, Env) ->
-    ha_cluster:await(fun() -> string:find(evatar_cmd(Config, Env, "ping"), "not running") =/= nomatch
-                     end, 90000, not_running).
+    evatar_test_cluster:await(fun() -> string:find(evatar_cmd(Config, Env, "ping"), "not running") =/= nomatch
+                              end, 90000, not_running).
 
 %% The node's console log (run_erl's erlang.log.N files), read anew.
 console_log(Env) ->
@@ -348,7 +348,7 @@ eval(Config, Env, Expr0) ->
 
 %% On a timeout, the node's console log says why (e.g. it did not start).
 await_eval(Config, Env, Expected, Expr) ->
-    case ha_cluster:await(fun() -> eval(Config, Env, Expr) =:= Expected end, 90000, {eval, Expr}) of
+    case evatar_test_cluster:await(fun() -> eval(Config, Env, Expr) =:= Expected end, 90000, {eval, Expr}) of
         ok -> ok;
         {error, _} = Error ->
             ct:log("~s console log:~n~s", [env("EVATAR_NODE", Env), console_log(Env)]),
@@ -411,7 +411,7 @@ kept(Peer) ->
 
 %% Waits for the kept Avatar's Nth start, running; returns its pid.
 await_running(Peer, Starts) ->
-    ok = ha_cluster:await(fun() ->
+    ok = evatar_test_cluster:await(fun() ->
                                   case kept(Peer) of
                                       #{state := running, starts := Starts} -> true;
                                       _ -> false
@@ -437,7 +437,7 @@ await_avatar_joined(Peer) ->
                        _ -> []
                    end
            end,
-    ok = ha_cluster:await(fun() -> Find() =/= [] end, 60000, avatar_joined),
+    ok = evatar_test_cluster:await(fun() -> Find() =/= [] end, 60000, avatar_joined),
     [E] = Find(),
     E.
 

@@ -1,7 +1,7 @@
 %% Common Test suite of pauses of a node's own schedulers (issue 16): a
 %% real OS-process node stopped with SIGSTOP and woken with SIGCONT, as a
 %% laptop lid, a long garbage collection or a load spike does to it, while
-%% a VA and an Avatar (HA clients of the bridge, ha_traffic) drive
+%% a VA and an Avatar (HA clients of the bridge, evatar_test_traffic) drive
 %% requests, feedback and sensor streams through it.
 %%
 %% - lone: a single node with no peers, EVATAR's default timings and
@@ -16,7 +16,7 @@
 %%   is a failover: the standby takes over, the woken node never reports a
 %%   second active (it asks the cluster before it answers, and learns it
 %%   lost), it rejoins and takes a standby again, and nothing accepted is
-%%   lost or duplicated (ha_checker).
+%%   lost or duplicated (evatar_test_checker).
 %%
 %% Behaviour only: no case asserts how long anything took.
 -module(pause_SUITE).
@@ -60,15 +60,15 @@ init_per_group(Group, Config) ->
     Opts = case Group of
                %% The defaults of the release: evatar's timings and the
                %% bridge's heartbeat (conn options left to the listener).
-               lone -> #{n => 1, links => false, evatar => [], conn => #{}};
+               lone -> #{n => 1, net => none, evatar => [], conn => #{}};
                cluster -> #{evatar => ?CLUSTER_TIMING}
            end,
-    {ok, C} = ha_cluster:start(Opts#{dir => Dir, prefix => "pz" ++ atom_to_list(Group)}),
-    ct:pal("~p: ~p", [Group, ha_cluster:info(C)]),
+    {ok, C} = evatar_test_cluster:start(Opts#{dir => Dir, prefix => "pz" ++ atom_to_list(Group)}),
+    ct:pal("~p: ~p", [Group, evatar_test_cluster:info(C)]),
     [{cluster, C}, {group, Group} | Config].
 
 end_per_group(_Group, Config) ->
-    ok = ha_cluster:stop(?config(cluster, Config)).
+    ok = evatar_test_cluster:stop(?config(cluster, Config)).
 
 init_per_testcase(Case, Config) ->
     [{pairing, iolist_to_binary(["pz-", atom_to_list(Case)])} | Config].
@@ -87,12 +87,12 @@ end_per_testcase(Case, Config) ->
 %% end every accepted signal arrived exactly once.
 lone_pauses_never_fence(Config) ->
     {C, Id, Pair} = start(Config),
-    {ok, 1, #{epoch := E0, active := Pid}} = ha_pairing:active(C, Id),
+    {ok, 1, #{epoch := E0, active := Pid}} = evatar_test_pairing:active(C, Id),
     _ = [begin
              ok = pause(C, 1, Ms),
-             {ok, Epoch} = ha_traffic:round_trip(Pair, ?TIMEOUT),
+             {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?TIMEOUT),
              ?assertEqual(E0, Epoch),
-             ?assertMatch({ok, 1, #{epoch := E0, active := Pid}}, ha_pairing:active(C, Id)),
+             ?assertMatch({ok, 1, #{epoch := E0, active := Pid}}, evatar_test_pairing:active(C, Id)),
              ok = never_fenced(Pair, {pause, Ms})
          end || Ms <- ?LONE_PAUSES],
     finish(Pair).
@@ -102,13 +102,13 @@ lone_pauses_never_fence(Config) ->
 %% epoch, the same standby), no client told Fenced.
 short_pause_changes_nothing(Config) ->
     {C, Id, Pair} = start(Config),
-    ok = ha_pairing:await_healthy(C, Id, ?TIMEOUT),
-    {ok, 1, #{epoch := E0, active := Pid, standby_node := SN}} = ha_pairing:active(C, Id),
+    ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
+    {ok, 1, #{epoch := E0, active := Pid, standby_node := SN}} = evatar_test_pairing:active(C, Id),
     ok = pause(C, 1, ?SHORT_PAUSE),
-    {ok, Epoch} = ha_traffic:round_trip(Pair, ?TIMEOUT),
+    {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?TIMEOUT),
     ?assertEqual(E0, Epoch),
     ?assertMatch({ok, 1, #{epoch := E0, active := Pid, standby_node := SN}},
-                 ha_pairing:active(C, Id)),
+                 evatar_test_pairing:active(C, Id)),
     ok = never_fenced(Pair, short_pause),
     finish(Pair).
 
@@ -118,32 +118,32 @@ short_pause_changes_nothing(Config) ->
 %% to the once paused node); nothing accepted is lost or duplicated.
 long_pause_fails_over(Config) ->
     {C, Id, Pair} = start(Config),
-    ok = ha_pairing:await_healthy(C, Id, ?TIMEOUT),
-    {ok, 1, #{epoch := E0, standby_node := SN}} = ha_pairing:active(C, Id),
-    S = ha_cluster:index(C, SN),
-    ok = ha_cluster:stall(C, 1),
-    {ok, S, #{epoch := E1}} = ha_pairing:await_active(
+    ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
+    {ok, 1, #{epoch := E0, standby_node := SN}} = evatar_test_pairing:active(C, Id),
+    S = evatar_test_cluster:index(C, SN),
+    ok = evatar_test_cluster:stall(C, 1),
+    {ok, S, #{epoch := E1}} = evatar_test_pairing:await_active(
                                  C, Id, fun(_I, #{epoch := E}) -> E > E0 end, ?TIMEOUT),
-    ok = ha_cluster:resume(C, 1),
+    ok = evatar_test_cluster:resume(C, 1),
     ok = ha_SUITE:never_active_again(C, 1, Id, 3000),
-    {ok, Epoch} = ha_traffic:round_trip(Pair, ?TIMEOUT),
+    {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?TIMEOUT),
     ?assert(Epoch >= E1),
-    ok = ha_cluster:await_formed(C, ?TIMEOUT),
-    ok = ha_pairing:await_healthy(C, Id, ?TIMEOUT),
-    {ok, S, _} = ha_pairing:active(C, Id),
+    ok = evatar_test_cluster:await_formed(C, ?TIMEOUT),
+    ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
+    {ok, S, _} = evatar_test_pairing:active(C, Id),
     %% Node 1 is a full member again: with the third node gone, the
     %% pairing's standby goes there.
     [Third] = [I || I <- [1, 2, 3], I =/= 1, I =/= S],
-    ok = ha_cluster:kill(C, Third),
-    ok = ha_cluster:await(fun() ->
-                                  case ha_pairing:active(C, Id) of
+    ok = evatar_test_cluster:kill(C, Third),
+    ok = evatar_test_cluster:await(fun() ->
+                                  case evatar_test_pairing:active(C, Id) of
                                       {ok, S, #{synced := true, standby_node := N}} ->
-                                          N =:= ha_cluster:node(C, 1);
+                                          N =:= evatar_test_cluster:node(C, 1);
                                       _ ->
                                           false
                                   end
                           end, ?TIMEOUT, {standby_on, 1}),
-    ok = ha_pairing:await_healthy(C, Id, ?TIMEOUT),
+    ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
     finish(Pair).
 
 %% ---------------------------------------------------------------------------
@@ -157,13 +157,13 @@ start(Config) ->
 
 %% SIGSTOP of node I's OS process, SIGCONT Ms later.
 pause(C, I, Ms) ->
-    ok = ha_cluster:stall(C, I),
+    ok = evatar_test_cluster:stall(C, I),
     timer:sleep(Ms),
-    ok = ha_cluster:resume(C, I).
+    ok = evatar_test_cluster:resume(C, I).
 
 %% No client was told Fenced: none reconnected for that reason.
 never_fenced(Pair, When) ->
-    #{va := #{reconnects := RVa}, av := #{reconnects := RAv}} = ha_traffic:history(Pair),
+    #{va := #{reconnects := RVa}, av := #{reconnects := RAv}} = evatar_test_traffic:history(Pair),
     case [R || #{reason := {refused, <<"Fenced">>, _} = R} <- RVa ++ RAv] of
         [] -> ok;
         Fenced -> ct:fail({fenced, When, Fenced})

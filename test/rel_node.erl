@@ -22,7 +22,7 @@
 init_case(Case, Config) ->
     Dir = filename:join(?config(priv_dir, Config), atom_to_list(Case)),
     ok = filelib:ensure_path(Dir),
-    [EpmdPort] = ha_cluster:free_ports(1),
+    [EpmdPort] = evatar_test_cluster:free_ports(1),
     [{dir, Dir}, {epmd_port, EpmdPort}, {nodes, ets:new(nodes, [public, bag])} | Config].
 
 %% @doc Stops what the case started: its nodes (by pid if stop does not
@@ -42,7 +42,7 @@ release(Priv) ->
         Dir when is_list(Dir), Dir =/= "" ->
             Dir;
         _ ->
-            Root = ha_cluster:repo_root(),
+            Root = evatar_test_cluster:repo_root(),
             Log = filename:join(Priv, "rebar3-release.log"),
             Cmd = "cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo rc=$?",
             Out = os:cmd(Cmd),
@@ -71,7 +71,7 @@ node_env(Config, Name, Extra, Host) ->
     Dir = filename:join(?config(dir, Config), Name),
     Home = filename:join(Dir, "home"),
     ok = filelib:ensure_path(Home),
-    [Bridge, Dist] = ha_cluster:free_ports(2),
+    [Bridge, Dist] = evatar_test_cluster:free_ports(2),
     Base = [{"HOME", Home},
             {"RELX_OUT_FILE_PATH", Dir},
             {"RUNNER_LOG_DIR", filename:join(Dir, "log")},
@@ -107,7 +107,7 @@ start_node(Config, Env) ->
     case rel(Config, Env, ["daemon"]) of
         {0, _} ->
             Running = "lists:keymember(evatar, 1, application:which_applications()).",
-            case ha_cluster:await(fun() ->
+            case evatar_test_cluster:await(fun() ->
                                           case rel(Config, Env, ["eval", Running]) of
                                               {0, Out} -> string:trim(Out) =:= "true";
                                               _ -> false

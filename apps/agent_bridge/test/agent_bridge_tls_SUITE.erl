@@ -358,9 +358,9 @@ light_request() ->
                 parameters => [{<<"Light">>, <<"yes">>}]}}.
 
 %% The bodies of the HA suites' entities: a light and a thermometer.
-va_description(Id) -> ha_traffic:va_description(Id).
+va_description(Id) -> evatar_test_traffic:va_description(Id).
 
-avatar_description(Id) -> ha_traffic:avatar_description(Id).
+avatar_description(Id) -> evatar_test_traffic:avatar_description(Id).
 
 hello(Config, Role, Entity, Cred) ->
     bil_control:encode({hello, #{pairing => ?config(pairing, Config), role => Role,

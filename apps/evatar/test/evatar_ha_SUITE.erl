@@ -1,19 +1,18 @@
 %% @doc Common Test suite of high availability (docs/architecture.md section
 %% 8, docs/protocol.md section 11) with real nodes started by OTP `peer' on
-%% this machine, each running evatar and agent_bridge with a listener on
-%% 127.0.0.1, and real TCP clients (`agent_bridge_client' with `ha => true'
-%% and every node's endpoint) in the test node, which is not part of the
-%% cluster (peers are controlled over their standard input/output).
+%% this machine (the cluster harness, evatar_test_cluster), each running
+%% evatar and agent_bridge with a listener on 127.0.0.1, and real TCP
+%% clients (`agent_bridge_client' with `ha => true' and every node's
+%% endpoint) in the test node, which is not part of the cluster (peers are
+%% controlled over their standard input/output).
 %%
 %% Faults: a node is killed with `kill -9' on its OS process. A partition
-%% isolates one node at the distribution level: on the isolated node the
-%% cookie for each other node is set to a wrong value
-%% (`erlang:set_cookie/2') and the connections are dropped with
-%% `erlang:disconnect_node/1', so every reconnection attempt, automatic or by
-%% evatar_cluster, fails its handshake; healing restores the cookies and
-%% evatar_cluster reconnects. TCP between clients and nodes is not cut.
-%% The nodes run with `prevent_overlapping_partitions' false: with it, global
-%% answers one isolated node by disconnecting the others from each other too.
+%% isolates one node at the distribution level with the harness's cookie
+%% backend (evatar_test_net_cookie: wrong cookies on both sides and the
+%% connections dropped, so every handshake fails until the heal). TCP
+%% between clients and nodes is not cut. The nodes run with the release's
+%% rebalancing on: every case has one pairing, which the rebalancer never
+%% moves (a single pairing is always spread evenly).
 -module(evatar_ha_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -44,13 +43,21 @@ init_per_testcase(TC, Config) ->
             two_node_cluster -> 2;
             _ -> 3
         end,
-    put(evatar_ha_log_dir, ?config(priv_dir, Config)),
-    Nodes = start_cluster(TC, N),
-    [{nodes, Nodes}, {pairing, atom_to_binary(TC)} | Config].
+    Dir = filename:join(?config(priv_dir, Config), atom_to_list(TC)),
+    ok = filelib:ensure_path(Dir),
+    %% Looser than the defaults (50/250/150): several VMs share two cores
+    %% here, and a heartbeat late by 250 ms is a (safe but) needless takeover.
+    %% kill -9 is seen at once anyway (the connection drops).
+    {ok, C} = evatar_test_cluster:start(
+                #{n => N, dir => Dir, launcher => peer, control => stdio, net => cookie,
+                  prefix => "ha_" ++ integer_to_list(erlang:unique_integer([positive])) ++ "_",
+                  modules => [?MODULE], conn => #{heartbeat => 100},
+                  evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
+                             {resume_timeout, 10000}]}),
+    [{cluster, C}, {pairing, atom_to_binary(TC)} | Config].
 
 end_per_testcase(_TC, Config) ->
-    _ = [catch peer:stop(P) || #{peer := P} <- ?config(nodes, Config)],
-    ok.
+    evatar_test_cluster:stop(?config(cluster, Config)).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -60,7 +67,7 @@ end_per_testcase(_TC, Config) ->
 %% acknowledged; after its connection drops it resumes, and a signal resent
 %% with the same SignalID is acknowledged but not delivered twice.
 single_node_resume_dedup(Config) ->
-    [N1] = ?config(nodes, Config),
+    [N1] = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     {Va, Av, Sink} = bound_pair(Config, [N1]),
@@ -87,7 +94,7 @@ single_node_resume_dedup(Config) ->
 %% standby's pairing state (evatar_pairing_logic) equal to the active's at
 %% the same version.
 replication_keeps_state_equal(Config) ->
-    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    [N1, N2, N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
@@ -109,7 +116,7 @@ replication_keeps_state_equal(Config) ->
 %% signal the sender was told was accepted arrives exactly once, a request
 %% round trip completes, and a new standby appears on the third node.
 kill_active_takes_over(Config) ->
-    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    [N1, N2, N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
@@ -133,7 +140,7 @@ kill_active_takes_over(Config) ->
 %% the pairing moved, follows it to the standby that took over, and sees
 %% the traffic routed there.
 tail_follows_takeover(Config) ->
-    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    [N1, N2, N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
@@ -143,7 +150,7 @@ tail_follows_takeover(Config) ->
     ok = wait_until(fun() -> tail_has(N3, fun(#{kind := K}) -> K =:= <<"request">> end) end),
     ok = kill9(N1),
     #{epoch := 2} = expect_reconnected(Va),
-    Node2 = atom_to_binary(maps:get(node, N2)),
+    Node2 = atom_to_binary(node_name(N2)),
     ok = wait_until(fun() ->
                             tail_has(N3, fun(#{kind := K, node := N}) ->
                                                  K =:= <<"attached">> andalso N =:= Node2;
@@ -197,7 +204,7 @@ tail_items() ->
 %% over with epoch 2, and after the partition heals exactly one active and
 %% one standby remain, with no signal lost or duplicated.
 partition_fences_isolated_active(Config) ->
-    [N1, N2, N3] = Nodes = ?config(nodes, Config),
+    [N1, N2, N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
@@ -224,7 +231,7 @@ partition_fences_isolated_active(Config) ->
 %% apart both sides serve, and after healing the lower epoch steps down so
 %% that exactly one active and one standby remain.
 two_node_cluster(Config) ->
-    [N1, N2] = Nodes = ?config(nodes, Config),
+    [N1, N2] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
@@ -261,7 +268,7 @@ two_node_cluster(Config) ->
 %% over to its standby (epoch 2); the other client reconnects there and
 %% resumes, and the old active is the new standby.
 handover_on_silent_link(Config) ->
-    [N1, N2, _N3] = Nodes = ?config(nodes, Config),
+    [N1, N2, _N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
     _ = [ok = rpc(N, application, set_env, [evatar, client_ack_timeout, 300]) || N <- Nodes],
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
@@ -283,101 +290,23 @@ handover_on_silent_link(Config) ->
 %% Nodes
 %% ---------------------------------------------------------------------------
 
-start_cluster(TC, N) ->
-    Unique = integer_to_list(erlang:unique_integer([positive])),
-    Names = [list_to_atom("ha" ++ integer_to_list(I) ++ "_" ++ atom_to_list(TC) ++ "_" ++ Unique)
-             || I <- lists:seq(1, N)],
-    Nodes = [list_to_atom(atom_to_list(Name) ++ "@127.0.0.1") || Name <- Names],
-    Started = [start_node(Name) || Name <- Names],
-    _ = [setup_node(P, Nodes) || {P, _} <- Started],
-    Info = [#{peer => P, node => Node, addr => listener(P)} || {P, Node} <- Started],
-    ok = wait_until(fun() ->
-                            lists:all(fun(#{peer := P}) ->
-                                              length(maps:get(up, peer:call(P, evatar,
-                                                                            cluster_status,
-                                                                            []))) =:= N
-                                      end, Info)
-                    end),
-    Info.
+%% A node of the case's cluster: {Cluster, Index}.
+handles(Config) ->
+    C = ?config(cluster, Config),
+    [{C, I} || I <- lists:seq(1, length(evatar_test_cluster:nodes(C)))].
 
-%% The arguments, code path (with this suite's directory: its funs run on
-%% the nodes) and start are evatar_test_cluster's, as for test/ha_cluster.
-start_node(Name) ->
-    Args = evatar_test_cluster:node_args(#{cookie => cookie(cluster),
-                                           code_path => evatar_test_cluster:code_path([?MODULE])}),
-    {ok, P, Node} = peer:start(#{name => Name, host => "127.0.0.1", longnames => true,
-                                 connection => standard_io, args => Args}),
-    {P, Node}.
+node_name({C, I}) -> evatar_test_cluster:node(C, I).
 
-setup_node(P, Nodes) ->
-    ok = peer:call(P, application, load, [evatar]),
-    ok = peer:call(P, application, load, [agent_bridge]),
-    %% Each node logs to its own file next to the test logs.
-    ok = peer:call(P, logger, set_primary_config, [level, info]),
-    _ = peer:call(P, logger, remove_handler, [default]),
-    File = filename:join(log_dir(), atom_to_list(peer:call(P, erlang, node, [])) ++ ".log"),
-    ok = peer:call(P, logger, add_handler,
-                   [file, logger_std_h, #{config => #{file => File},
-                                          filter_default => log,
-                                          filters => [{progress, {fun logger_filters:progress/2,
-                                                                  stop}}]}]),
-    %% Looser than the defaults (50/250/150): several VMs share two cores
-    %% here, and a heartbeat late by 250 ms is a (safe but) needless takeover.
-    %% kill -9 is seen at once anyway (the connection drops).
-    %% No rebalancing: the cases assert where pairings go after their faults.
-    Env = [{cluster, Nodes}, {heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
-           {resume_timeout, 10000}, {rebalance, false}],
-    ok = peer:call(P, evatar_test_cluster, start_evatar,
-                   [#{env => [{evatar, Env}, {agent_bridge, [{listeners, []}]}],
-                      listener => ha,
-                      listener_opts => #{ip => {127, 0, 0, 1}, port => 0,
-                                         conn => #{heartbeat => 100}}}]),
-    ok.
+rpc({C, I}, M, F, A) -> evatar_test_cluster:call(C, I, M, F, A).
 
-log_dir() ->
-    case get(evatar_ha_log_dir) of
-        undefined -> "/tmp";
-        Dir -> Dir
-    end.
+kill9({C, I}) -> evatar_test_cluster:kill(C, I).
 
-listener(P) ->
-    {ok, Addr} = peer:call(P, agent_bridge, address, [ha]),
-    Addr.
+%% Cuts `Node' off from `Others' (the harness's cookie backend).
+partition({C, I}, Others) ->
+    evatar_test_cluster:cut(C, [{I, J} || {_, J} <- Others]).
 
-rpc(#{peer := P}, M, F, A) -> peer:call(P, M, F, A).
-
-kill9(#{peer := P}) ->
-    OsPid = peer:call(P, os, getpid, []),
-    _ = os:cmd("kill -9 " ++ OsPid),
-    ok.
-
-%% Cuts `Node' off from `Others' at the distribution level: a wrong cookie
-%% for each of them, then the connections dropped.
-partition(#{peer := P}, Others) ->
-    _ = [begin
-             true = peer:call(P, erlang, set_cookie, [O, cookie(blocked)]),
-             _ = peer:call(P, erlang, disconnect_node, [O])
-         end || #{node := O} <- Others],
-    ok.
-
-heal(#{peer := P}, Others) ->
-    _ = [true = peer:call(P, erlang, set_cookie, [O, cookie(cluster)]) || #{node := O} <- Others],
-    ok.
-
-%% The nodes' cookie, and the wrong one of a partition: random, made once
-%% per run (with a known cookie, anyone reaching a node while the tests
-%% run could run code on it).
-cookie(Which) ->
-    case persistent_term:get({?MODULE, cookie, Which}, undefined) of
-        undefined ->
-            Cookie = evatar_test_fixtures:secret_atom(),
-            persistent_term:put({?MODULE, cookie, Which}, Cookie),
-            Cookie;
-        Cookie ->
-            Cookie
-    end.
-
-node_name(#{node := N}) -> N.
+heal({C, _}, _Others) ->
+    evatar_test_cluster:heal(C).
 
 role(N, Id) ->
     case rpc(N, evatar, ha_status, [Id]) of
@@ -405,7 +334,8 @@ equal_at_same_version(Active, Standby, Id) ->
             false
     end.
 
-wait_synced(N, Id, #{node := StandbyNode}) ->
+wait_synced(N, Id, Standby) ->
+    StandbyNode = node_name(Standby),
     wait_until(fun() ->
                        case rpc(N, evatar, ha_status, [Id]) of
                            {ok, #{role := active, synced := true, standby_node := StandbyNode}} ->
@@ -423,8 +353,8 @@ pairing_opts() ->
     #{agent_credential => ?CRED_VA, avatar_credential => ?CRED_AV, join_timeout => 10000,
       feedback_timeout => 10000}.
 
-client(Config, Nodes, Role, Entity, Owner) ->
-    Endpoints = [Addr || #{addr := Addr} <- Nodes],
+client(Config, _Nodes, Role, Entity, Owner) ->
+    Endpoints = evatar_test_cluster:endpoints(?config(cluster, Config)),
     {ok, C} = agent_bridge_client:connect(
                 Endpoints,
                 #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
@@ -529,7 +459,8 @@ close_all(Clients) ->
     _ = [agent_bridge_client:close(C) || C <- Clients],
     ok.
 
-silent_avatar(Config, #{addr := {Ip, Port}}) ->
+silent_avatar(Config, {C, I}) ->
+    {Ip, Port} = evatar_test_cluster:endpoint(C, I),
     {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false}]),
     ok = gen_tcp:send(S, bil_control:encode(
                            {hello, #{pairing => ?config(pairing, Config), role => avatar,
@@ -566,7 +497,7 @@ dump_on_error(Error, Nodes, Id) ->
                                       catch rpc(Node, evatar, ha_status, [Id]),
                                       catch rpc(Node, erlang, nodes, []),
                                       catch rpc(Node, evatar, stats, [Id])])
-         || #{node := N} = Node <- Nodes],
+         || Node <- Nodes, N <- [node_name(Node)]],
     ct:pal("mailbox: ~p", [element(2, process_info(self(), messages))]),
     Error.
 

@@ -1,9 +1,9 @@
 %% @doc Test support. One entity of a pairing (a VA or an Avatar) driving
 %% traffic through an HA client of the bridge (agent_bridge_client with
-%% several endpoints), and recording its history for ha_checker: every
+%% several endpoints), and recording its history for evatar_test_checker: every
 %% signal it sent, every one the bridge told it was accepted (`Ack'), and
-%% every one it received, with epochs and reconnections. Internal to the
-%% root test/ directory.
+%% every one it received, with epochs and reconnections.
+%% Part of the cluster harness (evatar_test_cluster).
 %%
 %% The VA sends a request awaiting feedback every `request_interval' ms; the
 %% Avatar answers every request with a feedback (SignalID "fb-" ++ the
@@ -14,7 +14,7 @@
 %% ```
 %%  connecting --connected, described--> running --stop_traffic--> quiet
 %% '''
--module(ha_traffic).
+-module(evatar_test_traffic).
 -behaviour(gen_server).
 
 -export([start_pair/3, start_entity/1, pairing_opts/0, stop_traffic/1, burst/2, dump/2, settle/2, settle/3, settle_accepted/2,
@@ -75,7 +75,7 @@
 %% Opts: request_interval, sensor_interval (ms, or off; default off),
 %% client (extra agent_bridge_client options), bound_timeout, owner (the
 %% entities stop when it exits; default the caller), notify (a pid told
-%% `{ha_traffic, Entity, {received, SignalID, Epoch, MonotonicUs}}' of every
+%% `{evatar_test_traffic, Entity, {received, SignalID, Epoch, MonotonicUs}}' of every
 %% signal received from the other entity).
 -spec start_pair([{inet:ip_address(), inet:port_number()}], binary(), map()) ->
           {ok, pair()} | {error, term()}.
@@ -119,7 +119,7 @@ settle(Pair, Timeout) ->
     settle(Pair, [], Timeout).
 
 %% @doc As settle/2 for a run with power cuts at `Cuts' (as for
-%% ha_checker:check_pairs/2): waits for every accepted signal to arrive
+%% evatar_test_checker:check_pairs/2): waits for every accepted signal to arrive
 %% except those the checker counts as in flight at a cut, which never do
 %% (docs/ha.md section 6). Reading the histories once the Acks are in
 %% would race the deliveries still under way (a feedback acknowledged to
@@ -127,14 +127,14 @@ settle(Pair, Timeout) ->
 %% lost.
 -spec settle(pair(), [integer()], pos_integer()) -> ok | {error, term()}.
 settle(#{va := Va, av := Av} = Pair, Cuts, Timeout) ->
-    ha_cluster:await(
+    evatar_test_cluster:await(
       fun() ->
               %% histories/1 reads the VA, then the Avatar: a signal the
               %% Avatar's read shows accepted counts as arrived only if the
               %% earlier read of the VA had it already.
               #{va := HVa, av := HAv} = H = histories(Pair),
               acked(HVa) andalso acked(HAv)
-                  andalso maps:get(lost, ha_checker:check_pairs([H], Cuts)) =:= []
+                  andalso maps:get(lost, evatar_test_checker:check_pairs([H], Cuts)) =:= []
                   andalso is_process_alive(Va) andalso is_process_alive(Av)
       end, Timeout, {settle, maps:get(pairing, Pair)}).
 
@@ -145,7 +145,7 @@ settle(#{va := Va, av := Av} = Pair, Cuts, Timeout) ->
 %% the checker then reports them.
 -spec settle_accepted(pair(), pos_integer()) -> ok | {error, term()}.
 settle_accepted(#{va := Va, av := Av} = Pair, Timeout) ->
-    ha_cluster:await(
+    evatar_test_cluster:await(
       fun() ->
               #{va := HVa, av := HAv} = histories(Pair),
               acked(HVa) andalso acked(HAv)
@@ -338,7 +338,7 @@ received(Id, Sig, #s{opts = Opts} = S) ->
     Epoch = maps:get(epoch, Sig, undefined),
     _ = case maps:get(notify, Opts, undefined) of
             undefined -> ok;
-            Pid -> Pid ! {ha_traffic, S#s.entity,
+            Pid -> Pid ! {evatar_test_traffic, S#s.entity,
                           {received, Id, Epoch, erlang:monotonic_time(microsecond)}}
         end,
     S#s{received = [{Id, Epoch} | S#s.received],

@@ -1,68 +1,69 @@
-%% @doc Test support. Pairings on an ha_cluster: creating one with its
+%% @doc Test support. Pairings on an evatar_test_cluster: creating one with its
 %% active on a chosen node, reading every instance's role and epoch
 %% (evatar:ha_status/1 on each node, asked directly by the controller, so
 %% a partition between nodes does not hide anything), and waiting for the
-%% states the suites assert. Internal to the root test/ directory.
--module(ha_pairing).
+%% states the suites assert. Part of the
+%% cluster harness (evatar_test_cluster).
+-module(evatar_test_pairing).
 
 -export([create/3, create/4, statuses/2, active/2, await_active/4, await_healthy/3,
          healthy/2, roles/2, delete/3, reset/3]).
 
 -type status() :: #{role := atom(), epoch := non_neg_integer(), atom() => term()}.
 
-%% @doc Creates pairing Id with its active on node I (ha_traffic's
+%% @doc Creates pairing Id with its active on node I (evatar_test_traffic's
 %% credentials) and waits until its standby is in sync (in a cluster).
--spec create(ha_cluster:cluster(), pos_integer(), binary()) -> ok.
+-spec create(evatar_test_cluster:cluster(), pos_integer(), binary()) -> ok.
 create(C, I, Id) -> create(C, I, Id, #{}).
 
--spec create(ha_cluster:cluster(), pos_integer(), binary(), map()) -> ok.
+-spec create(evatar_test_cluster:cluster(), pos_integer(), binary(), map()) -> ok.
 create(C, I, Id, Extra) ->
-    {ok, _} = ha_cluster:call(C, I, evatar, create_pairing,
-                              [Id, maps:merge(ha_traffic:pairing_opts(), Extra)]),
+    {ok, _} = evatar_test_cluster:call(C, I, evatar, create_pairing,
+                                       [Id, maps:merge(evatar_test_traffic:pairing_opts(), Extra)]),
     Synced = fun() ->
-                     case ha_cluster:call(C, I, evatar, ha_status, [Id]) of
+                     case evatar_test_cluster:call(C, I, evatar, ha_status, [Id]) of
                          {ok, #{synced := true}} -> true;
                          _ -> false
                      end
              end,
-    case ha_cluster:nodes(C) of
+    case evatar_test_cluster:nodes(C) of
         [_] -> ok;  % a lone node: no standby to wait for
-        _ -> ok = ha_cluster:await(Synced, 60000, {synced, Id})
+        _ -> ok = evatar_test_cluster:await(Synced, 60000, {synced, Id})
     end.
 
 %% @doc Deletes pairing Id through node I (its active).
--spec delete(ha_cluster:cluster(), pos_integer(), binary()) -> term().
+-spec delete(evatar_test_cluster:cluster(), pos_integer(), binary()) -> term().
 delete(C, I, Id) ->
-    ha_cluster:call(C, I, evatar, delete_pairing, [Id]).
+    evatar_test_cluster:call(C, I, evatar, delete_pairing, [Id]).
 
 %% @doc Puts the cluster back as it was for the next test case: every node
 %% up (stalled ones resumed, killed ones restarted), no link cut, formed
 %% within Timeout ms, and pairing Id deleted.
--spec reset(ha_cluster:cluster(), binary(), pos_integer()) -> ok.
+-spec reset(evatar_test_cluster:cluster(), binary(), pos_integer()) -> ok.
 reset(C, Id, Timeout) ->
-    ok = ha_cluster:heal(C, reset),
-    _ = [ok = ha_cluster:resume(C, I) || #{i := I, status := stalled} <- ha_cluster:info(C)],
-    _ = [ok = ha_cluster:restart(C, I) || #{i := I, status := down} <- ha_cluster:info(C)],
-    ok = ha_cluster:await_formed(C, Timeout),
+    ok = evatar_test_cluster:heal(C, reset),
+    _ = [ok = evatar_test_cluster:resume(C, I) || #{i := I, status := stalled} <- evatar_test_cluster:info(C)],
+    _ = [ok = evatar_test_cluster:restart(C, I) || #{i := I, status := down} <- evatar_test_cluster:info(C)],
+    ok = evatar_test_cluster:await_formed(C, Timeout),
     _ = [delete(C, I, Id) || {active, _, I} <- roles(C, Id)],
     ok.
 
 %% @doc The status of every instance of Id on the nodes that are up (a node
 %% that does not answer is left out), as {NodeIndex, Status}.
--spec statuses(ha_cluster:cluster(), binary()) -> [{pos_integer(), status()}].
+-spec statuses(evatar_test_cluster:cluster(), binary()) -> [{pos_integer(), status()}].
 statuses(C, Id) ->
-    Up = [I || #{i := I, status := up} <- ha_cluster:info(C)],
-    Calls = [{I, ha_cluster:call(C, I, evatar, ha_status, [Id])} || I <- Up],
+    Up = [I || #{i := I, status := up} <- evatar_test_cluster:info(C)],
+    Calls = [{I, evatar_test_cluster:call(C, I, evatar, ha_status, [Id])} || I <- Up],
     [{I, St} || {I, {ok, St}} <- Calls].
 
 %% @doc Roles as a sorted list of {Role, Epoch, NodeIndex}.
--spec roles(ha_cluster:cluster(), binary()) -> [{atom(), non_neg_integer(), pos_integer()}].
+-spec roles(evatar_test_cluster:cluster(), binary()) -> [{atom(), non_neg_integer(), pos_integer()}].
 roles(C, Id) ->
     lists:sort([{R, E, I} || {I, #{role := R, epoch := E}} <- statuses(C, Id)]).
 
 %% @doc The one active instance: {ok, NodeIndex, Status}, or {error, Roles}
 %% when there is none or more than one.
--spec active(ha_cluster:cluster(), binary()) ->
+-spec active(evatar_test_cluster:cluster(), binary()) ->
           {ok, pos_integer(), status()} | {error, term()}.
 active(C, Id) ->
     All = statuses(C, Id),
@@ -72,13 +73,13 @@ active(C, Id) ->
     end.
 
 %% @doc Waits for an active instance accepted by Pred(NodeIndex, Status).
--spec await_active(ha_cluster:cluster(), binary(),
+-spec await_active(evatar_test_cluster:cluster(), binary(),
                    fun((pos_integer(), status()) -> boolean()), pos_integer()) ->
           {ok, pos_integer(), status()} | {error, term()}.
 await_active(C, Id, Pred, Timeout) ->
     Self = self(),
     Ref = make_ref(),
-    case ha_cluster:await(fun() ->
+    case evatar_test_cluster:await(fun() ->
                                   case active(C, Id) of
                                       {ok, I, St} ->
                                           Pred(I, St) andalso (Self ! {Ref, I, St}) =/= x;
@@ -92,14 +93,14 @@ await_active(C, Id, Pred, Timeout) ->
 
 %% @doc True when Id has exactly two instances on the nodes that are up:
 %% one active, and one standby on another node, in sync with it.
--spec healthy(ha_cluster:cluster(), binary()) -> boolean().
+-spec healthy(evatar_test_cluster:cluster(), binary()) -> boolean().
 healthy(C, Id) ->
     case statuses(C, Id) of
         [{_, _}, {_, _}] = Two ->
             case lists:sort([{R, I, St} || {I, #{role := R} = St} <- Two]) of
                 [{active, AI, #{epoch := E, synced := true, standby_node := SN}},
                  {standby, SI, #{epoch := E}}] ->
-                    AI =/= SI andalso SN =:= ha_cluster:node(C, SI);
+                    AI =/= SI andalso SN =:= evatar_test_cluster:node(C, SI);
                 _ ->
                     false
             end;
@@ -108,9 +109,9 @@ healthy(C, Id) ->
     end.
 
 %% @doc Waits until healthy/2 holds.
--spec await_healthy(ha_cluster:cluster(), binary(), pos_integer()) -> ok | {error, term()}.
+-spec await_healthy(evatar_test_cluster:cluster(), binary(), pos_integer()) -> ok | {error, term()}.
 await_healthy(C, Id, Timeout) ->
-    case ha_cluster:await(fun() -> healthy(C, Id) end, Timeout, {healthy, Id}) of
+    case evatar_test_cluster:await(fun() -> healthy(C, Id) end, Timeout, {healthy, Id}) of
         ok -> ok;
         {error, _} = Error -> {error, {Error, roles(C, Id)}}
     end.

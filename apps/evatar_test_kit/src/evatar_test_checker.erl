@@ -2,7 +2,8 @@
 %% RabbitMQ checker classifies queue messages: for each direction (sender
 %% to receiver) it compares what the sender sent, what the bridge told it
 %% was accepted (`Ack'), and what the receiver got. Pure functions.
-%% Internal to the root test/ directory.
+%% Part of the
+%% cluster harness (evatar_test_cluster).
 %%
 %% | category | meaning |
 %% |---|---|
@@ -19,7 +20,7 @@
 %% apart the signals in flight at a cut that were lost or delivered twice:
 %% they may be (docs/ha.md section 6); every other signal is held to the
 %% same rules.
--module(ha_checker).
+-module(evatar_test_checker).
 
 -export([classify/3, check_pairs/1, check_pairs/2, merge/2, empty/0, passed/1, format/1]).
 
@@ -57,8 +58,8 @@ classify(Sent, Accepted, Delivered) ->
       recovered => length([Id || Id <- NotAcked, Times(Id) =:= 1]),
       unconfirmed => length([Id || Id <- NotAcked, Times(Id) =:= 0])}.
 
-%% @doc Both directions of each pair of ha_traffic histories, summed.
--spec check_pairs([#{va := ha_traffic:history(), av := ha_traffic:history()}]) -> result().
+%% @doc Both directions of each pair of evatar_test_traffic histories, summed.
+-spec check_pairs([#{va := evatar_test_traffic:history(), av := evatar_test_traffic:history()}]) -> result().
 check_pairs(Histories) ->
     lists:foldl(fun(#{va := Va, av := Av}, Acc) ->
                         merge(merge(direction(Va, Av), direction(Av, Va)), Acc)
@@ -77,7 +78,7 @@ direction(#{sent := Sent, accepted := Acc}, #{received := Rec}) ->
 %% again by a sender that had not had its Ack.
 %% Those go to `lost_at_cut' and `duplicated_at_cut' (counts), not to
 %% `lost' and `duplicated'.
--spec check_pairs([#{va := ha_traffic:history(), av := ha_traffic:history()}], [integer()]) ->
+-spec check_pairs([#{va := evatar_test_traffic:history(), av := evatar_test_traffic:history()}], [integer()]) ->
           result().
 check_pairs(Histories, Cuts) ->
     lists:foldl(fun(#{va := Va, av := Av}, Acc) ->

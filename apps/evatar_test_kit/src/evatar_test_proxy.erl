@@ -1,7 +1,7 @@
 %% @doc Test support. A TCP proxy for one direction of a link between two
-%% nodes (A dials B through it; ha_epmd points A there), which a suite can
-%% block and heal to make a network partition. Internal to the root test/
-%% directory.
+%% nodes (A dials B through it; evatar_test_epmd points A there), which a suite can
+%% block and heal to make a network partition.
+%% Part of the cluster harness (evatar_test_cluster).
 %%
 %% Blocking makes the link silent, as a partition does: the proxy stops
 %% reading both sockets of every connection, so bytes stay in the kernel's
@@ -15,7 +15,7 @@
 %%  passing --block--> blocked --unblock(flush)--> passing
 %%                        |  --unblock(reset)--> passing, old connections closed
 %% '''
--module(ha_proxy).
+-module(evatar_test_proxy).
 -behaviour(gen_server).
 
 -export([start/1, port/1, block/1, unblock/2, blocked/1, stop/1]).

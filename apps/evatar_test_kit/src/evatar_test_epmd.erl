@@ -1,15 +1,16 @@
-%% @doc Test support. An epmd module (`-epmd_module ha_epmd') for the nodes
+%% @doc Test support. An epmd module (`-epmd_module evatar_test_epmd') for the nodes
 %% of the multi-node suites: it sends a node's connections to each peer
-%% through the TCP proxy of that link (ha_proxy), so a suite can cut and heal
+%% through the TCP proxy of that link (evatar_test_proxy), so a suite can cut and heal
 %% the links between nodes while it still reaches every node directly.
-%% Internal to the root test/ directory.
+%% Part of the
+%% cluster harness (evatar_test_cluster).
 %%
 %% The links come from the command line, one `-ha_link ShortName Port' per
 %% peer: connecting to ShortName@Host goes to 127.0.0.1:Port (the proxy),
 %% which forwards to the peer's fixed distribution port. Every other call
 %% (registering with the real epmd, which the test controller uses to reach
 %% the node directly, and looking up nodes without a link) goes to erl_epmd.
--module(ha_epmd).
+-module(evatar_test_epmd).
 
 -export([start_link/0, register_node/2, register_node/3, listen_port_please/2,
          port_please/2, port_please/3, address_please/3, names/0, names/1]).
