@@ -50,7 +50,7 @@ init_per_testcase(TC, Config) ->
     %% kill -9 is seen at once anyway (the connection drops).
     {ok, C} = evatar_test_cluster:start(
                 #{n => N, dir => Dir, launcher => peer, control => stdio, net => cookie,
-                  prefix => "ha_" ++ integer_to_list(erlang:unique_integer([positive])) ++ "_",
+                  prefix => "ha",
                   modules => [?MODULE], conn => #{heartbeat => 100},
                   evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
                              {resume_timeout, 10000}]}),
@@ -401,17 +401,16 @@ received(Sink) ->
     Sink ! {received, self()},
     receive {received, Got} -> Got after ?WAIT -> ct:fail(sink_silent) end.
 
-%% Every id arrived, each exactly once, in the order sent.
+%% Every id arrived, each exactly once, in the order sent (the harness's
+%% checker says what was lost or duplicated when not).
 wait_received(Sink, Ids) ->
     case wait_until(fun() -> length(received(Sink)) >= length(Ids) end) of
         ok ->
             ?assertEqual(Ids, received(Sink)),
             ok;
         Error ->
-            Got = received(Sink),
-            ct:pal("missing ~s~nduplicated ~s",
-                   [lists:join(" ", [I || I <- Ids, not lists:member(I, Got)]),
-                    lists:join(" ", [I || I <- lists:usort(Got), length([x || J <- Got, J =:= I]) > 1])]),
+            ct:pal("~s", [evatar_test_checker:format(
+                            evatar_test_checker:classify(Ids, Ids, received(Sink)))]),
             Error
     end.
 

@@ -67,7 +67,8 @@
 %% does either; a cookie cut dropped its connections already (a reset); a
 %% namespace link comes back and TCP retransmits (a flush).
 
-%% n: nodes (default 3); prefix: node names' prefix (default "ha"); dir:
+%% n: nodes (default 3); prefix: node names' prefix (default "ha"; node I
+%% is PrefixI_OsPid_N, its log PrefixI_OsPid_N.log in `dir'); dir:
 %% where the node logs and catalogues go (required); net: the fault backend
 %% (default proxy, none for one node); launcher: os (default) or peer;
 %% control: dist (default) or stdio (peer only: for nodes whose
@@ -471,7 +472,12 @@ init(Opts0) ->
                  #{} -> evatar_test_fixtures:secret_atom()
              end,
     Backend = backend(Net),
-    Shorts = [maps:get(prefix, Opts) ++ integer_to_list(I) || I <- lists:seq(1, maps:get(n, Opts))],
+    %% Names unique to this cluster: other runs of the same suites on this
+    %% machine share its epmd and, through ~/.erlang.cookie, the
+    %% controller's cookie (a run once reached another run's `nem1').
+    Tag = "_" ++ os:getpid() ++ "_" ++ integer_to_list(erlang:unique_integer([positive])),
+    Shorts = [maps:get(prefix, Opts) ++ integer_to_list(I) ++ Tag
+              || I <- lists:seq(1, maps:get(n, Opts))],
     case Backend:init(Shorts, Opts) of
         {ok, NetState, Specs} ->
             Nodes = maps:from_list(
