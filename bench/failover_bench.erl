@@ -355,7 +355,8 @@ fmt_ratio(_, _) -> "-".
 
 dist_figures(Opts, Scale) ->
     ok = filelib:ensure_path(maps:get(dir, Opts)),
-    {ok, C} = evatar_test_cluster:start(Opts#{n => 2, net => none}),
+    %% The nodes run this module's dist_ping_pong/2 and dist_bulk/3.
+    {ok, C} = evatar_test_cluster:start(Opts#{n => 2, net => none, modules => [?MODULE]}),
     try
         N2 = evatar_test_cluster:node(C, 2),
         Rounds = 20000 div Scale,

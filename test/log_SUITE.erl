@@ -35,6 +35,7 @@ init_per_suite(Config) ->
     File = filename:join(Dir, "logger.config"),
     ok = file:write_file(File, io_lib:format("~tp.~n", [[{kernel, release_kernel_env()}]])),
     {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "lg", evatar => ?TIMING,
+                                          modules => [log_capture],
                                           config => File}),
     _ = [ok = evatar_test_cluster:call(C, I, log_capture, install, []) || I <- [1, 2, 3]],
     [{dist, Dist}, {cluster, C}, {dir, Dir} | Config].
