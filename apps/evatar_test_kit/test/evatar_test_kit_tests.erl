@@ -82,6 +82,31 @@ cluster_code_path_test() ->
      || App <- [evatar, agent_bridge, evatar_test_kit]],
     ?assert(lists:member(filename:dirname(code:which(?MODULE)), Path)).
 
+%% The partition and rebalancing figures: the longest gap between round
+%% trips that begins at or after the last one before the cut, up to the
+%% last one; `never' when none came after the cut.
+partition_unserved_test() ->
+    H = fun(Times) -> #{received_at => maps:from_list(
+                                          [{<<"fb-", (integer_to_binary(T))/binary>>, [T, T + 500]}
+                                           || T <- Times])}
+        end,
+    %% Cut at 100: 90 is the last round trip before it; 90 -> 400 is the gap.
+    ?assertEqual(310, evatar_test_partition:unserved(H([10, 50, 90, 400, 420]), 100)),
+    %% A long gap before the cut does not count.
+    ?assertEqual(20, evatar_test_partition:unserved(H([0, 80, 90, 110]), 100)),
+    ?assertEqual(never, evatar_test_partition:unserved(H([10, 50]), 100)),
+    %% Signals other than feedback (sensor data) are not round trips.
+    ?assertEqual(310, evatar_test_partition:unserved(
+                        (H([90, 400]))#{received_at := #{<<"fb-a">> => [90], <<"s-1">> => [200],
+                                                         <<"fb-b">> => [400]}}, 100)).
+
+%% The `none' backend refuses a cut, and a heal with nothing cut is ok.
+cluster_net_none_refuses_cuts_test() ->
+    Ctx = #{names => #{}, cookie => c, call => fun(_, _, _, _) -> error(no_call) end},
+    ?assertEqual({ok, none}, evatar_test_net_none:cut([], Ctx, none)),
+    ?assertEqual({{error, {unsupported, none}}, none}, evatar_test_net_none:cut([{1, 2}], Ctx, none)),
+    ?assertEqual({ok, none}, evatar_test_net_none:heal(flush, Ctx, none)).
+
 %% The public_key fallback for the broker's TLS CA makes a CA that a client
 %% verifying the server (and its 127.0.0.1 address) accepts.
 mosquitto_public_key_ca_verifies_test_() ->
