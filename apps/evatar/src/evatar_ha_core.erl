@@ -51,9 +51,11 @@
 %% What the instance is and sees when an event comes: the configured
 %% nodes (a snapshot of evatar_cluster's view), the heartbeat, the epoch of
 %% its pairing state, and its role; `suspect_ms' (default 5 heartbeats, the
-%% release's ratio) bounds a registration.
+%% release's ratio) bounds a registration; `self', the instance's own node,
+%% decides a registration in a cluster of two.
 -type ctx() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
-                 epoch := non_neg_integer(), role := role(), suspect_ms => pos_integer()}.
+                 epoch := non_neg_integer(), role := role(), suspect_ms => pos_integer(),
+                 self => node()}.
 
 -type event() :: {elect, Why :: term(), ActiveDead :: boolean()}
                | {handover_asked}
@@ -182,10 +184,20 @@ handle({vote_reply, Ec, Node, Result}, #{role := R} = Ctx,
     end;
 handle({vote_reply, _, _, _}, _Ctx, C) ->
     {C, []};
-handle({register_reply, Claim, Node, ok}, Ctx,
-       #core{reg = #{claim := Claim, ok := Ok} = Reg} = C) ->
+handle({register_reply, Claim, Node, ok}, #{epoch := E} = Ctx,
+       #core{reg = #{claim := Claim, ok := Ok} = Reg, promised = P} = C) ->
     Ok1 = lists:usort([Node | Ok]),
-    case length(Ok1) >= quorum(Ctx) of
+    case accepted(Ok1, Ctx) of
+        true when P > E, map_get(role, Ctx) =:= active ->
+            %% Accepted at epoch E, but a node refused it for a promise of
+            %% a later epoch P. Majorities share a node, so nobody released
+            %% anything at P, unless that node was restarted since and
+            %% forgot (votes live in memory): an instance that won P may
+            %% have served clients and crashed, and clients that saw P
+            %% refuse a lower epoch. Stand for an epoch above P first,
+            %% holding what is held; the registration stays, so no standby
+            %% is taken meanwhile (a stale promise costs one more round).
+            handle({elect, reelect, false}, Ctx, C#core{reg = Reg#{ok := Ok1}});
         true ->
             %% Accepted: a re-election begun because one node refused it
             %% (a stale promise) is moot. Left running, it could be won
@@ -197,6 +209,19 @@ handle({register_reply, Claim, Node, ok}, Ctx,
              [registered]};
         false -> {C#core{reg = Reg#{ok := Ok1}}, []}
     end;
+handle({register_reply, Claim, Node, {refused, {promised, P}}}, #{role := active} = Ctx,
+       #core{reg = #{claim := Claim}} = C)
+  when is_map_key(self, Ctx), map_get(self, Ctx) =:= Node, length(map_get(nodes, Ctx)) =< 2 ->
+    %% A cluster of two decides alone (availability), by this
+    %% node's own voter: it promised a later epoch P to the other
+    %% node's instance, which took the pairing over and served
+    %% clients at P while this one was paused (or cut off). If that
+    %% instance is gone again (and its node, restarted, accepts
+    %% anything), clients that saw P would refuse this lower epoch:
+    %% stand for one above P, holding what is held. A voter still
+    %% hearing that instance refuses (holder_live), and the two
+    %% instances reconcile (the lower epoch steps down).
+    handle({elect, reelect, false}, Ctx, C#core{promised = max(P, C#core.promised)});
 handle({register_reply, Claim, _Node, {refused, {promised, P}}}, #{role := active} = Ctx,
        #core{reg = #{claim := Claim} = Reg} = C) when not is_map_key(pause, Reg) ->
     %% A node promised a later epoch to another instance: a standby cut off
@@ -208,17 +233,8 @@ handle({register_reply, Claim, _Node, {refused, {promised, P}}}, #{role := activ
     %% voters refuse it; else it wins and the stale promise is gone. The
     %% registration stays (effects held, no standby taken) until then.
     handle({elect, reelect, false}, Ctx, C#core{promised = max(P, C#core.promised)});
-handle({register_reply, Claim, Node, {refused, Why}}, #{nodes := Nodes} = Ctx,
-       #core{reg = #{claim := Claim, no := No} = Reg} = C) ->
-    No1 = lists:usort([Node | No]),
-    case length(Nodes) - length(No1) < quorum(Ctx) of
-        true ->
-            %% Too many nodes promised the pairing to another instance, or
-            %% saw a newer configuration: this one cannot go on serving.
-            {C#core{reg = undefined}, [{fence, Why}]};
-        false ->
-            {C#core{reg = Reg#{no := No1}}, []}
-    end;
+handle({register_reply, Claim, Node, {refused, Why}}, Ctx, #core{reg = #{claim := Claim}} = C) ->
+    refused(Node, Why, Ctx, C);
 handle({register_reply, _, _, _}, _Ctx, C) ->
     {C, []};
 handle(standby_node_lost, #{heartbeat_ms := Hb} = Ctx, #core{conf = {E, Seq}} = C) ->
@@ -245,6 +261,37 @@ handle({claim, Claim}, _Ctx, C) ->
     {C#core{conf = Claim, election = undefined, reg = undefined, hold = false}, []}.
 
 %% ---------------------------------------------------------------------------
+
+%% Whether the nodes that accepted a registration are enough: a strict
+%% majority; in a cluster of two (quorum 1), this node's own voter when the
+%% context names this node (`self'), which always answers and remembers
+%% what the other node was promised.
+accepted(Ok, #{self := Self} = Ctx) ->
+    case quorum(Ctx) of
+        1 -> lists:member(Self, Ok);
+        Q -> length(Ok) >= Q
+    end;
+accepted(Ok, Ctx) ->
+    length(Ok) >= quorum(Ctx).
+
+refused(Node, Why, #{nodes := Nodes} = Ctx, #core{reg = #{no := No} = Reg} = C0) ->
+    C = case Why of
+            {promised, P} -> C0#core{promised = max(P, C0#core.promised)};
+            _ -> C0
+        end,
+    No1 = lists:usort([Node | No]),
+    Decisive = case Ctx of
+                   #{self := Node} -> quorum(Ctx) =:= 1;
+                   #{} -> false
+               end,
+    case Decisive orelse length(Nodes) - length(No1) < quorum(Ctx) of
+        true ->
+            %% Too many nodes promised the pairing to another instance, or
+            %% saw a newer configuration: this one cannot go on serving.
+            {C#core{reg = undefined}, [{fence, Why}]};
+        false ->
+            {C#core{reg = Reg#{no := No1}}, []}
+    end.
 
 end_reelect(#{why := reelect}) -> undefined;
 end_reelect(El) -> El.

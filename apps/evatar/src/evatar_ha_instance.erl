@@ -46,7 +46,7 @@
                   synced := boolean(),
                   alive => [node()], majority => boolean(), heard => [node()],
                   standby_opt => boolean(), client_ack_timeout => pos_integer(),
-                  handover_on_silent_link => boolean()}.
+                  handover_on_silent_link => boolean(), self => node()}.
 
 -type event() :: {start, evatar_pairing:mode(), Previous :: term()}
                | {instance, node(), evatar_ha_proto_v1:instance_info()}

@@ -32,7 +32,9 @@ core(Event, V, #inst{role = Role, core = Core} = S) ->
 %% @doc What `evatar_ha_core' needs to know of the instance and the view.
 -spec core_ctx(evatar_ha_core:role(), view()) -> evatar_ha_core:ctx().
 core_ctx(Role, #{nodes := Nodes, heartbeat_ms := Hb, suspect_ms := Suspect} = V) ->
-    #{nodes => Nodes, heartbeat_ms => Hb, suspect_ms => Suspect, epoch => epoch(V), role => Role}.
+    Ctx = #{nodes => Nodes, heartbeat_ms => Hb, suspect_ms => Suspect, epoch => epoch(V),
+            role => Role},
+    maps:merge(Ctx, maps:with([self], V)).
 
 core_effects([{vote, Node, Ec, Claim, Dead} | Rest], V, S, Acc) ->
     Active = case S of

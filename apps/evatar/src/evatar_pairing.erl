@@ -546,6 +546,7 @@ ha(Event, #data{inst = Inst} = Data) ->
 view(Event, #data{logic = Logic, commit = C}) ->
     Nodes = evatar_cluster:configured(),
     Base = #{nodes => Nodes, heartbeat_ms => opt(heartbeat_ms), suspect_ms => opt(suspect_ms),
+             self => node(),
              epoch => epoch(Logic), version => evatar_ha_commit:version(C),
              confirmed => evatar_ha_commit:confirmed(C), synced => evatar_ha_commit:synced(C)},
     case Event of

@@ -491,6 +491,15 @@ voter(N, {start_standby, Active}, #{insts := Insts} = W) ->
         undefined when is_map_key(Active, Insts) ->
             {I, W1} = new_inst(N, W),
             handle({start, {standby_for, Active}, none}, I#{now => maps:get(now, W)}, W1);
+        #{ref := Ref} when Ref =/= Active ->
+            %% evatar_cluster tells the instance it holds about the active
+            %% asking (the two compare epochs).
+            case Insts of
+                #{Active := #{role := Role, epoch := E}} ->
+                    inst_event(N, {msg, {peer_instance, Active, Role, E}}, W);
+                #{} ->
+                    W
+            end;
         _ ->
             W
     end.
@@ -536,7 +545,7 @@ ha_event(ClusterEvent) -> {cluster, ClusterEvent}.
 %% What the instance sees: this node's view of the cluster (evatar_cluster's).
 view(#{node := N, state := #{epoch := E}, commit := C}, #{names := Names, nodes := Nodes} = W) ->
     Alive = maps:get(alive, maps:get(N, Nodes)),
-    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E,
+    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E, self => N,
       version => evatar_ha_commit:version(C), confirmed => evatar_ha_commit:confirmed(C),
       synced => evatar_ha_commit:synced(C),
       alive => [M || M <- Names, M =:= N orelse maps:get(M, Alive)],
@@ -841,13 +850,16 @@ settle(#{names := Names} = W0) ->
 %% @doc Liveness as docs/ha.md section 6 promises it: the faults stop (every
 %% link heals, paused nodes run again, and a crashed node boots again or,
 %% with `Restart' false, stays down, leaving a majority up); then, within
-%% `BoundMs', exactly one instance serves and holds every signal the sender
+%% `ServeMs', exactly one instance serves and holds every signal the sender
 %% was told was accepted (those the guarantee covers), and a signal sent
-%% then is accepted and routed once. `{ok, Ms}' gives how long after the
-%% heal one instance served; `{frozen, Why}' what was missing at the bound.
--spec live(map(), boolean(), pos_integer()) ->
-          {{ok, non_neg_integer()} | {frozen, term()}, map()}.
-live(#{names := Names} = W0, Restart, BoundMs) ->
+%% then is accepted and routed once within `AcceptMs' more (a standby whose
+%% snapshot a cut lost is replaced only after its offer times out, 5 x
+%% suspect_ms + 2 s). `{ok, Ms}' gives how long after the heal one instance
+%% served (`{ok, restored}': none was left, the catalogue starts the pairing
+%% afresh); `{frozen, Why}' what was missing at the bound.
+-spec live(map(), boolean(), {pos_integer(), pos_integer()}) ->
+          {{ok, non_neg_integer() | restored} | {frozen, term()}, map()}.
+live(#{names := Names} = W0, Restart, {ServeMs, AcceptMs}) ->
     W1 = case Restart of
              true -> advance(1000, W0);  % a node boots in a second at least
              false -> W0
@@ -860,9 +872,10 @@ live(#{names := Names} = W0, Restart, BoundMs) ->
                              resume(N, Acc1)
                      end, step(heal, W1), Names),
     T0 = maps:get(now, W2),
-    {Served, W3} = until_one_serves(T0 + BoundMs, check(W2)),
+    {Served, W3} = until_one_serves(T0 + ServeMs, check(W2)),
+    Holders = [I || #{role := R} = I <- maps:values(maps:get(insts, W3)), R =/= starting],
     case Served of
-        false when map_size(map_get(insts, W3)) =:= 0 ->
+        false when Holders =:= [] ->
             %% Both instances failed before a standby was synced: the
             %% catalogue starts the pairing afresh (evatar_catalogue,
             %% outside this model); what they held is outside the guarantee.
@@ -873,7 +886,7 @@ live(#{names := Names} = W0, Restart, BoundMs) ->
             Ms = maps:get(now, W3) - T0,
             %% Then a signal through every node: the one serving takes it.
             W4 = lists:foldl(fun(N, Acc) -> client_send(N, Acc) end, W3, Names),
-            case until_accepted(T0 + BoundMs, check(advance(?HB, W4))) of
+            case until_accepted(maps:get(now, W4) + AcceptMs, check(advance(?HB, W4))) of
                 {true, W5} -> {{ok, Ms}, W5};
                 {false, W5} -> {{frozen, {after_signal, maps:get(sender, W5)}}, W5}
             end
