@@ -46,8 +46,11 @@
             stopping = #{} :: #{pid() => true},
             %% Pairings that were active here: one that stopped here
             %% without being deleted gave up (its restart limit), and is
-            %% not restored on this node until it restarts.
-            ran = #{} :: #{evatar:pairing_id() => true}}).
+            %% not restored on this node until it restarts; unless it
+            %% stopped on purpose (stepped down for a newer instance, or
+            %% for a claim found stale), watched through `watched'.
+            ran = #{} :: #{evatar:pairing_id() => true},
+            watched = #{} :: #{pid() => evatar:pairing_id()}}).
 
 %% @doc Starts the catalogue process, registered as `evatar_catalogue'.
 -spec start_link() -> {ok, pid()} | {error, term()}.
@@ -267,6 +270,22 @@ handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S)
                  S
          end,
     {noreply, reconcile(S1)};
+handle_info({'DOWN', _Ref, process, Pid, Reason}, #s{watched = Watched} = S) ->
+    case maps:take(Pid, Watched) of
+        {Id, Watched1} ->
+            S1 = S#s{watched = Watched1},
+            case evatar_catalogue_rules:gave_up(Reason) of
+                true ->
+                    {noreply, S1};
+                false ->
+                    %% It stepped down (a newer instance, a stale claim): if
+                    %% no instance is left anywhere, the pairing is restored
+                    %% as any other, else it would stay down for good.
+                    {noreply, reconcile(S1#s{ran = maps:remove(Id, S1#s.ran)})}
+            end;
+        error ->
+            {noreply, S}
+    end;
 handle_info(_Msg, S) ->
     {noreply, S}.
 
@@ -334,10 +353,13 @@ reconcile(S0) ->
     Stopping = lists:foldl(fun stop_local/2,
                            maps:with([P || {_, P, _, _} <- Roles], S0#s.stopping),
                            evatar_catalogue_rules:to_stop(Entries, Local)),
-    Ran = maps:merge(S0#s.ran, maps:from_list([{Id, true} || {Id, _, R, _} <- Roles,
-                                                              R =:= active orelse R =:= fenced])),
+    Actives = [{Id, Pid} || {Id, Pid, R, _} <- Roles, R =:= active orelse R =:= fenced],
+    Ran = maps:merge(S0#s.ran, maps:from_list([{Id, true} || {Id, _} <- Actives])),
+    Watched = lists:foldl(fun({Id, Pid}, Acc) when is_map_key(Pid, Acc) -> Acc#{Pid := Id};
+                             ({Id, Pid}, Acc) -> _ = erlang:monitor(process, Pid), Acc#{Pid => Id}
+                          end, S0#s.watched, Actives),
     Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
-    S = S0#s{stopping = Stopping, ran = Ran},
+    S = S0#s{stopping = Stopping, ran = Ran, watched = Watched},
     Peers = lists:usort(Alive ++ connected()),
     case ready(Peers, S) of
         false ->

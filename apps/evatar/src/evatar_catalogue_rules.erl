@@ -13,7 +13,8 @@
 %% name, so every node picks the same winner with no operator action.
 -module(evatar_catalogue_rules).
 
--export([next_version/3, merge/2, newer/2, changed/2, owner/3, to_start/4, to_stop/2]).
+-export([next_version/3, merge/2, newer/2, changed/2, owner/3, to_start/4, to_stop/2,
+         gave_up/1]).
 
 -export_type([entry/0, version/0, value/0]).
 
@@ -89,3 +90,16 @@ to_start(Entries, Self, {Configured, Alive}, Running) ->
 to_stop(Entries, Local) ->
     Deleted = maps:from_list([{Id, true} || {Id, _, deleted} <- Entries]),
     [Id || Id <- Local, is_map_key(Id, Deleted)].
+
+%% @doc Whether a pairing's active (or fenced) instance that stopped with
+%% `Reason' may have given up: it crashed, and its supervisor restarts it
+%% or, past its restart limit, removes it; then this node does not start
+%% it again itself. An instance that stopped on purpose (`normal',
+%% `shutdown', `{shutdown, Why}': it stepped down for a newer instance, or
+%% its claim was found stale, or it was deleted) did not: a pairing left
+%% without any instance after that is restored as any other.
+-spec gave_up(term()) -> boolean().
+gave_up(normal) -> false;
+gave_up(shutdown) -> false;
+gave_up({shutdown, _}) -> false;
+gave_up(_Crash) -> true.

@@ -74,6 +74,17 @@ start_stop_test() ->
 
 %% Merging is commutative, associative and idempotent: catalogues
 %% exchanged in any order end equal.
+%% An instance that stepped down (a newer instance, a stale claim) did not
+%% give up: its pairing, left without instances, is restored; one that
+%% crashed did (its restart limit decides).
+gave_up_test() ->
+    ?assertNot(?R:gave_up({shutdown, {newer_instance, 'n2@h', 3}})),
+    ?assertNot(?R:gave_up({shutdown, stale_claim})),
+    ?assertNot(?R:gave_up(normal)),
+    ?assertNot(?R:gave_up(shutdown)),
+    ?assert(?R:gave_up({badarg, []})),
+    ?assert(?R:gave_up(killed)).
+
 merge_converges_test() ->
     ok = evatar_test_proper:check(prop_merge(), 300).
 
