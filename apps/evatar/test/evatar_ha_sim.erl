@@ -27,8 +27,9 @@
 %% SignalID routed twice (two different routings, which its library could
 %% not tell apart).</li>
 %% </ul>
-%% and, by {@link settle/1}, liveness: once every node runs and hears the
-%% others for long enough, some instance serves.
+%% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
+%% 6), or by {@link settle/1}, a looser form: once every node runs and hears
+%% the others for long enough, some instance serves.
 -module(evatar_ha_sim).
 
 -export([new/1, run/2, step/2, check/1, settle/1, serving/1, live/3]).
