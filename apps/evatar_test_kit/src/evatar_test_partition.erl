@@ -28,7 +28,7 @@
 %% its VA went without a round trip from the return on.
 -module(evatar_test_partition).
 
--export([run/4, rebalance/3, counts/2, placement/2, unserved/2, await_healthy/3]).
+-export([run/4, rebalance/3, baseline/2, counts/2, placement/2, unserved/2, await_healthy/3]).
 
 -export_type([kind/0, result/0, rebalance_result/0]).
 
@@ -197,6 +197,22 @@ unserved(History, CutAt) ->
         _ ->
             never
     end.
+
+%% @doc What the figures compare with: the longest time any of the pairs'
+%% VAs went without a round trip over the next `Ms' ms, with no fault (the
+%% load of the machine alone), counted from the start of the window to its
+%% end. Sleeps `Ms'.
+-spec baseline([evatar_test_traffic:pair()], pos_integer()) -> non_neg_integer().
+baseline(Pairs, Ms) ->
+    From = erlang:monotonic_time(millisecond),
+    timer:sleep(Ms),
+    To = erlang:monotonic_time(millisecond),
+    lists:max([begin
+                   Times = lists:sort([T || T <- completions(maps:get(va, evatar_test_traffic:history(P))),
+                                            T >= From, T =< To]),
+                   Span = [From | Times] ++ [To],
+                   lists:max([B - A || {A, B} <- lists:zip(lists:droplast(Span), tl(Span))])
+               end || P <- Pairs]).
 
 %% When the round trips of a VA's history completed (monotonic ms): the
 %% first arrival of each feedback (its requests are `fb-' ++ their id).
