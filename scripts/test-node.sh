@@ -51,16 +51,21 @@ exec erl -noshell -kernel logger_level warning \
     %% Heartbeat 500 (not the default): the value in the shared vectors'
     %% Welcome, which the SDKs' transcript tests replay against this node.
     Hb500 = #{heartbeat => 500},
+    %% The TLS listeners give the TLS handshake and the Hello 30 s, not the
+    %% default 5 s: the RSA work of a handshake with client certificates can
+    %% take seconds on a loaded test machine (make test runs these suites
+    %% beside dialyzer and EUnit), and no SDK test checks that deadline.
+    Tls30 = Hb500#{handshake_timeout => 30000},
     case \"$TLS_DIR\" of
       \"\" -> ok;
       Dir ->
         F = fun(Name) -> filename:join(Dir, Name) end,
         Server = #{certfile => F(\"server.pem\"), keyfile => F(\"server.key\")},
         {ok, _} = agent_bridge:start_listener(test_tls, #{ip => {127,0,0,1}, port => 0,
-                                                          tls => Server, conn => Hb500}),
+                                                          tls => Server, conn => Tls30}),
         {ok, _} = agent_bridge:start_listener(test_mtls, #{ip => {127,0,0,1}, port => 0,
                                                            tls => Server#{cacertfile => F(\"ca.pem\")},
-                                                           conn => Hb500}),
+                                                           conn => Tls30}),
         [begin {ok, {_, TP}} = agent_bridge:address(L), io:format(\"~s=~b~n\", [Var, TP]) end
          || {L, Var} <- [{test_tls, \"EVATAR_TLS_PORT\"}, {test_mtls, \"EVATAR_MTLS_PORT\"}]]
     end,
