@@ -87,6 +87,11 @@
 
 -include("evatar_ha_instance.hrl").
 
+%% What the outcomes mean, and what a serving active does.
+-import(evatar_ha_serving, [core/3, core_ctx/2, forget_standby/1, maybe_fence/2, paused/2, place/2,
+                             place_soon/2, rebalance/3, send_handover/2, silent/4, step_down/3,
+                             stop/3]).
+
 -opaque state() :: #inst{}.
 
 %% @doc A starting instance `Me' of pairing `Id', which prefers to place
@@ -139,9 +144,9 @@ handle({down, active, _Why}, _View, S) ->
 handle({timeout, Key}, View, S) ->
     timeout(Key, View, S);
 handle({silent, Unacked, Now}, View, #inst{role = active} = S) ->
-    evatar_ha_serving:silent(Unacked, Now, View, S);
+    silent(Unacked, Now, View, S);
 handle(paused, View, #inst{role = active} = S) ->
-    evatar_ha_serving:paused(View, S);
+    paused(View, S);
 handle(_Event, _View, S) ->
     {S, []}.
 
@@ -158,15 +163,15 @@ starting({timeout, asked}, V, #inst{start = St} = S) ->
 starting({timeout, retry_ask}, V, #inst{start = St} = S) ->
     started(evatar_ha_roles:starting({timeout, retry_ask, peers(V, S)}, suspect(V), St), V, S);
 starting({timeout, offered}, _V, S) ->
-    evatar_ha_serving:stop(no_snapshot, S, []);
+    stop(no_snapshot, S, []);
 starting({timeout, _}, _V, S) ->
     {S, []};
 starting({msg, {snapshot, A, _E, Version, State, Claim}}, V, #inst{active = A} = S) ->
     become_standby(Version, State, Claim, V, S);
 starting({msg, {dismiss, A}}, _V, #inst{active = A} = S) ->
-    evatar_ha_serving:stop(dismissed, S, []);
+    stop(dismissed, S, []);
 starting({down, active, _}, _V, S) ->
-    evatar_ha_serving:stop(active_gone, S, []);
+    stop(active_gone, S, []);
 starting(_Event, _V, S) ->
     {S, [postpone]}.
 
@@ -179,7 +184,7 @@ start_effects([{offer, Active} | _], V, S, Acc) ->
                          {timer, offered, 5 * suspect(V) + 2000}])};
 start_effects([become_active | _], V, S, Acc) ->
     S1 = S#inst{role = active},
-    {S2, Place} = evatar_ha_serving:place_soon(V, S1),
+    {S2, Place} = place_soon(V, S1),
     {S2, lists:reverse(Acc, [new_logic, {log, info, #{what => pairing_started}}, serving
                              | left_starting([publish | Place])])};
 start_effects([E | Rest], V, S, Acc) ->
@@ -191,7 +196,7 @@ left_starting(Effects) ->
     [{cancel_timer, K} || K <- [asked, retry_ask, offered]] ++ Effects.
 
 become_standby(Version, State, Claim, V, #inst{active = A, core = Core} = S) ->
-    {Core1, []} = evatar_ha_core:handle({claim, Claim}, evatar_ha_serving:core_ctx(standby, V), Core),
+    {Core1, []} = evatar_ha_core:handle({claim, Claim}, core_ctx(standby, V), Core),
     {S#inst{role = standby, core = Core1, active_lost = false},
      [{install, Version, State}, {send, A, {confirm, Version}},
       {log, info, #{what => standby_synced, active => node_of(A), version => Version}}
@@ -223,18 +228,20 @@ msg({resync, Other, _}, _V, S) ->
 msg({confirm, Sb, _E, Version}, V, #inst{standby = Sb, role = Role} = S) ->
     case Role of
         handing_over ->
-            {S1, Effects} = evatar_ha_serving:send_handover(V#{confirmed := max(Version, confirmed(V))}, S),
+            {S1, Effects} = send_handover(V#{confirmed := max(Version, confirmed(V))}, S),
             {S1, [{release, Version} | Effects]};
         _ ->
             {S, [{release, Version}]}
     end;
 msg({confirm, _, _, _}, _V, S) ->
     {S, []};
-msg({rebalance, Move}, V, #inst{role = active, standby = Sb, core = Core} = S) when Sb =/= undefined ->
+msg({rebalance, Move}, V, #inst{role = active, standby = Sb, core = Core} = S)
+  when Sb =/= undefined ->
     %% Only with a synced standby and no registration or election under
     %% way; else the rebalancer's next round plans again.
-    case synced(V) andalso not evatar_ha_core:holding(Core) andalso not evatar_ha_core:electing(Core) of
-        true -> evatar_ha_serving:rebalance(Move, V, S);
+    case synced(V) andalso not evatar_ha_core:holding(Core)
+        andalso not evatar_ha_core:electing(Core) of
+        true -> rebalance(Move, V, S);
         false -> {S, []}
     end;
 
@@ -248,20 +255,21 @@ msg({snapshot, A, _E, Version, State, Claim}, V, #inst{role = standby, active = 
         false -> become_standby(Version, State, Claim, V, S)
     end;
 msg({events, A, _E, Events}, V, #inst{role = standby, active = A, core = Core} = S) ->
-    {Core1, []} = evatar_ha_core:handle(active_heard, evatar_ha_serving:core_ctx(standby, V), Core),
+    {Core1, []} = evatar_ha_core:handle(active_heard, core_ctx(standby, V), Core),
     {S1, Watch} = watch_active(S#inst{active_lost = false, core = Core1}),
     {S1, Watch ++ [{apply, Events}]};
 msg({events, From, E, _}, V, S) ->
     other_instance(From, active, E, V, S);
 msg({dismiss, A}, _V, #inst{role = standby, active = A} = S) ->
-    evatar_ha_serving:stop(dismissed, S, []);
+    stop(dismissed, S, []);
 msg({handover, A, E, Version}, V, #inst{role = standby, active = A} = S) ->
     case {epoch(V), version(V)} of
-        {E, Version} -> evatar_ha_serving:core({handover_asked}, V, S#inst{active_lost = true});
+        {E, Version} -> core({handover_asked}, V, S#inst{active_lost = true});
         _ -> {S, []}
     end;
-msg({handover_done, New, _E, Claim}, V, #inst{role = handing_over, standby = New, core = Core} = S) ->
-    {Core1, []} = evatar_ha_core:handle({claim, Claim}, evatar_ha_serving:core_ctx(standby, V), Core),
+msg({handover_done, New, _E, Claim}, V,
+    #inst{role = handing_over, standby = New, core = Core} = S) ->
+    {Core1, []} = evatar_ha_core:handle({claim, Claim}, core_ctx(standby, V), Core),
     Moved = <<"the pairing moved to ", (atom_to_binary(node_of(New)))/binary>>,
     {S#inst{role = standby, active = New, watching = true, standby = undefined, core = Core1,
             reconfirming = false},
@@ -273,9 +281,9 @@ msg({stale, From, E}, V, S) ->
 msg({peer_instance, Pid, Role, E}, V, S) when is_atom(Role), is_integer(E) ->
     other_instance(Pid, Role, E, V, S);
 msg({vote_reply, _Id, Ec, Node, Result}, V, S) ->
-    evatar_ha_serving:core({vote_reply, Ec, Node, Result}, V, S);
+    core({vote_reply, Ec, Node, Result}, V, S);
 msg({register_reply, _Id, Claim, Node, Result}, V, S) ->
-    evatar_ha_serving:core({register_reply, Claim, Node, Result}, V, S);
+    core({register_reply, Claim, Node, Result}, V, S);
 msg(_Msg, _V, S) ->
     {S, []}.
 
@@ -303,9 +311,9 @@ other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
     Other = #{role => Role, epoch => E, node => node_of(Pid), pid => Pid},
     Why = {newer_instance, node_of(Pid), E},
     case evatar_ha_roles:meet(Mine, Other) of
-        step_down -> evatar_ha_serving:step_down(Why, S, [{send, P, dismiss} || P <- [S#inst.standby],
+        step_down -> step_down(Why, S, [{send, P, dismiss} || P <- [S#inst.standby],
                                                               P =/= undefined, P =/= Pid]);
-        stop -> evatar_ha_serving:stop(Why, S, []);
+        stop -> stop(Why, S, []);
         tell_stale -> {S, [{send, Pid, {stale, epoch(V)}}]};
         keep -> {S, []}
     end.
@@ -315,7 +323,7 @@ other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
 %% ---------------------------------------------------------------------------
 
 cluster({node_alive, _}, V, #inst{role = active} = S) ->
-    evatar_ha_serving:place(V, S);
+    place(V, S);
 cluster({Lost, Node}, V, #inst{role = R, standby = Sb} = S)
   when (Lost =:= node_suspected orelse Lost =:= node_down), R =/= standby, Sb =/= undefined ->
     case node_of(Sb) of
@@ -325,7 +333,7 @@ cluster({Lost, Node}, V, #inst{role = R, standby = Sb} = S)
 cluster({Lost, Node}, V, #inst{role = standby, active = A} = S)
   when Lost =:= node_suspected; Lost =:= node_down ->
     case node_of(A) of
-        Node -> evatar_ha_serving:core({elect, active_silent, false}, V, S#inst{active_lost = true});
+        Node -> core({elect, active_silent, false}, V, S#inst{active_lost = true});
         _ -> {S, []}
     end;
 cluster({node_alive, Node}, V, #inst{role = standby, active = A, active_lost = true} = S) ->
@@ -339,17 +347,17 @@ cluster({node_alive, Node}, V, #inst{role = standby, active = A, active_lost = t
             {S, []}
     end;
 cluster({quorum, true}, V, #inst{role = standby, active_lost = true} = S) ->
-    evatar_ha_serving:core({elect, active_silent, false}, V, S);
+    core({elect, active_silent, false}, V, S);
 cluster({quorum, false}, V, #inst{role = active} = S) ->
-    evatar_ha_serving:maybe_fence(V, S);
+    maybe_fence(V, S);
 cluster(stalled, V, #inst{role = active} = S) ->
     %% This node was stopped for longer than suspect_ms: the pairing may
     %% have another active by now, or (far more often) not.
-    evatar_ha_serving:paused(V, S);
+    paused(V, S);
 cluster({quorum, true}, V, #inst{role = fenced} = S) ->
-    evatar_ha_serving:core({elect, fenced, false}, V, S);
+    core({elect, fenced, false}, V, S);
 cluster({node_alive, _}, V, #inst{role = fenced} = S) ->
-    evatar_ha_serving:core({elect, fenced, false}, V, S);
+    core({elect, fenced, false}, V, S);
 cluster(_Event, _V, S) ->
     {S, []}.
 
@@ -359,21 +367,21 @@ cluster(_Event, _V, S) ->
 %% configuration without it (evatar_ha_core); everything stays held until then.
 standby_down(Why, V, #inst{standby = Sb} = S) ->
     Log = {log, warning, #{what => standby_lost, standby => node_of(Sb), reason => Why}},
-    {S1, Forget} = evatar_ha_serving:forget_standby(S),
+    {S1, Forget} = forget_standby(S),
     case Why of
         noconnection ->
-            {S2, Effects} = evatar_ha_serving:core(standby_node_lost, V, S1),
+            {S2, Effects} = core(standby_node_lost, V, S1),
             {S2, [Log | Forget] ++ Effects ++ [publish]};
         _ ->
-            {S2, Place} = evatar_ha_serving:place(V, S1),
+            {S2, Place} = place(V, S1),
             {S2, [Log | Forget] ++ [release_all, publish | Place]}
     end.
 
 active_down(noconnection, V, S) ->
-    evatar_ha_serving:core({elect, active_silent, false}, V, S#inst{active_lost = true});
+    core({elect, active_silent, false}, V, S#inst{active_lost = true});
 active_down(Why, V, S) ->
     %% The process died and its node is up: its lease counts no more.
-    evatar_ha_serving:core({elect, {active_died, Why}, true}, V, S#inst{active_lost = true}).
+    core({elect, {active_died, Why}, true}, V, S#inst{active_lost = true}).
 
 watch_active(#inst{watching = false, active = A} = S) when A =/= undefined ->
     {S#inst{watching = true}, [{monitor, active, A}]};
@@ -385,9 +393,9 @@ watch_active(S) ->
 %% ---------------------------------------------------------------------------
 
 timeout(K, V, S) when K =:= election; K =:= register; K =:= deadline ->
-    evatar_ha_serving:core({timeout, K}, V, S);
+    core({timeout, K}, V, S);
 timeout(place, V, S) ->
-    evatar_ha_serving:place(V, S#inst{placing = false});
+    place(V, S#inst{placing = false});
 timeout(handover, _V, #inst{role = handing_over} = S) ->
     {S#inst{role = active}, [{log, warning, #{what => handover_aborted}}]};
 timeout(_Key, _V, S) ->

@@ -8,8 +8,8 @@
 %% cannot be replicated: the pids of the entities' processes and of the
 %% other instance, their monitors, one map of timers keyed by what they are
 %% for (a logic timer key, or `{ha, Key}'), the calls and the client hot
-%% path. An instance is the `active' one or the `standby' of an active on
-%% another node.
+%% path; `evatar_pairing_effects' executes the effects on them. An instance
+%% is the `active' one or the `standby' of an active on another node.
 %%
 %% ```
 %%                 start_link
@@ -57,31 +57,13 @@
 
 -type mode() :: create | {standby_for, pid()}.
 -type state() :: starting | evatar_pairing_logic:phase() | standby | fenced | handing_over.
-%% The timers of this process, all in one map: the logic's, and the
-%% instance's own (`{ha, Key}').
--type timer_key() :: evatar_pairing_logic:timer_key() | {ha, atom()}.
 
--record(data, {id :: evatar:pairing_id(),
-               config :: evatar_pairing_logic:config(),
-               mode :: mode(),
-               inst :: evatar_ha_instance:state(),
-               logic :: evatar_pairing_logic:state() | undefined,
-               commit = evatar_ha_commit:new(0) :: evatar_ha_commit:state(),
-               pids = #{} :: #{binary() => {pid(), reference()}},
-               refs = #{} :: #{reference() => binary()},
-               timers = #{} :: #{timer_key() => reference()},
-               %% The monitors of the other instance.
-               mons = #{} :: #{active | standby => reference()},
-               %% The stall generation this active began serving at; after a
-               %% pause, inspections wait for the reconfirmation.
-               gen = 0 :: non_neg_integer(),
-               inspects = [] :: [{gen_statem:from(), atom()}],
-               %% Standby: resumes held until it takes over or hears its active.
-               held = [] :: [evatar_ha_roles:held(gen_statem:from())],
-               %% The live tail's watchers (evatar_tap): [] costs nothing.
-               watchers = [] :: [evatar_tap:watcher()],
-               %% This pairing's own counters once active here (evatar_metrics).
-               metrics = undefined :: evatar_metrics:pairing_ref()}).
+-include("evatar_pairing.hrl").
+
+%% The executor of this process's effects.
+-import(evatar_pairing_effects, [effect/2, effects/3, flush/2, flush_maybe/1, forget/2, ha_status/1,
+                                 inspect/3, mode/1, next/2, reply/3, reply_held/1,
+                                 report_binding/2, run/2, step/2, timer/3]).
 
 %% @doc Starts a new pairing (the active), registered as
 %% `{via, evatar_registry, PairingId}'.
@@ -184,32 +166,6 @@ timeout(_Key, State, _Data) when State =:= fenced; State =:= handing_over ->
 timeout(_Key, _State, _Data) ->
     keep_state_and_data.
 
-%% (Re)arms the timer of `Key'.
-timer(Key, Ms, #data{timers = Timers} = Data) ->
-    ok = cancel(maps:get(Key, Timers, undefined)),
-    Data#data{timers = Timers#{Key => erlang:start_timer(Ms, self(), Key)}}.
-
-untimer(Key, #data{timers = Timers} = Data) ->
-    ok = cancel(maps:get(Key, Timers, undefined)),
-    Data#data{timers = maps:remove(Key, Timers)}.
-
-cancel(undefined) -> ok;
-cancel(TRef) -> erlang:cancel_timer(TRef, [{async, true}, {info, false}]).
-
-%% The logic's timers only: re-armed from its state on a takeover, dropped
-%% on a handover.
-cancel_logic_timers(#data{timers = Timers} = Data) ->
-    {Ha, Logic} = maps:fold(fun({ha, _} = K, T, {H, L}) -> {H#{K => T}, L};
-                               (_K, T, {H, L}) -> {H, [T | L]}
-                            end, {#{}, []}, Timers),
-    _ = [cancel(T) || T <- Logic],
-    Data#data{timers = Ha}.
-
-arm_logic_timers(#data{logic = Logic} = Data) ->
-    Now = erlang:system_time(millisecond),
-    lists:foldl(fun({Key, Ms}, D) -> timer(Key, Ms, D) end, cancel_logic_timers(Data),
-                evatar_pairing_logic:timers(Logic, Now)).
-
 %% ---------------------------------------------------------------------------
 %% Calls
 %% ---------------------------------------------------------------------------
@@ -269,22 +225,6 @@ call(_Request, From, fenced, _Data) ->
     {keep_state_and_data, [{reply, From, {error, fenced}}]};
 call(Request, From, _Active, Data) ->
     active_call(Request, From, Data).
-
-inspect(ha, _State, Data) ->
-    ha_status(Data);
-inspect(What, State, #data{logic = Logic, commit = C} = Data) ->
-    case What of
-        summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(), role => role(Data),
-                                                           state => phase(State, Logic)};
-        bindings -> evatar_pairing_logic:bindings(Logic);
-        registry -> evatar_pairing_logic:registration_list(Logic);
-        stats -> evatar_pairing_logic:stats(Logic);
-        watchers -> length(Data#data.watchers);
-        state -> Logic;
-        %% One read of both: a state compared with another instance's
-        %% only at the same version (tests).
-        versioned_state -> {evatar_ha_commit:version(C), Logic}
-    end.
 
 %% @private
 %% Only an orderly stop runs this (the process does not trap exits): tell
@@ -405,135 +345,6 @@ joined(Event, Pid, From, Old, Ok, #data{config = Config} = Data1) ->
     next(flush_maybe(reply(From, {ok, Info}, Data3)), []).
 
 %% ---------------------------------------------------------------------------
-%% Running the logic, and the output commit
-%% ---------------------------------------------------------------------------
-
-next(#data{inst = Inst, logic = Logic} = Data, Actions) ->
-    case evatar_ha_instance:role(Inst) of
-        active -> {next_state, evatar_pairing_logic:phase(Logic), Data, Actions};
-        Role -> {next_state, Role, Data, Actions}
-    end.
-
-phase(State, Logic) when State =:= waiting; State =:= bound ->
-    evatar_pairing_logic:phase(Logic);
-phase(State, _Logic) ->
-    State.
-
-run(Event, Data) ->
-    {_Reply, Data1} = step(Event, Data),
-    Data1.
-
-step(Event, Data) ->
-    step(Event, mode(Data), Data).
-
-%% Applies one event to the logic; evatar_ha_commit says what of its
-%% effects goes out now. Returns the logic's reply (`ok' for events that
-%% have none).
-step(Event, Mode, #data{logic = Logic, commit = C, pids = Pids} = Data) ->
-    Now = erlang:system_time(millisecond),
-    {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
-    ok = evatar_metrics:pairing_step(Data#data.metrics, Event, Effects),
-    Watchers = case Data#data.watchers of
-                   [] -> [];
-                   W -> evatar_tap:emit(Data#data.id, Event, Effects, Now, W)
-               end,
-    Conns = maps:map(fun(_, {Pid, _}) -> Pid end, Pids),
-    {Reply, Out, C1} = evatar_ha_commit:step(Event, Now, Effects, Conns, Mode, C),
-    {Reply, execute(Out, Data#data{logic = Logic1, commit = C1, watchers = Watchers})}.
-
-mode(#data{inst = Inst}) -> evatar_ha_instance:mode(Inst).
-
-%% A GetBinding (docs/protocol.md section 2): the current report, to that
-%% entity only. It changes no state, so it is not shipped to the standby.
-report_binding(EntityId, #data{logic = Logic, pids = Pids, commit = C} = Data) ->
-    {_, Effects} = evatar_pairing_logic:handle({report_binding, EntityId}, 0, Logic),
-    Sends = [{send, Pid, {bound, R}} || {report, E, R} <- Effects,
-                                        {Pid, _} <- [maps:get(E, Pids, {undefined, x})],
-                                        is_pid(Pid)],
-    {Out, C1} = evatar_ha_commit:report(Sends, mode(Data), C),
-    execute(Out, Data#data{commit = C1}).
-
-%% A call's reply, held like any other effect.
-reply(From, Reply, #data{commit = C} = Data) ->
-    {Out, C1} = evatar_ha_commit:reply(From, Reply, mode(Data), C),
-    execute(Out, Data#data{commit = C1}).
-
-flush_maybe(Data) ->
-    flush_maybe(mode(Data), Data).
-
-flush_maybe(Mode, #data{commit = C} = Data) ->
-    {message_queue_len, N} = erlang:process_info(self(), message_queue_len),
-    commit(evatar_ha_commit:flush_maybe(N, Mode, C), Data).
-
-flush(Mode, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:flush(Mode, C), Data).
-
-commit({Out, C}, Data) ->
-    execute(Out, Data#data{commit = C}).
-
-execute([{deliver, EntityId, Signal} | Rest], Data) ->
-    ok = tell(EntityId, {signal, Signal}, Data),
-    execute(Rest, Data);
-execute([{report, EntityId, Report} | Rest], Data) ->
-    ok = tell(EntityId, {bound, Report}, Data),
-    execute(Rest, Data);
-execute([{drop, EntityId, Code, Reason} | Rest], Data) ->
-    ok = tell(EntityId, {dropped, Code, Reason}, Data),
-    execute(Rest, forget(EntityId, Data));
-execute([{send, Pid, Msg} | Rest], #data{id = Id} = Data) ->
-    Pid ! {evatar, Id, Msg},
-    execute(Rest, Data);
-execute([{reply_to, From, R} | Rest], Data) ->
-    gen_statem:reply(From, R),
-    execute(Rest, Data);
-execute([{acks, Acks} | Rest], #data{id = Id, pids = Pids} = Data) ->
-    maps:foreach(fun(EntityId, SignalId) ->
-                         case Pids of
-                             #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
-                             #{} -> ok
-                         end
-                 end, Acks),
-    execute(Rest, Data);
-execute([{ship, Events} | Rest], #data{inst = Inst, logic = Logic} = Data) ->
-    ok = evatar_ha_proto_v1:events(evatar_ha_instance:standby(Inst),
-                                   evatar_pairing_logic:epoch(Logic), Events),
-    execute(Rest, Data);
-execute([flush_later | Rest], Data) ->
-    self() ! evatar_flush,
-    execute(Rest, Data);
-execute([{start_timer, Key, Ms} | Rest], Data) ->
-    execute(Rest, timer(Key, Ms, Data));
-execute([{cancel_timer, Key} | Rest], Data) ->
-    execute(Rest, untimer(Key, Data));
-execute([{log, Level, Report} | Rest], Data) ->
-    ok = log(Level, Report, Data),
-    execute(Rest, Data);
-execute([], Data) ->
-    Data.
-
-%% Ids in a report come from clients: cut to 64 bytes (evatar_log).
-log(Level, Report, #data{id = Id}) ->
-    ?LOG(Level, evatar_log:report(Report#{pairing => Id})).
-
-tell(EntityId, Message, #data{id = Id, pids = Pids}) ->
-    case Pids of
-        #{EntityId := {Pid, _}} ->
-            Pid ! {evatar, Id, Message},
-            ok;
-        #{} ->
-            ok
-    end.
-
-forget(EntityId, #data{pids = Pids, refs = Refs} = Data) ->
-    case Pids of
-        #{EntityId := {_Pid, Ref}} ->
-            true = erlang:demonitor(Ref, [flush]),
-            Data#data{pids = maps:remove(EntityId, Pids), refs = maps:remove(Ref, Refs)};
-        #{} ->
-            Data
-    end.
-
-%% ---------------------------------------------------------------------------
 %% The instance's role: evatar_ha_instance decides, this executes
 %% ---------------------------------------------------------------------------
 
@@ -559,155 +370,6 @@ view(Event, #data{logic = Logic, commit = C}) ->
                   standby_opt => opt(standby) =:= true,
                   client_ack_timeout => opt(client_ack_timeout),
                   handover_on_silent_link => opt(handover_on_silent_link) =:= true}
-    end.
-
-effects([{stop, Why}], Data, _Actions) ->
-    {stop, {shutdown, Why}, Data};
-effects([postpone | Rest], Data, Actions) ->
-    effects(Rest, Data, [postpone | Actions]);
-effects([serve_held | Rest], #data{held = Held} = Data, Actions) ->
-    Calls = [{next_event, {call, From}, Request} || {From, Request, _} <- lists:reverse(Held)],
-    effects(Rest, Data#data{held = []}, lists:reverse(Calls, Actions));
-effects([Effect | Rest], Data, Actions) ->
-    effects(Rest, effect(Effect, Data), Actions);
-effects([], Data, Actions) ->
-    next(Data, lists:reverse(Actions)).
-
-effect({send, To, Msg}, Data) ->
-    ok = send(To, Msg, Data),
-    Data;
-effect({ask, Peers}, #data{id = Id} = Data) ->
-    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
-    Data;
-effect({start_standby, Node}, #data{id = Id, config = Config, logic = Logic} = Data) ->
-    ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Logic)),
-    Data;
-effect({vote, Node, Ec, Claim, Active, Dead}, #data{id = Id} = Data) ->
-    ok = evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead),
-    Data;
-effect({register, Node, {E, Seq}}, #data{id = Id} = Data) ->
-    ok = evatar_ha_proto_v1:register(Node, Id, E, Seq, self()),
-    Data;
-effect({monitor, Which, Pid}, #data{mons = Mons} = Data) ->
-    _ = [erlang:demonitor(M, [flush]) || M <- [maps:get(Which, Mons, undefined)], is_reference(M)],
-    Data#data{mons = Mons#{Which => erlang:monitor(process, Pid)}};
-effect({demonitor, Which}, #data{mons = Mons} = Data) ->
-    _ = [erlang:demonitor(M, [flush]) || M <- [maps:get(Which, Mons, undefined)], is_reference(M)],
-    Data#data{mons = maps:remove(Which, Mons)};
-effect({timer, Key, Ms}, Data) ->
-    timer({ha, Key}, Ms, Data);
-effect({ensure_timer, Key, Ms}, #data{timers = Timers} = Data) ->
-    case Timers of
-        #{{ha, Key} := _} -> Data;
-        #{} -> timer({ha, Key}, Ms, Data)
-    end;
-effect({cancel_timer, Key}, Data) ->
-    untimer({ha, Key}, Data);
-effect(new_logic, #data{id = Id, config = Config} = Data) ->
-    Data#data{logic = evatar_pairing_logic:new(Id, Config)};
-effect({install, Version, Logic}, #data{commit = C} = Data) ->
-    Data#data{logic = Logic, commit = evatar_ha_commit:applied(Version, C)};
-effect({apply, Events}, Data) ->
-    apply_events(Events, Data);
-effect({logic, Event, Mode}, Data) ->
-    element(2, step(Event, Mode, Data));
-effect(arm_logic_timers, Data) ->
-    arm_logic_timers(Data);
-effect(cancel_logic_timers, Data) ->
-    cancel_logic_timers(Data);
-effect({release, Version}, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:confirm(Version, C), Data);
-effect(release_all, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:release_all(C), Data);
-effect({flush, Mode}, Data) ->
-    flush(Mode, Data);
-effect({flush_maybe, Mode}, Data) ->
-    flush_maybe(Mode, Data);
-effect(unsync, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:unsync(C)};
-effect({synced_at, Version}, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:synced_at(Version, C)};
-effect(reset_commit, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:reset(C)};
-effect({snapshot, To, Claim}, #data{logic = Logic, commit = C} = Data) ->
-    ok = evatar_ha_proto_v1:snapshot(To, epoch(Logic), evatar_ha_commit:version(C), Logic, Claim),
-    Data#data{commit = evatar_ha_commit:shipped(C)};
-effect({drop, EntityId, Code, Reason}, Data) ->
-    ok = tell(EntityId, {dropped, Code, Reason}, Data),
-    run({detach, EntityId}, forget(EntityId, Data));
-effect({disconnect_all, Code, Reason}, #data{id = Id, pids = Pids} = Data) ->
-    %% The entities stay in the state, for a resume elsewhere.
-    _ = [Pid ! {evatar, Id, {dropped, Code, Reason}} || {Pid, _} <- maps:values(Pids)],
-    _ = [erlang:demonitor(Ref, [flush]) || {_, Ref} <- maps:values(Pids)],
-    Data#data{pids = #{}, refs = #{}};
-effect({standby_node, Node}, #data{config = Config} = Data) ->
-    Data#data{config = Config#{standby_node => Node}};
-effect(serving, #data{id = Id} = Data) ->
-    Data#data{gen = evatar_cluster:stall_gen(), metrics = evatar_metrics:pairing(Id)};
-effect(pause_seen, Data) ->
-    Data#data{gen = evatar_cluster:stall_gen()};
-effect(publish, Data) ->
-    publish(Data);
-effect(reconfirmed, #data{inspects = Waiting} = Data) ->
-    %% The inspections that waited for the reconfirmation, in order.
-    {next_state, State, _, _} = next(Data, []),
-    _ = [gen_statem:reply(From, inspect(What, State, Data)) || {From, What} <- lists:reverse(Waiting)],
-    Data#data{inspects = []};
-effect(reply_held, Data) ->
-    reply_held(Data);
-effect({metric, Name}, Data) ->
-    ok = evatar_metrics:inc(Name),
-    Data;
-effect({metric, Name, Label}, Data) ->
-    ok = evatar_metrics:inc(Name, Label),
-    Data;
-effect({log, Level, Report}, Data) ->
-    ok = log(Level, Report, Data),
-    Data.
-
-%% The messages to the other instance (evatar_ha_proto_v1).
-send(To, {offer, Version}, _Data) -> evatar_ha_proto_v1:offer(To, self(), Version);
-send(To, dismiss, _Data) -> evatar_ha_proto_v1:dismiss(To, self());
-send(To, {resync, Version}, _Data) -> evatar_ha_proto_v1:resync(To, self(), Version);
-send(To, {confirm, Version}, #data{logic = L}) -> evatar_ha_proto_v1:confirm(To, epoch(L), Version);
-send(To, {stale, Epoch}, _Data) -> evatar_ha_proto_v1:stale(To, self(), Epoch);
-send(To, {handover, Version}, #data{logic = L}) -> evatar_ha_proto_v1:handover(To, epoch(L), Version);
-send(To, {handover_done, Ec, Claim}, _Data) -> evatar_ha_proto_v1:handover_done(To, self(), Ec, Claim).
-
-%% evatar_ha_roles applies the batch; this confirms it, or asks again.
-apply_events(Events, #data{inst = Inst, logic = Logic0, commit = C0} = Data) ->
-    Apply = fun(Event, Now, L) -> element(1, evatar_pairing_logic:handle(Event, Now, L)) end,
-    {Logic, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, Logic0, C0),
-    Active = evatar_ha_instance:active(Inst),
-    ok = case Answer of
-             {confirm, V} -> evatar_ha_proto_v1:confirm(Active, epoch(Logic), V);
-             {resync, Mine} -> evatar_ha_proto_v1:resync(Active, self(), Mine)
-         end,
-    Data1 = Data#data{logic = Logic, commit = C},
-    case epoch(Logic) =:= epoch(Logic0) of
-        true -> Data1;
-        false -> publish(Data1)
-    end.
-
-publish(#data{id = Id, inst = Inst, logic = Logic} = Data) ->
-    Role = role(Data),
-    Peer = case Role of
-               standby -> evatar_ha_instance:active(Inst);
-               _ -> evatar_ha_instance:standby(Inst)
-           end,
-    ok = evatar_registry:set_role(Id, self(), Role, epoch(Logic), Peer),
-    case Data of
-        #data{watchers = []} -> Data;
-        _ when Role =:= active -> Data;
-        #data{watchers = Watchers} -> Data#data{watchers = evatar_tap:moved(Id, Role, Watchers)}
-    end.
-
-%% The role as the registry and inspections show it: a handover under way
-%% is still the active.
-role(#data{inst = Inst}) ->
-    case evatar_ha_instance:role(Inst) of
-        handing_over -> active;
-        Role -> Role
     end.
 
 %% ---------------------------------------------------------------------------
@@ -748,11 +410,6 @@ check_held(#data{held = Held, inst = Inst} = Data) ->
         _ -> arm_held(Data1#data{held = Keep})
     end.
 
-reply_held(#data{held = Held, inst = Inst} = Data) ->
-    Node = node_of(evatar_ha_instance:active(Inst)),
-    _ = [gen_statem:reply(From, {error, {not_active, Node}}) || {From, _, _} <- Held],
-    Data#data{held = []}.
-
 arm_silent(Data) ->
     effect({ensure_timer, silent, evatar_ha_instance:silent_poll_ms(opt(client_ack_timeout))},
            Data).
@@ -766,17 +423,3 @@ epoch(Logic) -> evatar_pairing_logic:epoch(Logic).
 
 node_of(Pid) -> evatar_ha_instance:node_of(Pid).
 
-ha_status(#data{inst = Inst, commit = C, logic = Logic} = Data) ->
-    Role = role(Data),
-    {Active, Standby} = case Role of
-                            standby -> {evatar_ha_instance:active(Inst), undefined};
-                            starting -> {evatar_ha_instance:active(Inst), undefined};
-                            _ -> {self(), evatar_ha_instance:standby(Inst)}
-                        end,
-    #{role => Role, epoch => epoch(Logic), node => node(), active => Active, standby => Standby,
-      standby_node => node_of(Standby),
-      synced => case Role of
-                    standby -> true;
-                    _ -> evatar_ha_commit:synced(C)
-                end,
-      version => evatar_ha_commit:version(C)}.
