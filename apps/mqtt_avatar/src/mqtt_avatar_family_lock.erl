@@ -19,13 +19,8 @@ abbreviations() ->
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
 from_ha(C, Base) ->
     Str = fun(K, D) -> mqtt_avatar_ha:str(K, C, D) end,
-    mqtt_avatar_ha:require(command_topic, Base, fun() ->
-        {ok, T} = mqtt_avatar_ha:read(C, [{command, {control, <<"command_topic">>}}]),
-        State = case maps:get(state_topic, Base) of
-                    undefined -> #{};
-                    ST -> #{state => #{topic => ST, source => maps:get(value, Base)}}
-                end,
-        {ok, Base#{topics => maps:merge(T, State),
+    mqtt_avatar_ha:command_and_state(C, Base, fun(T) ->
+        {ok, Base#{topics => T,
                    payloads => #{lock => Str(<<"payload_lock">>, <<"LOCK">>),
                                  unlock => Str(<<"payload_unlock">>, <<"UNLOCK">>),
                                  open => Str(<<"payload_open">>, undefined)},

@@ -14,10 +14,11 @@ abbreviations() -> [].
           {ok, mqtt_avatar_discovery:entity()} | {error, binary()}.
 from_ha(C, Base) ->
     mqtt_avatar_ha:require(command_topic, Base, fun() ->
-        with_template(C, Base#{min => mqtt_avatar_ha:number(<<"min">>, C, <<"1">>),
-                               max => mqtt_avatar_ha:number(<<"max">>, C, <<"100">>),
-                               step => mqtt_avatar_ha:number(<<"step">>, C, <<"1">>),
-                               field => undefined})
+        mqtt_avatar_ha:with_command_template(
+          C, Base#{min => mqtt_avatar_ha:number(<<"min">>, C, <<"1">>),
+                   max => mqtt_avatar_ha:number(<<"max">>, C, <<"100">>),
+                   step => mqtt_avatar_ha:number(<<"step">>, C, <<"1">>),
+                   field => undefined})
     end).
 
 %% @doc A settable zigbee2mqtt `numeric' expose.
@@ -33,14 +34,6 @@ from_z2m(#{<<"property">> := P} = X, Ctx) ->
         value := {json, [P]}, unit := mqtt_avatar_z2m:text(maps:get(<<"unit">>, X, undefined)),
         min => Num(<<"value_min">>, undefined), max => Num(<<"value_max">>, undefined),
         step => Num(<<"value_step">>, undefined), field => P}].
-
-%% HA's `command_template', checked here, applied to every command.
-with_template(C, E) ->
-    case mqtt_avatar_ha:command_template(mqtt_avatar_ha:str(<<"command_template">>, C)) of
-        {ok, undefined} -> {ok, E};
-        {ok, T} -> {ok, E#{template => T}};
-        {error, _} = Error -> Error
-    end.
 
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(#{min := Min, max := Max, step := Step} = E, Ctx) ->

@@ -15,7 +15,9 @@ abbreviations() -> [{<<"ops">>, <<"options">>}].
 from_ha(C, Base) ->
     mqtt_avatar_ha:require(command_topic, Base, fun() ->
         case mqtt_avatar_ha:strings(<<"options">>, C) of
-            [_ | _] = Options -> with_template(C, Base#{options => Options, field => undefined});
+            [_ | _] = Options ->
+                mqtt_avatar_ha:with_command_template(C, Base#{options => Options,
+                                                              field => undefined});
             _ -> {error, <<"a select needs options">>}
         end
     end).
@@ -30,14 +32,6 @@ from_z2m(#{<<"property">> := P} = X, Ctx) ->
     E = mqtt_avatar_z2m:entity(select, P, Ctx),
     [E#{name := mqtt_avatar_z2m:text(maps:get(<<"label">>, X, maps:get(<<"name">>, X, P))),
         value := {json, [P]}, options => Options, field => P}].
-
-%% HA's `command_template', checked here, applied to every command.
-with_template(C, E) ->
-    case mqtt_avatar_ha:command_template(mqtt_avatar_ha:str(<<"command_template">>, C)) of
-        {ok, undefined} -> {ok, E};
-        {ok, T} -> {ok, E#{template => T}};
-        {error, _} = Error -> Error
-    end.
 
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(#{options := Options} = E, Ctx) ->

@@ -13,12 +13,7 @@ from_ha(_C, Base) ->
 
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(E, Ctx) ->
-    Type = mqtt_avatar_part:camel(mqtt_avatar_part:first_name([maps:get(name, E), <<"SetText">>])),
-    Params = [{<<"Text">>, <<"yes">>}] ++ maps:get(room, Ctx)
-        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
-            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, <<"Text">>}]
-        ++ mqtt_avatar_part:echo_params(E, <<"any">>),
-    mqtt_avatar_part:actuator([mqtt_avatar_part:entry(<<"ACTUATOR">>, Type, Params)], Ctx).
+    mqtt_avatar_part:payload_service(E, Ctx, <<"SetText">>, <<"Text">>, any).
 
 -spec abbreviations() -> [{binary(), binary()}].
 abbreviations() -> [].

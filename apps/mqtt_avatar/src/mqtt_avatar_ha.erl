@@ -7,7 +7,7 @@
 -export([parse/3, parse/4, template/1, components/0]).
 %% For the families (mqtt_avatar_family_*): reading their keys.
 -export([str/2, str/3, topic/2, source/1, command_template/1, require/3, on_off/1, bool/3,
-         number/3, strings/2,
+         number/3, strings/2, command_and_state/3, with_command_template/2,
          read/2, settings/2]).
 
 %% `{entities, [{ComponentKey, Info, Entity}], Problems}': a device-based
@@ -178,6 +178,35 @@ require(Key, #{kind := Kind} = Base, Then) ->
         undefined -> {error, <<"a ", (atom_to_binary(Kind))/binary, " needs ",
                                (atom_to_binary(Key))/binary>>};
         _ -> Then()
+    end.
+
+%% @doc A family commanded on `command_topic' whose state, when it has one,
+%% is the entity's own `state_topic' read by its `value_template' (lock,
+%% valve): `Then' gets these topics (`command', and `state') once the
+%% command topic is known to be there.
+-spec command_and_state(map(), map(),
+                        fun((#{command := mqtt_avatar_part:control(),
+                               state => mqtt_avatar_part:state()}) ->
+                                   {ok, map()} | {error, binary()})) ->
+          {ok, map()} | {error, binary()}.
+command_and_state(C, Base, Then) ->
+    require(command_topic, Base, fun() ->
+        {ok, #{command := _} = T} = read(C, [{command, {control, <<"command_topic">>}}]),
+        case maps:get(state_topic, Base) of
+            undefined -> Then(T);
+            ST -> Then(T#{state => #{topic => ST, source => maps:get(value, Base)}})
+        end
+    end).
+
+%% @doc `E' with HA's `command_template' of config `C' (checked here,
+%% applied to every command) as its `template'; an unusable template is
+%% the entity's error (number, select).
+-spec with_command_template(map(), map()) -> {ok, map()} | {error, binary()}.
+with_command_template(C, E) ->
+    case command_template(str(<<"command_template">>, C)) of
+        {ok, undefined} -> {ok, E};
+        {ok, T} -> {ok, E#{template => T}};
+        {error, _} = Error -> Error
     end.
 
 %% @doc Reads a family's topics: `{state, TopicKey, TemplateKey}' gives a

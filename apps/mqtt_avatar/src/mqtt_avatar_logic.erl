@@ -12,7 +12,7 @@
 -module(mqtt_avatar_logic).
 
 -export([new/3, new/4, set_spec/2, handle/3, extract/2, extract/3, camel/1, last_values/1,
-         availability/1, pending_count/1]).
+         availability/1, pending_count/1, is_number_text/1]).
 
 -export_type([state/0, event/0, effect/0]).
 
@@ -236,7 +236,7 @@ route({stream, Id, N}, #{payload := Payload, retain := Retain, topic := Topic}, 
     Stream = stream(Id, N, S),
     #{mapping := Mapping, static := Static, context := Ctx, category := Cat, type := Type,
       on_change := OnChange} = Stream,
-    case extract(Mapping, Payload, exclude(S)) of
+    case numbers(read_values(Mapping, Payload, exclude(S)), maps:get(numeric, Stream, []), Static) of
         {ok, []} ->
             {S, []};
         {ok, Values} ->
@@ -254,9 +254,8 @@ route({stream, Id, N}, #{payload := Payload, retain := Retain, topic := Topic}, 
                     {S1, [{send, Stamp#{context => Ctx, sender => Id, receiver => R, body => Body}}
                           || R <- stream_receivers(Id, Cat, Type, S)]}
             end;
-        {error, Message} ->
-            {S, [{problem, #{what => bad_payload, component => Id, topic => Topic,
-                             message => Message}}]}
+        {error, Why} ->
+            {S, [bad_payload(Id, Topic, Payload, Why)]}
     end;
 route({light, Id, L}, #{payload := Payload, topic := Topic} = Msg, _Now, #{lights := Lights} = S) ->
     Key = {Id, mqtt_avatar_light:command_topic(L)},
@@ -356,12 +355,12 @@ actuator_state(Id, #{topic := Topic, payload := Payload, retain := Retain} = Msg
     Services = [Sv || #{kind := command, state_topic := T} = Sv <- All, T =:= Topic],
     Mappings = lists:usort([M || #{mapping := #{values := Vs, attributes := A} = M} <- Services,
                                  Vs =/= [] orelse A]),
-    Results = [extract(M, Payload, exclude(S)) || M <- Mappings],
+    Results = [read_values(M, Payload, exclude(S)) || M <- Mappings],
     case {readable(Payload, needs(Services)), [E || {error, E} <- Results]} of
-        {{error, Message}, _} ->
-            {S, [bad_payload(Id, Topic, Message)]};
-        {ok, [Message | _]} ->
-            {S, [bad_payload(Id, Topic, Message)]};
+        {{error, Why}, _} ->
+            {S, [bad_payload(Id, Topic, Payload, Why)]};
+        {ok, [Why | _]} ->
+            {S, [bad_payload(Id, Topic, Payload, Why)]};
         {ok, []} ->
             Values = dedupe(lists:append([V || {ok, V} <- Results])),
             Names = [N || #{values := Vs} <- Mappings, {N, _} <- Vs],
@@ -422,12 +421,85 @@ readable(Payload, Needs) ->
         {{ok, _}, json} ->
             case mqtt_avatar_json:decode(Payload) of
                 {ok, _} -> ok;
-                {error, R} -> {error, mqtt_avatar_json:format_error(R)}
+                {error, R} -> {error, not_json(R, <<"the state's MqttExpect or MqttValue json:">>)}
             end
     end.
 
-bad_payload(Id, Topic, Message) ->
-    {problem, #{what => bad_payload, component => Id, topic => Topic, message => Message}}.
+%% A bad_payload problem. A payload that is not JSON or a value that is not
+%% a number is limited per topic, whatever the payload (a device sending
+%% varying garbage costs one report a minute); any other per message.
+bad_payload(Id, Topic, Payload, Why) ->
+    {Limit, Message} = why(Why, Topic, Payload),
+    Problem = #{what => bad_payload, component => Id, topic => Topic, message => Message},
+    {problem, case Limit of
+                  undefined -> Problem;
+                  _ -> Problem#{limit => Limit}
+              end}.
+
+%% What a reason of read_values/3 or numbers/3 says, and its limit key.
+why({not_json, {too_large, _} = R, _Reader}, _Topic, _Payload) ->
+    {undefined, mqtt_avatar_json:format_error(R)};
+why({not_json, R, Reader}, Topic, Payload) ->
+    {not_json, iolist_to_binary(
+                 ["the payload", on_topic(Topic), " is not JSON (", quoted(start(Payload)), "; ",
+                  mqtt_avatar_json:format_error(R), "), but ", Reader, " reads it as JSON"])};
+why({not_number, Value, Info}, Topic, _Payload) ->
+    {not_number, iolist_to_binary(
+                   ["the value ", quoted(Value), on_topic(Topic), " is not a number, and this "
+                    "sensor's readings must be numbers (", Info, ", as in Home Assistant): "
+                    "not sent (docs/mqtt.md section 3.3, MqttNumeric)"])};
+why(Message, _Topic, _Payload) when is_binary(Message) ->
+    {undefined, Message}.
+
+on_topic(undefined) -> "";
+on_topic(Topic) -> [" on ", Topic].
+
+%% A payload's text (its UTF-8 start, for quoting).
+start(Payload) ->
+    case text(Payload) of
+        {ok, T} -> T;
+        error -> <<"(not UTF-8)">>
+    end.
+
+%% A JSON decoding error `R' of a payload that `Reader' reads as JSON.
+not_json(R, Reader) ->
+    {not_json, R, Reader}.
+
+%% HA refuses a state that is not a number from a sensor it expects numbers
+%% of (MqttNumeric names those values): nothing is sent, and the problem
+%% says why. An empty value, or HA's `None', is no reading at all.
+numbers({ok, Values}, [_ | _] = Numeric, Static) ->
+    Checked = [{N, V} || {N, V} <- Values, lists:member(N, Numeric)],
+    case [V || {_, V} <- Checked, not is_number_text(V), not no_reading(V)] of
+        [] ->
+            case [x || {_, V} <- Checked, no_reading(V)] of
+                [] -> {ok, Values};
+                _ -> {ok, []}
+            end;
+        [Bad | _] ->
+            Info = [[N, " ", V] || {K, N} <- [{<<"DeviceClass">>, "device class"},
+                                              {<<"Unit">>, "unit"},
+                                              {<<"StateClass">>, "state class"}],
+                                   {Key, V} <- Static, Key =:= K],
+            {error, {not_number, Bad, case Info of
+                                          [] -> <<"MqttNumeric">>;
+                                          _ -> lists:join(", ", Info)
+                                      end}}
+    end;
+numbers(Result, _Numeric, _Static) ->
+    Result.
+
+no_reading(V) ->
+    lists:member(string:trim(V), [<<>>, <<"None">>]).
+
+%% A number as Home Assistant reads one from a numeric sensor's state: a
+%% decimal number, signed or not, with a fraction and an exponent or not
+%% (`21.5', `-3', `.5', `1e3'), spaces around it allowed; not `nan' or
+%% `inf'.
+-spec is_number_text(binary()) -> boolean().
+is_number_text(V) ->
+    re:run(string:trim(V), <<"^[+-]?([0-9]+\\.?[0-9]*|\\.[0-9]+)([eE][+-]?[0-9]+)?$">>,
+           [{capture, none}]) =:= match.
 
 %% A broken device can send a bad payload many times a second: the same
 %% problem (kind, topic, message) once per PROBLEM_INTERVAL, and once per
@@ -440,7 +512,7 @@ limit_problems(Effects, Now, S) ->
                       false ->
                           {[E | Acc], Seen, Q};
                       true ->
-                          K = {W, T, maps:get(message, P, <<>>)},
+                          K = {W, T, maps:get(limit, P, maps:get(message, P, <<>>))},
                           case {lists:member(K, Seen), maps:get(K, Q, undefined)} of
                               {true, _} ->
                                   {Acc, Seen, Q};
@@ -452,8 +524,8 @@ limit_problems(Effects, Now, S) ->
                                              undefined -> 0
                                          end,
                                   P1 = case Left of
-                                           0 -> P;
-                                           _ -> P#{suppressed => Left}
+                                           0 -> maps:remove(limit, P);
+                                           _ -> (maps:remove(limit, P))#{suppressed => Left}
                                        end,
                                   {[{problem, P1} | Acc], [K | Seen], Q#{K => {Now, 0}}}
                           end
@@ -873,7 +945,15 @@ extract(Mapping, Payload) ->
 -spec extract(#{values := list(), attributes := boolean(), map := list()}, binary(),
               #{exclude => [binary()]}) ->
           {ok, [bil:parameter()]} | {error, binary()}.
-extract(#{values := Values, attributes := Attributes, map := Map} = Mapping, Payload, Opts) ->
+extract(Mapping, Payload, Opts) ->
+    case read_values(Mapping, Payload, Opts) of
+        {ok, _} = Ok -> Ok;
+        {error, Why} -> {error, element(2, why(Why, undefined, Payload))}
+    end.
+
+%% As extract/3, with the reason of an error still a term: a payload that
+%% is not JSON where JSON is read is `{not_json, Reason, Reader}'.
+read_values(#{values := Values, attributes := Attributes, map := Map} = Mapping, Payload, Opts) ->
     Exclude = maps:get(exclude, Opts, []),
     NeedsJson = Attributes orelse lists:any(fun({_, S}) -> S =/= raw andalso S =/= template end,
                                             Values),
@@ -885,7 +965,12 @@ extract(#{values := Values, attributes := Attributes, map := Map} = Mapping, Pay
         {error, _} ->
             {error, <<"the payload is not UTF-8 text">>};
         {_, {error, Reason}} ->
-            {error, mqtt_avatar_json:format_error(Reason)};
+            Reader = case [[N, "=json:", mqtt_avatar_part:join_path(P)]
+                           || {N, {json, P}} <- Values] of
+                         [R | _] -> ["MqttValue ", R];
+                         [] -> "MqttAttributes all"
+                     end,
+            {error, not_json(Reason, Reader)};
         {{ok, Text}, {ok, Json}} ->
             Mapped0 = [one_value(Name, Source, Text, Json, Payload, Mapping) || {Name, Source} <- Values],
             Mapped = lists:append([V || V <- Mapped0, is_list(V)]),
@@ -908,19 +993,28 @@ extract(#{values := Values, attributes := Attributes, map := Map} = Mapping, Pay
 
 one_value(Name, raw, Text, _Json, _Payload, _Mapping) ->
     [{Name, Text}];
-one_value(Name, template, _Text, _Json, Payload, #{template := T}) ->
+one_value(Name, template, _Text, _Json, Payload, #{template := T} = Mapping) ->
     %% HA's state template: `value' and `value_json' of the payload.
-    case mqtt_avatar_template:value(T, mqtt_avatar_template:payload_vars(Payload)) of
-        {ok, undefined} ->
+    Vars = mqtt_avatar_template:payload_vars(Payload),
+    NotJson = maps:get(<<"value_json">>, Vars) =:= undefined
+        andalso mqtt_avatar_template:reads(T, <<"value_json">>),
+    case {mqtt_avatar_template:value(T, Vars), NotJson} of
+        {Failed, true} when Failed =:= {ok, undefined}; element(1, Failed) =:= error ->
+            %% The template reads JSON and the payload is not: say that,
+            %% not what it led to (an undefined value given to `| float').
+            {error, R} = mqtt_avatar_json:decode(Payload),
+            {error, not_json(R, ["the value template ",
+                                 quoted(maps:get(template_text, Mapping, <<"of ", Name/binary>>))])};
+        {{ok, undefined}, false} ->
             %% HA's own examples write `{{ value.x }}', which reads nothing
             %% of a text payload: say so rather than send no state.
             {error, <<"the value template of ", Name/binary, " gave nothing for this payload "
                       "(it reads a field the payload does not have; `value' is the payload's "
                       "text, write value_json.x for a field of a JSON payload)">>};
-        {ok, null} -> [];
-        {ok, V} when is_binary(V); is_number(V); is_boolean(V) -> [{Name, scalar(V)}];
-        {ok, V} -> [{Name, clean(mqtt_avatar_template:to_text(V))}];
-        {error, M} -> {error, <<"the value template of ", Name/binary, ": ", M/binary>>}
+        {{ok, null}, _} -> [];
+        {{ok, V}, _} when is_binary(V); is_number(V); is_boolean(V) -> [{Name, scalar(V)}];
+        {{ok, V}, _} -> [{Name, clean(mqtt_avatar_template:to_text(V))}];
+        {{error, M}, false} -> {error, <<"the value template of ", Name/binary, ": ", M/binary>>}
     end;
 one_value(Name, {json, Path}, _Text, Json, _Payload, _Mapping) ->
     case mqtt_avatar_json:get_path(Path, Json) of

@@ -8,7 +8,7 @@
          echo_params/2, value_params/3, match/2, on_off_map/3, source/1, join_path/1,
          json_at/2, first_name/1, camel/1, extra/1, named/2,
          fixed/6, setter/7, watch/5, family/5, map_text/1, range/2, echo_of/2, settings/3,
-         one_of/1, valued/7, with_info/2, merge/1, value/2]).
+         one_of/1, valued/7, with_info/2, merge/1, value/2, payload_service/5]).
 
 -export_type([part/0, ctx/0, control/0, state/0]).
 
@@ -148,6 +148,23 @@ stream(E, Room, Param, Stream, Read, Context, Map, SensorParam) ->
                      ++ [{<<"MqttOnChange">>, <<"yes">>} || maps:get(on_change, E, false)]),
     Service = entry(<<"SENSOR">>, Read, [{SensorParam, <<"yes">>}] ++ Room),
     #{services => [Service], consumes => [Consumes], sensor => [SensorParam], feedback => none}.
+
+%% @doc One service named after the entity (else `Default') whose request
+%% parameter `Arg' is the whole payload published on the command topic
+%% (notify, text): done when the broker has it (`none'), or at the next
+%% message of the state topic (`any').
+-spec payload_service(mqtt_avatar_discovery:entity(), ctx(), binary(), binary(), none | any) ->
+          part().
+payload_service(E, Ctx, Default, Arg, Echo) ->
+    Type = camel(first_name([maps:get(name, E), Default])),
+    Confirm = case Echo of
+                  none -> [{<<"MqttExpect">>, <<"none">>}];
+                  any -> echo_params(E, <<"any">>)
+              end,
+    Params = [{Arg, <<"yes">>}] ++ maps:get(room, Ctx)
+        ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
+            {<<"MqttCommand">>, <<"raw:">>}, {<<"MqttCommandArgs">>, Arg}] ++ Confirm,
+    actuator([entry(<<"ACTUATOR">>, Type, Params)], Ctx).
 
 %% @doc A part of actuator services; the device's model (else name) is the
 %% Device of its ACTION FEEDBACK entry.

@@ -23,7 +23,9 @@
 %% How a state message becomes BIL parameters.
 %% `scale': MqttScale, `{Param, Lo, Hi}': the device writes Param in
 %% Lo..Hi, BIL carries it as a percentage (HA's fan speed_range).
+%% `template_text': the MqttValueTemplate as written, for problems.
 -type mapping() :: #{template => mqtt_avatar_template:template(),
+                     template_text => binary(),
                      scale => [{binary(), integer(), integer()}],
                      values := [{binary(), source()}],
                      attributes := boolean(),
@@ -55,6 +57,7 @@
                     topic := binary(),
                     context := sensor_data | event,
                     on_change := boolean(),
+                    numeric := [binary()],
                     mapping := mapping()}.
 %% `{template, Text}': Home Assistant's availability_template, rendered
 %% by mqtt_avatar_template and compared with the payloads.
@@ -101,7 +104,7 @@
                      <<"MqttValueTemplate">>, <<"MqttCommandTemplate">>,
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
                      <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>, <<"MqttLight">>,
-                     <<"MqttScale">>]).
+                     <<"MqttScale">>, <<"MqttNumeric">>]).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -263,16 +266,46 @@ extra(Id, E, What) ->
             end
     end.
 
+%% MqttNumeric: the values (names of MqttValue) that must be numbers, as
+%% Home Assistant wants of a sensor with a unit, a state class or a
+%% numeric device class (docs/mqtt.md section 3.3).
+numeric(Id, E, What) ->
+    case get(<<"MqttNumeric">>, E) of
+        undefined -> {ok, []};
+        Text ->
+            Read = case get(<<"MqttValue">>, E) of
+                       undefined -> [];
+                       V -> [P || [P, _] <- [binary:split(T, <<"=">>) || T <- tokens(V)]]
+                   end,
+            case {tokens(Text), [T || T <- tokens(Text), not lists:member(T, Read)]} of
+                {[_ | _] = Names, []} -> {ok, lists:usort(Names)};
+                {_, Bad} -> {error, [problem(Id, E, What, <<"MqttNumeric">>,
+                                             not_token(<<"expected names of values MqttValue reads">>,
+                                                       Bad))]}
+            end
+    end.
+
+%% `Expected', and the first bad token quoted (at most 64 characters).
+not_token(Expected, []) ->
+    Expected;
+not_token(Expected, [Bad | _]) ->
+    Quoted = case string:length(Bad) > 64 of
+                 true -> [string:slice(Bad, 0, 64), "..."];
+                 false -> Bad
+             end,
+    unicode:characters_to_binary([Expected, ", not '", Quoted, "'"]).
+
 %% MqttArgCheck: `Param', `Param=Min..Max' or `Param=a|b|c' tokens.
 checks(Id, E) ->
     case get(<<"MqttArgCheck">>, E) of
         undefined -> {ok, []};
         Text ->
-            Parsed = [check_token(T) || T <- tokens(Text)],
-            case lists:member(error, Parsed) of
-                false -> {ok, Parsed};
-                true -> {error, [problem(Id, E, "Service", <<"MqttArgCheck">>,
-                                         <<"expected Param, Param=Min..Max or Param=a|b|c tokens">>)]}
+            Parsed = [{T, check_token(T)} || T <- tokens(Text)],
+            case [T || {T, error} <- Parsed] of
+                [] -> {ok, [C || {_, C} <- Parsed]};
+                Bad -> {error, [problem(Id, E, "Service", <<"MqttArgCheck">>,
+                                        not_token(<<"expected Param, Param=Min..Max or "
+                                                    "Param=a|b|c tokens">>, Bad))]}
             end
     end.
 
@@ -377,11 +410,11 @@ stream(Id, E, Inherited) ->
                    <<"no">> -> {ok, false};
                    _ -> {error, [problem(Id, E, What, <<"MqttOnChange">>, <<"must be yes or no">>)]}
                end,
-    case collect([Topic, Mapping, Context, OnChange, extra(Id, E, What)]) of
-        {ok, [T, M, Ctx, Change, ok]} ->
+    case collect([Topic, Mapping, Context, OnChange, extra(Id, E, What), numeric(Id, E, What)]) of
+        {ok, [T, M, Ctx, Change, ok, Numeric]} ->
             #{category := Cat, type := Type} = E,
             {ok, #{category => Cat, type => Type, static => static(E), topic => T,
-                   context => Ctx, on_change => Change, mapping => M}};
+                   context => Ctx, on_change => Change, numeric => Numeric, mapping => M}};
         Error ->
             Error
     end.
@@ -591,10 +624,10 @@ scale(Id, E, What, Text) ->
 %% One or more space-separated tokens, each read by `Parse' (`error' when
 %% it cannot), or the problem `Message' of parameter `Name'.
 token_list(Id, E, What, Name, Text, Parse, Message) ->
-    Parsed = [Parse(T) || T <- tokens(Text)],
-    case lists:member(error, Parsed) of
-        false when Parsed =/= [] -> {ok, Parsed};
-        _ -> {error, [problem(Id, E, What, Name, Message)]}
+    Parsed = [{T, Parse(T)} || T <- tokens(Text)],
+    case [T || {T, error} <- Parsed] of
+        [] when Parsed =/= [] -> {ok, [P || {_, P} <- Parsed]};
+        Bad -> {error, [problem(Id, E, What, Name, not_token(Message, Bad))]}
     end.
 
 scale_token(T) ->
@@ -613,7 +646,7 @@ scale_token(T) ->
 
 template(Id, E, What, Name, Text) ->
     case mqtt_avatar_template:parse(Text) of
-        {ok, T} -> {ok, #{template => T}};
+        {ok, T} -> {ok, #{template => T, template_text => Text}};
         {error, M} -> {error, [problem(Id, E, What, Name, M)]}
     end.
 

@@ -25,6 +25,7 @@
 %%     `value' (the payload as text) and `value_json' (its JSON, when it is
 %%     JSON). Command templates take `#{<<"value">> => V}' or the names HA
 %%     gives (`brightness', `red'...).</li>
+%% <li>`reads(T, Name)': the template reads variable `Name'.</li>
 %% <li>`path(T) -> {ok, raw | {json, Path}} | error': the template is a plain
 %%     `{{ value }}' or `{{ value_json.path }}' (filters `float', `int',
 %%     `string', `round' allowed), which the spec can read without it.</li>
@@ -41,7 +42,7 @@
 -compile([no_type_opt]).
 
 -export([parse/1, parse/2, render/2, render/3, value/2, value/3, payload_vars/1, path/1,
-         to_text/1, limits/0]).
+         reads/2, to_text/1, limits/0]).
 
 -export_type([template/0, value/0, vars/0]).
 
@@ -144,6 +145,17 @@ path({tpl, Nodes}) ->
         [{out, E}] -> expr_path(E);
         _ -> error
     end.
+
+%% @doc True when the template reads variable `Name' anywhere (`value_json':
+%% the template wants the payload as JSON).
+-spec reads(template(), binary()) -> boolean().
+reads({tpl, Nodes}, Name) ->
+    reads_term(Nodes, Name).
+
+reads_term({var, N}, Name) -> N =:= Name;
+reads_term(T, Name) when is_tuple(T) -> reads_term(tuple_to_list(T), Name);
+reads_term(L, Name) when is_list(L) -> lists:any(fun(X) -> reads_term(X, Name) end, L);
+reads_term(_, _Name) -> false.
 
 %% @doc A value as HA writes it in a template's output: numbers in the
 %% shortest form, `True'/`False'/`None', the undefined value as nothing,

@@ -133,7 +133,11 @@ expose(Topic, Dev, #{<<"type">> := Type, <<"property">> := Prop} = E, _Exposes) 
         {<<"binary">>, true} -> [(base_entity(Topic, Uid, binary_sensor, E, E))
                                  #{device_class => binary_class(Prop)}];
         {<<"enum">>, true} when Prop =:= <<"action">> -> [(base_entity(Topic, Uid, event, E, E))];
-        {T, true} when T =:= <<"numeric">>; T =:= <<"enum">>; T =:= <<"text">> ->
+        {<<"numeric">>, true} ->
+            %% Its values are numbers (zigbee2mqtt announces them to HA
+            %% with a unit or a state class): MqttNumeric.
+            [(base_entity(Topic, Uid, sensor, E, E))#{numeric => true}];
+        {T, true} when T =:= <<"enum">>; T =:= <<"text">> ->
             [base_entity(Topic, Uid, sensor, E, E)];
         _ -> []
     end;

@@ -4,14 +4,15 @@
 %% clients, and a test VA joined with agent_bridge_client.
 -module(mqtt_avatar_SUITE).
 
--include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
 
--compile([export_all, nowarn_export_all]).
+-import(mqtt_avatar_test_setup, [light_device/1, test_va/1, mqtt/1, request/4, provider_of/3,
+                                 wait_binding/2, entry/3]).
 
--define(SETUP, mqtt_avatar_test_setup).
-
-suite() -> [{timetrap, {seconds, 60}}].
+-define(LIVE_LISTENER, mqtt_avatar_suite).
+-define(LIVE_CASE_PREFIX, "").
+-define(LIVE_FEEDBACK_MS, 1500).
+-include("mqtt_avatar_live_suite.hrl").
 
 all() ->
     [{group, round_trip}, {group, streams}, {group, failures}].
@@ -23,23 +24,6 @@ groups() ->
                      broker_restart]}].
 
 %% ---------------------------------------------------------------------------
-%% Setup
-%% ---------------------------------------------------------------------------
-
-%% The setup of every live mqtt_avatar suite: mqtt_avatar_test_setup.
-init_per_suite(Config) ->
-    ?SETUP:init_per_suite(mqtt_avatar_suite, Config).
-
-end_per_suite(Config) ->
-    ?SETUP:end_per_suite(mqtt_avatar_suite, Config).
-
-init_per_testcase(Case, Config) ->
-    ?SETUP:init_per_testcase(atom_to_binary(Case), 1500, Config).
-
-end_per_testcase(_Case, Config) ->
-    ?SETUP:end_per_testcase(Config).
-
-%% ---------------------------------------------------------------------------
 %% Round trips
 %% ---------------------------------------------------------------------------
 
@@ -49,7 +33,7 @@ end_per_testcase(_Case, Config) ->
 discovery_to_feedback(Config) ->
     Dev = light_device(Config),
     A = avatar(Config, #{}),
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     <<"KitchenLight01">> = Comp,
     {ok, F} = agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
@@ -95,7 +79,7 @@ hand_written_description(Config) ->
              "<ServiceParameters><Feedback>yes</Feedback><Room>kitchen</Room></ServiceParameters></Consumes>"
              "</bil:Component></bil:types></bil:description>"]),
     _A = avatar(Config, #{entity_id => <<"tasmota-home">>, description => Xml, discovery => false}),
-    Va = va(Config),
+    Va = test_va(Config),
     <<"Plug01">> = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     {ok, #{context := feedback, body := #{parameters := Ps}}} =
         agent_bridge_client:request(Va, request(<<"LightEmulator01">>, <<"Plug01">>,
@@ -135,7 +119,7 @@ zigbee2mqtt_device(Config) ->
     _A = avatar(Config, #{discovery => #{homeassistant => false, zigbee2mqtt => Base},
                           overrides => #{<<"0x00158d0001a2b3c4">> => #{room => <<"hall">>}}}),
     %% (an override names a device by its IEEE address, `z2m:' prefix optional)
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of_service(Va, <<"MotionEmulator01">>, <<"MotionDetected">>),
     <<"HallPir">> = Comp,
     ok = mqtt_avatar_test_device:publish(Dev, <<Base/binary, "/hall_pir">>,
@@ -154,7 +138,7 @@ zigbee2mqtt_device(Config) ->
 sensor_stream(Config) ->
     Dev = hall_device(Config),
     _A = avatar(Config, #{}),
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of_service(Va, <<"TempEmulator01">>, <<"Temperature">>),
     P = ?config(prefix, Config),
     N = 25,
@@ -186,7 +170,7 @@ retained_state_on_join(Config) ->
     ok = mqtt_avatar_test_device:publish(Dev, <<P/binary, "/hall/motion">>,
                                          <<"{\"occupancy\":true,\"people\":1}">>, true),
     _A = avatar(Config, #{}),
-    Va = va(Config),
+    Va = test_va(Config),
     #{context := event, sender := Comp, body := #{parameters := Ps}} =
         wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"MotionDetected">> end),
     <<"yes">> = param(<<"Motion">>, Ps),
@@ -206,7 +190,7 @@ retained_state_on_join(Config) ->
 no_echo_times_out(Config) ->
     Dev = light_device(Config),
     A = avatar(Config, #{echo_timeout => 1000}),
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     ok = mqtt_avatar_test_device:mute(Dev, true),
     {ok, #{sender := <<"EVATAR">>, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
@@ -224,7 +208,7 @@ no_echo_times_out(Config) ->
 device_offline_and_back(Config) ->
     Dev = light_device(Config),
     _A = avatar(Config, #{}),
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     ok = mqtt_avatar_test_device:crash(Dev),
     #{context := event, sender := Comp, receiver := <<"LightEmulator01">>,
@@ -253,7 +237,7 @@ malformed_inputs(Config) ->
     Dev = hall_device(Config),
     Light = light_device(Config),
     A = avatar(Config, #{}),
-    Va = va(Config),
+    Va = test_va(Config),
     Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     Ha = <<"ha_", P/binary>>,
     Bad = [{<<P/binary, "/hall/temperature">>, <<"{\"temperature\": ">>},
@@ -307,7 +291,7 @@ broker_restart(Config) ->
     Light = light_device(Config1),
     Hall = hall_device(Config1),
     A = avatar(Config1, #{}),
-    Va = va(Config1),
+    Va = test_va(Config1),
     Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     {ok, _} = agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
                                                       <<"TurnLightOn">>, []), 5000),
@@ -342,30 +326,6 @@ broker_restart(Config) ->
 %% Devices
 %% ---------------------------------------------------------------------------
 
-%% An HA JSON-schema light (zigbee2mqtt style) in the kitchen.
-light_device(Config) ->
-    P = ?config(prefix, Config),
-    Base = <<P/binary, "/light">>,
-    Disc = #{<<"name">> => null, <<"uniq_id">> => <<P/binary, "-light">>, <<"~">> => Base,
-             <<"stat_t">> => <<"~/state">>, <<"cmd_t">> => <<"~/set">>, <<"schema">> => <<"json">>,
-             <<"avty_t">> => <<"~/availability">>, <<"json_attr_t">> => <<"~/state">>,
-             <<"dev">> => #{<<"ids">> => [<<P/binary, "-light-dev">>], <<"name">> => <<"Kitchen Light 01">>,
-                            <<"sa">> => <<"Kitchen">>, <<"mdl">> => <<"LightSwitch">>}},
-    Reply = fun(_T, Cmd) ->
-                    {ok, #{<<"state">> := S}} = mqtt_avatar_json:decode(Cmd),
-                    [{<<Base/binary, "/state">>,
-                      iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => S,
-                                                                 <<"changed">> => true})), true}]
-            end,
-    {ok, Dev} = mqtt_avatar_test_device:start(
-                  port(Config),
-                  #{availability => <<Base/binary, "/availability">>,
-                    discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/light/config">>,
-                                   mqtt_avatar_json:encode(Disc)}],
-                    commands => [<<Base/binary, "/set">>], reply => Reply}),
-    remember(devices, Dev),
-    Dev.
-
 %% A camera with motion detection and a thermometer in the hall.
 hall_device(Config) ->
     P = ?config(prefix, Config),
@@ -397,50 +357,8 @@ hall_device(Config) ->
 avatar(Config, Extra) ->
     ?SETUP:avatar(Config, <<"mqtt-home">>, Extra).
 
-mqtt(Config) ->
-    #{host => {127, 0, 0, 1}, port => port(Config)}.
-
 port(Config) ->
     ?SETUP:broker_port(Config).
-
-va(Config) ->
-    Va = ?SETUP:connect_va(Config, <<"test-va">>),
-    ok = agent_bridge_client:describe(Va, va_description()),
-    Va.
-
-va_description() ->
-    #{entity_id => <<"test-va">>, api_name => <<"TEST VA">>, entity_type => agent,
-      context => <<"EmulatorDescription">>,
-      components =>
-          [#{id => <<"LightEmulator01">>,
-             services => [entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>,
-                                [{<<"Feedback">>, <<"yes">>}, {<<"Device">>, <<"LightSwitch">>},
-                                 {<<"Room">>, <<"kitchen">>}])],
-             consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>,
-                                [{<<"Light">>, <<"yes">>}, {<<"Room">>, <<"kitchen">>}]),
-                          entry(<<"ACTUATOR">>, <<"TurnLightOff">>,
-                                [{<<"Light">>, <<"yes">>}, {<<"Room">>, <<"kitchen">>}])]},
-           #{id => <<"MotionEmulator01">>,
-             services => [entry(<<"SENSOR">>, <<"MotionDetected">>, [{<<"Room">>, <<"hall">>}])],
-             consumes => [entry(<<"SENSOR">>, <<"ReadMotion">>, [{<<"Motion">>, <<"yes">>}])]},
-           #{id => <<"TempEmulator01">>,
-             services => [entry(<<"SENSOR">>, <<"Temperature">>, [{<<"Room">>, <<"hall">>}])],
-             consumes => []}]}.
-
-entry(Cat, Type, Params) -> ?SETUP:entry(Cat, Type, Params).
-
-request(From, To, Type, Params) ->
-    #{sender => From, receiver => To, body => entry(<<"ACTUATOR">>, Type, Params)}.
-
-%% The provider bound to one of the VA component's consumers.
-provider_of(Va, Consumer, Type) ->
-    Report = wait_binding(Va, fun(#{bound := B}) ->
-                                      [x || #{consumer := #{component := C}, type := T} <- B,
-                                            C =:= Consumer, T =:= Type] =/= []
-                              end),
-    [P] = [P || #{consumer := #{component := C}, type := T, provider := #{component := P}}
-                    <- maps:get(bound, Report), C =:= Consumer, T =:= Type],
-    P.
 
 %% The Avatar component whose Consumes entry is bound to the VA's service.
 provider_of_service(Va, Provider, Type) ->
@@ -452,14 +370,7 @@ provider_of_service(Va, Provider, Type) ->
                     <- maps:get(bound, Report), P =:= Provider, T =:= Type],
     C.
 
-wait_binding(Va, Pred) ->
-    evatar_test_fixtures:wait_binding(Va, Pred, 10000).
-
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 5000).
 
-param(Name, Params) -> ?SETUP:param(Name, Params).
-
 wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000}).
-
-remember(Kind, Pid) -> ?SETUP:remember(Kind, Pid).

@@ -8,31 +8,16 @@
 %% lock that goes locking then locked, an alarm that goes arming then armed.
 -module(mqtt_avatar_families_SUITE).
 
--include_lib("common_test/include/ct.hrl").
+-import(mqtt_avatar_test_setup, [entry/3]).
 
--compile([export_all, nowarn_export_all]).
-
--import(mqtt_avatar_test_setup, [remember/2, entry/3, param/2]).
-
--define(SETUP, mqtt_avatar_test_setup).
-
-suite() -> [{timetrap, {seconds, 60}}].
+-define(LIVE_LISTENER, mqtt_families_suite).
+-define(LIVE_CASE_PREFIX, "").
+-define(LIVE_FEEDBACK_MS, 3000).
+-include("mqtt_avatar_live_suite.hrl").
 
 all() ->
     [covers_and_valves, climate_and_humidifier, fan, lock_and_alarm, alarm_with_remote_code,
      number_select_scene, vacuum, sensors_named_by_what_they_are, zigbee2mqtt_families].
-
-init_per_suite(Config) ->
-    ?SETUP:init_per_suite(mqtt_families_suite, Config).
-
-end_per_suite(Config) ->
-    ?SETUP:end_per_suite(mqtt_families_suite, Config).
-
-init_per_testcase(Case, Config) ->
-    ?SETUP:init_per_testcase(atom_to_binary(Case), 3000, Config).
-
-end_per_testcase(_Case, Config) ->
-    ?SETUP:end_per_testcase(Config).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -434,7 +419,10 @@ vacuum(Config) ->
 %% binds to a sensor the user named "Kitchen thermometer", because the
 %% sensor's services are also named after its device class; its readings
 %% carry the unit, device class and state class. A door contact named
-%% "Back door" binds a VA asking for DoorChanged the same way.
+%% "Back door" binds a VA asking for DoorChanged the same way. A numeric
+%% sensor (humidity, %) publishing `abc' sends the VA nothing, as Home
+%% Assistant refuses it, and the Avatar lists the problem; a payload that
+%% is not JSON, read by a value_json template, is listed as such.
 sensors_named_by_what_they_are(Config) ->
     P = ?config(prefix, Config),
     Dev = dev(P, <<"Kitchen Multisensor">>, <<"Kitchen">>),
@@ -448,9 +436,13 @@ sensors_named_by_what_they_are(Config) ->
                                 <<"dev">> => Dev}},
                              {<<"binary_sensor">>, <<"door">>,
                               #{<<"name">> => <<"Back door">>, <<"dev_cla">> => <<"door">>,
-                                <<"stat_t">> => <<P/binary, "/kitchen/door">>, <<"dev">> => Dev}}],
+                                <<"stat_t">> => <<P/binary, "/kitchen/door">>, <<"dev">> => Dev}},
+                             {<<"sensor">>, <<"humidity">>,
+                              #{<<"name">> => <<"Humidity">>, <<"dev_cla">> => <<"humidity">>,
+                                <<"unit_of_meas">> => <<"%">>,
+                                <<"stat_t">> => <<P/binary, "/kitchen/humidity">>, <<"dev">> => Dev}}],
                     [], undefined),
-    _A = avatar(Config),
+    A = avatar(Config),
     Va = ?SETUP:connect_va(Config, <<"kitchen-va">>),
     Kitchen = [{<<"Room">>, <<"kitchen">>}],
     ok = agent_bridge_client:describe(
@@ -459,14 +451,16 @@ sensors_named_by_what_they_are(Config) ->
                  components =>
                      [#{id => <<"KitchenWatch">>,
                         services => [entry(<<"SENSOR">>, <<"Temperature">>, Kitchen),
-                                     entry(<<"SENSOR">>, <<"DoorChanged">>, Kitchen)],
+                                     entry(<<"SENSOR">>, <<"DoorChanged">>, Kitchen),
+                                     entry(<<"SENSOR">>, <<"Humidity">>, Kitchen)],
                         consumes => [entry(<<"SENSOR">>, <<"ReadTemperature">>,
                                            [{<<"Temperature">>, <<"yes">>}, {<<"Unit">>, <<"°C"/utf8>>}
                                             | Kitchen])]}]}),
     Comp = evatar_test_fixtures:wait_binding(
              Va, fun(#{bound := B}) ->
                          lists:sort([T || #{type := T} <- B]) =:=
-                             [<<"DoorChanged">>, <<"ReadTemperature">>, <<"Temperature">>]
+                             [<<"DoorChanged">>, <<"Humidity">>, <<"ReadTemperature">>,
+                              <<"Temperature">>]
                  end, 10000),
     [<<"KitchenMultisensor">>] = lists:usort([maps:get(component, maps:get(provider, B))
                                               || #{type := <<"ReadTemperature">>} = B
@@ -486,7 +480,31 @@ sensors_named_by_what_they_are(Config) ->
     ok = mqtt_avatar_test_device:publish(Sensor, <<P/binary, "/kitchen/door">>, <<"ON">>, false),
     #{context := event, body := #{parameters := Ds}} =
         wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"DoorChanged">> end),
-    <<"yes">> = param(<<"Door">>, Ds).
+    <<"yes">> = param(<<"Door">>, Ds),
+    %% Not a number from a numeric sensor: nothing reaches the VA (the
+    %% next Humidity it gets is the 55 published after), one problem.
+    Humidity = <<P/binary, "/kitchen/humidity">>,
+    ok = mqtt_avatar_test_device:publish(Sensor, Humidity, <<"abc">>, false),
+    ok = wait_until(fun() -> problems_with(A, Humidity, <<"'abc'">>) =/= [] end),
+    [#{what := bad_payload, message := NotNumber}] = problems_with(A, Humidity, <<"'abc'">>),
+    {match, _} = re:run(NotNumber, "is not a number.*device class humidity, unit %"),
+    ok = mqtt_avatar_test_device:publish(Sensor, Humidity, <<"55">>, false),
+    #{body := #{parameters := Hs}} =
+        wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"Humidity">> end),
+    <<"55">> = param(<<"Humidity">>, Hs),
+    %% Not JSON, read by a value_json template: said as such.
+    Thermo = <<P/binary, "/kitchen/sensor">>,
+    ok = mqtt_avatar_test_device:publish(Sensor, Thermo, <<"not json">>, false),
+    ok = wait_until(fun() -> problems_with(A, Thermo, <<"is not JSON">>) =/= [] end),
+    [#{message := NotJson}] = problems_with(A, Thermo, <<"is not JSON">>),
+    {match, _} = re:run(NotJson, "'not json'.*the value template '\\{\\{ \\(value_json.t"),
+    %% Each once, though the thermometer's two streams read the topic.
+    2 = length([x || #{what := bad_payload} <- mqtt_avatar:problems(A)]).
+
+%% The Avatar's problems on Topic whose message has Text.
+problems_with(A, Topic, Text) ->
+    [X || #{topic := T, message := M} = X <- mqtt_avatar:problems(A), T =:= Topic,
+          binary:match(M, Text) =/= nomatch].
 
 %% zigbee2mqtt's exposes of a cover, a thermostat (TRV), a lock, a fan and
 %% a plug's settable numeric and enum: one simulated zigbee2mqtt applies
@@ -695,3 +713,6 @@ stream(Va, Type, Param, Value) ->
 
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 10000).
+
+%% Generous: the machine running the tests may be busy.
+wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).

@@ -8,15 +8,12 @@
 %% them back in its feedback. docs/mqtt.md section 2.7.
 -module(mqtt_avatar_light_SUITE).
 
--include_lib("common_test/include/ct.hrl").
+-import(mqtt_avatar_test_setup, [entry/3]).
 
--compile([export_all, nowarn_export_all]).
-
--import(mqtt_avatar_test_setup, [remember/2, entry/3, param/2]).
-
--define(SETUP, mqtt_avatar_test_setup).
-
-suite() -> [{timetrap, {seconds, 60}}].
+-define(LIVE_LISTENER, mqtt_avatar_light_suite).
+-define(LIVE_CASE_PREFIX, "l_").
+-define(LIVE_FEEDBACK_MS, 3000).
+-include("mqtt_avatar_live_suite.hrl").
 
 all() ->
     [{group, schemas}, {group, failures}].
@@ -24,18 +21,6 @@ all() ->
 groups() ->
     [{schemas, [], [json_schema, default_schema, template_schema, zigbee2mqtt_light]},
      {failures, [], [bad_values_and_payloads]}].
-
-init_per_suite(Config) ->
-    ?SETUP:init_per_suite(mqtt_avatar_light_suite, Config).
-
-end_per_suite(Config) ->
-    ?SETUP:end_per_suite(mqtt_avatar_light_suite, Config).
-
-init_per_testcase(Case, Config) ->
-    ?SETUP:init_per_testcase(<<"l_", (atom_to_binary(Case))/binary>>, 3000, Config).
-
-end_per_testcase(_Case, Config) ->
-    ?SETUP:end_per_testcase(Config).
 
 %% ---------------------------------------------------------------------------
 %% Cases

@@ -574,3 +574,114 @@ lock_with_state_template_is_done_at_unlocked_test() ->
     #{components := [#{streams := [#{mapping := M}]}]} = Spec,
     {error, Why} = mqtt_avatar_logic:extract(M, <<"UNLOCKED">>),
     ?assertNotEqual(nomatch, binary:match(Why, <<"gave nothing">>)).
+
+%% A generated HA sensor as the logic runs it, bound to emulator `Emu'.
+sensor_state(Config) ->
+    Json = iolist_to_binary(mqtt_avatar_json:encode(
+                              Config#{<<"dev">> => #{<<"ids">> => <<"k1">>,
+                                                     <<"name">> => <<"Kitchen">>}})),
+    {D, []} = mqtt_avatar:generate([{<<"homeassistant/sensor/k1/t/config">>, Json}], #{}),
+    {ok, Spec} = mqtt_avatar_spec:from_description(D#{entity_id => ?E}),
+    #{components := [#{id := Id, streams := Streams}]} = Spec,
+    Rows = [row(?E, Id, <<"va">>, <<"Emu">>, Cat, Type) || #{category := Cat, type := Type} <- Streams],
+    {S1, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, mqtt_avatar_logic:new(?E, Spec, 3000)),
+    {S2, _} = mqtt_avatar_logic:handle({binding, #{bound => Rows, unbound => [],
+                                                   entities => [<<"va">>, ?E]}}, 0, S1),
+    {D, S2}.
+
+problems(Effects) -> [P || {problem, P} <- Effects].
+
+%% HA's temperature sensor (device class, unit, state class) is numeric:
+%% its streams carry MqttNumeric, and a value that is not a number is not
+%% sent, as HA refuses it, but reported once for both streams, naming the
+%% value, the topic and why; a different text within the minute is the
+%% same problem (limited per topic), counted as suppressed. An empty value
+%% or HA's None is no reading; a number passes.
+numeric_sensor_refuses_text_test() ->
+    {D, S} = sensor_state(#{<<"name">> => <<"Kitchen thermometer">>,
+                            <<"device_class">> => <<"temperature">>,
+                            <<"unit_of_measurement">> => <<"°C"/utf8>>,
+                            <<"state_class">> => <<"measurement">>, <<"state_topic">> => <<"k/t">>}),
+    #{components := [#{consumes := Consumes}]} = D,
+    ?assertEqual([<<"KitchenThermometer">>, <<"Temperature">>],
+                 [proplists:get_value(<<"MqttNumeric">>, Ps) || #{parameters := Ps} <- Consumes]),
+    {S1, E1} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<"abc">>), 0, S),
+    ?assertEqual([], sends(E1)),
+    [#{what := bad_payload, topic := <<"k/t">>, message := M} = P] = problems(E1),
+    ?assertNot(maps:is_key(limit, P)),
+    ?assertEqual(<<"the value 'abc' on k/t is not a number, and this sensor's readings must be "
+                   "numbers (device class temperature, unit °C, state class measurement, as in "
+                   "Home Assistant): not sent (docs/mqtt.md section 3.3, MqttNumeric)"/utf8>>, M),
+    {S2, E2} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<"warm">>), 1000, S1),
+    ?assertEqual({[], []}, {sends(E2), problems(E2)}),
+    {S3, E3} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<"">>), 2000, S2),
+    {S4, E4} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<"None">>), 2000, S3),
+    ?assertEqual([], E3 ++ E4),
+    {S5, E5} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<" 21.5 ">>), 3000, S4),
+    ?assertEqual([<<"KitchenThermometer">>, <<"Temperature">>],
+                 lists:sort([T || #{body := #{type := T}} <- sends(E5)])),
+    {_, E6} = mqtt_avatar_logic:handle(mqtt(<<"k/t">>, <<"nan">>), 61000, S5),
+    [#{suppressed := 1, message := M6}] = problems(E6),
+    ?assertNotEqual(nomatch, binary:match(M6, <<"'nan'">>)),
+    [?assert(mqtt_avatar_logic:is_number_text(V))
+     || V <- [<<"0">>, <<"-3">>, <<"+2.">>, <<".5">>, <<"1e3">>, <<"-1.5E-2">>, <<"21.5\n">>]],
+    [?assertNot(mqtt_avatar_logic:is_number_text(V))
+     || V <- [<<"abc">>, <<"nan">>, <<"inf">>, <<"1,5">>, <<".">>, <<"1e">>, <<"0x10">>, <<"yes">>,
+              <<"21.5 °C"/utf8>>]].
+
+%% What HA treats as numeric: a unit, a state class or a numeric device
+%% class; not a sensor without them, nor the date, enum and timestamp
+%% classes, whose values are text.
+which_sensors_are_numeric_test() ->
+    Numeric = fun(Extra) ->
+                      {D, _} = sensor_state(Extra#{<<"name">> => <<"X">>,
+                                                   <<"state_topic">> => <<"k/t">>}),
+                      #{components := [#{consumes := [#{parameters := Ps} | _]}]} = D,
+                      lists:keymember(<<"MqttNumeric">>, 1, Ps)
+              end,
+    ?assert(Numeric(#{<<"unit_of_measurement">> => <<"W">>})),
+    ?assert(Numeric(#{<<"state_class">> => <<"total">>})),
+    ?assert(Numeric(#{<<"device_class">> => <<"humidity">>})),
+    ?assert(Numeric(#{<<"suggested_display_precision">> => 1})),
+    ?assertNot(Numeric(#{})),
+    ?assertNot(Numeric(#{<<"device_class">> => <<"timestamp">>})),
+    ?assertNot(Numeric(#{<<"device_class">> => <<"enum">>, <<"options">> => [<<"a">>]})),
+    %% MqttNumeric must name values MqttValue reads.
+    {error, [#{parameter := <<"MqttNumeric">>, message := Why}]} =
+        mqtt_avatar_spec:from_description(
+          (description())#{components =>
+              [#{id => <<"C">>, services => [],
+                 consumes => [#{category => <<"SENSOR">>, type => <<"T">>,
+                                parameters => [{<<"MqttStateTopic">>, <<"l">>},
+                                               {<<"MqttValue">>, <<"T=raw">>},
+                                               {<<"MqttNumeric">>, <<"T Temp">>}]}]}]}),
+    ?assertEqual(<<"expected names of values MqttValue reads, not 'Temp'">>, Why).
+
+%% A payload that is not JSON, read by a template that reads value_json
+%% (MQTT_REVIEW D9): the problem says so, quoting the payload and the
+%% template and naming the topic, not what it led to (an undefined value
+%% in `| float'); limited per topic. A template that copes with text
+%% (`if value_json is defined') is not a problem; a plain JSON path says
+%% the same.
+not_json_payload_is_said_as_such_test() ->
+    Tpl = <<"{{ value_json.t | float * 1.8 + 32 }}">>,
+    {_, S} = sensor_state(#{<<"name">> => <<"Garage">>, <<"state_topic">> => <<"g/c">>,
+                            <<"value_template">> => Tpl}),
+    {S1, E1} = mqtt_avatar_logic:handle(mqtt(<<"g/c">>, <<"not json">>), 0, S),
+    [#{what := bad_payload, topic := <<"g/c">>, message := M}] = problems(E1),
+    ?assertEqual(<<"the payload on g/c is not JSON ('not json'; invalid JSON at byte 0: unexpected "
+                   "character), but the value template '", Tpl/binary, "' reads it as JSON">>, M),
+    {_, E2} = mqtt_avatar_logic:handle(mqtt(<<"g/c">>, <<"still not json">>), 10, S1),
+    ?assertEqual([], problems(E2)),
+    {_, S3} = sensor_state(#{<<"name">> => <<"Garage">>, <<"state_topic">> => <<"g/c">>,
+                             <<"value_template">> =>
+                                 <<"{{ value_json.t if value_json is defined else value }}">>}),
+    {_, E3} = mqtt_avatar_logic:handle(mqtt(<<"g/c">>, <<"text">>), 0, S3),
+    ?assertEqual({[], [<<"text">>]}, {problems(E3), [V || #{body := #{parameters := [{_, V} | _]}}
+                                                               <- sends(E3)]}),
+    {_, S4} = sensor_state(#{<<"name">> => <<"Garage">>, <<"state_topic">> => <<"g/c">>,
+                             <<"value_template">> => <<"{{ value_json.t }}">>}),
+    {_, E4} = mqtt_avatar_logic:handle(mqtt(<<"g/c">>, <<"oops">>), 0, S4),
+    [#{message := M4}] = problems(E4),
+    ?assertEqual(<<"the payload on g/c is not JSON ('oops'; invalid JSON at byte 0: unexpected "
+                   "character), but MqttValue Garage=json:t reads it as JSON">>, M4).

@@ -3,25 +3,19 @@
 %% with agent_bridge_client over TCP: actuator state changed outside the
 %% VA, availability lists (Home Assistant's and zigbee2mqtt's), the birth
 %% message, and problems reported once. Setup and helpers are
-%% mqtt_avatar_SUITE's.
+%% mqtt_avatar_test_setup's.
 -module(mqtt_avatar_state_SUITE).
 
--include_lib("common_test/include/ct.hrl").
+-import(mqtt_avatar_test_setup, [light_device/1, test_va/1, mqtt/1, request/4, provider_of/3]).
 
--compile([export_all, nowarn_export_all]).
-
--define(S, mqtt_avatar_SUITE).
-
-suite() -> [{timetrap, {seconds, 60}}].
+-define(LIVE_LISTENER, mqtt_avatar_state_suite).
+-define(LIVE_CASE_PREFIX, "").
+-define(LIVE_FEEDBACK_MS, 1500).
+-include("mqtt_avatar_live_suite.hrl").
 
 all() ->
     [switched_at_the_wall, z2m_device_availability, ha_availability_list, birth_message,
      problems_once].
-
-init_per_suite(Config) -> ?S:init_per_suite(Config).
-end_per_suite(Config) -> ?S:end_per_suite(Config).
-init_per_testcase(Case, Config) -> ?S:init_per_testcase(Case, Config).
-end_per_testcase(Case, Config) -> ?S:end_per_testcase(Case, Config).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -32,21 +26,21 @@ end_per_testcase(Case, Config) -> ?S:end_per_testcase(Case, Config).
 %% an unreadable state with no request waiting is bad_payload, once.
 switched_at_the_wall(Config) ->
     P = ?config(prefix, Config),
-    Dev = ?S:light_device(Config),
-    A = ?S:avatar(Config, #{}),
-    Va = ?S:va(Config),
-    Comp = ?S:provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
+    Dev = light_device(Config),
+    A = avatar(Config, #{}),
+    Va = test_va(Config),
+    Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     State = <<P/binary, "/light/state">>,
     ok = mqtt_avatar_test_device:publish(Dev, State, <<"{\"state\":\"ON\"}">>, true),
     #{sender := Comp, receiver := <<"LightEmulator01">>,
       body := #{category := <<"EVENT">>, parameters := Ps}} = state_changed(Va),
-    <<"on">> = ?S:param(<<"Light">>, Ps),
-    <<"kitchen">> = ?S:param(<<"Room">>, Ps),
-    Comp = ?S:param(<<"Component">>, Ps),
+    <<"on">> = param(<<"Light">>, Ps),
+    <<"kitchen">> = param(<<"Room">>, Ps),
+    Comp = param(<<"Component">>, Ps),
     {ok, #{context := feedback, body := #{parameters := FPs}}} =
-        agent_bridge_client:request(Va, ?S:request(<<"LightEmulator01">>, Comp,
+        agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
                                                    <<"TurnLightOff">>, []), 5000),
-    <<"off">> = ?S:param(<<"Light">>, FPs),
+    <<"off">> = param(<<"Light">>, FPs),
     %% Unreadable states, no request waiting: one problem for the three.
     [ok = mqtt_avatar_test_device:publish(Dev, State, Bad, false)
      || Bad <- [<<"{\"state\":">>, <<"{\"state\":">>, <<"{\"state\":">>]],
@@ -54,7 +48,7 @@ switched_at_the_wall(Config) ->
     %% own OFF (signals to the VA keep their order).
     ok = mqtt_avatar_test_device:publish(Dev, State, <<"{\"state\":\"ON\",\"changed\":true}">>, true),
     #{body := #{parameters := Ps2}} = state_changed(Va),
-    <<"on">> = ?S:param(<<"Light">>, Ps2),
+    <<"on">> = param(<<"Light">>, Ps2),
     [#{component := Comp, message := _}] =
         [X || #{what := bad_payload, topic := T} = X <- mqtt_avatar:problems(A), T =:= State].
 
@@ -82,24 +76,24 @@ z2m_device_availability(Config) ->
                                                                         <<"linkquality">> => 90})),
                       true}]
             end,
-    {ok, Dev} = mqtt_avatar_test_device:start(?S:port(Config), #{commands => [<<Topic/binary, "/set">>],
+    {ok, Dev} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), #{commands => [<<Topic/binary, "/set">>],
                                                                  reply => Reply}),
-    ?S:remember(devices, Dev),
+    remember(devices, Dev),
     Pub = fun(T, Pl) -> ok = mqtt_avatar_test_device:publish(Dev, T, Pl, true) end,
     Pub(<<Base/binary, "/bridge/devices">>, Devices),
     Pub(<<Base/binary, "/bridge/state">>, <<"{\"state\":\"online\"}">>),
     Pub(<<Topic/binary, "/availability">>, <<"{\"state\":\"online\"}">>),
-    _A = ?S:avatar(Config, #{discovery => #{homeassistant => false, zigbee2mqtt => Base},
+    _A = avatar(Config, #{discovery => #{homeassistant => false, zigbee2mqtt => Base},
                              overrides => #{<<"kitchen_bulb">> => #{room => <<"kitchen">>}}}),
-    Va = ?S:va(Config),
-    Comp = ?S:provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
+    Va = test_va(Config),
+    Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     <<"KitchenBulb">> = Comp,
     %% The bulb alone drops off the mesh.
     Pub(<<Topic/binary, "/availability">>, <<"{\"state\":\"offline\"}">>),
     #{body := #{parameters := OffPs}} = availability(Va, <<"DeviceDisconnected">>),
-    <<"kitchen">> = ?S:param(<<"Room">>, OffPs),
+    <<"kitchen">> = param(<<"Room">>, OffPs),
     {error, #{body := #{type := <<"DeviceUnavailable">>}}} =
-        agent_bridge_client:request(Va, ?S:request(<<"LightEmulator01">>, Comp, <<"TurnLightOn">>, []),
+        agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp, <<"TurnLightOn">>, []),
                                     5000),
     Pub(<<Topic/binary, "/availability">>, <<"online">>),
     _ = availability(Va, <<"DeviceReconnected">>),
@@ -109,12 +103,12 @@ z2m_device_availability(Config) ->
     Pub(<<Base/binary, "/bridge/state">>, <<"{\"state\":\"online\"}">>),
     _ = availability(Va, <<"DeviceReconnected">>),
     {ok, #{context := feedback}} =
-        agent_bridge_client:request(Va, ?S:request(<<"LightEmulator01">>, Comp, <<"TurnLightOn">>, []),
+        agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp, <<"TurnLightOn">>, []),
                                     5000),
     %% Switched off from zigbee2mqtt's frontend.
     Pub(Topic, <<"{\"state\":\"OFF\",\"linkquality\":87}">>),
     #{body := #{parameters := SPs}} = state_changed(Va),
-    <<"off">> = ?S:param(<<"Light">>, SPs).
+    <<"off">> = param(<<"Light">>, SPs).
 
 %% Home Assistant's availability list with availability_mode any: one
 %% topic going offline leaves the device available; all of them, not.
@@ -130,16 +124,16 @@ ha_availability_list(Config) ->
              <<"dev">> => #{<<"ids">> => [<<P/binary, "-dev">>], <<"name">> => <<"Kitchen Light 01">>,
                             <<"sa">> => <<"Kitchen">>}},
     {ok, Dev} = mqtt_avatar_test_device:start(
-                  ?S:port(Config),
+                  ?SETUP:broker_port(Config),
                   #{discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/config">>,
                                    mqtt_avatar_json:encode(Disc)}]}),
-    ?S:remember(devices, Dev),
+    remember(devices, Dev),
     Pub = fun(T, Pl) -> ok = mqtt_avatar_test_device:publish(Dev, <<Base/binary, T/binary>>, Pl, true) end,
     Pub(<<"/wifi">>, <<"online">>),
     Pub(<<"/zigbee">>, <<"1">>),
-    A = ?S:avatar(Config, #{}),
-    Va = ?S:va(Config),
-    Comp = ?S:provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
+    A = avatar(Config, #{}),
+    Va = test_va(Config),
+    Comp = provider_of(Va, <<"LightEmulator01">>, <<"TurnLightOn">>),
     Pub(<<"/wifi">>, <<"offline">>),
     Pub(<<"/zigbee">>, <<"0">>),
     %% Only the second one makes it unavailable.
@@ -159,28 +153,28 @@ birth_message(Config) ->
              <<"cmd_t">> => <<P/binary, "/lamp/set">>,
              <<"dev">> => #{<<"ids">> => [<<P/binary, "-lamp">>], <<"name">> => <<"Lamp 01">>}},
     {ok, Dev} = mqtt_avatar_test_device:start(
-                  ?S:port(Config),
+                  ?SETUP:broker_port(Config),
                   #{announce_on => Birth,
                     discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/config">>,
                                    mqtt_avatar_json:encode(Disc)}]}),
-    ?S:remember(devices, Dev),
+    remember(devices, Dev),
     ClientId = <<"evatar-birth-", P/binary>>,
-    A = ?S:avatar(Config, #{birth => #{topic => Birth}, evatar => false,
-                            mqtt => (?S:mqtt(Config))#{client_id => ClientId}}),
+    A = avatar(Config, #{birth => #{topic => Birth}, evatar => false,
+                            mqtt => (mqtt(Config))#{client_id => ClientId}}),
     ok = wait_until(fun() -> lists:member(<<"Lamp01">>, maps:get(components, mqtt_avatar:status(A))) end),
     1 = mqtt_avatar_test_device:births(Dev),
     %% Another client with the Avatar's client id takes its session over:
     %% the Avatar connects again and is born again.
-    {ok, Thief} = mqtt_client:start(#{host => {127, 0, 0, 1}, port => ?S:port(Config),
+    {ok, Thief} = mqtt_client:start(#{host => {127, 0, 0, 1}, port => ?SETUP:broker_port(Config),
                                       client_id => ClientId, reconnect => false}),
     ok = wait_until(fun() -> mqtt_avatar_test_device:births(Dev) >= 2 end),
     _ = mqtt_client:stop(Thief),
     %% Without a birth message, such a device stays unknown.
-    {ok, Quiet} = mqtt_avatar:start(#{entity_id => <<"quiet-", P/binary>>, mqtt => ?S:mqtt(Config),
+    {ok, Quiet} = mqtt_avatar:start(#{entity_id => <<"quiet-", P/binary>>, mqtt => mqtt(Config),
                                       discovery => #{homeassistant => <<"ha_", P/binary>>,
                                                      zigbee2mqtt => false},
                                       birth => false, settle => 200, discovery_wait => 500}),
-    ?S:remember(avatars, Quiet),
+    remember(avatars, Quiet),
     ok = mqtt_avatar:await_ready(Quiet, 10000),
     [] = maps:get(components, mqtt_avatar:status(Quiet)).
 
@@ -191,11 +185,11 @@ birth_message(Config) ->
 problems_once(Config) ->
     P = ?config(prefix, Config),
     Ha = <<"ha_", P/binary>>,
-    A = ?S:avatar(Config, #{evatar => false, discovery => #{homeassistant => Ha, zigbee2mqtt => false,
+    A = avatar(Config, #{evatar => false, discovery => #{homeassistant => Ha, zigbee2mqtt => false,
                                                           max_config_size => 1024},
                             overrides => #{<<"nobody">> => #{room => <<"attic">>}}}),
-    {ok, Dev} = mqtt_avatar_test_device:start(?S:port(Config), #{}),
-    ?S:remember(devices, Dev),
+    {ok, Dev} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), #{}),
+    remember(devices, Dev),
     Big = mqtt_avatar_json:encode(#{<<"name">> => binary:copy(<<"x">>, 2000), <<"stat_t">> => <<"s">>}),
     BigTopic = <<Ha/binary, "/sensor/big/config">>,
     ok = mqtt_avatar_test_device:publish(Dev, BigTopic, Big, true),
@@ -224,12 +218,19 @@ problems_once(Config) ->
 %% ---------------------------------------------------------------------------
 
 state_changed(Va) ->
-    ?S:wait_signal(Va, fun(#{context := C, body := #{type := T}}) ->
-                               C =:= event andalso T =:= <<"StateChanged">>
-                       end).
+    event(Va, <<"StateChanged">>).
 
 availability(Va, Type) ->
-    ?S:wait_signal(Va, fun(#{context := C, body := #{type := T}}) -> C =:= event andalso T =:= Type end).
+    event(Va, Type).
+
+%% The VA's next Event of type Type.
+event(Va, Type) ->
+    evatar_test_fixtures:wait_signal(Va, fun(#{context := C, body := #{type := T}}) ->
+                                                 C =:= event andalso T =:= Type
+                                         end, 10000).
+
+avatar(Config, Extra) ->
+    ?SETUP:avatar(Config, <<"mqtt-home">>, Extra).
 
 %% Generous: the machine running the tests may be busy.
 wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).

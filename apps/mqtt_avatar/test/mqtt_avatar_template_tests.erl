@@ -118,6 +118,16 @@ value_and_path_test_() ->
      ?_assertEqual({ok, 42}, V(<<"{{ 40 + 2 }}">>, #{})),
      ?_assertEqual({ok, <<"40 + 2">>}, V(<<"40 + 2">>, #{}))].
 
+%% Which variables a template reads, anywhere in it (a payload that is not
+%% JSON is reported as such when the template reads value_json).
+reads_test_() ->
+    R = fun(T, N) -> {ok, X} = mqtt_avatar_template:parse(T), mqtt_avatar_template:reads(X, N) end,
+    [?_assert(R(<<"{{ value_json.t | float }}">>, <<"value_json">>)),
+     ?_assert(R(<<"{% if x %}{{ 1 + (value_json['a'] | int(0)) }}{% endif %}">>, <<"value_json">>)),
+     ?_assertNot(R(<<"{{ value | float }}">>, <<"value_json">>)),
+     ?_assertNot(R(<<"{{ 'value_json' }} value_json">>, <<"value_json">>)),
+     ?_assert(R(<<"{{ value }}">>, <<"value">>))].
+
 %% Everything outside the subset is a clear error naming the construct.
 unsupported_test_() ->
     E = fun(T) -> {error, M} = mqtt_avatar_template:parse(T), M end,

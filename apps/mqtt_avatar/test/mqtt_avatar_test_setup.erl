@@ -1,6 +1,7 @@
 %% @doc Test support, not a suite: the setup the live suites of
-%% mqtt_avatar share (mqtt_avatar_SUITE, _families_SUITE, _light_SUITE and
-%% those that reuse mqtt_avatar_SUITE's helpers). One EVATAR node with a
+%% mqtt_avatar share (mqtt_avatar_SUITE, _families_, _light_ and
+%% _state_SUITE; their Common Test callbacks are mqtt_avatar_live_suite.hrl),
+%% and the kitchen light and test VA two of them drive. One EVATAR node with a
 %% bridge listener and a real mosquitto (evatar_test_node), a pairing per
 %% case, and the case's Avatars, test devices and VAs, remembered as they
 %% start and stopped when the case ends. Only mqtt_avatar's suites use it,
@@ -9,7 +10,8 @@
 -module(mqtt_avatar_test_setup).
 
 -export([init_per_suite/2, end_per_suite/2, init_per_testcase/3, end_per_testcase/1,
-         remember/2, avatar/3, connect_va/2, broker_port/1, entry/3, param/2]).
+         remember/2, avatar/3, connect_va/2, broker_port/1, mqtt/1, entry/3, param/2,
+         light_device/1, test_va/1, request/4, provider_of/3, wait_binding/2]).
 
 -type config() :: [{atom(), term()}].
 
@@ -89,6 +91,87 @@ connect_va(Config, EntityId) ->
 -spec broker_port(config()) -> inet:port_number().
 broker_port(Config) ->
     maps:get(port, proplists:get_value(broker, Config)).
+
+%% @doc The suite's mosquitto as mqtt_client options.
+-spec mqtt(config()) -> map().
+mqtt(Config) ->
+    #{host => {127, 0, 0, 1}, port => broker_port(Config)}.
+
+%% @doc An HA JSON-schema light (zigbee2mqtt style) in the kitchen, whose
+%% discovery config is under `ha_<Prefix>': a test device that applies
+%% its commands and publishes its state; remembered.
+-spec light_device(config()) -> pid().
+light_device(Config) ->
+    P = proplists:get_value(prefix, Config),
+    Base = <<P/binary, "/light">>,
+    Disc = #{<<"name">> => null, <<"uniq_id">> => <<P/binary, "-light">>, <<"~">> => Base,
+             <<"stat_t">> => <<"~/state">>, <<"cmd_t">> => <<"~/set">>, <<"schema">> => <<"json">>,
+             <<"avty_t">> => <<"~/availability">>, <<"json_attr_t">> => <<"~/state">>,
+             <<"dev">> => #{<<"ids">> => [<<P/binary, "-light-dev">>], <<"name">> => <<"Kitchen Light 01">>,
+                            <<"sa">> => <<"Kitchen">>, <<"mdl">> => <<"LightSwitch">>}},
+    Reply = fun(_T, Cmd) ->
+                    {ok, #{<<"state">> := S}} = mqtt_avatar_json:decode(Cmd),
+                    [{<<Base/binary, "/state">>,
+                      iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => S,
+                                                                 <<"changed">> => true})), true}]
+            end,
+    {ok, Dev} = mqtt_avatar_test_device:start(
+                  broker_port(Config),
+                  #{availability => <<Base/binary, "/availability">>,
+                    discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/light/config">>,
+                                   mqtt_avatar_json:encode(Disc)}],
+                    commands => [<<Base/binary, "/set">>], reply => Reply}),
+    ok = remember(devices, Dev),
+    Dev.
+
+%% @doc The VA `test-va', described: a light emulator in the kitchen, a
+%% motion and a temperature emulator in the hall; remembered.
+-spec test_va(config()) -> pid().
+test_va(Config) ->
+    Va = connect_va(Config, <<"test-va">>),
+    ok = agent_bridge_client:describe(Va, va_description()),
+    Va.
+
+va_description() ->
+    #{entity_id => <<"test-va">>, api_name => <<"TEST VA">>, entity_type => agent,
+      context => <<"EmulatorDescription">>,
+      components =>
+          [#{id => <<"LightEmulator01">>,
+             services => [entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>,
+                                [{<<"Feedback">>, <<"yes">>}, {<<"Device">>, <<"LightSwitch">>},
+                                 {<<"Room">>, <<"kitchen">>}])],
+             consumes => [entry(<<"ACTUATOR">>, <<"TurnLightOn">>,
+                                [{<<"Light">>, <<"yes">>}, {<<"Room">>, <<"kitchen">>}]),
+                          entry(<<"ACTUATOR">>, <<"TurnLightOff">>,
+                                [{<<"Light">>, <<"yes">>}, {<<"Room">>, <<"kitchen">>}])]},
+           #{id => <<"MotionEmulator01">>,
+             services => [entry(<<"SENSOR">>, <<"MotionDetected">>, [{<<"Room">>, <<"hall">>}])],
+             consumes => [entry(<<"SENSOR">>, <<"ReadMotion">>, [{<<"Motion">>, <<"yes">>}])]},
+           #{id => <<"TempEmulator01">>,
+             services => [entry(<<"SENSOR">>, <<"Temperature">>, [{<<"Room">>, <<"hall">>}])],
+             consumes => []}]}.
+
+%% @doc An ACTUATOR request signal.
+-spec request(binary(), binary(), binary(), [{binary(), binary()}]) -> map().
+request(From, To, Type, Params) ->
+    #{sender => From, receiver => To, body => entry(<<"ACTUATOR">>, Type, Params)}.
+
+%% @doc The provider bound to the VA component `Consumer''s Consumes entry
+%% `Type', once bound.
+-spec provider_of(pid(), binary(), binary()) -> binary().
+provider_of(Va, Consumer, Type) ->
+    Report = wait_binding(Va, fun(#{bound := B}) ->
+                                      [x || #{consumer := #{component := C}, type := T} <- B,
+                                            C =:= Consumer, T =:= Type] =/= []
+                              end),
+    [P] = [P || #{consumer := #{component := C}, type := T, provider := #{component := P}}
+                    <- maps:get(bound, Report), C =:= Consumer, T =:= Type],
+    P.
+
+%% @doc The VA's first Binding report that satisfies `Pred' (10 s at most).
+-spec wait_binding(pid(), fun((map()) -> boolean())) -> map().
+wait_binding(Va, Pred) ->
+    evatar_test_fixtures:wait_binding(Va, Pred, 10000).
 
 %% @doc A service or Consumes entry.
 -spec entry(binary(), binary(), [{binary(), binary()}]) -> map().
