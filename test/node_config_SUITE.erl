@@ -249,18 +249,27 @@ release_daemon_runs_the_file(Config) ->
     end.
 
 %% `bin/evatar foreground' with a file with mistakes: the node does not
-%% start, and its output names the file, the line, the entry and the mistake.
+%% start, and its output names the file, the line, the entry and every
+%% mistake of each entry, one line each (an Avatar's unknown key and its
+%% port in quotes in one run: MQTT_REVIEW D9).
 release_refuses_a_bad_file(Config) ->
     File = filename:join(?config(priv_dir, Config), "release_bad.config"),
     ok = file:write_file(File, "{pairings, [#{id => \"home\", agent_credential => \"a\",\n"
-                               "              avatar_credential => \"b\", join_timeout => -5}]}.\n"),
+                               "              avatar_credential => \"b\", join_timeout => -5}]}.\n"
+                               "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"home\", "
+                               "discover => #{},\n"
+                               "                  mqtt => #{host => \"localhost\", port => \"1883\"}}]}.\n"),
     Env = release_env(Config, File),
-    Expected = File ++ ": line 1: pairings entry 1 (home): join_timeout -5 is not accepted",
+    Expected = [File ++ ": line 1: pairings entry 1 (home): join_timeout -5 is not accepted",
+                File ++ ": line 3: mqtt_avatars entry 1 (house): unknown key discover (known: ",
+                File ++ ": line 3: mqtt_avatars entry 1 (house): mqtt: port must be an integer of "
+                        "at least 1"],
     %% daemon (its pre-start hook), check_config and foreground (the boot
     %% itself) all refuse, with the message on the terminal.
     lists:foreach(fun(Command) ->
                           Out = evatar_cmd(Config, Env, Command ++ "; echo \"exit status $?\""),
-                          ?assertNotEqual(nomatch, string:find(Out, Expected), {Command, Out}),
+                          [?assertNotEqual(nomatch, string:find(Out, E), {Command, Out})
+                           || E <- Expected],
                           ?assertNotEqual(nomatch, string:find(Out, "EVATAR will not start"), Out),
                           ?assertEqual(nomatch, string:find(Out, "exit status 0"), {Command, Out})
                   end, ["daemon", "check_config", "foreground"]),

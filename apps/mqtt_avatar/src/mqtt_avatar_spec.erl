@@ -105,6 +105,9 @@
                      <<"MqttProgress">>, <<"MqttValue">>, <<"MqttAttributes">>,
                      <<"MqttMap">>, <<"MqttContext">>, <<"MqttOnChange">>, <<"MqttLight">>,
                      <<"MqttScale">>, <<"MqttNumeric">>]).
+%% What only a command service reads.
+-define(COMMAND_ONLY, [<<"MqttCommandArgs">>, <<"MqttExpect">>, <<"MqttProgress">>,
+                       <<"MqttArgCheck">>, <<"MqttCode">>, <<"MqttCommandTemplate">>]).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -421,7 +424,19 @@ stream(Id, E, Inherited) ->
 
 service(Id, #{category := Cat, type := Type} = E, Inherited, HasStreams) ->
     Base = #{category => Cat, type => Type, static => static(E)},
+    Orphans = [N || {N, _} <- maps:get(parameters, E), lists:member(N, ?COMMAND_ONLY)],
     case get(<<"MqttCommand">>, E) of
+        undefined when Orphans =/= [] ->
+            %% A misspelt MqttCommand (reported as unknown) leaves its
+            %% parameters: they are checked all the same, so every mistake
+            %% of the entry is named at once.
+            {error, [problem(Id, E, "Service", hd(Orphans),
+                             <<"given without MqttCommand (a service without one is a read "
+                               "service, which takes no command parameters)">>)]
+                    ++ case command_service(Id, E, Inherited, Base, <<"raw:">>) of
+                           {error, Ps} -> Ps;
+                           {ok, _} -> []
+                       end};
         undefined when HasStreams -> {ok, Base#{kind => read}};
         undefined -> {ok, Base#{kind => unsupported}};
         <<"light:", _/binary>> = Command -> light_service(Id, E, Base, Command);
@@ -483,19 +498,15 @@ command_service(Id, E, Inherited, Base, Command) ->
                extra(Id, E, What),
                checks(Id, E),
                code(Id, E),
-               command_template(Id, E)],
+               command_template(Id, E),
+               %% (its own mistakes too when the state topic has one)
+               expect(Id, E, get(<<"MqttStateTopic">>, E, Inherited))],
     case collect(Results) of
-        {ok, [CT, Cmd, Args, ST1, Progress, Mapping, ok, Checks, Code, CmdTpl]} ->
-            Default = case ST1 of undefined -> none; _ -> any end,
-            case expect(Id, E, Default, ST1) of
-                {ok, Expect} ->
-                    {ok, Base#{kind => command, command_topic => CT, command => Cmd, args => Args,
-                               state_topic => ST1, expect => Expect, progress => Progress,
-                               mapping => Mapping, checks => Checks, code => Code,
-                               command_template => CmdTpl}};
-                Error ->
-                    Error
-            end;
+        {ok, [CT, Cmd, Args, ST1, Progress, Mapping, ok, Checks, Code, CmdTpl, Expect]} ->
+            {ok, Base#{kind => command, command_topic => CT, command => Cmd, args => Args,
+                       state_topic => ST1, expect => Expect, progress => Progress,
+                       mapping => Mapping, checks => Checks, code => Code,
+                       command_template => CmdTpl}};
         Error ->
             Error
     end.
@@ -537,9 +548,11 @@ arg(Param, Field) ->
         _ -> error
     end.
 
-expect(Id, E, Default, StateTopic) ->
+%% MqttExpect; by default `any' with a state topic, else `none'.
+expect(Id, E, StateTopic) ->
     case get(<<"MqttExpect">>, E) of
-        undefined -> {ok, Default};
+        undefined when StateTopic =:= undefined -> {ok, none};
+        undefined -> {ok, any};
         <<"none">> -> {ok, none};
         <<"any">> when StateTopic =/= undefined -> {ok, any};
         V when StateTopic =/= undefined ->

@@ -7,7 +7,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -import(mqtt_avatar_test_setup, [light_device/1, test_va/1, mqtt/1, request/4, provider_of/3,
-                                 wait_binding/2, entry/3]).
+                                 consumer_of/3, entry/3]).
 
 -define(LIVE_LISTENER, mqtt_avatar_suite).
 -define(LIVE_CASE_PREFIX, "").
@@ -120,7 +120,7 @@ zigbee2mqtt_device(Config) ->
                           overrides => #{<<"0x00158d0001a2b3c4">> => #{room => <<"hall">>}}}),
     %% (an override names a device by its IEEE address, `z2m:' prefix optional)
     Va = test_va(Config),
-    Comp = provider_of_service(Va, <<"MotionEmulator01">>, <<"MotionDetected">>),
+    Comp = consumer_of(Va, <<"MotionEmulator01">>, <<"MotionDetected">>),
     <<"HallPir">> = Comp,
     ok = mqtt_avatar_test_device:publish(Dev, <<Base/binary, "/hall_pir">>,
                                          <<"{\"occupancy\":true,\"battery\":91}">>, false),
@@ -139,7 +139,7 @@ sensor_stream(Config) ->
     Dev = hall_device(Config),
     _A = avatar(Config, #{}),
     Va = test_va(Config),
-    Comp = provider_of_service(Va, <<"TempEmulator01">>, <<"Temperature">>),
+    Comp = consumer_of(Va, <<"TempEmulator01">>, <<"Temperature">>),
     P = ?config(prefix, Config),
     N = 25,
     [ok = mqtt_avatar_test_device:publish(Dev, <<P/binary, "/hall/temperature">>,
@@ -359,16 +359,6 @@ avatar(Config, Extra) ->
 
 port(Config) ->
     ?SETUP:broker_port(Config).
-
-%% The Avatar component whose Consumes entry is bound to the VA's service.
-provider_of_service(Va, Provider, Type) ->
-    Report = wait_binding(Va, fun(#{bound := B}) ->
-                                      [x || #{provider := #{component := P}, type := T} <- B,
-                                            P =:= Provider, T =:= Type] =/= []
-                              end),
-    [C] = [C || #{consumer := #{component := C}, type := T, provider := #{component := P}}
-                    <- maps:get(bound, Report), P =:= Provider, T =:= Type],
-    C.
 
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 5000).

@@ -512,13 +512,8 @@ on_off_map_of_true_false_devices_test() ->
     ?assertEqual(<<"true=on yes=on false=off no=off">>, Map(<<"true">>, <<"false">>)),
     ?assertEqual(<<"ON=on OFF=off">>, Map(<<"ON">>, <<"OFF">>)),
     ?assertEqual(<<>>, Map(<<"on">>, <<"off">>)),
-    {ok, Spec} = mqtt_avatar_spec:from_description(
-                   (description())#{components =>
-                       [#{id => <<"C">>, services => [],
-                          consumes => [#{category => <<"SENSOR">>, type => <<"FanState">>,
-                                         parameters => [{<<"MqttStateTopic">>, <<"f">>},
-                                                        {<<"MqttValue">>, <<"State=raw">>},
-                                                        {<<"MqttMap">>, Map(<<"true">>, <<"false">>)}]}]}]}),
+    {ok, Spec} = consumes_spec([{<<"MqttStateTopic">>, <<"f">>}, {<<"MqttValue">>, <<"State=raw">>},
+                                {<<"MqttMap">>, Map(<<"true">>, <<"false">>)}]),
     #{components := [#{streams := [#{mapping := M}]}]} = Spec,
     ?assertEqual({ok, [{<<"State">>, <<"on">>}]}, mqtt_avatar_logic:extract(M, <<"true">>)),
     ?assertEqual({ok, [{<<"State">>, <<"off">>}]}, mqtt_avatar_logic:extract(M, <<"false">>)).
@@ -564,13 +559,9 @@ lock_with_state_template_is_done_at_unlocked_test() ->
     [#{body := #{parameters := Ps}}] = [Sg || #{context := feedback} = Sg <- sends(E3)],
     ?assertEqual(<<"unlocked">>, proplists:get_value(<<"State">>, Ps)),
     %% HA's lock example: `{{ value.x }}' on a plain payload reads nothing.
-    {ok, Spec} = mqtt_avatar_spec:from_description(
-                   (description())#{components =>
-                       [#{id => <<"C">>, services => [],
-                          consumes => [#{category => <<"SENSOR">>, type => <<"LockState">>,
-                                         parameters => [{<<"MqttStateTopic">>, <<"l">>},
-                                                        {<<"MqttValue">>, <<"State=template">>},
-                                                        {<<"MqttValueTemplate">>, <<"{{ value.x }}">>}]}]}]}),
+    {ok, Spec} = consumes_spec([{<<"MqttStateTopic">>, <<"l">>},
+                                {<<"MqttValue">>, <<"State=template">>},
+                                {<<"MqttValueTemplate">>, <<"{{ value.x }}">>}]),
     #{components := [#{streams := [#{mapping := M}]}]} = Spec,
     {error, Why} = mqtt_avatar_logic:extract(M, <<"UNLOCKED">>),
     ?assertNotEqual(nomatch, binary:match(Why, <<"gave nothing">>)).
@@ -648,13 +639,8 @@ which_sensors_are_numeric_test() ->
     ?assertNot(Numeric(#{<<"device_class">> => <<"enum">>, <<"options">> => [<<"a">>]})),
     %% MqttNumeric must name values MqttValue reads.
     {error, [#{parameter := <<"MqttNumeric">>, message := Why}]} =
-        mqtt_avatar_spec:from_description(
-          (description())#{components =>
-              [#{id => <<"C">>, services => [],
-                 consumes => [#{category => <<"SENSOR">>, type => <<"T">>,
-                                parameters => [{<<"MqttStateTopic">>, <<"l">>},
-                                               {<<"MqttValue">>, <<"T=raw">>},
-                                               {<<"MqttNumeric">>, <<"T Temp">>}]}]}]}),
+        consumes_spec([{<<"MqttStateTopic">>, <<"l">>}, {<<"MqttValue">>, <<"T=raw">>},
+                       {<<"MqttNumeric">>, <<"T Temp">>}]),
     ?assertEqual(<<"expected names of values MqttValue reads, not 'Temp'">>, Why).
 
 %% A payload that is not JSON, read by a template that reads value_json
@@ -685,3 +671,32 @@ not_json_payload_is_said_as_such_test() ->
     [#{message := M4}] = problems(E4),
     ?assertEqual(<<"the payload on g/c is not JSON ('oops'; invalid JSON at byte 0: unexpected "
                    "character), but MqttValue Garage=json:t reads it as JSON">>, M4).
+
+%% A description's mistakes are all named at once (MQTT_REVIEW D9: a
+%% misspelt MqttCommand hid a bad state topic and MqttArgCheck, and the
+%% token was not quoted): the unknown name, the orphaned command
+%% parameters, and each bad value, quoting the bad token.
+every_description_mistake_at_once_test() ->
+    {error, Problems} = entry_spec(services, [{<<"MqttComand">>, <<"raw:on">>},
+                                              {<<"MqttCommandTopic">>, <<"c">>},
+                                              {<<"MqttStateTopic">>, <<"s/#">>},
+                                              {<<"MqttArgCheck">>, <<"Level=0..abc">>},
+                                              {<<"MqttExpect">>, <<"sometimes">>}]),
+    ?assertEqual([{<<"MqttComand">>, <<"unknown reserved parameter (see docs/mqtt.md section 3)">>},
+                  {<<"MqttArgCheck">>, <<"given without MqttCommand (a service without one is a read "
+                                         "service, which takes no command parameters)">>},
+                  {<<"MqttStateTopic">>, <<"a topic must be non-empty, without + or #">>},
+                  {<<"MqttArgCheck">>, <<"expected Param, Param=Min..Max or Param=a|b|c tokens, "
+                                         "not 'Level=0..abc'">>},
+                  {<<"MqttExpect">>, <<"must be none, any, raw:TEXT, json:PATH=TEXT or template:TEXT">>}],
+                 [{N, M} || #{parameter := N, message := M} <- Problems]).
+
+%% The spec (or its problems) of one component with one Consumes entry
+%% (or one Service).
+consumes_spec(Params) ->
+    entry_spec(consumes, Params).
+
+entry_spec(Key, Params) ->
+    Entry = #{category => <<"SENSOR">>, type => <<"T">>, parameters => Params},
+    mqtt_avatar_spec:from_description(
+      (description())#{components => [(#{id => <<"C">>, services => [], consumes => []})#{Key => [Entry]}]}).

@@ -11,7 +11,7 @@
 
 -export([init_per_suite/2, end_per_suite/2, init_per_testcase/3, end_per_testcase/1,
          remember/2, avatar/3, connect_va/2, broker_port/1, mqtt/1, entry/3, param/2,
-         light_device/1, test_va/1, request/4, provider_of/3, wait_binding/2]).
+         light_device/1, test_va/1, request/4, provider_of/3, consumer_of/3, wait_binding/2]).
 
 -type config() :: [{atom(), term()}].
 
@@ -160,13 +160,20 @@ request(From, To, Type, Params) ->
 %% `Type', once bound.
 -spec provider_of(pid(), binary(), binary()) -> binary().
 provider_of(Va, Consumer, Type) ->
-    Report = wait_binding(Va, fun(#{bound := B}) ->
-                                      [x || #{consumer := #{component := C}, type := T} <- B,
-                                            C =:= Consumer, T =:= Type] =/= []
-                              end),
-    [P] = [P || #{consumer := #{component := C}, type := T, provider := #{component := P}}
-                    <- maps:get(bound, Report), C =:= Consumer, T =:= Type],
-    P.
+    bound(Va, consumer, Consumer, Type, provider).
+
+%% @doc The Avatar component whose Consumes entry `Type' is bound to the VA
+%% component `Provider''s service, once bound.
+-spec consumer_of(pid(), binary(), binary()) -> binary().
+consumer_of(Va, Provider, Type) ->
+    bound(Va, provider, Provider, Type, consumer).
+
+%% The `Other' side of the one row of type Type whose `Side' is Id.
+bound(Va, Side, Id, Type, Other) ->
+    Match = fun(#{type := T} = Row) -> T =:= Type andalso maps:get(component, maps:get(Side, Row)) =:= Id end,
+    Report = wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end),
+    [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
+    C.
 
 %% @doc The VA's first Binding report that satisfies `Pred' (10 s at most).
 -spec wait_binding(pid(), fun((map()) -> boolean())) -> map().

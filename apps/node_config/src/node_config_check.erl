@@ -3,6 +3,10 @@
 %% agent_bridge listeners, evatar pairings, mqtt_avatar options. Every
 %% problem names the section, the entry (its line, its number and its id)
 %% and what is wrong; text written as "..." becomes a binary, never an atom.
+%% An entry's independent mistakes are all reported, one line each (at
+%% most ?MAX_MISTAKES an entry); a check that needs others to pass first
+%% (an Avatar's pairing, its options as mqtt_avatar takes them) runs once
+%% they do.
 -module(node_config_check).
 
 -export([check/2, known_words/0]).
@@ -32,6 +36,9 @@
                      inflight_window, retry_interval, connect_timeout, max_packet_size]).
 -define(OVERRIDE_KEYS, [component, room, skip, parameters, services, consumes, feedback]).
 -define(RESTART_KEYS, [min_ms, max_ms, stable_after_ms, loop_after]).
+%% Lines an entry's mistakes take at most: a file of one broken entry
+%% cannot flood the terminal.
+-define(MAX_MISTAKES, 10).
 
 %% @doc The words a file may use (its sections and keys, and the values
 %% that are words), for node_config_file's atom check.
@@ -106,8 +113,8 @@ section(Name, Sections, Check) ->
             Results = [{Line, N, E, Check(E)}
                        || {N, {Line, E}} <- lists:zip(lists:seq(1, length(Entries)), Entries)],
             {[V || {_, _, _, {ok, V}} <- Results],
-             [msg(Line, "~ts entry ~b~ts: ~ts", [Name, N, label(E), Why])
-              || {Line, N, E, {error, Why}} <- Results]}
+             [msg(Line, "~ts entry ~b~ts: ~ts", [Name, N, label(E), M])
+              || {Line, N, E, {error, Why}} <- Results, M <- lines(Why)]}
     end.
 
 label(#{id := Id}) -> label_text(Id);
@@ -179,7 +186,7 @@ check_listener(E) ->
 http(false) ->
     {#{}, []};
 http({http, L, {not_a_list, E}}) when is_map(E) ->
-    Checked = chain([fun(X) -> unknown(X, ?HTTP_KEYS) end,
+    Checked = stages([[fun(X) -> unknown(X, ?HTTP_KEYS) end,
                      fun(X) -> texts([token_file], X) end,
                      fun(#{ip := Ip} = X) ->
                              case text(Ip) of
@@ -194,16 +201,17 @@ http({http, L, {not_a_list, E}}) when is_map(E) ->
                                              "\"127.0.0.1\""}
                              end;
                         (X) -> {ok, X}
-                     end,
-                     fun(X) ->
-                             case evatar_web:check_opts(X) of
-                                 ok -> {ok, X};
-                                 {error, {K, Why}} -> {error, io_lib:format("~0tp: ~ts", [K, Why])}
-                             end
-                     end], E),
+                     end],
+                     %% evatar_web's own check of its options, once they read
+                     [fun(X) ->
+                              case evatar_web:check_opts(X) of
+                                  ok -> {ok, X};
+                                  {error, {K, Why}} -> {error, io_lib:format("~0tp: ~ts", [K, Why])}
+                              end
+                      end]], E),
     case Checked of
         {ok, Http} -> {#{http => Http}, []};
-        {error, Why} -> {#{}, [msg(L, "http: ~ts", [Why])]}
+        {error, Why} -> {#{}, [msg(L, "http: ~ts", [M]) || M <- lines(Why)]}
     end;
 http({http, L, _}) ->
     {#{}, [msg(L, "http: the value must be one map #{ip => \"127.0.0.1\", port => 7480, "
@@ -214,29 +222,33 @@ http({http, L, _}) ->
 %% ---------------------------------------------------------------------------
 
 pairing(E) when is_map(E) ->
-    chain([fun(P) -> texts([id], P) end,
-           fun(#{id := Id} = P) when Id =/= <<>> -> {ok, P};
-              (_) -> {error, "id (text, for example \"home\") is required"}
-           end,
-           fun(P) -> credentials([agent_credential, avatar_credential], P) end,
-           fun(#{identities := Is} = P) when is_list(Is) ->
-                   Results = [{N, identity(I)} || {N, I} <- lists:zip(lists:seq(1, length(Is)), Is)],
-                   case [{N, Why} || {N, {error, Why}} <- Results] of
-                       [] -> {ok, P#{identities := [I || {_, {ok, I}} <- Results]}};
-                       [{N, Why} | _] -> {error, io_lib:format("identities entry ~b~ts: ~ts",
-                                                               [N, label(lists:nth(N, Is)), Why])}
-                   end;
-              (#{identities := _}) ->
-                   {error, "identities must be a list [#{entity => \"...\", role => agent, "
-                           "credential => \"...\"}, ...]"};
-              (P) -> {ok, P}
-           end,
-           fun(P) ->
-                   case evatar:check_pairing_opts(maps:remove(id, P)) of
-                       ok -> {ok, P};
-                       {error, {bad_option, Bad}} -> {error, bad_pairing(Bad)}
-                   end
-           end], E);
+    stages([[fun(P) -> chain([fun(P1) -> texts([id], P1) end,
+                              fun(#{id := Id} = P1) when Id =/= <<>> -> {ok, P1};
+                                 (_) -> {error, "id (text, for example \"home\") is required"}
+                              end], P)
+             end,
+             fun(P) -> credentials([agent_credential, avatar_credential], P) end,
+             fun(#{identities := Is} = P) when is_list(Is) ->
+                     Results = [{N, identity(I)} || {N, I} <- lists:zip(lists:seq(1, length(Is)), Is)],
+                     case [{N, Why} || {N, {error, Why}} <- Results] of
+                         [] -> {ok, P#{identities := [I || {_, {ok, I}} <- Results]}};
+                         Bad -> {error, {mistakes,
+                                         [prefixed(io_lib:format("identities entry ~b~ts: ",
+                                                                 [N, label(lists:nth(N, Is))]), Why)
+                                          || {N, Why} <- Bad]}}
+                     end;
+                (#{identities := _}) ->
+                     {error, "identities must be a list [#{entity => \"...\", role => agent, "
+                             "credential => \"...\"}, ...]"};
+                (P) -> {ok, P}
+             end],
+            %% evatar's own check of a pairing's options, once they read
+            [fun(P) ->
+                     case evatar:check_pairing_opts(maps:remove(id, P)) of
+                         ok -> {ok, P};
+                         {error, {bad_option, Bad}} -> {error, bad_pairing(Bad)}
+                     end
+             end]], E);
 pairing(_) ->
     {error, "a pairing is a map #{id => \"...\", agent_credential => \"...\", "
             "avatar_credential => \"...\"} or #{id => \"...\", identities => [...]}"}.
@@ -244,8 +256,8 @@ pairing(_) ->
 %% One device of a pairing's `identities': its text becomes binaries, its
 %% role stays one of the two words; evatar checks the rest.
 identity(I) when is_map(I) ->
-    chain([fun(X) -> texts([entity, cert_sha256], X) end,
-           fun(X) -> credentials([credential], X) end], I);
+    all_of([fun(X) -> texts([entity, cert_sha256], X) end,
+            fun(X) -> credentials([credential], X) end], I);
 identity(_) ->
     {error, "an identity is a map #{entity => \"...\", role => agent | avatar, "
             "credential => \"...\"} (or cert_sha256 => \"...\" instead of, or with, credential)"}.
@@ -261,9 +273,9 @@ credentials(Keys, M) ->
                                         false -> V
                                     end
                             end, M)};
-        [K | _] -> {error, io_lib:format("~ts must be a secret in double quotes, not empty, or its "
-                                         "hashed form {pbkdf2_sha256, ...} (bin/evatar hash_credential)",
-                                         [K])}
+        Ks -> {error, io_lib:format("~ts must be a secret in double quotes, not empty, or its "
+                                    "hashed form {pbkdf2_sha256, ...} (bin/evatar hash_credential)",
+                                    [join(Ks)])}
     end.
 
 credential({pbkdf2_sha256, _, _, _} = Hashed) ->
@@ -307,25 +319,29 @@ bad_pairing(Bad) ->
 %% ---------------------------------------------------------------------------
 
 avatar(E, PairingIds, Pairings, #{listeners := Listeners} = Defaults) when is_map(E) ->
-    Steps = [fun(A) -> unknown(A, ?AVATAR_KEYS) end,
-             fun(A) -> texts([entity_id, pairing, credential, api_name, timestamp_field], A) end,
-             fun(A) -> required([entity_id, pairing, mqtt], A) end,
-             fun(A) -> declared(A, PairingIds) end,
-             fun(A) -> integers([settle, discovery_wait, echo_timeout], 0, A) end,
-             fun(A) -> integers([retry], 1, A) end,
-             fun(A) -> submap(mqtt, fun mqtt/1, A) end,
-             fun(A) -> submap(discovery, fun discovery/1, A) end,
-             fun(A) -> submap(birth, fun birth/1, A) end,
-             fun(A) -> submap(overrides, fun overrides/1, A) end,
-             fun(A) -> submap(restart, fun restart/1, A) end,
-             fun(A) -> description(A, maps:get(dir, Defaults, ".")) end,
-             fun(A) -> evatar_opts(A, Pairings, Listeners) end,
-             fun(A) -> case mqtt_avatar:check_opts(A) of
+    %% Each key on its own: every mistake at once.
+    Keys = [fun(A) -> unknown(A, ?AVATAR_KEYS) end,
+            fun(A) -> texts([entity_id, pairing, credential, api_name, timestamp_field], A) end,
+            fun(A) -> required([entity_id, pairing, mqtt], A) end,
+            fun(A) -> integers([settle, discovery_wait, echo_timeout], 0, A) end,
+            fun(A) -> integers([retry], 1, A) end,
+            fun(A) -> submap(mqtt, fun mqtt/1, A) end,
+            fun(A) -> submap(discovery, fun discovery/1, A) end,
+            fun(A) -> submap(birth, fun birth/1, A) end,
+            fun(A) -> submap(overrides, fun overrides/1, A) end,
+            fun(A) -> submap(restart, fun restart/1, A) end,
+            fun(A) -> description(A, maps:get(dir, Defaults, ".")) end],
+    %% Then, once the keys read: the options as mqtt_avatar takes them
+    %% (the description file and its BIL), and the pairing it joins.
+    Whole = [fun(A) -> case mqtt_avatar:check_opts(A) of
                            ok -> {ok, A};
-                           {error, Ps} -> {error, join([M || #{message := M} <- Ps])}
+                           {error, Ps} -> {error, {mistakes, [M || #{message := M} <- Ps]}}
                        end
+             end,
+             fun(A) -> chain([fun(A1) -> declared(A1, PairingIds) end,
+                              fun(A1) -> evatar_opts(A1, Pairings, Listeners) end], A)
              end],
-    chain(Steps, E);
+    stages([Keys, Whole], E);
 avatar(_, _, _, _Defaults) ->
     {error, "an MQTT Avatar is a map #{entity_id => \"...\", pairing => \"...\", mqtt => #{...}}"}.
 
@@ -427,7 +443,7 @@ loopback({0, 0, 0, 0, 0, 0, 0, 0}) -> {0, 0, 0, 0, 0, 0, 0, 1};
 loopback(Ip) -> Ip.
 
 mqtt(M) ->
-    chain([fun(X) -> unknown(X, ?MQTT_TEXT ++ ?MQTT_OTHER) end,
+    all_of([fun(X) -> unknown(X, ?MQTT_TEXT ++ ?MQTT_OTHER) end,
            fun(X) -> texts(?MQTT_TEXT, X) end,
            fun(X) -> required([host, port], X) end,
            fun(#{host := H} = X) ->
@@ -442,7 +458,8 @@ mqtt(M) ->
                                {ok, B} -> {ok, X#{host => binary_to_list(B)}};
                                error -> {error, "host must be text, for example \"localhost\""}
                            end
-                   end
+                   end;
+              (X) -> {ok, X}
            end,
            fun(X) -> integers([port], 1, X) end,
            fun(X) -> integers([session_expiry, keepalive], 0, X) end,
@@ -455,10 +472,10 @@ mqtt(M) ->
            end,
            fun(#{reconnect := false} = X) -> {ok, X};
               (#{reconnect := R} = X) when is_map(R) ->
-                   case chain([fun(Y) -> unknown(Y, [min_ms, max_ms]) end,
-                               fun(Y) -> integers([min_ms, max_ms], 1, Y) end], R) of
+                   case all_of([fun(Y) -> unknown(Y, [min_ms, max_ms]) end,
+                                fun(Y) -> integers([min_ms, max_ms], 1, Y) end], R) of
                        {ok, _} -> {ok, X};
-                       {error, W} -> {error, ["reconnect: ", W]}
+                       {error, W} -> {error, prefixed("reconnect: ", W)}
                    end;
               (#{reconnect := _}) -> {error, "reconnect must be false or #{min_ms => ..., max_ms => ...}"};
               (X) -> {ok, X}
@@ -467,7 +484,7 @@ mqtt(M) ->
 discovery(false) ->
     {ok, false};
 discovery(D) when is_map(D) ->
-    chain([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt, max_config_size, max_device_list_size]) end,
+    all_of([fun(X) -> unknown(X, [homeassistant, zigbee2mqtt, max_config_size, max_device_list_size]) end,
            fun(X) -> integers([max_config_size], 1, X) end,
            fun(#{max_device_list_size := N} = X) ->
                    {_Default, Limit} = mqtt_avatar:discovery_max_device_list(),
@@ -500,22 +517,24 @@ discovery(_) ->
 birth(false) ->
     {ok, false};
 birth(B) ->
-    chain([fun(X) -> unknown(X, [topic, payload]) end,
-           fun(X) -> texts([topic, payload], X) end,
-           fun(#{topic := <<>>}) -> {error, "topic must not be empty"};
-              (X) -> {ok, X}
-           end], B).
+    all_of([fun(X) -> unknown(X, [topic, payload]) end,
+            fun(X) -> chain([fun(Y) -> texts([topic, payload], Y) end,
+                             fun(#{topic := <<>>}) -> {error, "topic must not be empty"};
+                                (Y) -> {ok, Y}
+                             end], X)
+            end], B).
 
 overrides(O) ->
     Results = [{K, text(K), override(V)} || {K, V} <- maps:to_list(O)],
     case [{K, W} || {K, _, {error, W}} <- Results] ++ [{K, "the key must be text"}
                                                         || {K, error, _} <- Results] of
         [] -> {ok, maps:from_list([{B, V} || {_, {ok, B}, {ok, V}} <- Results])};
-        [{K, W} | _] -> {error, io_lib:format("override ~0tp: ~ts", [K, W])}
+        Bad -> {error, {mistakes, [prefixed(io_lib:format("override ~0tp: ", [K]), W)
+                                   || {K, W} <- Bad]}}
     end.
 
 override(V) when is_map(V) ->
-    chain([fun(X) -> unknown(X, ?OVERRIDE_KEYS) end,
+    all_of([fun(X) -> unknown(X, ?OVERRIDE_KEYS) end,
            fun(X) -> texts([component, room], X) end,
            fun(X) -> one_of(skip, [true, false], X) end,
            fun(#{feedback := none} = X) -> {ok, X};
@@ -545,7 +564,7 @@ parameters(_, _) ->
     {error, "parameters must be a list of {\"Name\", \"value\"}"}.
 
 restart(R) ->
-    chain([fun(X) -> unknown(X, ?RESTART_KEYS) end,
+    all_of([fun(X) -> unknown(X, ?RESTART_KEYS) end,
            fun(X) -> integers(?RESTART_KEYS, 1, X) end], R).
 
 %% A hand-written description is a file (BIL XML, as printed and edited),
@@ -563,6 +582,7 @@ description(A, _Dir) ->
 %% Small checks; each returns {ok, Map} or {error, Why}.
 %% ---------------------------------------------------------------------------
 
+%% Checks that depend on each other: the first mistake stops.
 chain([], V) -> {ok, V};
 chain([F | Fs], V) ->
     case F(V) of
@@ -570,13 +590,46 @@ chain([F | Fs], V) ->
         {error, _} = Error -> Error
     end.
 
+%% Independent checks (each reads and changes its own keys): every one
+%% runs, each on the value as the good ones before left it, and every
+%% mistake is reported (`{mistakes, [Why]}' when there are several).
+all_of(Checks, V) ->
+    {V1, Errors} = lists:foldl(fun(F, {Acc, Es}) ->
+                                       case F(Acc) of
+                                           {ok, Acc1} -> {Acc1, Es};
+                                           {error, Why} -> {Acc, Es ++ lines(Why)}
+                                       end
+                               end, {V, []}, Checks),
+    case Errors of
+        [] -> {ok, V1};
+        [One] -> {error, One};
+        Many -> {error, {mistakes, Many}}
+    end.
+
+%% Groups of independent checks, each group run once the one before
+%% passed (it needs what they check).
+stages(Groups, V) ->
+    chain([fun(X) -> all_of(G, X) end || G <- Groups], V).
+
+%% The lines of a mistake (several for `{mistakes, _}'), at most
+%% ?MAX_MISTAKES.
+lines({mistakes, Ws}) when length(Ws) > ?MAX_MISTAKES ->
+    lists:sublist(Ws, ?MAX_MISTAKES - 1)
+        ++ [io_lib:format("and ~b more mistakes", [length(Ws) - ?MAX_MISTAKES + 1])];
+lines({mistakes, Ws}) -> Ws;
+lines(Why) -> [Why].
+
+%% A mistake of a part (`mqtt: ...'), each of its lines prefixed.
+prefixed(Prefix, {mistakes, Ws}) -> {mistakes, [[Prefix, W] || W <- Ws]};
+prefixed(Prefix, Why) -> [Prefix, Why].
+
 submap(Key, Check, A) ->
     case maps:find(Key, A) of
         error -> {ok, A};
         {ok, V} when is_map(V); V =:= false ->
             case Check(V) of
                 {ok, V1} -> {ok, A#{Key => V1}};
-                {error, Why} -> {error, [atom_to_list(Key), ": ", Why]}
+                {error, Why} -> {error, prefixed([atom_to_list(Key), ": "], Why)}
             end;
         {ok, _} -> {error, io_lib:format("~ts must be a map #{...}", [Key])}
     end.
@@ -595,24 +648,24 @@ required(Keys, M) ->
     end.
 
 texts(Keys, M) ->
-    lists:foldl(fun(_, {error, _} = E) -> E;
-                   (K, {ok, Acc}) ->
-                        case maps:find(K, Acc) of
-                            error -> {ok, Acc};
-                            {ok, V} ->
-                                case text(V) of
-                                    {ok, B} -> {ok, Acc#{K => B}};
-                                    error -> {error, io_lib:format("~ts must be text in double quotes",
-                                                                   [K])}
-                                end
-                        end
-                end, {ok, M}, Keys).
+    all_of([fun(Acc) ->
+                    case maps:find(K, Acc) of
+                        error -> {ok, Acc};
+                        {ok, V} ->
+                            case text(V) of
+                                {ok, B} -> {ok, Acc#{K => B}};
+                                error -> {error, io_lib:format("~ts must be text in double quotes",
+                                                               [K])}
+                            end
+                    end
+            end || K <- Keys], M).
 
 integers(Keys, Min, M) ->
     case [K || K <- Keys, maps:is_key(K, M),
                not (is_integer(maps:get(K, M)) andalso maps:get(K, M) >= Min)] of
         [] -> {ok, M};
-        [K | _] -> {error, io_lib:format("~ts must be an integer of at least ~b", [K, Min])}
+        [K] -> {error, io_lib:format("~ts must be an integer of at least ~b", [K, Min])};
+        Ks -> {error, io_lib:format("~ts must be integers of at least ~b", [join(Ks), Min])}
     end.
 
 one_of(Key, Allowed, M) ->

@@ -301,3 +301,50 @@ syntax_and_shape_test() ->
 missing_file_test() ->
     {error, {bad_config, "/nonexistent/evatar.config", [<<"cannot be read: no such file or directory">>]}} =
         node_config:load("/nonexistent/evatar.config").
+
+%% Every independent mistake of an entry at once, one line each with the
+%% entry's line and label (MQTT_REVIEW D9: `discover' and a port in
+%% quotes came one run apart). What needs the keys right (the pairing an
+%% Avatar joins, mqtt_avatar's own check of its options) waits for them.
+every_mistake_of_an_entry_test() ->
+    Ps = problems(?PAIRING "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"home\",\n"
+                  "  discover => #{}, settle => \"soon\",\n"
+                  "  mqtt => #{host => \"h\", port => \"18830\", user => \"me\"},\n"
+                  "  overrides => #{\"a\" => #{rooms => 1}, \"b\" => #{skip => maybe}}}]}.\n"),
+    ?assertEqual([<<"line 2: mqtt_avatars entry 1 (house): unknown key discover (known: entity_id, "
+                    "pairing, endpoints, credential, mqtt, discovery, description, overrides, "
+                    "api_name, settle, discovery_wait, echo_timeout, retry, timestamp_field, "
+                    "restart, birth)">>,
+                  <<"line 2: mqtt_avatars entry 1 (house): settle must be an integer of at least 0">>,
+                  <<"line 2: mqtt_avatars entry 1 (house): mqtt: unknown key user (known: client_id, "
+                    "username, password, host, port, protocol, clean_start, session_expiry, "
+                    "keepalive, tls, reconnect, inflight_window, retry_interval, connect_timeout, "
+                    "max_packet_size)">>,
+                  <<"line 2: mqtt_avatars entry 1 (house): mqtt: port must be an integer of at least 1">>,
+                  <<"line 2: mqtt_avatars entry 1 (house): overrides: override \"a\": unknown key rooms "
+                    "(known: component, room, skip, parameters, services, consumes, feedback)">>,
+                  <<"line 2: mqtt_avatars entry 1 (house): overrides: override \"b\": skip must be one "
+                    "of true, false">>],
+                 Ps),
+    %% A pairing: its id and both credentials.
+    [<<"line 1: pairings entry 1: id (text", _/binary>>,
+     <<"line 1: pairings entry 1: agent_credential, avatar_credential must be a secret", _/binary>>] =
+        problems("{pairings, [#{agent_credential => \"\", avatar_credential => 7}]}.\n"),
+    %% Once the keys read: an undeclared pairing and an unreadable
+    %% description, together; not while a key is wrong.
+    [<<"line 2: mqtt_avatars entry 1 (house): ", D/binary>>,
+     <<"line 2: mqtt_avatars entry 1 (house): pairing \"flat\" is not declared", _/binary>>] =
+        problems(?PAIRING "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"flat\", "
+                 "mqtt => #{host => \"h\", port => 1}, description => \"no-such.xml\"}]}.\n"),
+    ?assertNotEqual(nomatch, binary:match(D, <<"no-such.xml">>)),
+    [<<"line 2: mqtt_avatars entry 1 (house): retry must be", _/binary>>] =
+        problems(?PAIRING "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"flat\", "
+                 "mqtt => #{host => \"h\", port => 1}, retry => 0}]}.\n").
+
+%% However many mistakes an entry has, it takes at most ten lines.
+mistakes_are_bounded_test() ->
+    Overrides = lists:join(", ", [io_lib:format("\"o~b\" => #{skip => ~b}", [N, N])
+                                  || N <- lists:seq(1, 30)]),
+    Ps = problems(?PAIRING ?AVATAR(", overrides => #{" ++ lists:flatten(Overrides) ++ "}")),
+    ?assertEqual(10, length(Ps)),
+    ?assertNotEqual(nomatch, binary:match(lists:last(Ps), <<"and 21 more mistakes">>)).
