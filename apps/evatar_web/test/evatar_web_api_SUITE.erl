@@ -317,7 +317,7 @@ rotate_identity_generated(Config) ->
 %% MQTT Avatars: the list, one shown with its description and problems,
 %% its description overridden (it restarts with the new one; a broken one
 %% is refused naming the problem), and an unknown one's routes.
-mqtt_avatar_routes(_Config) ->
+mqtt_avatar_routes(Config) ->
     Path = "/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV),
     wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
     {200, L} = ?T:get("/api/mqtt_avatars"),
@@ -327,6 +327,18 @@ mqtt_avatar_routes(_Config) ->
             <<"problems">> := Ps}} = ?T:get(Path),
     {match, _} = re:run(Xml, "Plug01"),
     {200, Ps} = ?T:get(Path ++ "/problems"),
+    %% A device's reading that is not a number, on its numeric stream
+    %% (MqttNumeric): not passed on, and listed here.
+    {ok, Device} = mqtt_client:start(#{host => {127, 0, 0, 1}, port => element(2, ?config(broker, Config))}),
+    ok = mqtt_client:await_connected(Device, 10000),
+    ok = mqtt_client:publish(Device, <<"tele/webplug/POWER_W">>, <<"abc">>, #{qos => 1, retain => true}),
+    ok = mqtt_client:stop(Device),
+    wait_until(fun() ->
+                       {200, Now} = ?T:get(Path ++ "/problems"),
+                       [x || #{<<"what">> := <<"bad_payload">>, <<"topic">> := <<"tele/webplug/POWER_W">>,
+                              <<"message">> := <<"the value 'abc' on tele/webplug/POWER_W is not a "
+                                                 "number", _/binary>>} <- Now] =/= []
+               end),
     {200, #{<<"restarted">> := true}} =
         change(put, Path ++ "/description", #{xml => mqtt_xml(<<"Plug02">>)}),
     wait_until(fun() ->
@@ -460,7 +472,11 @@ mqtt_xml(Component) ->
        "<MqttStateTopic>stat/webplug/POWER</MqttStateTopic>"
        "<MqttCommand>raw:ON</MqttCommand><MqttExpect>raw:ON</MqttExpect>"
        "<MqttValue>Light=raw</MqttValue><MqttMap>ON=on OFF=off</MqttMap>"
-       "</ServiceParameters></Service></bil:Component></bil:types></bil:description>"]).
+       "</ServiceParameters></Service>"
+       "<Consumes><ServiceCategory>SENSOR</ServiceCategory><ServiceType>Power</ServiceType>"
+       "<ServiceParameters><MqttStateTopic>tele/webplug/POWER_W</MqttStateTopic>"
+       "<MqttValue>Power=raw</MqttValue><MqttNumeric>Power</MqttNumeric>"
+       "</ServiceParameters></Consumes></bil:Component></bil:types></bil:description>"]).
 
 entry(Cat, Type, Params) -> #{category => Cat, type => Type, parameters => Params}.
 
