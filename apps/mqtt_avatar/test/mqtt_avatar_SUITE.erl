@@ -361,6 +361,7 @@ port(Config) ->
     ?SETUP:broker_port(Config).
 
 wait_signal(Va, Pred) ->
-    evatar_test_fixtures:wait_signal(Va, Pred, 5000).
+    %% Generous: the machine running the tests may be busy (25 readings).
+    evatar_test_fixtures:wait_signal(Va, Pred, 20000).
 
 wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000}).
