@@ -365,14 +365,18 @@ v2_welcomed(#{session_id := Sid, ha := Ha} = Welcome, Now, #s{ever_connected = A
                                    acked_seq = 0}}
                   end,
     S2 = S1#s{welcome = Welcome, ever_connected = true, tried = 0, backoff = 0,
-              failures = [], heartbeat = Hb, window = max(1, Window), last_rx = Now,
-              held = false},
+              failures = [], heartbeat = Hb, window = max(1, Window), last_rx = Now},
     %% Described again only when the session is new; then everything not
     %% acknowledged goes again (the server drops what it already accepted),
     %% once the other side is registered again (held until a Binding
-    %% report says so).
+    %% report says so). A resumed session stays held if it was: resuming
+    %% the new session on another node (a handover) says nothing of the
+    %% other side, and the Binding report that follows the Welcome does.
     Describe = [Desc || not Resumed, Desc <- [S2#s.description], Desc =/= undefined],
-    Held = Again andalso Describe =/= [],
+    Held = case Resumed of
+               true -> S#s.held;
+               false -> Again andalso Describe =/= []
+           end,
     Resend = [{send, Frame} || not Held, {_, Frame} <- queue:to_list(S2#s.unacked)],
     Reconnected = [{notify, {reconnected, #{endpoint => S2#s.current, resumed => Resumed,
                                            epoch => S2#s.epoch, session_id => Sid,

@@ -273,3 +273,33 @@ new_session_describes_again_and_holds_signals_test() ->
     ?assertEqual([], sends(E6)),
     {ok, E7, _} = ?S:incoming(Binding([<<"va">>, <<"av">>]), 8, S6),
     ?assertMatch([{signal, #{id := <<"a">>}}], [parse(F) || F <- sends(E7)]).
+
+%% nemesis_SUITE (seed {50,657042514,491140}): after a power cut the
+%% Avatar got a new session, was handed over to another node before the
+%% VA was back and resumed there (Resumed true); the resume released the
+%% held signals and 183 were refused UnknownReceiver. A resumed session
+%% stays held until a Binding report names another entity.
+resumed_new_session_stays_held_test() ->
+    S0 = up(8),
+    {_, S1} = ?S:describe(d, <<"DESC">>, S0),
+    {_, S2} = ?S:send(f, signal(<<"a">>), 1, S1),
+    {reconnect, _, S3} = ?S:lost(closed, 5, S2),
+    {connect, _, S4} = ?S:next_attempt(5, S3),
+    {ok, E5, S5} = ?S:welcomed(welcome(8), 6, S4),
+    ?assertEqual([<<"DESC">>], sends(E5)),
+    {reconnect, _, S6} = ?S:lost({refused, <<"NotActive">>, <<"handed over">>}, 7, S5),
+    {connect, _, S7} = ?S:next_attempt(7, S6),
+    {ok, E8, S8} = ?S:welcomed(welcome(8, true, <<>>), 8, S7),
+    ?assertEqual([], sends(E8)),
+    {E9, S9} = ?S:send(f, signal(<<"b">>), 9, S8),
+    ?assertEqual([], sends(E9)),
+    Binding = fun(Ids) -> {ok, {control, {binding, #{entities => Ids, bound => [],
+                                                       unbound => []}}}} end,
+    {ok, E10, S10} = ?S:incoming(Binding([<<"va">>]), 10, S9),
+    ?assertEqual([], sends(E10)),
+    {ok, E11, S11} = ?S:incoming(Binding([<<"va">>, <<"av">>]), 11, S10),
+    ?assertMatch([{signal, #{id := <<"a">>}}, {signal, #{id := <<"b">>}}],
+                 [parse(F) || F <- sends(E11)]),
+    %% Released: what comes next goes at once.
+    {E12, _} = ?S:send(f, signal(<<"c">>), 12, S11),
+    ?assertMatch([{signal, #{id := <<"c">>}}], [parse(F) || F <- sends(E12)]).

@@ -669,7 +669,11 @@ class Client:
             described = description is not None
             if description is not None:
                 link.write(description)
-            self._held = again and described
+            # A resumed session stays held if it was (section 11.3 rule 6):
+            # resuming elsewhere says nothing of the other side; the Binding
+            # report that follows the Welcome does.
+            if not w.resumed:
+                self._held = again and described
             if not self._held:
                 for doc in self._unacked.values():
                     link.write(doc)
