@@ -42,6 +42,8 @@ delivered(Seq, Epoch) ->
       context => sensor_data, in_reply_to => undefined, timestamp => 1, seq => Seq,
       epoch => Epoch}.
 
+binding(Ids) -> {ok, {control, {binding, #{entities => Ids, bound => [], unbound => []}}}}.
+
 sends(Effects) -> [iolist_to_binary(F) || {send, F} <- Effects].
 replies(Effects) -> [{F, R} || {reply, F, R} <- Effects].
 notes(Effects) -> [E || {notify, E} <- Effects].
@@ -267,11 +269,9 @@ new_session_describes_again_and_holds_signals_test() ->
     {connect, _, S4} = ?S:next_attempt(5, S3),
     {ok, E5, S5} = ?S:welcomed(welcome(8), 6, S4),
     ?assertEqual([<<"DESC">>], sends(E5)),
-    Binding = fun(Ids) -> {ok, {control, {binding, #{entities => Ids, bound => [],
-                                                       unbound => []}}}} end,
-    {ok, E6, S6} = ?S:incoming(Binding([<<"va">>]), 7, S5),
+    {ok, E6, S6} = ?S:incoming(binding([<<"va">>]), 7, S5),
     ?assertEqual([], sends(E6)),
-    {ok, E7, _} = ?S:incoming(Binding([<<"va">>, <<"av">>]), 8, S6),
+    {ok, E7, _} = ?S:incoming(binding([<<"va">>, <<"av">>]), 8, S6),
     ?assertMatch([{signal, #{id := <<"a">>}}], [parse(F) || F <- sends(E7)]).
 
 %% nemesis_SUITE (seed {50,657042514,491140}): after a power cut the
@@ -293,11 +293,9 @@ resumed_new_session_stays_held_test() ->
     ?assertEqual([], sends(E8)),
     {E9, S9} = ?S:send(f, signal(<<"b">>), 9, S8),
     ?assertEqual([], sends(E9)),
-    Binding = fun(Ids) -> {ok, {control, {binding, #{entities => Ids, bound => [],
-                                                       unbound => []}}}} end,
-    {ok, E10, S10} = ?S:incoming(Binding([<<"va">>]), 10, S9),
+    {ok, E10, S10} = ?S:incoming(binding([<<"va">>]), 10, S9),
     ?assertEqual([], sends(E10)),
-    {ok, E11, S11} = ?S:incoming(Binding([<<"va">>, <<"av">>]), 11, S10),
+    {ok, E11, S11} = ?S:incoming(binding([<<"va">>, <<"av">>]), 11, S10),
     ?assertMatch([{signal, #{id := <<"a">>}}, {signal, #{id := <<"b">>}}],
                  [parse(F) || F <- sends(E11)]),
     %% Released: what comes next goes at once.
