@@ -184,19 +184,21 @@ handle({vote_reply, Ec, Node, Result}, #{role := R} = Ctx,
     end;
 handle({vote_reply, _, _, _}, _Ctx, C) ->
     {C, []};
-handle({register_reply, Claim, Node, ok}, #{epoch := E} = Ctx,
+handle({register_reply, {E, _} = Claim, Node, ok}, Ctx,
        #core{reg = #{claim := Claim, ok := Ok} = Reg, promised = P} = C) ->
     Ok1 = lists:usort([Node | Ok]),
     case accepted(Ok1, Ctx) of
         true when P > E, map_get(role, Ctx) =:= active ->
-            %% Accepted at epoch E, but a node refused it for a promise of
-            %% a later epoch P. Majorities share a node, so nobody released
-            %% anything at P, unless that node was restarted since and
-            %% forgot (votes live in memory): an instance that won P may
-            %% have served clients and crashed, and clients that saw P
-            %% refuse a lower epoch. Stand for an epoch above P first,
-            %% holding what is held; the registration stays, so no standby
-            %% is taken meanwhile (a stale promise costs one more round).
+            %% Accepted at epoch E (the claim's: the epoch this
+            %% configuration is registered at), but a node refused it for
+            %% a promise of a later epoch P. Majorities share a node, so
+            %% nobody released anything at P, unless that node was
+            %% restarted since and forgot (votes live in memory): an
+            %% instance that won P may have served clients and crashed,
+            %% and clients that saw P refuse a lower epoch. Stand for an
+            %% epoch above P first, holding what is held; the registration
+            %% stays, so no standby is taken meanwhile (a stale promise
+            %% costs one more round).
             handle({elect, reelect, false}, Ctx, C#core{reg = Reg#{ok := Ok1}});
         true ->
             %% Accepted: a re-election begun because one node refused it
