@@ -9,7 +9,7 @@
 %% the new configuration (`evatar_ha_core'), then all go out.
 %%
 %% ```
-%%   logic effects --step/5--> timers, logs: now          (every mode)
+%%   logic effects --step/6--> timers, logs: now          (every mode)
 %%                             the rest:  direct ---------------> out now
 %%                                        held, replicated -> outbox[V]
 %%   confirm(V) / release_all --> outbox[=< V] out, then the batched Acks

@@ -4,9 +4,11 @@
 %% registration), about fencing, pauses and two instances that meet.
 %% {@link handle/3} maps an event and a snapshot of what the instance is and
 %% sees ({@link ctx()}) to the new state and a list of effects, in the
-%% manner of `evatar_pairing_logic'; `evatar_pairing' executes them (sends
-%% the votes, arms the timer, takes over, fences) and `evatar_cluster'
-%% answers votes and registrations with {@link vote/5} and {@link register/4}.
+%% manner of `evatar_pairing_logic'. `evatar_ha_serving:core/3' calls it and
+%% turns its decisions (won, lost, registered, fence) into the instance's
+%% effects, which `evatar_pairing_effects' executes (sends the votes, arms
+%% the timers, takes over, fences); `evatar_cluster' answers votes and
+%% registrations with {@link vote/5} and {@link register/4}.
 %%
 %% ```
 %%          elect                      won (a majority granted)

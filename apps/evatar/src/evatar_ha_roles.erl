@@ -1,11 +1,13 @@
 %% @doc Internal. The role machine's decisions that need no quorum, pure:
 %% how an instance starts (active at once, the standby of the active it
-%% was given, or ask the peers first and choose from their answers), how a
+%% was given, or ask the peers first and choose from their answers), what
+%% it does about another instance of its pairing ({@link meet/2}), how a
 %% standby applies the active's events, and when a resume held by a
 %% standby is answered NotActive. Like `evatar_ha_core' it holds no
-%% process, timer or clock; `evatar_pairing' executes its effects (sends,
-%% monitors, timers) and `evatar_ha_sim' applies events through it too
-%% (docs/architecture.md, sections 5 and 8.7).
+%% process, timer or clock. `evatar_ha_instance' calls start/4, starting/3
+%% and meet/2 and turns their results into its effects; `evatar_pairing'
+%% calls held_due/3; `evatar_pairing_effects' and `evatar_ha_sim' apply
+%% events with apply_events/4 (docs/architecture.md, sections 5 and 8.7).
 %%
 %% ```
 %%  start/4 --> become_active

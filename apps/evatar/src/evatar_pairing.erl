@@ -2,9 +2,12 @@
 %% runs pure modules and executes their effects. `evatar_pairing_logic'
 %% decides the pairing's rules, `evatar_ha_commit' which effects go out
 %% now and which wait for the standby or the cluster, `evatar_ha_instance'
-%% the instance's role (with `evatar_ha_core' for elections and
-%% registrations and `evatar_ha_roles' for starting and the standby's
-%% apply; docs/architecture.md, sections 5 and 8). This process owns what
+%% the instance's role (with `evatar_ha_serving' for what a serving active
+%% does, `evatar_ha_core' for elections and registrations and
+%% `evatar_ha_roles' for starting and the standby's apply;
+%% docs/architecture.md, sections 5 and 8). Start reading at
+%% handle_event/4 here, then `evatar_ha_instance:handle/3' and
+%% `evatar_pairing_effects:effect/2'. This process owns what
 %% cannot be replicated: the pids of the entities' processes and of the
 %% other instance, their monitors, one map of timers keyed by what they are
 %% for (a logic timer key, or `{ha, Key}'), the calls and the client hot
@@ -37,9 +40,11 @@
 %%               clients closed with Fenced, nothing externalised, logic
 %%               timers postponed. A pause alone fences nothing.
 %% '''
-%% The state name is the role of `evatar_ha_instance', except that an
-%% active's is the logic's {@link evatar_pairing_logic:phase/1} (`waiting'
-%% or `bound'). Client events and calls are postponed while `starting' and
+%% The state name is the role of `evatar_ha_instance' (`starting',
+%% `handing_over', `standby', `fenced'), except that an active's is the
+%% logic's {@link evatar_pairing_logic:phase/1} (`waiting' or `bound');
+%% `handing_over', drawn above as an arrow, is a state of its own: an active
+%% waiting for its standby to take over (back to active if it does not). Client events and calls are postponed while `starting' and
 %% `handing_over'. Acks are batched until the mailbox is empty.
 -module(evatar_pairing).
 -behaviour(gen_statem).

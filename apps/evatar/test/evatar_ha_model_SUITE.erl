@@ -2,8 +2,9 @@
 %% generates schedules (signals from a client; messages delivered late,
 %% dropped, duplicated, delayed; nodes crashed and restarted, paused and
 %% resumed; links cut and healed) for two and three instances of one pairing
-%% in `evatar_ha_sim', which runs them through `evatar_ha_core' and
-%% `evatar_ha_commit' and checks after every command that at most one
+%% in `evatar_ha_sim', which runs them through the node's own role machine
+%% (`evatar_ha_instance', with `evatar_ha_serving', `evatar_ha_core',
+%% `evatar_ha_roles') and output commit (`evatar_ha_commit') and checks after every command that at most one
 %% instance serves at the current epoch and that no accepted signal is lost
 %% or delivered twice.
 %%
