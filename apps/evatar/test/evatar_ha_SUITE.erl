@@ -253,11 +253,17 @@ two_node_cluster(Config) ->
                                                  {node_name(N2), active, 2}]
                       end), Nodes, Id),
     #{epoch := 2} = expect_reconnected(Va),
-    %% A crash of the active: the standby takes over alone.
+    %% A crash of the active: the standby takes over alone, at an epoch
+    %% above the one its clients saw (docs/ha.md 6 promises a higher
+    %% epoch, not the next one: an election lost on the way leaves its
+    %% node's promise behind, e.g. the old active's re-election above the
+    %% epoch 2 its node learned at the heal, and the takeover stands above
+    %% that promise: epoch 4, seen at load 20-30). The client resumes
+    %% there once it serves, so its epoch is the settled one.
     ok = kill9(N2),
-    ok = wait_until(fun() -> role(N1, Id) =:= active end),
-    {ok, #{epoch := 3}} = rpc(N1, evatar, ha_status, [Id]),
-    #{epoch := 3} = expect_reconnected(Va),
+    #{epoch := E3} = expect_reconnected(Va),
+    true = E3 > 2,
+    {ok, #{role := active, epoch := E3}} = rpc(N1, evatar, ha_status, [Id]),
     ok = agent_bridge_client:send(Va, light(<<"t-3">>)),
     ok = agent_bridge_client:await_acks(Va, ?WAIT),
     ok = wait_until(fun() -> lists:member(<<"t-3">>, received(Sink)) end),
