@@ -451,8 +451,9 @@ many_pairings_fail_over(Config) ->
     _ = pmap(fun(P) -> {ok, 1} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
     ok = evatar_test_cluster:kill(C, 1),
     T0 = erlang:monotonic_time(millisecond),
-    ok = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> taken_over(C, Id) end, Ids) end,
-                                   120000, all_taken_over),
+    ok = not_taken_over(evatar_test_cluster:await(
+                          fun() -> lists:all(fun(Id) -> taken_over(C, Id) end, Ids) end,
+                          120000, all_taken_over), C, Ids),
     T1 = erlang:monotonic_time(millisecond),
     _ = pmap(fun(P) -> {ok, E} = evatar_test_traffic:round_trip(P, 60000), true = E > 1 end,
              Pairs, 32),
@@ -468,11 +469,30 @@ many_pairings_fail_over(Config) ->
     ?assert(evatar_test_checker:passed(Result)),
     ok.
 
+%% One active above epoch 1 on a node that is up: what a takeover promises
+%% (docs/ha.md 6), not that it is node 2's standby. Under load node 2 may
+%% lose its lease or find it was paused, fence, and the standby it placed
+%% on node 3 may win the election that follows. Node 2 is asked first
+%% (where the standbys are): one call a pairing each poll, as before.
 taken_over(C, Id) ->
     case evatar_test_cluster:call(C, 2, evatar, ha_status, [Id]) of
-        {ok, #{role := active, epoch := E}} -> E > 1;
-        _ -> false
+        {ok, #{role := active, epoch := E}} ->
+            E > 1;
+        _ ->
+            case evatar_test_pairing:active(C, Id) of
+                {ok, _, #{epoch := E}} -> E > 1;
+                {error, _} -> false
+            end
     end.
+
+%% The node logs drop lines under such load: say which pairings were not
+%% taken over, and their instances, when the wait gives up.
+not_taken_over(ok, _C, _Ids) ->
+    ok;
+not_taken_over(Error, C, Ids) ->
+    ct:pal("not taken over: ~p",
+           [[{Id, evatar_test_pairing:roles(C, Id)} || Id <- Ids, not taken_over(C, Id)]]),
+    Error.
 
 %% ---------------------------------------------------------------------------
 %% Helpers
