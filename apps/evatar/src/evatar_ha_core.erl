@@ -57,7 +57,7 @@
 %% decides a registration in a cluster of two.
 -type ctx() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
                  epoch := non_neg_integer(), role := role(), suspect_ms => pos_integer(),
-                 self => node()}.
+                 self => node(), keep_standby => boolean()}.
 
 -type event() :: {elect, Why :: term(), ActiveDead :: boolean()}
                | {handover_asked}
@@ -65,6 +65,7 @@
                | {vote_reply, Ec :: pos_integer(), node(), granted | {refused, refusal()}}
                | {register_reply, claim(), node(), ok | {refused, refusal()}}
                | standby_node_lost
+               | standby_claimed
                | paused
                | active_heard
                | {claim, claim()}.
@@ -249,8 +250,11 @@ handle(standby_node_lost, #{heartbeat_ms := Hb} = Ctx, #core{conf = {E, Seq}} = 
     Claim = {E, Seq + 1},
     {C#core{conf = Claim, hold = true, reg = #{claim => Claim, ok => [], no => []}},
      [{timer, register, Hb}, deadline(Ctx)]};
-handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg} = C) ->
-    case after_pause(length(Nodes), Reg =/= undefined) of
+handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg, hold = Hold} = C) ->
+    %% Held with no registration sent: a fenced active that won again waits
+    %% for its standby to hold the claim; registering it now could leave
+    %% that standby stale. Its registration settles it (await).
+    case after_pause(length(Nodes), Reg =/= undefined orelse Hold) of
         reconfirm ->
             {#core{reg = R1} = C1, Effects} = send_register(Claim, Ctx, C),
             {C1#core{reg = R1#{pause => true}}, [{pause, reconfirm} | Effects]};
@@ -259,6 +263,13 @@ handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg} = C) ->
     end;
 handle(active_heard, _Ctx, C) ->
     {C#core{election = undefined}, []};
+handle(standby_claimed, #{role := active} = Ctx,
+       #core{hold = true, reg = undefined, election = undefined, conf = Claim} = C) ->
+    %% A fenced active that won again kept its standby: that one confirmed
+    %% the snapshot with the new claim, so the cluster may record it now.
+    send_register(Claim, Ctx, C);
+handle(standby_claimed, _Ctx, C) ->
+    {C, []};
 handle({claim, Claim}, _Ctx, C) ->
     %% A standby's claim from its snapshot, or the old active's after a
     %% handover: no election, no registration of its own.
@@ -330,6 +341,15 @@ won(#{epoch := Ec, why := reelect}, #{role := active} = Ctx, C) ->
     {C1, Effects} = send_register({Ec, 1}, Ctx, C#core{election = undefined, conf = {Ec, 1},
                                                        reg = undefined}),
     {C1, Effects ++ [{won, reelect, Ec}]};
+won(#{epoch := Ec, why := fenced}, #{keep_standby := true} = Ctx, C) ->
+    %% A fenced active wins again with its standby in sync (it holds what
+    %% was released): it keeps that standby, which gets the claim {Ec, 1}
+    %% with a snapshot first; the registration waits for its confirmation
+    %% (`standby_claimed'), so no majority records a configuration the
+    %% standby lacks (docs/architecture.md 8.5). Held until registered, or
+    %% fenced at the deadline.
+    {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
+     [deadline(Ctx), {won, keep_standby, Ec}]};
 won(#{epoch := Ec, why := Why}, Ctx, C) ->
     {C1, Effects} = send_register({Ec, 1}, Ctx, C#core{election = undefined, conf = {Ec, 1},
                                                        reg = undefined}),

@@ -225,6 +225,17 @@ msg({resync, Sb, _}, _V, #inst{standby = Sb} = S) ->
     snapshot(S);
 msg({resync, Other, _}, _V, S) ->
     {S, [{send, Other, dismiss}]};
+msg({confirm, Sb, E, Version}, V, #inst{standby = Sb, role = active, claiming = true} = S) ->
+    %% Won again after a fence: a confirmation at the new epoch comes after
+    %% the snapshot with the new claim (older ones carry the old epoch), so
+    %% the cluster may record that claim now.
+    case E =:= epoch(V) of
+        true ->
+            {S1, Effects} = core(standby_claimed, V, S#inst{claiming = false}),
+            {S1, [{release, Version} | Effects]};
+        false ->
+            {S, [{release, Version}]}
+    end;
 msg({confirm, Sb, _E, Version}, V, #inst{standby = Sb, role = Role} = S) ->
     case Role of
         handing_over ->
@@ -293,6 +304,10 @@ snapshot(S) ->
     {S1, Snap} = snapshot_to(S),
     {S1, [Snap]}.
 
+snapshot_to(#inst{standby = Sb, core = Core, claiming = true} = S) ->
+    %% The claim not registered yet goes again: the registration waits for
+    %% the standby to hold it.
+    {S, {snapshot, Sb, evatar_ha_core:claim(Core)}};
 snapshot_to(#inst{standby = Sb, core = Core} = S) ->
     {Claim, Core1} = evatar_ha_core:next_claim(Core),
     {S#inst{core = Core1}, {snapshot, Sb, Claim}}.
@@ -365,12 +380,17 @@ cluster(_Event, _V, S) ->
 %% on without it at once. Its node is lost or silent: it may be taking over
 %% (a partition looks the same), so first the cluster must accept a
 %% configuration without it (evatar_ha_core); everything stays held until then.
-standby_down(Why, V, #inst{standby = Sb} = S) ->
+standby_down(Why, V, #inst{standby = Sb, claiming = Claiming} = S) ->
     Log = {log, warning, #{what => standby_lost, standby => node_of(Sb), reason => Why}},
     {S1, Forget} = forget_standby(S),
     case Why of
         noconnection ->
             {S2, Effects} = core(standby_node_lost, V, S1),
+            {S2, [Log | Forget] ++ Effects ++ [publish]};
+        _ when Claiming ->
+            %% Won again after a fence and the kept standby died before it
+            %% held the new claim: the claim is registered without it.
+            {S2, Effects} = core(standby_claimed, V, S1),
             {S2, [Log | Forget] ++ Effects ++ [publish]};
         _ ->
             {S2, Place} = place(V, S1),

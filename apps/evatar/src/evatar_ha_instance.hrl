@@ -11,4 +11,7 @@
                standby_node :: node() | undefined,
                core = evatar_ha_core:new() :: evatar_ha_core:state(),
                start :: evatar_ha_roles:starting() | undefined,
-               reconfirming = false :: boolean()}).
+               reconfirming = false :: boolean(),
+               %% Won again after a fence, keeping the standby: it has not
+               %% yet confirmed the snapshot with the new claim.
+               claiming = false :: boolean()}).

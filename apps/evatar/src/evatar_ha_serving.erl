@@ -26,7 +26,8 @@
 %% @doc An event of `evatar_ha_core', and what its outcome means here.
 -spec core(evatar_ha_core:event(), view(), #inst{}) -> {#inst{}, effects()}.
 core(Event, V, #inst{role = Role, core = Core} = S) ->
-    {Core1, Effects} = evatar_ha_core:handle(Event, core_ctx(Role, V), Core),
+    Ctx = (core_ctx(Role, V))#{keep_standby => keeps_standby(V, S)},
+    {Core1, Effects} = evatar_ha_core:handle(Event, Ctx, Core),
     core_effects(Effects, V, S#inst{core = Core1}, []).
 
 %% @doc What `evatar_ha_core' needs to know of the instance and the view.
@@ -70,6 +71,20 @@ decided({won, reelect, Ec}, _V, #inst{role = active} = S) ->
     %% only the epoch moves; effects wait for the registration of {Ec, 1}.
     {S, [{log, warning, #{what => reelected, epoch => Ec}}, {logic, {reelected, Ec}, mode(S)},
          publish]};
+decided({won, keep_standby, Ec}, V, #inst{standby = Sb, core = Core} = S) ->
+    %% A fenced active won again and keeps its standby, in sync: what was
+    %% released is there. The standby gets the new claim {Ec, 1} with a
+    %% snapshot taken after the takeover (so its confirmation carries Ec);
+    %% that confirmation lets the registration go (evatar_ha_core), and the
+    %% standby's confirmations release what goes out meanwhile.
+    S1 = S#inst{role = active, active = undefined, watching = false, active_lost = false,
+                claiming = true},
+    {S1, [{log, warning, #{what => takeover, epoch => Ec, reason => fenced, version => version(V),
+                           standby => node_of(Sb)}},
+          {metric, evatar_takeovers_total, fenced}, serving, arm_logic_timers,
+          {logic, {takeover, Ec}, mode(S1)}, {snapshot, Sb, evatar_ha_core:claim(Core)},
+          {ensure_timer, silent, silent_poll_ms(maps:get(client_ack_timeout, V))}, publish,
+          serve_held]};
 decided({won, Why, Ec}, V, S) ->
     take_over(Why, Ec, V, S);
 decided({lost, Why}, _V, #inst{role = standby} = S) ->
@@ -132,7 +147,7 @@ stop(Why, S, Pre) ->
 %% @doc Lets the standby go: dismissed, unmonitored, the commit unsynced.
 -spec forget_standby(#inst{}) -> {#inst{}, effects()}.
 forget_standby(#inst{standby = Sb} = S) ->
-    {S#inst{standby = undefined},
+    {S#inst{standby = undefined, claiming = false},
      [{demonitor, standby}] ++ [{send, Sb, dismiss} || Sb =/= undefined] ++ [unsync]}.
 
 %% ---------------------------------------------------------------------------
@@ -153,7 +168,7 @@ maybe_fence(#{nodes := Nodes, majority := Majority, heard := Heard} = V, #inst{s
 %% other endpoints), nothing goes out; with a majority heard it asks for
 %% the pairing again at once (an election in which its standby may win).
 fence_now(#{majority := Majority} = V, S) ->
-    S1 = S#inst{role = fenced},
+    S1 = S#inst{role = fenced, claiming = false},
     {S2, Elect} = case Majority of
                       true -> core({elect, fenced, false}, V, S1);
                       false -> {S1, []}
@@ -174,6 +189,13 @@ paused(V, S) ->
 %% ---------------------------------------------------------------------------
 %% The standby: placed by the active on the next alive node
 %% ---------------------------------------------------------------------------
+
+%% A fenced active that wins again keeps its standby when that one is in
+%% sync and its node alive (else it takes over alone, as a standby does).
+keeps_standby(V, #inst{role = fenced, standby = Sb}) when Sb =/= undefined ->
+    synced(V) andalso lists:member(node_of(Sb), maps:get(alive, V, []));
+keeps_standby(_V, _S) ->
+    false.
 
 wants_standby(#{nodes := Nodes, standby_opt := Opt},
               #inst{role = active, standby = undefined, placing = false}) ->

@@ -212,6 +212,44 @@ fence_test() ->
     {_, Es1} = h({cluster, {quorum, true}}, S1),
     ?assert(lists:member({vote, b, 2, {1, 1}, ?A, false}, Es1)).
 
+%% A fenced active that wins again keeps its synced standby (it holds what
+%% was released): the standby gets the claim {2, 1} with a snapshot taken
+%% after the takeover, and the registration waits for its confirmation at
+%% epoch 2 (an older confirmation does not let it go). Unsynced, or with
+%% its node gone, the standby is dismissed as before.
+fenced_rewin_keeps_standby_test() ->
+    {S1, _} = h({cluster, {quorum, false}}, #{majority => false, heard => [a]},
+                active_with_standby()),
+    Synced = #{synced => true, version => 3, confirmed => 3},
+    {S2, Es} = h({cluster, {quorum, true}}, Synced, S1),
+    {S3, Es1} = grant_votes(Es, Synced, S2),
+    ?assertEqual(active, evatar_ha_instance:role(S3)),
+    ?assertEqual(?B, evatar_ha_instance:standby(S3)),
+    ?assertEqual(replicated, evatar_ha_instance:mode(S3)),
+    ?assertNot(has(fun(E) -> is_tuple(E) andalso element(1, E) =:= register end, Es1)),
+    ?assertNot(lists:member({send, ?B, dismiss}, Es1)),
+    [{logic, {takeover, 2}, replicated}, {snapshot, ?B, {2, 1}} | _] =
+        lists:dropwhile(fun(E) -> E =/= {logic, {takeover, 2}, replicated} end, Es1),
+    {S4, Es2} = h({msg, {confirm, ?B, 1, 3}}, #{epoch => 2}, S3),
+    ?assertEqual([{release, 3}], Es2),
+    {S5, Es3} = h({msg, {confirm, ?B, 2, 4}}, #{epoch => 2}, S4),
+    ?assert(lists:member({register, b, {2, 1}}, Es3)),
+    {S6, Es4} = grant(Es3, S5),
+    ?assertEqual(?B, evatar_ha_instance:standby(S6)),
+    ?assertEqual([reconfirmed], Es4),
+    %% Not in sync: dismissed, the takeover registered at once.
+    {S7, Es5} = h({cluster, {quorum, true}}, S1),
+    {_, Es6} = grant_votes(Es5, #{}, S7),
+    ?assert(lists:member({send, ?B, dismiss}, Es6)),
+    ?assert(lists:member({register, b, {2, 1}}, Es6)).
+
+grant_votes(Effects, V, S) ->
+    lists:foldl(fun({vote, N, Ec, _, _, _}, {Acc, Es}) when N =/= c ->
+                        {Acc1, Es1} = h({msg, {vote_reply, p, Ec, N, granted}}, V, Acc),
+                        {Acc1, Es ++ Es1};
+                   (_, Acc) -> Acc
+                end, {S, []}, Effects).
+
 %% A registration that settles neither way by its deadline fences.
 deadline_test() ->
     {S, _} = h({cluster, {node_suspected, b}}, active_with_standby()),

@@ -35,7 +35,7 @@
 -define(LIVE_BOUNDS, {6 * 250, 5 * 250 + 2000 + 250}).
 -export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1,
          reelection_after_registered/1, two_nodes_winner_gone/1, paused_active_stale_claim/1,
-         live_three_nodes/1, live_two_nodes/1]).
+         fenced_rewin_keeps_standby/1, live_three_nodes/1, live_two_nodes/1]).
 -export([prop_model/2, prop_live/2]).
 
 %% @private
@@ -43,7 +43,7 @@ suite() -> [{timetrap, {minutes, 5}}].
 
 %% @private
 all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_registered,
-          two_nodes_winner_gone, paused_active_stale_claim,
+          two_nodes_winner_gone, paused_active_stale_claim, fenced_rewin_keeps_standby,
           three_nodes, two_nodes, live_three_nodes, live_two_nodes].
 
 %% @doc Three nodes, every fault: 4000 schedules, safety after every command.
@@ -131,6 +131,23 @@ paused_active_stale_claim(_Config) ->
                           {{ok, _}, W1} = evatar_ha_sim:live(W, Restart, ?LIVE_BOUNDS),
                           [] = [V || V <- maps:get(violations, W1), element(1, V) =/= not_serving]
                   end, [false, true]).
+
+%% @doc Found by the model (docs/architecture.md 8.5): n3 is down, so the
+%% standby is on n2; n1's node is paused past suspect_ms, its standby
+%% resyncs after the pause, the reconfirmation is refused for the standby's
+%% stale promise and times out, and the fenced n1 wins epoch 2. It used to
+%% dismiss that standby, still in sync, and hold everything until {2, 1}
+%% was registered; its node crashed first and the signal the standby had
+%% confirmed (released to the sender) was lost after one fault. It now
+%% keeps the standby and registers the new claim once the standby holds it.
+fenced_rewin_keeps_standby(_Config) ->
+    Cmds = [{crash, n3}, {tick, 10}, {signal, n1}, {tick, 256}, {tick, 10}, {pause, n1},
+            {tick, 37}, {tick, 303}, {tick, 10}, {tick, 10}, {tick, 10}, {resume, n1},
+            {tick, 354}, {restart, n3}, {tick, 203}, {crash, n1}],
+    W = evatar_ha_sim:run(Cmds, evatar_ha_sim:new(3)),
+    [] = maps:get(violations, W),
+    {{ok, _}, W1} = evatar_ha_sim:live(W, false, ?LIVE_BOUNDS),
+    [] = [V || V <- maps:get(violations, W1), element(1, V) =/= not_serving].
 
 %% @doc Liveness, three nodes: 5000 schedules of at most two faults, then
 %% the heal (docs/ha.md section 6).
