@@ -335,6 +335,11 @@ won(#{epoch := Ec, why := handover}, #{nodes := Nodes}, C) ->
     %% instance its claim once the takeover is applied, which ends the hold).
     {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
      [{register, N, {Ec, 1}} || N <- Nodes] ++ [{won, handover, Ec}]};
+won(#{epoch := Ec, why := reelect}, #{role := active, keep_standby := true} = Ctx, C) ->
+    %% Re-elected with a standby: as after a fence, the standby gets the
+    %% claim {Ec, 1} first and the registration waits for it.
+    {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
+     [deadline(Ctx), {won, reelect, Ec}]};
 won(#{epoch := Ec, why := reelect}, #{role := active} = Ctx, C) ->
     %% Still serving: the clients stay; the new epoch is registered like a
     %% takeover's, and effects are released once a majority accepted it.

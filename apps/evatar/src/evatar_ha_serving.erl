@@ -66,6 +66,22 @@ decided({won, handover, Ec}, V, #inst{role = standby, active = Old} = S) ->
     S2 = S1#inst{standby = Old, placing = false, core = Core},
     {S2, Effects ++ [{monitor, standby, Old}, {send, Old, {handover_done, Ec, {Ec, 1}}},
                      {synced_at, version(V)}, {flush, mode(S2)}, publish]};
+decided({won, reelect, Ec}, V, #inst{role = active, standby = Sb, core = Core} = S)
+  when Sb =/= undefined ->
+    %% Re-elected with a standby (after a pause): it gets the claim {Ec, 1}
+    %% in a snapshot after the new epoch, and the registration waits for its
+    %% confirmation at Ec, as after a fence (a majority that recorded {Ec, 1}
+    %% first would leave it stale, and what it confirmed lost).
+    case keeps_standby(V, S) of
+        true ->
+            {S#inst{claiming = true},
+             [{log, warning, #{what => reelected, epoch => Ec}},
+              {logic, {reelected, Ec}, mode(S)}, {snapshot, Sb, evatar_ha_core:claim(Core)},
+              publish]};
+        false ->
+            {S, [{log, warning, #{what => reelected, epoch => Ec}},
+                 {logic, {reelected, Ec}, mode(S)}, publish]}
+    end;
 decided({won, reelect, Ec}, _V, #inst{role = active} = S) ->
     %% Re-elected above a stale promise while serving: the clients stay,
     %% only the epoch moves; effects wait for the registration of {Ec, 1}.
@@ -192,7 +208,8 @@ paused(V, S) ->
 
 %% A fenced active that wins again keeps its standby when that one is in
 %% sync and its node alive (else it takes over alone, as a standby does).
-keeps_standby(V, #inst{role = fenced, standby = Sb}) when Sb =/= undefined ->
+keeps_standby(V, #inst{role = Role, standby = Sb})
+  when Sb =/= undefined, Role =:= fenced orelse Role =:= active ->
     synced(V) andalso lists:member(node_of(Sb), maps:get(alive, V, []));
 keeps_standby(_V, _S) ->
     false.
