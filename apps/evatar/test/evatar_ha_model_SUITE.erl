@@ -35,7 +35,7 @@
 -define(LIVE_BOUNDS, {6 * 250, 5 * 250 + 2000 + 250}).
 -export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1,
          reelection_after_registered/1, two_nodes_winner_gone/1, paused_active_stale_claim/1,
-         fenced_rewin_keeps_standby/1, live_three_nodes/1, live_two_nodes/1]).
+         fenced_rewin_keeps_standby/1, reelected_after_pause_keeps_standby/1, live_three_nodes/1, live_two_nodes/1]).
 -export([prop_model/2, prop_live/2]).
 
 %% @private
@@ -44,7 +44,7 @@ suite() -> [{timetrap, {minutes, 5}}].
 %% @private
 all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_registered,
           two_nodes_winner_gone, paused_active_stale_claim, fenced_rewin_keeps_standby,
-          three_nodes, two_nodes, live_three_nodes, live_two_nodes].
+          reelected_after_pause_keeps_standby, three_nodes, two_nodes, live_three_nodes, live_two_nodes].
 
 %% @doc Three nodes, every fault: 4000 schedules, safety after every command.
 three_nodes(_Config) ->
@@ -148,6 +148,20 @@ fenced_rewin_keeps_standby(_Config) ->
     [] = maps:get(violations, W),
     {{ok, _}, W1} = evatar_ha_sim:live(W, false, ?LIVE_BOUNDS),
     [] = [V || V <- maps:get(violations, W1), element(1, V) =/= not_serving].
+
+%% @doc Found by the safety property with longer schedules: n1 is paused,
+%% its reconfirmation re-elects it at epoch 3 above a refusing node's
+%% promise, and it registered {3, 1} while its standby, in sync, held
+%% {1, 2}; n1's node crashed and the standby was refused `stale_claim':
+%% the signal it had confirmed was lost. The standby now gets the new
+%% claim before it is registered.
+reelected_after_pause_keeps_standby(_Config) ->
+    Cmds = [{tick, 10}, {signal, n1}, {tick, 53}, {pause, n1}, {cut, n3, n2}, {tick, 10},
+            {tick, 251}, {resume, n1}, {tick, 153}, {crash, n1}],
+    W = evatar_ha_sim:run(Cmds, evatar_ha_sim:new(3)),
+    [] = maps:get(violations, W),
+    {true, W1} = evatar_ha_sim:settle(W),
+    [] = maps:get(violations, W1).
 
 %% @doc Liveness, three nodes: 5000 schedules of at most two faults, then
 %% the heal (docs/ha.md section 6).
