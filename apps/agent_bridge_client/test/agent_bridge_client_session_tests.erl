@@ -262,6 +262,16 @@ resume_sends_again_what_was_not_accepted_test() ->
                  notes(E6)).
 
 new_session_describes_again_and_holds_signals_test() ->
+    S5 = new_session_holding_a(),
+    {ok, E6, S6} = ?S:incoming(binding([<<"va">>]), 7, S5),
+    ?assertEqual([], sends(E6)),
+    {ok, E7, _} = ?S:incoming(binding([<<"va">>, <<"av">>]), 8, S6),
+    ?assertMatch([{signal, #{id := <<"a">>}}], [parse(F) || F <- sends(E7)]).
+
+%% A described entity with signal "a" unacknowledged loses its connection
+%% and gets a new session (Resumed false): it describes itself again at
+%% once and holds "a".
+new_session_holding_a() ->
     S0 = up(8),
     {_, S1} = ?S:describe(d, <<"DESC">>, S0),
     {_, S2} = ?S:send(f, signal(<<"a">>), 1, S1),
@@ -269,10 +279,7 @@ new_session_describes_again_and_holds_signals_test() ->
     {connect, _, S4} = ?S:next_attempt(5, S3),
     {ok, E5, S5} = ?S:welcomed(welcome(8), 6, S4),
     ?assertEqual([<<"DESC">>], sends(E5)),
-    {ok, E6, S6} = ?S:incoming(binding([<<"va">>]), 7, S5),
-    ?assertEqual([], sends(E6)),
-    {ok, E7, _} = ?S:incoming(binding([<<"va">>, <<"av">>]), 8, S6),
-    ?assertMatch([{signal, #{id := <<"a">>}}], [parse(F) || F <- sends(E7)]).
+    S5.
 
 %% nemesis_SUITE (seed {50,657042514,491140}): after a power cut the
 %% Avatar got a new session, was handed over to another node before the
@@ -280,13 +287,7 @@ new_session_describes_again_and_holds_signals_test() ->
 %% held signals and 183 were refused UnknownReceiver. A resumed session
 %% stays held until a Binding report names another entity.
 resumed_new_session_stays_held_test() ->
-    S0 = up(8),
-    {_, S1} = ?S:describe(d, <<"DESC">>, S0),
-    {_, S2} = ?S:send(f, signal(<<"a">>), 1, S1),
-    {reconnect, _, S3} = ?S:lost(closed, 5, S2),
-    {connect, _, S4} = ?S:next_attempt(5, S3),
-    {ok, E5, S5} = ?S:welcomed(welcome(8), 6, S4),
-    ?assertEqual([<<"DESC">>], sends(E5)),
+    S5 = new_session_holding_a(),
     {reconnect, _, S6} = ?S:lost({refused, <<"NotActive">>, <<"handed over">>}, 7, S5),
     {connect, _, S7} = ?S:next_attempt(7, S6),
     {ok, E8, S8} = ?S:welcomed(welcome(8, true, <<>>), 8, S7),
