@@ -145,8 +145,30 @@ else
   note "cover: could not build the report (see $REPORT/cover.log)"
 fi
 
+# The names of the cases that failed, so that the last lines of a run (all a
+# CI page may keep) say which ones: Common Test's "%%% SUITE ==> case: FAILED"
+# (and cases skipped because an init failed), EUnit's numbered failures, and
+# pytest's "FAILED file::test" and Maven's "[ERROR]   Class.method" lines.
+failed_cases() {
+  local log
+  for log in "$REPORT/ct.log" "$REPORT/eunit.log" "$REPORT"/clients-*.log; do
+    [ -f "$log" ] || continue
+    sed -E 's/\x1b\[[0-9;]*m//g' "$log" | grep -E \
+      -e '^%%% .* ==> .*: (FAILED|auto_skipped)' -e '^%%% [^ ]+ ==> [^ ]' \
+      -e '^  [0-9]+\) [a-z_0-9]+:' \
+      -e '^(FAILED|ERROR) [^ ]+::' \
+      -e '^\[ERROR\]   [A-Z][A-Za-z0-9_]*\.[a-z]' \
+      -e '^clients/.*: .* failed' \
+      | cut -c1-240 | sed -E "s|^|   $(basename "$log" .log): |" | head -20
+  done
+}
+
 echo
 echo "== summary (${SECONDS} s in all)"
 for line in "${summary[@]}"; do echo "   $line"; done
+if [ "$failed" -ne 0 ]; then
+  echo "   failed cases:"
+  failed_cases
+fi
 echo "$passed passed, $failed failed"
 [ "$failed" -eq 0 ]
