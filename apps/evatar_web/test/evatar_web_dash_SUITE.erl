@@ -313,8 +313,8 @@ start_worlds(Config) ->
 %% @doc The page in Debian's chromium: the cluster lists the pairing; its
 %% view shows both entities, the bound edge, the unbound camera with its
 %% reason; a request sent by the VA appears in the live tail and flashes
-%% its edge; the page fits a 390 px wide screen. Screenshots go to the
-%% logs.
+%% its edge; the page fits a 390 px wide screen; the graph's periodic
+%% redraw keeps the edge's count of signals. Screenshots go to the logs.
 page_in_chromium(Config) ->
     Dir = ?config(data_dir, Config),
     Shots = ?config(priv_dir, Config),

@@ -134,6 +134,7 @@ function showPairing(id) {
   current = id;
   $('#pairing-id').textContent = id;
   $('#tail').replaceChildren();
+  graph.reset();
   refreshGraph();
   openTail();
 }

@@ -1,7 +1,8 @@
 // The Body Mapping Registry as an SVG graph: the VA's components on the
 // left, the Avatars' on the right, one edge per bound entry (consumer to
 // provider) labelled with its service; unbound entries end in a dashed
-// stub. flash() lights the edge a signal travelled.
+// stub. flash() lights the edge a signal travelled and counts it on the
+// edge (data-traffic); the counts outlive the graph's periodic redraws.
 
 const NS = 'http://www.w3.org/2000/svg';
 const ROW = 34, COL_W = 230, GAP = 260, TOP = 24;
@@ -16,7 +17,10 @@ function el(name, attrs = {}, text) {
 const key = (entity, component) => `${entity}\u0000${component}`;
 
 export class Graph {
-  constructor(svg) { this.svg = svg; this.edges = new Map(); }
+  constructor(svg) { this.svg = svg; this.edges = new Map(); this.traffic = new Map(); }
+
+  // Forget the traffic counted so far (another pairing is shown).
+  reset() { this.traffic = new Map(); }
 
   render(g) {
     const svg = this.svg;
@@ -54,7 +58,7 @@ export class Graph {
       const svc = `${b.category} / ${b.type}`;
       if (!pairs.get(k).services.includes(svc)) pairs.get(k).services.push(svc);
     }
-    for (const { a: ca, p: cp, services } of pairs.values()) {
+    for (const [k, { a: ca, p: cp, services }] of pairs) {
       const a = pos.get(key(ca.entity, ca.component));
       const p = pos.get(key(cp.entity, cp.component));
       if (!a || !p) continue;
@@ -64,6 +68,9 @@ export class Graph {
       const label = el('text', { x: mid, y: (from.y + to.y) / 2 - 3, class: 'edge-label', 'text-anchor': 'middle' },
         services.join(' · '));
       const group = el('g', { class: 'bound', 'data-consumer': ca.component, 'data-provider': cp.component });
+      // Redrawn every few seconds: the count so far is kept, not reset.
+      const seen = this.traffic.get(k);
+      if (seen) group.dataset.traffic = String(seen);
       group.append(el('title', {}, services.join('\n')), path, label);
       edges.append(group);
       this.edges.set(`${ca.component}\u0000${cp.component}`, group);
@@ -85,7 +92,10 @@ export class Graph {
     g.classList.remove('flash');
     void g.getBoundingClientRect();
     g.classList.add('flash');
-    g.dataset.traffic = String(Number(g.dataset.traffic || 0) + 1);
+    const k = [from, to].sort().join('\u0000');
+    const n = (this.traffic.get(k) || 0) + 1;
+    this.traffic.set(k, n);
+    g.dataset.traffic = String(n);
     return true;
   }
 }

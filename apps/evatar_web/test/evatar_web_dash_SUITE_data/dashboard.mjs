@@ -37,7 +37,10 @@ try {
   const row = await page.$eval('#tail li[data-kind="request"]', l => l.textContent);
   say(`live request: ${row}`);
   await page.waitForSelector('#graph g.bound[data-traffic]', T);
-  say('edge flashed');
+  // The element is marked: the graph's periodic redraw replaces it.
+  const flashed = await page.$eval('#graph g.bound[data-traffic]',
+    g => { g.dataset.drawnBefore = ''; return Number(g.dataset.traffic); });
+  say(`edge flashed (${flashed} signals on it)`);
   await page.screenshot({ path: `${shots}/dashboard.png`, fullPage: true });
   await page.setViewportSize({ width: 390, height: 844 });
   await page.waitForTimeout(300);
@@ -45,6 +48,13 @@ try {
   say(`mobile width overflow: ${overflow}px`);
   if (overflow > 0) throw new Error(`the page is wider than a 390 px screen by ${overflow} px`);
   await page.screenshot({ path: `${shots}/dashboard-mobile.png`, fullPage: true });
+  // The graph is redrawn every 5 s; the edge's count of signals outlives
+  // the redraw (a redraw once wiped it, and with it the check above when
+  // the redraw came between the flash and the check).
+  await page.waitForSelector('#graph g.bound:not([data-drawn-before])', T);
+  const kept = await page.$eval('#graph g.bound', g => Number(g.dataset.traffic || 0));
+  say(`after a redraw the edge counts ${kept} signals`);
+  if (kept < flashed) throw new Error(`the redraw lost the edge's traffic: ${kept} < ${flashed}`);
   say('OK');
 } catch (e) {
   say(`FAIL ${e.message.split('\n')[0]}`);
