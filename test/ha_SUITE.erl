@@ -437,6 +437,11 @@ tls_refuses_foreign_node(Config) ->
 %% 300 pairings with their actives on one node fail over at once when it
 %% is killed: all of them become active on their standby's node, their
 %% clients reconnect and do a round trip, a new standby is synced for each.
+%% The clients keep trying for as long as the case waits (the client's
+%% default reconnect_limit and handshake_timeout, not the test kit's short
+%% ones): on a loaded machine 600 clients resuming at once on one node can
+%% take longer than the kit's 1 s handshake, and a client that gives up
+%% after the kit's 120 s would fail a takeover the case still allows.
 many_pairings_fail_over(Config) ->
     C = ?config(cluster, Config),
     N = list_to_integer(os:getenv("EVATAR_HA_PAIRINGS", "300")),
@@ -444,8 +449,10 @@ many_pairings_fail_over(Config) ->
     _ = pmap(fun(Id) -> ok = evatar_test_pairing:create(C, 1, Id) end, Ids, 16),
     Eps = evatar_test_cluster:endpoints(C),
     Case = self(),
+    Client = #{reconnect_limit => 600000, handshake_timeout => 5000},
     Pairs = pmap(fun(Id) ->
-                         {ok, P} = evatar_test_traffic:start_pair(Eps, Id, #{owner => Case}),
+                         {ok, P} = evatar_test_traffic:start_pair(Eps, Id, #{owner => Case,
+                                                                             client => Client}),
                          P
                  end, Ids, 16),
     _ = pmap(fun(P) -> {ok, 1} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
@@ -455,8 +462,7 @@ many_pairings_fail_over(Config) ->
                           fun() -> lists:all(fun(Id) -> taken_over(C, Id) end, Ids) end,
                           120000, all_taken_over), C, Ids),
     T1 = erlang:monotonic_time(millisecond),
-    _ = pmap(fun(P) -> {ok, E} = evatar_test_traffic:round_trip(P, 60000), true = E > 1 end,
-             Pairs, 32),
+    ?assertEqual([], lists:append(pmap(fun round_trip_after_takeover/1, Pairs, 32))),
     T2 = erlang:monotonic_time(millisecond),
     ok = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
                                    120000, all_healthy),
@@ -468,6 +474,20 @@ many_pairings_fail_over(Config) ->
     ct:pal("~s", [evatar_test_checker:format(Result)]),
     ?assert(evatar_test_checker:passed(Result)),
     ok.
+
+%% [] when the pair does a round trip above epoch 1; else what its clients
+%% say (status and how each one's connection ended, if it did).
+round_trip_after_takeover(#{va := Va, av := Av} = P) ->
+    case evatar_test_traffic:round_trip(P, 60000) of
+        {ok, E} when E > 1 ->
+            [];
+        Other ->
+            #{va := #{entity := Entity, closed := VaClosed}, av := #{closed := AvClosed}} =
+                evatar_test_traffic:history(P),
+            [#{pair => Entity, round_trip => Other,
+               va => {evatar_test_traffic:status(Va), VaClosed},
+               av => {evatar_test_traffic:status(Av), AvClosed}}]
+    end.
 
 %% One active above epoch 1 on a node that is up: what a takeover promises
 %% (docs/ha.md 6), not that it is node 2's standby. Under load node 2 may
