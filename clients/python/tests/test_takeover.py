@@ -89,8 +89,9 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         fbs = await asyncio.gather(*requests)
         assert all(f.param("Done") == "yes" for f in fbs)
         rest = [await motion.reading(10) for _ in range(40)]
-        assert [s.param("N") for s in first + rest] == [str(i) for i in range(60)]
-        assert all(s.epoch == 2 for s in rest)
+        seen = [(s.param("N"), s.epoch) for s in rest]
+        assert [s.param("N") for s in first + rest] == [str(i) for i in range(60)], seen
+        assert all(s.epoch == 2 for s in rest), (seen, av.endpoint, cluster.ask("ha home"))
         with pytest.raises(asyncio.TimeoutError):
             await motion.reading(0.5)  # nothing twice
         # Each request reached the lamp (at least once: a request open at the
