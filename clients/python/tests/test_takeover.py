@@ -81,7 +81,7 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         for i in range(20, 60):
             await sensor.emit({"N": str(i)})
         ev = await reconnected(va)
-        assert ev.resumed and ev.session_id == session and ev.epoch == 2
+        assert ev.resumed and ev.session_id == session and ev.epoch >= 2
         if failure == "freeze":
             assert ev.reason == "server_silent"
         assert va.endpoint == endpoints[1]
@@ -91,7 +91,10 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         rest = [await motion.reading(10) for _ in range(40)]
         seen = [(s.param("N"), s.epoch) for s in rest]
         assert [s.param("N") for s in first + rest] == [str(i) for i in range(60)], seen
-        assert all(s.epoch == 2 for s in rest), (seen, av.endpoint, cluster.ask("ha home"))
+        # Routed after the takeover: at its epoch, or a later one if the
+        # loaded cluster took over once more (never back to an older one).
+        epochs = [s.epoch for s in rest]
+        assert epochs[0] >= 2 and epochs == sorted(epochs), (seen, av.endpoint, cluster.ask("ha home"))
         with pytest.raises(asyncio.TimeoutError):
             await motion.reading(0.5)  # nothing twice
         # Each request reached the lamp (at least once: a request open at the
@@ -102,7 +105,7 @@ def test_takeover_resume(cluster: Node, failure: str) -> None:
         if failure == "freeze":
             await loop.run_in_executor(None, cluster.ask, "kill 1")
         ha = await loop.run_in_executor(None, cluster.ask, "ha home")
-        assert "HA 2 active 2" in ha
+        assert [l for l in ha if " active " in l and int(l.split()[3]) >= epochs[-1]], ha
         await va.close()
         await av.close()
     run(main())
