@@ -139,17 +139,28 @@ start_responder(Connect, Description, Sensor) ->
 
 %% @doc The loop of start_responder/3: answers requests with a feedback
 %% echoing the request's body without parameters while `answer' holds;
-%% `mute' stops the answers, `{stream, N}' sends N sensor signals; ends
-%% when its client is closed.
--spec responder(#{client := pid(), answer := boolean(), sensor := fun()}) -> ok.
+%% `mute' stops the answers, `{leave_unanswered, Id, From}' leaves the
+%% request with SignalID Id unanswered (told to From once in force, so
+%% that a request sent after cannot overtake it), `{stream, N}' sends N
+%% sensor signals; ends when its client is closed.
+-spec responder(#{client := pid(), answer := boolean(), sensor := fun(),
+                  unanswered => [binary()]}) -> ok.
 responder(#{client := C, answer := Answer, sensor := Sensor} = St) ->
+    Unanswered = maps:get(unanswered, St, []),
     receive
         {agent_bridge, C, {signal, #{context := request, id := Id, sender := From,
                                      receiver := To, body := Body}}} when Answer ->
-            ok = agent_bridge_client:send(C, #{context => feedback, sender => To,
-                                               receiver => From, in_reply_to => Id,
-                                               body => Body#{parameters => []}}),
+            case lists:member(Id, Unanswered) of
+                true -> ok;
+                false ->
+                    ok = agent_bridge_client:send(C, #{context => feedback, sender => To,
+                                                       receiver => From, in_reply_to => Id,
+                                                       body => Body#{parameters => []}})
+            end,
             responder(St);
+        {leave_unanswered, Id, From} ->
+            From ! {leaving_unanswered, self(), Id},
+            responder(St#{unanswered => [Id | Unanswered]});
         mute ->
             responder(St#{answer := false});
         {stream, N} ->
