@@ -7,7 +7,7 @@
 -module(avatar_sim).
 
 -export([start_clock/1, stop_clock/1, now/1, advance/2, pause/1, resume/1, set_speed/2,
-         clock_info/1]).
+         clock_info/1, follow/3]).
 -export([start_arena/1, start_home/1, stop/1, state/1, log/1, links/1, clock/1,
          act/3, place_ball/4]).
 -export([mute/2, unmute/2, disconnect/2, disconnect/3, reconnect/2, detach_device/2,
@@ -73,6 +73,13 @@ set_speed(Clock, Speed) -> avatar_sim_clock:set_speed(Clock, Speed).
 
 -spec clock_info(clock()) -> map().
 clock_info(Clock) -> avatar_sim_clock:info(Clock).
+
+%% @doc Paces the clock by an observer (docs/avatars.md section 2): ticks
+%% wait while simulated time would run more than `LeadMs' ahead of
+%% `Seen()', the simulated time the observer has perceived (`undefined'
+%% while it has perceived nothing); `none' stops following.
+-spec follow(clock(), avatar_sim_clock:seen() | none, non_neg_integer()) -> ok.
+follow(Clock, Seen, LeadMs) -> avatar_sim_clock:follow(Clock, Seen, LeadMs).
 
 %% ---------------------------------------------------------------------------
 %% Avatars

@@ -12,19 +12,24 @@
 %%      +----- pause / manual / advance done ------------+
 %% '''
 %% `now/1' reads an atomics cell, never the process, so a world may call it
-%% while it is handling a tick.
+%% while it is handling a tick. A clock may also follow an observer
+%% (`follow/3'): paced ticks then wait while simulated time is more than a
+%% lead ahead of what the observer has perceived.
 -module(avatar_sim_clock).
 -behaviour(gen_statem).
 
 -export([start_link/1, now/1, advance/2, pause/1, resume/1, set_speed/2, subscribe/2,
-         ack/2, info/1, pid/1, stop/1, tick_length/1]).
+         ack/2, info/1, pid/1, stop/1, tick_length/1, follow/3]).
 -export([init/1, callback_mode/0, handle_event/4]).
 
--export_type([clock/0, opts/0, speed/0]).
+-export_type([clock/0, opts/0, speed/0, seen/0]).
 
 -record(clock, {pid :: pid(), cell :: atomics:atomics_ref(), tick :: pos_integer()}).
 -opaque clock() :: #clock{}.
 -type speed() :: number() | manual.
+%% What an observer has perceived of simulated time (ms since 1970), or
+%% `undefined' before it has perceived anything.
+-type seen() :: fun(() -> integer() | undefined).
 -type opts() :: #{speed => speed(),
                   tick => pos_integer(),
                   start => calendar:datetime(),
@@ -32,6 +37,8 @@
                   paused => boolean()}.
 
 -define(DEFAULT_START, {{2024, 11, 15}, {17, 0, 0}}).
+%% How often (real ms) a clock held by the observer it follows looks again.
+-define(FOLLOW_POLL, 5).
 
 -record(d, {cell :: atomics:atomics_ref(),
             tick :: pos_integer(),
@@ -43,6 +50,8 @@
             subs = #{} :: #{pid() => reference()},
             waiting = [] :: [pid()],
             tick_ref :: reference() | undefined,
+            %% The observer followed and the lead allowed, in simulated ms.
+            follow = none :: none | {seen(), non_neg_integer()},
             %% Ticks still to run for advance/2, and who to answer.
             advance = none :: none | {non_neg_integer(), gen_statem:from()}}).
 
@@ -90,6 +99,16 @@ ack(#clock{pid = Pid}, Ref) -> gen_statem:cast(Pid, {ack, self(), Ref}).
                          tick := pos_integer(), subscribers := non_neg_integer()}.
 info(#clock{pid = Pid}) -> gen_statem:call(Pid, info).
 
+%% @doc Paced ticks (speed mode, not `advance/2') from now on wait while
+%% the next tick would be more than `LeadMs' simulated ms ahead of
+%% `Seen()', what an observer (a VA) has perceived; `none' stops following.
+%% The simulation stays the same tick by tick; only its pace changes, so an
+%% observer that reacts in real time is never further behind than that.
+-spec follow(clock(), seen() | none, non_neg_integer()) -> ok.
+follow(#clock{pid = Pid}, Seen, LeadMs)
+  when (Seen =:= none orelse is_function(Seen, 0)), is_integer(LeadMs), LeadMs >= 0 ->
+    gen_statem:call(Pid, {follow, Seen, LeadMs}).
+
 -spec pid(clock()) -> pid().
 pid(#clock{pid = Pid}) -> Pid.
 
@@ -125,7 +144,12 @@ init({Opts, Cell}) ->
 -spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
           gen_statem:event_handler_result(atom()).
 handle_event(state_timeout, tick, running, D) ->
-    start_tick(D);
+    case held(D) of
+        %% Re-anchored while held, so time does not rush to catch up after.
+        true -> {keep_state, D#d{anchor = {real_now(), D#d.now}},
+                 [{state_timeout, ?FOLLOW_POLL, tick}]};
+        false -> start_tick(D)
+    end;
 handle_event(cast, {ack, Pid, Ref}, ticking, #d{tick_ref = Ref} = D) ->
     acked(D#d{waiting = lists:delete(Pid, D#d.waiting)});
 handle_event(cast, {ack, _Pid, _Ref}, _State, _D) ->
@@ -165,7 +189,11 @@ handle_event({call, From}, pause, _State, D) ->
 handle_event({call, From}, resume, _State, D) ->
     continue(D#d{paused = false}, [{reply, From, ok}]);
 handle_event({call, From}, {speed, Speed}, _State, D) ->
-    continue(D#d{speed = Speed}, [{reply, From, ok}]).
+    continue(D#d{speed = Speed}, [{reply, From, ok}]);
+handle_event({call, From}, {follow, none, _LeadMs}, _State, D) ->
+    continue(D#d{follow = none}, [{reply, From, ok}]);
+handle_event({call, From}, {follow, Seen, LeadMs}, _State, D) ->
+    continue(D#d{follow = {Seen, LeadMs}}, [{reply, From, ok}]).
 
 %% ---------------------------------------------------------------------------
 %% Internals
@@ -204,6 +232,15 @@ continue(D, Actions) ->
     end.
 
 running(#d{speed = Speed, paused = Paused}) -> Speed =/= manual andalso not Paused.
+
+%% The observer followed is too far behind for the next tick.
+held(#d{follow = none}) ->
+    false;
+held(#d{follow = {Seen, Lead}, now = Now, tick = Tick}) ->
+    case Seen() of
+        T when is_integer(T) -> Now + Tick > T + Lead;
+        undefined -> false
+    end.
 
 next_due(#d{anchor = {Real0, Sim0}, now = Now, tick = Tick, speed = Speed}) ->
     Due = Real0 + (Now + Tick - Sim0) / Speed,

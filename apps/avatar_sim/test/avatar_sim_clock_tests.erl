@@ -72,3 +72,36 @@ default_start_test() ->
     ?assertEqual(1731690000000, avatar_sim_clock:now(Clock)),
     unlink(Pid),
     ok = avatar_sim_clock:stop(Clock).
+
+%% A clock that follows an observer waits for it: at any speed it stops at
+%% the tick that would take it past the observer's time plus the lead, and
+%% goes on once the observer has perceived more; not following, it runs on.
+follow_test() ->
+    {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => 1000000, tick => 100, start_ms => 0,
+                                                     paused => true}),
+    A = recorder(Clock, self()),
+    receive {subscribed, A} -> ok end,
+    Cell = atomics:new(1, [{signed, true}]),
+    ok = avatar_sim_clock:follow(Clock, fun() -> atomics:get(Cell, 1) end, 500),
+    ok = atomics:put(Cell, 1, 1000),
+    ok = avatar_sim_clock:resume(Clock),
+    %% It gets to 1500 (1000 + the lead) and is then held there: the wait
+    %% for it to reach 1500 ends, and later reads are still 1500.
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1500 end,
+                                #{timeout => 10000}),
+    ?assertEqual(1500, avatar_sim_clock:now(Clock)),
+    ?assertMatch(#{now := 1500}, avatar_sim_clock:info(Clock)),
+    ok = atomics:put(Cell, 1, 4000),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 4500 end,
+                                #{timeout => 10000}),
+    ?assertEqual(4500, avatar_sim_clock:now(Clock)),
+    %% advance/2 is not held; `none' stops following.
+    ok = avatar_sim_clock:advance(Clock, 1000),
+    ?assertEqual(5500, avatar_sim_clock:now(Clock)),
+    ok = avatar_sim_clock:follow(Clock, none, 0),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 10000 end,
+                                #{timeout => 10000}),
+    ok = avatar_sim_clock:pause(Clock),
+    ?assertEqual(lists:seq(100, avatar_sim_clock:now(Clock), 100), seen(A)),
+    unlink(A), exit(A, kill), unlink(Pid),
+    ok = avatar_sim_clock:stop(Clock).

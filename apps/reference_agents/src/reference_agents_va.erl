@@ -29,7 +29,11 @@
 
 %% `body' is the VA's BIL description, or `none' for a VA without an
 %% Avatar. `peers' maps the names of other VAs to their pids (MAS
-%% communication). `clock' gives the time in ms (the simulation's).
+%% communication). `clock' gives the time in ms (the simulation's). `seen'
+%% is an atomics array (`atomics:new(1, [{signed, true}])') whose first
+%% element the VA keeps at the latest simulated time its Avatars' signals
+%% carried (0 until the first), so a simulation clock can follow it
+%% (avatar_sim:follow/3).
 -type opts() :: #{name := binary(),
                   mind := module(),
                   mind_args => term(),
@@ -41,6 +45,7 @@
                   owner => pid(),
                   narrator => pid() | undefined,
                   clock => fun(() -> integer()),
+                  seen => atomics:atomics_ref(),
                   test_timeout => pos_integer(),
                   retry => pos_integer()}.
 
@@ -74,10 +79,12 @@ start_link(#{name := Name} = Opts) when is_binary(Name) ->
 -spec stop(pid()) -> ok.
 stop(Va) -> gen_statem:stop(Va).
 
-%% @doc The VA's state, its embodiment report and what its mind shows.
+%% @doc The VA's state, its embodiment report, what its mind shows and
+%% how many of its requests await their answer.
 -spec inspect(pid()) -> #{name := binary(), state := atom(),
                           embodiment := reference_agents_embodiment:report() | undefined,
-                          mind := map(), states := [{atom(), integer()}]}.
+                          mind := map(), states := [{atom(), integer()}],
+                          pending := non_neg_integer()}.
 inspect(Va) -> gen_statem:call(Va, inspect).
 
 %% @doc Delivers a MAS message from `From' (a VA name) to the VA.
@@ -198,7 +205,8 @@ handle_event({call, From}, inspect, State, #d{mind = Mind} = D) ->
     {keep_state_and_data,
      [{reply, From, #{name => D#d.name, state => State, embodiment => D#d.report,
                       mind => Mind:inspect(D#d.mind_state),
-                      states => lists:reverse(D#d.history)}}]};
+                      states => lists:reverse(D#d.history),
+                      pending => map_size(D#d.pending)}}]};
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
@@ -397,6 +405,10 @@ body(#d{opts = #{body := Body}}) -> Body.
 %% Every signal from the Avatar tells the time; EVATAR's own carry real time.
 seen(#{sender := From, timestamp := T}, #d{last_time = Last} = D)
   when From =/= <<"EVATAR">>, is_integer(T), (Last =:= undefined orelse T > Last) ->
+    case D#d.opts of
+        #{seen := Cell} -> atomics:put(Cell, 1, T);
+        #{} -> ok
+    end,
     D#d{last_time = T};
 seen(_S, D) ->
     D.
