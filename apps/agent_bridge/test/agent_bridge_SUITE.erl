@@ -44,14 +44,18 @@ groups() ->
 
 init_per_suite(Config) ->
     ok = evatar_test_node:start([]),
-    Addr = evatar_test_node:listen(test, #{conn => #{handshake_timeout => 500,
-                                                           linger => 200}}),
+    %% The default handshake timeout (5 s) here: the timer starts with the
+    %% connection process, and the case's Hello, read by cover-compiled code
+    %% on a loaded machine, must not race a short one. silent_client has a
+    %% listener of its own with a short timeout.
+    Addr = evatar_test_node:listen(test, #{conn => #{linger => 200}}),
+    Silent = evatar_test_node:listen(silent, #{conn => #{handshake_timeout => 500}}),
     Small = evatar_test_node:listen(small, #{conn => #{max_out_frames => 50,
                                                              max_out_bytes => 65536,
                                                              pairing_watermark => 20,
                                                              active_n => 4}}),
     Bystander = start_bystander(Addr),
-    [{addr, Addr}, {small, Small}, {bystander, Bystander} | Config].
+    [{addr, Addr}, {small, Small}, {silent, Silent}, {bystander, Bystander} | Config].
 
 end_per_suite(Config) ->
     {Va, Av, _} = ?config(bystander, Config),
@@ -59,13 +63,19 @@ end_per_suite(Config) ->
     exit(Av, shutdown),
     %% The suites that run next may count the node's pairings.
     ok = evatar:delete_pairing(<<"bystander">>),
-    evatar_test_node:stop([test, small], [agent_bridge]).
+    evatar_test_node:stop([test, small, silent], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 2000,
-                                                               feedback_timeout => 300}),
+    {ok, _} = evatar_test_fixtures:create_pairing(
+                Pairing, #{join_timeout => 2000, feedback_timeout => answer_within(Case)}),
     [{pairing, Pairing} | Config].
+
+%% Short where a case waits for EVATAR's Timeout; elsewhere the default,
+%% so that an answer slowed by a loaded machine (the port program's, a
+%% Python process) is not overtaken by a Timeout.
+answer_within(Case) when Case =:= feedback_timeout; Case =:= request_closed_to_provider -> 300;
+answer_within(_Case) -> 5000.
 
 end_per_testcase(_Case, Config) ->
     %% A busy case may end with its pairing still suspended.
@@ -188,9 +198,10 @@ bad_first_document(Config) ->
                                                       protocol_version => 3}})),
     expect_refused(S3, <<"BadHandshake">>).
 
-%% A client that connects and sends nothing gets HandshakeTimeout.
+%% A client that connects and sends nothing gets HandshakeTimeout (500 ms
+%% on this listener).
 silent_client(Config) ->
-    S = raw_connect(Config),
+    S = raw_connect([{addr, ?config(silent, Config)} | Config]),
     expect_refused(S, <<"HandshakeTimeout">>).
 
 %% A malformed document after the handshake is answered with an error signal
