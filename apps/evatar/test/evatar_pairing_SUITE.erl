@@ -338,7 +338,7 @@ entity_crash_unregisters(Config) ->
     #{in_reply_to := <<"r1">>, body := #{type := <<"ProviderGone">>}} = ?E:recv(?VA, signal),
     #{bound := [], entities := [?VA]} = ?E:recv(?VA, bound),
     {ok, [#{entity := ?VA}]} = evatar:registry(Id),
-    [#{state := waiting, avatars := 0}] = [P || #{id := I} = P <- evatar:pairings(), I =:= Id],
+    [#{state := waiting, avatars := 0}] = evatar_pairing_statem:summary(Id),
     {ok, #{pending := 0, provider_gone := 1}} = evatar:stats(Id).
 
 %% @doc The agent leaving keeps the pairing, which binds again when a new
@@ -352,11 +352,11 @@ agent_leaves_and_returns(Config) ->
     ok = evatar:describe(Va2, (va_description())#{entity_id => <<"va2">>}),
     #{bound := [_, _, _], entities := [?AV, <<"va2">>]} = ?E:recv(?AV, bound),
     [#{state := bound, agent := <<"va2">>}] =
-        [P || #{id := I} = P <- evatar:pairings(), I =:= Id].
+        evatar_pairing_statem:summary(Id).
 
 %% @doc Pairings from the application environment exist after start-up.
 configured_pairings(_Config) ->
-    [#{state := waiting}] = [P || #{id := <<"configured">>} = P <- evatar:pairings()],
+    [#{state := waiting}] = evatar_pairing_statem:summary(<<"configured">>),
     {ok, _, Pid} = ?E:start(<<"configured">>, avatar, ?AV, <<"b">>),
     {error, bad_credential} = ?E:start(<<"configured">>, agent, ?VA, <<"b">>),
     ok = ?E:stop(Pid).
@@ -368,7 +368,7 @@ inspection(Config) ->
     ok = evatar:send(Va, ?E:signal(<<"r1">>, request, ?EMU, ?LIGHT)),
     ok = evatar:send(Va, ?E:signal(<<"r2">>, request, ?EMU, <<"Nobody">>)),
     #{id := <<"r1">>} = ?E:recv(?AV, signal),
-    [Summary] = [P || #{id := I} = P <- evatar:pairings(), I =:= Id],
+    [Summary] = evatar_pairing_statem:summary(Id),
     #{state := bound, agent := ?VA, avatars := 1, registered := 2, bound := 3,
       unbound := 0, pending := 1, pid := Pid} = Summary,
     Pid = evatar:session_pid(Va),
