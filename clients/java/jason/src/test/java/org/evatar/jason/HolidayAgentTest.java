@@ -49,12 +49,36 @@ class HolidayAgentTest {
                 assertTrue(agent.believes("embodied") || waitBelief(agent, "embodied"));
                 node.command(10, "speed", "1000");
                 node.command(120, "run_until", "22:05");
-                List<String> state = node.command(30, "outcome");
-                check(state, spool, agent);
+                check(settledOutcome(node), spool, agent);
             } finally {
                 agent.stop();
             }
         }
+    }
+
+    /**
+     * The outcome once the agent has done what the evening asks (six light
+     * changes, an e-mail, the alarm and the message), or as it is after 30 s.
+     * The clock runs a thousand times faster than the agent, which reacts in
+     * real time: on a loaded machine it acts on 22:00's reading after the
+     * clock has stopped at 22:05 (a clean-clone run read the outcome before
+     * "bedroom off"). The times of the changes are checked after, as before.
+     */
+    static List<String> settledOutcome(LocalNode node) throws Exception {
+        long end = System.nanoTime() + TimeUnit.SECONDS.toNanos(30);
+        List<String> state = node.command(30, "outcome");
+        while (!complete(state) && System.nanoTime() < end) {
+            Thread.sleep(200);
+            state = node.command(30, "outcome");
+        }
+        return state;
+    }
+
+    static boolean complete(List<String> state) {
+        long lights = state.stream().filter(l -> l.startsWith("LIGHT ")).count();
+        long emails = state.stream().filter(l -> l.startsWith("EMAIL ")).count();
+        long loud = state.stream().filter(l -> l.startsWith("PLAYED ") && !l.split("\t", -1)[1].equals("0")).count();
+        return lights >= 6 && emails >= 1 && loud >= 2;
     }
 
     static boolean waitBelief(EvatarAgent a, String lit) throws InterruptedException {
