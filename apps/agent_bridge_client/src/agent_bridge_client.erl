@@ -54,7 +54,10 @@
 %% (ms, doubling, default {20, 500}) and `reconnect_limit' (ms without a
 %% session before giving up, default 600000: longer than a machine's
 %% reboot, so clients outlast a power cut) apply to it, and so does
-%% `notify_acks' (default false). `close_timeout' (ms, default 5000) bounds
+%% `notify_acks' (default false). `handshake_timeout' (ms, default 5000)
+%% bounds the wait from connected to Welcome, doubled after each handshake
+%% given up in a row, up to 8 times, until a Welcome
+%% (agent_bridge_client_session:handshake_timeout/1). `close_timeout' (ms, default 5000) bounds
 %% how long close/1 waits for EVATAR's Bye. `tls' (default false: plain TCP) connects
 %% with TLS and checks the server (agent_bridge_client_sock:tls_opts(),
 %% docs/clients.md, "TLS").
@@ -519,7 +522,7 @@ early(Sock, Acc) ->
 with_events({next_state, State, D, Actions}, Events) ->
     {next_state, State, D, Actions ++ Events}.
 
-connected_to({ok, Sock}, #d{opts = Opts, session = S} = D) ->
+connected_to({ok, Sock}, #d{session = S} = D) ->
     %% Active once since the connect; what came before the hand-over
     %% follows as messages from the connector.
     case agent_bridge_client_sock:send(Sock, agent_bridge_client_session:hello(S)) of
@@ -529,7 +532,7 @@ connected_to({ok, Sock}, #d{opts = Opts, session = S} = D) ->
             %% fail, and the reason (the TLS alert) follows as a
             %% message.
             {next_state, handshaking, D#d{sock = Sock},
-             [{state_timeout, maps:get(handshake_timeout, Opts, 5000), handshake}]};
+             [{state_timeout, agent_bridge_client_session:handshake_timeout(S), handshake}]};
         {error, Why} ->
             agent_bridge_client_sock:close(Sock),
             attempt_failed(Why, D)

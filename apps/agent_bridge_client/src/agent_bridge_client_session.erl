@@ -10,7 +10,7 @@
 -module(agent_bridge_client_session).
 
 -export([new/3, version/1, ever_connected/1, welcome/1, endpoint/1, hello/1,
-         next_attempt/2, attempt_failed/3, refused_in_handshake/3, welcomed/3,
+         next_attempt/2, attempt_failed/3, handshake_timeout/1, refused_in_handshake/3, welcomed/3,
          incoming/3, lost/3, describe/3, send/4, request/5, get_binding/2,
          request_timeout/2, sent_failed/2, ack_due/1, silence_check/2,
          await_acks/2, finish/1, status/2]).
@@ -40,6 +40,9 @@
 -define(ACK_DELAY, 5).
 -define(ACK_EVERY, 32).
 -define(RECONNECT_LIMIT, 600000).
+%% A handshake timeout doubles after each one in a row, up to this many
+%% doublings (8 times `handshake_timeout').
+-define(MAX_SLOW_DOUBLINGS, 3).
 
 -record(s, {opts :: agent_bridge_client:opts(),
             version :: 1 | 2,
@@ -56,6 +59,9 @@
             backoff = 0 :: non_neg_integer(),
             lost_at :: integer() | undefined,
             last_reason :: term(),
+            %% Handshakes given up in a row (no Welcome within the
+            %% handshake timeout) since the last Welcome.
+            slow = 0 :: non_neg_integer(),
             ever_connected = false :: boolean(),
             %% The Welcome of the live connection; undefined between two.
             welcome :: bil_control:welcome() | undefined,
@@ -137,10 +143,32 @@ next_attempt(Now, #s{version = 2} = S) -> v2_next_attempt(Now, S).
 %% version 2 client pauses after every full round, doubling up to the
 %% back-off's maximum).
 -spec attempt_failed(term(), integer(), session()) -> {now | {retry, pos_integer()}, session()}.
-attempt_failed(Why, _Now, #s{version = 1, current = E} = S) ->
+attempt_failed(handshake_timeout = Why, Now, #s{slow = Slow} = S) ->
+    attempt_failed1(Why, Now, S#s{slow = Slow + 1});
+attempt_failed(Why, Now, S) ->
+    attempt_failed1(Why, Now, S).
+
+attempt_failed1(Why, _Now, #s{version = 1, current = E} = S) ->
     {now, S#s{failures = [{E, Why} | S#s.failures]}};
-attempt_failed(Why, _Now, #s{version = 2} = S) ->
+attempt_failed1(Why, _Now, #s{version = 2} = S) ->
     v2_attempt_failed(Why, S).
+
+%% @doc How long the next handshake may take (connected to Welcome or
+%% Refused): `handshake_timeout' (default 5,000 ms), doubled after each
+%% handshake given up in a row since the last Welcome, up to 8 times it.
+%% A node too busy to answer a crowd of clients in time (every client of
+%% a failed node resuming on it at once, on a loaded machine) would
+%% otherwise get the same crowd again and again: each Resume it answers
+%% too late is work done for a client that has left, and it falls further
+%% behind; with longer waits the crowd thins until its answers arrive in
+%% time. Refusals do not reset it: a node that refuses at once says
+%% nothing of how fast the node that serves answers.
+-spec handshake_timeout(session()) -> timeout().
+handshake_timeout(#s{opts = Opts, slow = Slow}) ->
+    case maps:get(handshake_timeout, Opts, 5000) of
+        infinity -> infinity;
+        Ms -> Ms bsl min(Slow, ?MAX_SLOW_DOUBLINGS)
+    end.
 
 %% @doc A Refused instead of the Welcome: another endpoint may serve us
 %% (`retry', version 2 only, for a refusal meaning "not here"), or the same
@@ -161,9 +189,9 @@ refused_in_handshake(_Code, _Message, #s{version = 1}) ->
 -spec welcomed(bil_control:welcome(), integer(), session()) ->
           {ok, [effect()], session()} | {error, term()}.
 welcomed(Welcome, _Now, #s{version = 1} = S) ->
-    {ok, [], S#s{welcome = Welcome, ever_connected = true}};
+    {ok, [], S#s{welcome = Welcome, ever_connected = true, slow = 0}};
 welcomed(Welcome, Now, #s{version = 2} = S) ->
-    v2_welcomed(Welcome, Now, S).
+    v2_welcomed(Welcome, Now, S#s{slow = 0}).
 
 %% @doc The connection ended (`closed', `{socket_error, _}', `{refused,
 %% Code, Message}', `{bye, Reason}', `{malformed, _}', `server_silent'):

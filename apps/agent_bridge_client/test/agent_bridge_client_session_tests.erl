@@ -102,6 +102,34 @@ v2_starts_after_the_lost_endpoint_and_gives_up_after_the_limit_test() ->
     {now, S7} = ?S:attempt_failed(econnrefused, 1400, S6),
     ?assertEqual({give_up, {gave_up, econnrefused}}, ?S:next_attempt(1501, S7)).
 
+%% A crowd of clients resuming at once on a node too busy to answer all in
+%% time: each handshake given up in a row doubles the next one's wait (up
+%% to 8 times handshake_timeout), so the node's late answers stop being
+%% work for clients that left; refusals in between do not reset it, a
+%% Welcome does.
+handshake_wait_grows_while_handshakes_time_out_test() ->
+    S0 = ?S:new([?A, ?B, ?C], (opts(true))#{handshake_timeout => 1000}, <<"N">>),
+    ?assertEqual(5000, ?S:handshake_timeout(new(true))),
+    ?assertEqual(1000, ?S:handshake_timeout(S0)),
+    {connect, ?A, S1} = ?S:next_attempt(0, S0),
+    {now, S2} = ?S:attempt_failed(handshake_timeout, 0, S1),
+    ?assertEqual(2000, ?S:handshake_timeout(S2)),
+    {connect, ?B, S3} = ?S:next_attempt(0, S2),
+    {now, S4} = ?S:attempt_failed({refused, <<"NotActive">>, <<>>}, 0, S3),
+    ?assertEqual(2000, ?S:handshake_timeout(S4)),
+    Slow = lists:foldl(fun(_, S) ->
+                               {connect, _, Sa} = ?S:next_attempt(0, S),
+                               element(2, ?S:attempt_failed(handshake_timeout, 0, Sa))
+                       end, S4, lists:seq(1, 5)),
+    ?assertEqual(8000, ?S:handshake_timeout(Slow)),
+    {connect, _, S5} = ?S:next_attempt(0, Slow),
+    {ok, _, Up} = ?S:welcomed(welcome(8), 0, S5),
+    ?assertEqual(1000, ?S:handshake_timeout(Up)),
+    {reconnect, _, Lost} = ?S:lost(server_silent, 1, Up),
+    ?assertEqual(1000, ?S:handshake_timeout(Lost)),
+    ?assertEqual(infinity, ?S:handshake_timeout(
+                             ?S:new([?A], (opts(true))#{handshake_timeout => infinity}, <<"N">>))).
+
 refusals_test() ->
     ?assertEqual(retry, ?S:refused_in_handshake(<<"NotActive">>, <<>>, new(true))),
     ?assertEqual(retry, ?S:refused_in_handshake(<<"SessionResumed">>, <<>>, new(true))),
