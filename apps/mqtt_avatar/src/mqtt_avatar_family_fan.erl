@@ -91,8 +91,8 @@ integer_key(Key, C, Default) ->
 from_z2m(#{<<"features">> := Features}, Ctx) when is_list(Features) ->
     case [F || #{<<"name">> := <<"state">>, <<"property">> := P} = F <- Features, is_binary(P)] of
         [#{<<"property">> := P} = State | _] ->
-            On = mqtt_avatar_z2m:text(maps:get(<<"value_on">>, State, <<"ON">>)),
-            Off = mqtt_avatar_z2m:text(maps:get(<<"value_off">>, State, <<"OFF">>)),
+            On = mqtt_avatar_z2m:text(maps:get(<<"value_on">>, State, null), <<"ON">>),
+            Off = mqtt_avatar_z2m:text(maps:get(<<"value_off">>, State, null), <<"OFF">>),
             Modes = lists:append([mqtt_avatar_z2m:setting(F, <<"PresetMode">>, <<"SetFanPresetMode">>, Ctx)
                                   || #{<<"name">> := <<"mode">>} = F <- Features]),
             E = mqtt_avatar_z2m:entity(fan, P, Ctx),

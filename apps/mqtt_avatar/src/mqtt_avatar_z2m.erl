@@ -8,7 +8,7 @@
 
 -export([parse/2, parse/3]).
 %% For the families (mqtt_avatar_family_*): reading their exposes.
--export([setting/4, entity/3, text/1]).
+-export([setting/4, entity/3, text/1, text/2]).
 
 -export_type([ctx/0]).
 
@@ -146,8 +146,8 @@ expose(_Topic, _Dev, _E, _Exposes) ->
 
 base_entity(Topic, Uid, Kind, Feature, Expose) ->
     Prop = maps:get(<<"property">>, Feature),
-    On = text(maps:get(<<"value_on">>, Feature, <<"ON">>)),
-    Off = text(maps:get(<<"value_off">>, Feature, <<"OFF">>)),
+    On = text(maps:get(<<"value_on">>, Feature, null), <<"ON">>),
+    Off = text(maps:get(<<"value_off">>, Feature, null), <<"OFF">>),
     Settable = case maps:get(<<"access">>, Feature, 0) of
                    A when is_integer(A) -> A band ?ACCESS_SET =/= 0;
                    _ -> false
@@ -231,6 +231,16 @@ binary_class(P) when P =:= <<"occupancy">>; P =:= <<"presence">>; P =:= <<"motio
     <<"motion">>;
 binary_class(P) ->
     P.
+
+%% @doc A JSON scalar as text, `Default' for null and non-scalars: an on
+%% or off value a device list gives as null is the usual ON/OFF, not a
+%% command nobody can send (it crashed the description's generation).
+-spec text(term(), binary()) -> binary().
+text(V, Default) ->
+    case text(V) of
+        undefined -> Default;
+        T -> T
+    end.
 
 %% @doc A JSON scalar as text (`undefined' for null and non-scalars).
 -spec text(term()) -> binary() | undefined.

@@ -17,7 +17,7 @@ all() ->
     [ha_json_light, tasmota_outlet, sensors_and_events, siren_notify_button, zigbee2mqtt_devices,
      malformed_discovery, config_removed, overrides, generated_bil_validates,
      printed_bil_reads_back, families_validate, hand_written_checks, public_description_binds,
-     empty_topic_with_base, ha_device_discovery, prop_discovery_never_crashes,
+     empty_topic_with_base, z2m_null_on_off, ha_device_discovery, prop_discovery_never_crashes,
      prop_payload_mapping_never_crashes].
 
 %% ---------------------------------------------------------------------------
@@ -444,6 +444,30 @@ empty_topic_with_base(_Config) ->
                                    <<"availability_topic">> => <<"a/b">>})),
     {_Desc, Problems} = mqtt_avatar:generate([{<<"homeassistant/light/o/config">>, Payload}], #{}),
     true = is_list(Problems).
+
+%% @doc A zigbee2mqtt on/off feature whose value_on and value_off are null
+%% (a fan's state, a switch's) is commanded with the usual ON and OFF, and
+%% read as a sensor when exposed alone; the generation crashed with badarg
+%% (found by prop_discovery_never_crashes, 1 run in about 6,000).
+z2m_null_on_off(_Config) ->
+    State = #{<<"access">> => 7, <<"name">> => <<"state">>, <<"property">> => <<"state">>,
+              <<"type">> => <<"binary">>, <<"value_on">> => null, <<"value_off">> => null},
+    OnOff = [<<"json:{\"state\":\"OFF\"}">>, <<"json:{\"state\":\"ON\"}">>],
+    %% (exposed alone, the feature is read, not commanded)
+    Exposes = [{[#{<<"type">> => <<"fan">>, <<"features">> => [State]}], OnOff},
+               {[#{<<"type">> => <<"switch">>, <<"features">> => [State]}], OnOff},
+               {[State], []}],
+    [begin
+         Devices = iolist_to_binary(mqtt_avatar_json:encode(
+                                      [#{<<"friendly_name">> => <<"kitchen_thing">>,
+                                         <<"definition">> => #{<<"exposes">> => Es}}])),
+         {D, []} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, Devices}], #{}),
+         [#{services := Services}] = components(D),
+         Commands = [C || #{parameters := Ps} <- Services, {<<"MqttCommand">>, C} <- Ps],
+         Want = lists:usort(Commands),
+         ok = mqtt_avatar:check(D)
+     end || {Es, Want} <- Exposes],
+    ok.
 
 prop_discovery_never_crashes(_Config) ->
     Keys = [<<"name">>, <<"unique_id">>, <<"state_topic">>, <<"command_topic">>, <<"stat_t">>,
