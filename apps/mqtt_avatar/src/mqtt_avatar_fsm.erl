@@ -211,6 +211,7 @@ handle_event({call, From}, status, State, D) ->
                availability => mqtt_avatar_logic:availability(L),
                last_values => mqtt_avatar_logic:last_values(L),
                pending => mqtt_avatar_logic:pending_count(L),
+               partners => mqtt_avatar_logic:partners(L),
                subscriptions => D#d.subscribed},
     {keep_state_and_data, [{reply, From, Status}]};
 handle_event({call, From}, await_ready, joined, _D) ->

@@ -12,7 +12,7 @@
 -module(mqtt_avatar_logic).
 
 -export([new/3, new/4, set_spec/2, handle/3, extract/2, extract/3, camel/1, last_values/1,
-         availability/1, pending_count/1, is_number_text/1]).
+         availability/1, pending_count/1, partners/1, is_number_text/1]).
 
 -export_type([state/0, event/0, effect/0]).
 
@@ -1131,6 +1131,12 @@ stream_receivers(Id, Cat, Type, #{entity := E, bound := Bound}) ->
     [C || #{consumer := #{entity := CE, component := CC}, provider := #{component := C},
             category := BC, type := BT} <- Bound,
           CE =:= E, CC =:= Id, BC =:= Cat, BT =:= Type].
+
+%% @doc Each component's partners as the Avatar's last Binding report
+%% says (the components bound to it, either way): who its events go to.
+-spec partners(state()) -> #{binary() => [binary()]}.
+partners(#{comps := Comps} = S) ->
+    maps:from_list([{Id, partners(Id, S)} || Id <- maps:keys(Comps)]).
 
 partners(Id, #{entity := E, bound := Bound}) ->
     lists:usort([P || #{consumer := #{entity := CE, component := CC},

@@ -11,7 +11,8 @@
 
 -export([init_per_suite/2, end_per_suite/2, init_per_testcase/3, end_per_testcase/1,
          remember/2, avatar/3, connect_va/2, broker_port/1, mqtt/1, entry/3, param/2,
-         light_device/1, test_va/1, request/4, provider_of/3, consumer_of/3, wait_binding/2]).
+         light_device/1, test_va/1, request/4, provider_of/3, consumer_of/3, wait_binding/2,
+         wait_partner/3]).
 
 -type config() :: [{atom(), term()}].
 
@@ -174,6 +175,16 @@ bound(Va, Side, Id, Type, Other) ->
     Report = wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end),
     [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
     C.
+
+%% @doc Waits until the Avatar `A' itself knows that its component `Comp'
+%% is bound with `Partner' (its own Binding report, which may reach it after
+%% the VA's): only then does an event of `Comp' go to `Partner'.
+-spec wait_partner(pid(), binary(), binary()) -> ok.
+wait_partner(A, Comp, Partner) ->
+    ok = evatar_test_wait:until(
+           fun() ->
+                   lists:member(Partner, maps:get(Comp, maps:get(partners, mqtt_avatar:status(A)), []))
+           end, #{timeout => 10000}).
 
 %% @doc The VA's first Binding report that satisfies `Pred' (10 s at most).
 -spec wait_binding(pid(), fun((map()) -> boolean())) -> map().
