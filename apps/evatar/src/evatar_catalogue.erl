@@ -435,11 +435,12 @@ restore({Id, Config}, #s{backoff = Backoff} = S) ->
 %% from its first instant: one that crashes past its restart limit before
 %% the next reconcile (a tick) saw it active gave up all the same, and is
 %% not restored (evatar_pairing_SUITE crash_loop_gives_up found it back).
+%% Its process is watched like an active's, so that stepping down still
+%% leaves it to be restored; one gone already is left to the next look.
 started_here(Id, #s{ran = Ran, watched = Watched} = S) ->
-    S1 = S#s{ran = Ran#{Id => true}},
     case evatar_registry:whereis_name(Id) of
-        undefined -> S1;
-        Pid -> S1#s{watched = watch(Id, Pid, Watched)}
+        undefined -> S;
+        Pid -> S#s{ran = Ran#{Id => true}, watched = watch(Id, Pid, Watched)}
     end.
 
 watch(Id, Pid, Watched) when is_map_key(Pid, Watched) ->
