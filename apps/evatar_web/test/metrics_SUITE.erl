@@ -129,9 +129,13 @@ traffic_moves_counters(Config) ->
 label_values_are_escaped(Config) ->
     Id = <<"odd \"pairing\" \\ with\nnewline">>,
     {ok, _} = evatar_test_fixtures:create_pairing(Id, #{}),
+    Key = {evatar_pairing_joins_total, [{pairing, Id}]},
     try
-        Samples = scrape(Config),
-        ?assertEqual(0, maps:get({evatar_pairing_joins_total, [{pairing, Id}]}, Samples))
+        %% The series appear once the new pairing is active on this node,
+        %% which may be after create_pairing returns on a loaded node.
+        Samples = evatar_test_wait:value(escaped_pairing_series, fun() -> scrape(Config) end,
+                                         fun(S) -> maps:is_key(Key, S) end),
+        ?assertEqual(0, maps:get(Key, Samples))
     after
         ok = evatar:delete_pairing(Id)
     end.
@@ -144,7 +148,10 @@ pairing_series_are_capped(Config) ->
     Over = <<"over-the-cap">>,
     {ok, _} = evatar_test_fixtures:create_pairing(Over, #{}),
     try
-        Samples = scrape(Config),
+        %% Read once the new pairing is active (the gauge counts active
+        %% pairings only), which may be after create_pairing returns.
+        Samples = evatar_test_wait:value(over_the_cap_active, fun() -> scrape(Config) end,
+                                         fun(S) -> gauge(S, evatar_metrics_pairings_unlabelled, []) > 0 end),
         ?assert(is_map_key({evatar_pairing_joins_total, [{pairing, P}]}, Samples)),
         ?assertNot(is_map_key({evatar_pairing_joins_total, [{pairing, Over}]}, Samples)),
         ?assertEqual(1, gauge(Samples, evatar_metrics_pairings_unlabelled, []))
