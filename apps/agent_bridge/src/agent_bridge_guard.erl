@@ -19,6 +19,8 @@
 
 %% How long the acceptor waits to write a refusal to a new socket.
 -define(REFUSE_SEND_TIMEOUT, 1000).
+%% At most this much of a refused socket's input is read and dropped.
+-define(REFUSE_DROP_MAX, 65536).
 
 -spec start_link(term(), map()) -> {ok, pid()}.
 start_link(Name, ListenerOpts) ->
@@ -90,13 +92,28 @@ refusal(Code, LockedMs) ->
 
 %% @doc Writes Refused Code to a socket that was never handed to a
 %% connection process, and closes it at once: a refused socket costs its
-%% file descriptor only for this write.
+%% file descriptor only for this write. What the client sent already (its
+%% Hello goes right after its connect) is read and dropped before the close,
+%% at most ?REFUSE_DROP_MAX bytes and without waiting: a socket closed with
+%% unread input is reset by the kernel instead of ended, and the reset can
+%% destroy the Refused before the client has read it.
 -spec refuse_socket(gen_tcp:socket(), binary(), non_neg_integer()) -> ok.
 refuse_socket(Sock, Code, LockedMs) ->
     Frame = bil_control:encode(refusal(Code, LockedMs)),
-    _ = inet:setopts(Sock, [{send_timeout, ?REFUSE_SEND_TIMEOUT}, {send_timeout_close, true}]),
+    _ = inet:setopts(Sock, [{active, false}, {send_timeout, ?REFUSE_SEND_TIMEOUT},
+                            {send_timeout_close, true}]),
     _ = gen_tcp:send(Sock, Frame),
+    _ = gen_tcp:shutdown(Sock, write),
+    ok = drop_input(Sock, ?REFUSE_DROP_MAX),
     gen_tcp:close(Sock).
+
+drop_input(_Sock, Left) when Left =< 0 ->
+    ok;
+drop_input(Sock, Left) ->
+    case gen_tcp:recv(Sock, 0, 0) of
+        {ok, Data} -> drop_input(Sock, Left - iolist_size(Data));
+        {error, _} -> ok
+    end.
 
 %% ---------------------------------------------------------------------------
 

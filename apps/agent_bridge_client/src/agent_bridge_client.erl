@@ -525,18 +525,16 @@ with_events({next_state, State, D, Actions}, Events) ->
 connected_to({ok, Sock}, #d{session = S} = D) ->
     %% Active once since the connect; what came before the hand-over
     %% follows as messages from the connector.
-    case agent_bridge_client_sock:send(Sock, agent_bridge_client_session:hello(S)) of
-        Sent when Sent =:= ok; not is_port(Sock) ->
-            %% With TLS 1.3 a server refuses a client certificate
-            %% after the client's handshake is done: the send may
-            %% fail, and the reason (the TLS alert) follows as a
-            %% message.
-            {next_state, handshaking, D#d{sock = Sock},
-             [{state_timeout, agent_bridge_client_session:handshake_timeout(S), handshake}]};
-        {error, Why} ->
-            agent_bridge_client_sock:close(Sock),
-            attempt_failed(Why, D)
-    end;
+    %% A failed send is not the answer: the socket's own messages are. With
+    %% TLS 1.3 a server refuses a client certificate after the client's
+    %% handshake is done, and the reason (the TLS alert) follows as a
+    %% message; a listener that refuses at accept (TooManyConnections,
+    %% RateLimited, LockedOut) has written its Refused and closed before
+    %% the Hello went, which then fails, and the Refused is still to be
+    %% read. The handshake timeout ends a socket that says nothing.
+    _ = agent_bridge_client_sock:send(Sock, agent_bridge_client_session:hello(S)),
+    {next_state, handshaking, D#d{sock = Sock},
+     [{state_timeout, agent_bridge_client_session:handshake_timeout(S), handshake}]};
 connected_to({error, Why}, D) ->
     attempt_failed(Why, D).
 
