@@ -31,11 +31,6 @@
 -define(PAIRING, <<"home">>).
 -define(VA_CRED, <<"home-va-secret">>).
 -define(AV_CRED, <<"home-gateway-secret">>).
-%% How far (simulated ms) the clock may run ahead of the latest time the
-%% house VA has perceived: two of the time sensor's one-minute periods. The
-%% VA acts in real time on a clock a thousand times faster; without this a
-%% loaded machine let the evening pass before it had read 21:40.
--define(FOLLOW_LEAD, 120000).
 
 -spec start_datetime() -> calendar:datetime().
 start_datetime() -> {{2024, 11, 15}, {17, 55, 0}}.
@@ -101,20 +96,13 @@ start_va(Opts, Rules, Policy, S2) ->
                  #{name => <<"house-va">>, mind => reference_agents_home,
                    mind_args => #{body => Body, rules => Rules, policy => Policy},
                    body => Body, pairing => ?PAIRING, credential => ?VA_CRED, seen => Seen}, S2),
-    S4 = reference_agents_scenario:add(seen, Seen, reference_agents_scenario:add(va, Va, S3)),
+    S4 = reference_agents_scenario:add(va, Va, S3),
     case reference_agents_scenario:await_va_state(Va, [embodied], 20000, house_va_embodied) of
         {ok, _} ->
             ok = avatar_sim:pause(Clock),
             ok = avatar_sim:set_speed(Clock, maps:get(speed, Opts, 1000)),
-            ok = avatar_sim:follow(Clock, fun() -> perceived(Seen) end, ?FOLLOW_LEAD),
-            {ok, S4};
+            {ok, reference_agents_scenario:follow(S4, Seen)};
         {error, _} = E -> ok = reference_agents_scenario:stop(S4), E
-    end.
-
-perceived(Seen) ->
-    case atomics:get(Seen, 1) of
-        0 -> undefined;
-        T -> T
     end.
 
 %% The house over TCP: one gateway Avatar with every device.
@@ -167,7 +155,9 @@ host(Host) -> Host.
 %% @doc Lets simulated time run until the house's clock shows `HHMM' (on
 %% the start day, or the next day if that time has passed), then pauses.
 %% The clock never runs more than two simulated minutes ahead of what the
-%% house VA has perceived (avatar_sim:follow/3), however slow the machine.
+%% VA it follows has perceived (reference_agents_scenario:follow/2), and
+%% this returns once the VAs have caught up (settle/1), however slow the
+%% machine.
 -spec run_until(reference_agents_scenario:scenario(), string()) -> ok | {error, term()}.
 run_until(S, HHMM) ->
     Clock = reference_agents_scenario:get(clock, S),
@@ -176,7 +166,7 @@ run_until(S, HHMM) ->
     R = reference_agents_scenario:await(end_ok(Clock, Target), 600000, {clock, HHMM}),
     ok = avatar_sim:pause(Clock),
     case R of
-        {ok, _} -> ok;
+        {ok, _} -> reference_agents_scenario:settle(S);
         Error -> Error
     end.
 
@@ -225,26 +215,6 @@ mqtt_home(S) ->
     catch error:{badkey, _} -> none
     end.
 
-%% The clock is paused: the VA has perceived the house's last time reading,
-%% and every request it made (on that reading too) has its answer, so the
-%% outcome read next is the evening's whole; in real time, however slow.
-settle(S) ->
-    Home = reference_agents_scenario:get(home, S),
-    Va = reference_agents_scenario:get(va, S),
-    Seen = reference_agents_scenario:get(seen, S),
-    Last = lists:max([0 | [T || #{time := T, context := sensor_data, params := Ps}
-                                    <- avatar_sim:log(Home),
-                                lists:keymember(<<"TimeOfDay">>, 1, Ps)]]),
-    Settled = fun() ->
-                      atomics:get(Seen, 1) >= Last andalso
-                          maps:get(pending, reference_agents_va:inspect(Va)) =:= 0
-                          andalso {true, ok}
-              end,
-    case reference_agents_scenario:await(Settled, 30000, settled) of
-        {ok, ok} -> ok;
-        {error, _} = E -> E
-    end.
-
 -spec stop(reference_agents_scenario:scenario()) -> ok.
 stop(S) -> reference_agents_scenario:stop(S).
 
@@ -255,7 +225,6 @@ run(Opts) ->
         {ok, S} ->
             try
                 ok = run_until(S, maps:get(until, Opts, "22:05")),
-                ok = settle(S),
                 {ok, outcome(S)}
             after
                 stop(S)

@@ -5,7 +5,7 @@
 %% and to clean everything up again.
 -module(reference_agents_scenario).
 
--export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, embodied/1,
+-export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, embodied/1, follow/2, settle/1,
          narrator/1, endpoint/1, stop/1, examples_dir/0, priv_dir/0, body/1,
          body_subset/3, add/3, get/2, say/3, on_stop/2]).
 
@@ -111,6 +111,44 @@ narrator(#{narrator := N}) -> N.
 
 -spec endpoint(scenario()) -> {inet:ip_address(), inet:port_number()}.
 endpoint(#{endpoint := E}) -> E.
+
+%% @doc The scenario's clock follows a VA started with option `seen =>
+%% Seen' (reference_agents_va): it never runs more than two simulated
+%% minutes (two of the time sensor's periods) ahead of the latest time the
+%% VA has perceived (avatar_sim:follow/3). The VAs act in real time on a
+%% clock a thousand times faster: without this a loaded machine let the
+%% evening pass before a VA had read 21:40.
+-spec follow(scenario(), atomics:atomics_ref()) -> scenario().
+follow(#{extra := #{clock := Clock}} = S, Seen) ->
+    ok = avatar_sim:follow(Clock, fun() -> perceived(Seen) end, 120000),
+    add(seen, Seen, S).
+
+%% @doc With the clock paused: waits until the VA the clock follows has
+%% perceived the house's last time reading and no VA awaits an answer, so
+%% an outcome read next is the whole of the run so far (30 s at most).
+-spec settle(scenario()) -> ok | {error, {timeout, settled}}.
+settle(#{vas := Vas, extra := #{seen := Seen, home := Home}}) ->
+    Last = lists:max([0 | [T || #{time := T, context := sensor_data, params := Ps}
+                                    <- avatar_sim:log(Home),
+                                lists:keymember(<<"TimeOfDay">>, 1, Ps)]]),
+    Settled = fun() ->
+                      atomics:get(Seen, 1) >= Last andalso
+                          lists:all(fun(Va) -> maps:get(pending, reference_agents_va:inspect(Va)) =:= 0
+                                    end, Vas)
+                          andalso {true, ok}
+              end,
+    case await(Settled, 30000, settled) of
+        {ok, ok} -> ok;
+        {error, _} = E -> E
+    end;
+settle(#{}) ->
+    ok.
+
+perceived(Seen) ->
+    case atomics:get(Seen, 1) of
+        0 -> undefined;
+        T -> T
+    end.
 
 %% @doc Keeps a value with the scenario (avatars, clock, ...).
 -spec add(atom(), term(), scenario()) -> scenario().
