@@ -26,7 +26,11 @@
 %% <li>no accepted signal is delivered twice: the receiver never gets one
 %% SignalID routed twice (two different routings, which its library could
 %% not tell apart); a signal acknowledged while degraded and covered again
-%% later gets no routing but those it had when it was covered again.</li>
+%% later gets no routing but those it had when it was covered again;</li>
+%% <li>once an instance serves at or below an epoch another won, after a
+%% crash erased a node's promise of that epoch (the votes of a majority
+%% lost at once, outside docs/architecture.md 8.9), nothing accepted from
+%% there on is covered in that run.</li>
 %% </ul>
 %% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
 %% 6), or by {@link settle/1}, a looser form: once every node runs and hears
@@ -305,8 +309,9 @@ resume(N, #{nodes := Nodes, now := Now} = W) ->
 crash(N, #{nodes := Nodes, names := Names} = W) ->
     Down = [M || M <- Names, maps:get(status, maps:get(M, Nodes)) =:= down],
     case maps:get(N, Nodes) of
-        #{status := S} = Nd when S =/= down, Down =:= [] ->
-            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W)}}},
+        #{status := S, voter := #{promised := P}} = Nd when S =/= down, Down =:= [] ->
+            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W)}},
+                    erased => max(P, maps:get(erased, W, 0))},
             W1 = case Nd of
                      #{inst := undefined} -> W0;
                      #{inst := Ref} -> kill(Ref, W0)
@@ -657,11 +662,11 @@ release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender 
                  true -> 0;
                  false -> maps:get(faults, W, 0)
              end,
-    {Degraded, W1} = case Faults of
-                         0 -> {maps:get(degraded, Snd) -- Covered,
+    {Degraded, W1} = case Faults =:= 0 andalso not maps:get(split, W, false) of
+                         true -> {maps:get(degraded, Snd) -- Covered,
                                excuse([Sid || {Sid, _} <- A, lists:member(Sid, maps:get(degraded, Snd))],
                                       A, W)};
-                         _ -> {maps:get(degraded, Snd), W}
+                         false -> {maps:get(degraded, Snd), W}
                      end,
     effects(Out, I#{commit := C1}, W1#{sender := Snd#{degraded := Degraded}, faults => Faults}).
 
@@ -723,12 +728,41 @@ signal_event(Event, #{inst := Inst} = I, W) ->
     {Out, C1} = evatar_ha_commit:flush(Mode, C),
     effects(Out, I1#{commit := C1}, W1).
 
-logic_step(Event, Mode, #{state := S, commit := C} = I, W) ->
+logic_step(Event, Mode, #{state := S, commit := C} = I, W0) ->
+    W = won(Event, ref(I), W0),
     {S1, Effects} = logic(Event, S),
     {_Reply, Out, C1} = evatar_ha_commit:step(Event, maps:get(now, W), Effects,
                                               #{sender => sender, receiver => receiver}, Mode, C),
     I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
     effects(Out, I1, note_degraded(Mode, Effects, W)).
+
+%% Who won each epoch (a takeover or a re-election), for split/1.
+won({Why, Ec}, Ref, W) when Why =:= takeover; Why =:= reelected ->
+    Winners = maps:get(winners, W, #{}),
+    W#{winners => Winners#{Ec => lists:usort([Ref | maps:get(Ec, Winners, [])])}};
+won(_Event, _Ref, W) ->
+    W.
+
+%% An instance serves at an epoch that another instance won, or below it,
+%% after a crash erased a node's promise of that epoch: the votes of a
+%% majority were lost at once (docs/architecture.md 8.9, "Not covered").
+%% Two histories may now share claims, and an instance of one may take
+%% over from the other without what it accepted, whatever is synced since:
+%% nothing accepted is covered from then on in this run (a real cluster
+%% would start the pairing afresh from its catalogue).
+split(#{sender := #{acked := Acked, degraded := D} = Snd} = W) ->
+    Winners = maps:to_list(maps:get(winners, W, #{})),
+    Erased = maps:get(erased, W, 0),
+    Split = maps:get(split, W, false) orelse
+        lists:any(fun(#{ref := R, epoch := E}) ->
+                          lists:any(fun({E2, Refs}) -> E2 >= E andalso Erased >= E2
+                                                           andalso Refs -- [R] =/= []
+                                    end, Winners)
+                  end, serving(W)),
+    case Split of
+        true -> W#{split => true, sender := Snd#{degraded := lists:usort(Acked ++ D)}};
+        false -> W
+    end.
 
 degrade(Sid, #{sender := #{sent := Sent, degraded := D} = Snd} = W) ->
     W#{sender := Snd#{degraded := lists:usort([X || X <- Sent, X =< Sid] ++ D)}}.
@@ -747,7 +781,7 @@ effects([{send, receiver, {signal, X}} | Rest], I, W) ->
 effects([{acks, #{sender := Sid}} | Rest], #{standby := S} = I, W) ->
     %% Told without a standby that holds it: degraded, not covered by the
     %% guarantee until a standby is synced again.
-    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 of
+    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 orelse maps:get(split, W, false) of
              true -> degrade(Sid, W);
              false -> W
          end,
@@ -821,8 +855,11 @@ serving(#{insts := Insts} = W) ->
 
 %% @doc The safety checks; a violation is recorded in `violations'.
 -spec check(map()) -> map().
-check(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
-        receiver := #{got := Got, excused := Excused}} = W) ->
+check(W0) ->
+    check1(split(W0)).
+
+check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
+         receiver := #{got := Got, excused := Excused}} = W) ->
     Live = maps:values(Insts),
     MaxE = lists:max([0 | [E || #{epoch := E} <- Live]]),
     Serving = [I || #{epoch := E} = I <- serving(W), E =:= MaxE],
