@@ -31,6 +31,9 @@
 -define(PAIRING, <<"home">>).
 -define(VA_CRED, <<"home-va-secret">>).
 -define(AV_CRED, <<"home-gateway-secret">>).
+%% How long (real ms) the house's Avatars may take to describe every device
+%% to EVATAR once started.
+-define(DESCRIBED_TIMEOUT, 30000).
 
 -spec start_datetime() -> calendar:datetime().
 start_datetime() -> {{2024, 11, 15}, {17, 55, 0}}.
@@ -46,7 +49,9 @@ default_script() ->
      {{delay, 90000}, <<"intruder">>, {go, <<"outside">>}}].
 
 %% @doc Sets everything up and returns once the house VA is embodied, with
-%% the simulated clock paused.
+%% the simulated clock paused. The VA starts once EVATAR has every device of
+%% the house from its Avatars; `{error, {not_described, Pairing, Missing}}'
+%% if some are still missing after 30 s.
 -spec start(opts()) -> {ok, reference_agents_scenario:scenario()} | {error, term()}.
 start(Opts) ->
     Start = maps:get(start, Opts, start_datetime()),
@@ -82,10 +87,25 @@ start(Opts, Clock, Rules, RulesFile, S0) ->
                                           io_lib:format("~srules from ~s; policy ~s; spool ~s",
                                                         [Joined, RulesFile, Policy,
                                                          filename:absname(Spool)])),
-            start_va(Opts, Rules, Policy, S2);
+            await_house(Opts, Rules, Policy, S2);
         {error, Why, S2} ->
             ok = reference_agents_scenario:stop(S2),
             {error, Why}
+    end.
+
+%% The VA starts once EVATAR has every device of the house from its Avatars
+%% (over MQTT: the MQTT Avatar's and the notifier's descriptions registered,
+%% not only their connections made), so its first embodiment test is of the
+%% whole house.
+await_house(Opts, Rules, Policy, S2) ->
+    #{components := Cs} = reference_agents_scenario:body("smart_home.xml"),
+    case reference_agents_scenario:await_described(?PAIRING, [Id || #{id := Id} <- Cs],
+                                                   ?DESCRIBED_TIMEOUT) of
+        ok ->
+            start_va(Opts, Rules, Policy, S2);
+        {error, _} = E ->
+            ok = reference_agents_scenario:stop(S2),
+            E
     end.
 
 start_va(Opts, Rules, Policy, S2) ->

@@ -82,6 +82,19 @@ start(Opts) ->
                      script => maps:get(script, Opts, default_script())}),
     S2 = reference_agents_scenario:add(home, Home,
                                        reference_agents_scenario:add(avatars, [Home], S1)),
+    %% Each room's VA starts once its gateway has described the room's
+    %% devices to EVATAR, so its first embodiment test is of the whole room.
+    Described = [reference_agents_scenario:await_described(pairing(Room), Devices, 30000)
+                 || {Room, Devices, _} <- Rooms],
+    case [E || {error, _} = E <- Described] of
+        [] ->
+            start_vas(Opts, Rules, Rooms, Clock, S2);
+        [E | _] ->
+            ok = stop(S2),
+            E
+    end.
+
+start_vas(Opts, Rules, Rooms, Clock, S2) ->
     Full = reference_agents_scenario:body("smart_home_va.xml"),
     Names = [va(Room) || {Room, _, _} <- Rooms],
     %% The clock follows the VA with the time sensor, the living room's (the

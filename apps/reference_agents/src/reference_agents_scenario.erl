@@ -5,7 +5,8 @@
 %% and to clean everything up again.
 -module(reference_agents_scenario).
 
--export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, embodied/1, follow/2, settle/1,
+-export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, await_described/3, embodied/1,
+         follow/2, settle/1,
          narrator/1, endpoint/1, stop/1, examples_dir/0, priv_dir/0, body/1,
          body_subset/3, add/3, get/2, say/3, on_stop/2]).
 
@@ -97,6 +98,31 @@ await_va_state(Va, States, Ms, What) ->
                       false -> false
                   end
           end, Ms, What).
+
+%% @doc Waits (real time) until the Avatars of pairing `Id' have joined and
+%% described every component of `Ids', as EVATAR's Service Registration
+%% List shows them: a VA that joins next is bound to all of them in its
+%% first Binding report. An Avatar that connected has not necessarily been
+%% registered yet (its description is on its way to the pairing), and a VA
+%% started then tests a body that is not there yet ("not bound by EVATAR").
+%% After `Ms', an error naming the components still missing.
+-spec await_described(evatar:pairing_id(), [binary()], non_neg_integer()) ->
+          ok | {error, {not_described, evatar:pairing_id(), [binary()]}}.
+await_described(Id, Ids, Ms) ->
+    Missing = fun() -> Ids -- described(Id) end,
+    case await(fun() -> Missing() =:= [] andalso {true, ok} end, Ms, described) of
+        {ok, ok} -> ok;
+        {error, _} -> {error, {not_described, Id, Missing()}}
+    end.
+
+described(Id) ->
+    case evatar:registry(Id) of
+        {ok, Entries} ->
+            [C || #{role := avatar, description := #{components := Cs}} <- Entries,
+                  #{id := C} <- Cs];
+        {error, _} ->
+            []
+    end.
 
 %% @doc True when the VA's last embodiment test passed completely.
 -spec embodied(pid()) -> boolean().
