@@ -14,7 +14,9 @@
 %% and place it at ZONE": stop short of the ball facing it, move in until
 %% the bumper touches it, check its colour (turning the claw across it if
 %% needed), grab it, carry it to the zone, release it, and report where it
-%% landed.
+%% landed. A failed try (no ball at the claw, the claw closed on nothing,
+%% the wrong ball) is followed by going round and approaching again from
+%% another side, four tries in all.
 -module(reference_agents_robot).
 -behaviour(reference_agents_mind).
 
@@ -382,10 +384,15 @@ approach(#rb{task = {pick, #{ball := Ball, tries := N}}, pose = Pose} = R) ->
 carry(#rb{task = {pick, #{at := At}}, pose = Pose} = R) ->
     {R, behaviour(carry, <<"GoTo">>, xy(placement(Pose, At, ?CLAW_MM)), R)}.
 
+%% A failed try is not repeated from where it failed: the robot backs off
+%% and goes round (as round an obstacle), then approaches again from where
+%% it then is, so from another stand-off point and another side. Repeating
+%% the same approach met the same obstacle (the other robot parked in the
+%% way) or the same miss every time.
 retry(Why, _Now, #rb{task = {pick, #{tries := N} = T}} = R) when N < ?MAX_TRIES ->
     R1 = R#rb{task = {pick, T#{tries := N + 1}}},
-    {R2, Acts} = approach(R1),
-    {R2, [{narrate, perceive, [Why, ": trying again"]} | Acts]};
+    {R1, [{narrate, perceive, [Why, ": going round to try again from another side"]}
+          | avoid(pick, R1)]};
 retry(Why, _Now, R) ->
     fail(Why, R).
 

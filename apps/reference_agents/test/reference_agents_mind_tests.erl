@@ -257,3 +257,55 @@ placement_test() ->
     {X, Y} = reference_agents_robot:placement({0, 0, 0}, {1000, 0}, 110),
     ?assertEqual({890.0, 0.0}, {X, Y}),
     ?assertEqual({10, 10}, reference_agents_robot:placement({0, 0, 0}, {10, 10}, 110)).
+
+%% A pick whose look finds no ball at the anchored point (the bumper met
+%% something else, or the sighting was off) is not repeated from the same
+%% place: the VA backs off and goes round, then approaches from another
+%% stand-off point.
+pick_retry_goes_round_test() ->
+    {ok, R0} = reference_agents_robot:init(#{name => <<"va-1">>, body => body("lego_va.xml"),
+                                             coordinator => <<"c">>}),
+    Pose = fun(X, Y, H) -> [{<<"X">>, integer_to_binary(X)}, {<<"Y">>, integer_to_binary(Y)},
+                            {<<"Heading">>, integer_to_binary(H)}] end,
+    {R1, _} = reference_agents_robot:choose({result, locate, {ok, Pose(1000, 500, 0)}}, 0, R0),
+    Lexicon = [#{word => <<"blue-ball">>, colour => <<"blue">>, position => {1440, 773},
+                 names => #{}}],
+    {R2, _} = reference_agents_robot:choose({message, <<"c">>, {lexicon, Lexicon}}, 0, R1),
+    {R3, Acts3} = reference_agents_robot:choose(
+                    {message, <<"c">>, {pick_place, <<"blue-ball">>, <<"n">>, {1000, 1300}}}, 0, R2),
+    [{request, approach, _, <<"GoTo">>, First}] = robot_requests(Acts3),
+    %% The bumper touches something at the stand-off point; no ball is seen
+    %% however the claw turns.
+    {R4, Acts4} = reference_agents_robot:choose(
+                    {result, approach, {ok, [{<<"Result">>, <<"contact">>} | Pose(1280, 670, 33)]}},
+                    1, R3),
+    {R5, Next} = scan_nothing(robot_requests(Acts4), R4),
+    [{request, {avoid, back, pick}, _, <<"Forward">>, [{<<"Distance">>, Back}]}] = Next,
+    ?assert(binary_to_float(Back) < 0),
+    {R6, [{request, {avoid, left, pick}, _, <<"Rotate">>, _}]} =
+        reqs(reference_agents_robot:choose({result, {avoid, back, pick}, {ok, Pose(1300, 580, 303)}},
+                                           3, R5)),
+    {R7, [{request, {avoid, ahead, pick}, _, <<"Forward">>, _}]} =
+        reqs(reference_agents_robot:choose({result, {avoid, left, pick}, {ok, Pose(1300, 580, 33)}},
+                                           4, R6)),
+    {_, [{request, approach, _, <<"GoTo">>, Second}]} =
+        reqs(reference_agents_robot:choose({result, {avoid, ahead, pick},
+                                            {ok, [{<<"Result">>, <<"done">>} | Pose(1510, 716, 33)]}},
+                                           5, R7)),
+    XY = fun(Ps) -> [V || {K, V} <- Ps, K =:= <<"X">> orelse K =:= <<"Y">>] end,
+    ?assertNotEqual(XY(First), XY(Second)).
+
+robot_requests(Acts) -> [A || {request, _, _, _, _} = A <- Acts].
+
+reqs({R, Acts}) -> {R, robot_requests(Acts)}.
+
+%% Answers every look with the grey floor and every turn with done, until
+%% the VA asks for something else.
+scan_nothing([{request, {look, _, _} = Tag, _, <<"ReadLight">>, []}], R) ->
+    {R1, A} = reference_agents_robot:choose({result, Tag, {ok, [{<<"Colour">>, <<"grey">>}]}}, 2, R),
+    scan_nothing(robot_requests(A), R1);
+scan_nothing([{request, {turn, _, _} = Tag, _, <<"Rotate">>, _}], R) ->
+    {R1, A} = reference_agents_robot:choose({result, Tag, {ok, []}}, 2, R),
+    scan_nothing(robot_requests(A), R1);
+scan_nothing(Other, R) ->
+    {R, Other}.
