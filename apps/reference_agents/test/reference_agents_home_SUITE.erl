@@ -271,19 +271,29 @@ malformed_rules_file(Config) ->
 
 %% @doc When the resident goes from one room to another after dusk, the new
 %% room's VA switches its light on and tells the others; the old room's VA
-%% checks for motion and switches its light off.
+%% checks for motion and switches its light off. The VAs react in real time
+%% while the clock runs a thousand times faster, so a switch may land at the
+%% house a simulated minute or two after it was decided: the case checks
+%% what caused what (each VA's log is in the order it decided and heard the
+%% house's answers), not the house's timestamps of two VAs' switches.
 room_hand_off(Config) ->
     #{home := #{light_log := Log}, vas := Vas} = ?config(outcome, Config),
     Changes = [{minute(T), R, S} || #{time := T, room := R, state := S} <- Log],
     ct:log("~p", [Changes]),
-    %% 16:30 to the kitchen: the living room's next change is off; 16:33
-    %% back to the living room: the kitchen's next change is off.
-    ?assertEqual(off, next_change(<<"living">>, after_change(<<"kitchen">>, on, "16:30", Changes), Changes)),
-    ?assertEqual(off, next_change(<<"kitchen">>, after_change(<<"living">>, on, "16:33", Changes), Changes)),
+    %% 16:30 to the kitchen: its light goes on, and the living room's VA,
+    %% told so, finds nobody there and switches its light off, which the
+    %% house confirms; 16:33 back to the living room: the other way round.
     #{mind := #{log := LivingLog}} = maps:get(<<"living-va">>, Vas),
-    ?assert(lists:member({handoff, <<"kitchen-va">>}, [W || #{what := W} <- LivingLog])),
     #{mind := #{log := KitchenLog}} = maps:get(<<"kitchen-va">>, Vas),
-    ?assert(lists:member({handoff, <<"living-va">>}, [W || #{what := W} <- KitchenLog])).
+    ct:log("~p~n~p", [LivingLog, KitchenLog]),
+    ?assert(in_order([{handoff, <<"kitchen-va">>}, {light, off, {handoff, <<"kitchen-va">>}}],
+                     [W || #{what := W} <- LivingLog])),
+    ?assert(in_order([{handoff, <<"living-va">>}, {light, off, {handoff, <<"living-va">>}}],
+                     [W || #{what := W} <- KitchenLog])),
+    %% The house saw it: both switches happened after the move that caused them.
+    ?assertMatch([_ | _], [C || {M, <<"kitchen">>, on} = C <- Changes, M >= "16:30"]),
+    ?assertMatch([_ | _], [C || {M, <<"living">>, off} = C <- Changes, M >= "16:30"]),
+    ?assertMatch([_ | _], [C || {M, <<"kitchen">>, off} = C <- Changes, M >= "16:33"]).
 
 %% @doc "Keep the light off" keeps the living room dark when the resident
 %% comes back; "lights automatic" gives the room back to the policy; "keep
@@ -297,14 +307,21 @@ voice_override(Config) ->
     [Auto] = [T || #{what := {voice, none}, time := T} <- VaLog],
     [KeepOn] = [T || #{what := {voice, keep_on}, time := T} <- VaLog],
     ?assert(KeepOff < Auto andalso Auto < KeepOn),
-    %% Switched off by the command, and not on again until "automatic",
-    %% although the resident came back into the room meanwhile.
-    ?assertMatch([{_, off} | _], [C || {T, _} = C <- Living, T >= KeepOff]),
-    ?assertEqual([], [C || {T, on} = C <- Living, T >= KeepOff, T < Auto]),
-    ?assertMatch([_ | _], [C || {T, on} = C <- Living, T >= Auto]),
-    %% Kept on: never off after "keep the light on", although the resident
-    %% left for the kitchen and the bedroom.
-    ?assertEqual([], [C || {T, off} = C <- Living, T >= KeepOn]),
+    %% The house's changes from "keep the light off" on, in the order the
+    %% house made them. A switch the VA decided before the command (motion
+    %% just before) may land after the command's time, the VAs reacting in
+    %% real time on a clock a thousand times faster; it lands before the
+    %% command's own switch, which the VA sent after it. Then: switched off
+    %% by the command, and not on again until "automatic", although the
+    %% resident came back into the room meanwhile (the next "on" was decided
+    %% after "automatic", so it lands after it); kept on after "keep the light
+    %% on", never off, although the resident left for the kitchen and the
+    %% bedroom.
+    %% (The house logs changes only, so they alternate.)
+    Since = [C || {T, _} = C <- Living, T >= KeepOff],
+    ?assertMatch([{_, off}, {_, on}], without_late_on(Since)),
+    [{_, off}, {OnAgain, on}] = without_late_on(Since),
+    ?assert(OnAgain >= Auto),
     ?assert(lists:member({handoff_ignored, <<"kitchen-va">>}, [W || #{what := W} <- VaLog])).
 
 %% @doc Before dusk (the resident comes home at 15:56) no room VA switches
@@ -346,17 +363,16 @@ await_verdict(Va, Verdict) ->
 minute(Ms) ->
     reference_agents_holiday_checks:minute(Ms).
 
-%% The minute of Room's first change to State at or after At.
-after_change(Room, State, At, Changes) ->
-    [M | _] = [Mi || {Mi, R, S} <- Changes, R =:= Room, S =:= State, Mi >= At],
-    M.
+%% Whether Wanted appear in Whats in this order (others may come between).
+in_order([], _Whats) -> true;
+in_order([W | Wanted], [W | Whats]) -> in_order(Wanted, Whats);
+in_order(Wanted, [_ | Whats]) -> in_order(Wanted, Whats);
+in_order([_ | _], []) -> false.
 
-%% Room's first change at or after minute M.
-next_change(Room, M, Changes) ->
-    case [S || {Mi, R, S} <- Changes, R =:= Room, Mi >= M] of
-        [S | _] -> S;
-        [] -> none
-    end.
+%% The living room's changes since a voice command, without a first "on"
+%% (decided before the command, landed after it).
+without_late_on([{_, on} | Rest]) -> Rest;
+without_late_on(Changes) -> Changes.
 
 dedupe([A, A | Rest]) -> dedupe([A | Rest]);
 dedupe([A | Rest]) -> [A | dedupe(Rest)];
