@@ -6,7 +6,7 @@
 %% that stops reading.
 -module(agent_bridge_tls).
 
--export([conn_opts/1, check/1, format_error/1, handshake/3, failure/1, peer_cert/1,
+-export([conn_opts/1, check/1, hardened_opts/1, format_error/1, handshake/3, failure/1, peer_cert/1,
          start_writer/2, send_fun/1, shutdown/1, stop_writer/1, abort/2, cert_identity/1]).
 
 -export_type([tls_opts/0, writer/0]).
@@ -15,13 +15,18 @@
 
 %% `verify' defaults to verify_peer when a `cacertfile' is given, else
 %% verify_none; `fail_if_no_peer_cert' defaults to true with verify_peer.
-%% `send_timeout' (ms, default 5000) closes a connection whose peer takes
-%% no TLS data for that long. `ssl_opts' are added as they are (ciphers,
-%% versions and the like).
+%% `revoked_file' names a file of client certificate SHA-256 fingerprints,
+%% one a line, refused at the handshake (read at each handshake, so an
+%% edit takes effect without a restart). `send_timeout' (ms, default 5000)
+%% closes a connection whose peer takes no TLS data for that long.
+%% `versions' is a subset of TLS 1.3 and 1.2. The ciphers, groups and
+%% renegotiation rule are hardened (hardened_opts/1); `ssl_opts' replace
+%% them key by key.
 -type tls_opts() :: #{certfile := file:filename_all(),
                       keyfile := file:filename_all(),
                       password => string(),
                       cacertfile => file:filename_all(),
+                      revoked_file => file:filename_all(),
                       verify => verify_none | verify_peer,
                       fail_if_no_peer_cert => boolean(),
                       send_timeout => pos_integer(),
@@ -36,8 +41,22 @@
 %% for TCP) and keeps frames in its own bounded queue.
 -define(HIGH_WATERMARK, 65536).
 -define(DEFAULT_SEND_TIMEOUT, 5000).
--define(KEYS, [certfile, keyfile, password, cacertfile, verify, fail_if_no_peer_cert,
-               send_timeout, versions, ssl_opts]).
+-define(KEYS, [certfile, keyfile, password, cacertfile, revoked_file, verify,
+               fail_if_no_peer_cert, send_timeout, versions, ssl_opts]).
+-define(VERSIONS, ['tlsv1.3', 'tlsv1.2']).
+%% Mozilla's "intermediate" profile, without its DHE suites: TLS 1.3's
+%% AES-GCM and ChaCha20 suites (not CCM), and for TLS 1.2 ECDHE (forward
+%% secrecy) with the same AEAD ciphers, on these curves. OTP 25
+%% has no x25519 for TLS 1.2 (its eccs option drops it); TLS 1.3 has it.
+-define(AEAD, [aes_128_gcm, aes_256_gcm, chacha20_poly1305]).
+-define(TLS12_KEX, [ecdhe_ecdsa, ecdhe_rsa]).
+-define(GROUPS, [x25519, secp256r1, secp384r1]).
+%% OTP 25's default signature algorithms without SHA-1 and SHA-224.
+-define(SIGNATURE_ALGS, [eddsa_ed25519, eddsa_ed448, ecdsa_secp521r1_sha512, ecdsa_secp384r1_sha384,
+                         ecdsa_secp256r1_sha256, rsa_pss_pss_sha512, rsa_pss_pss_sha384,
+                         rsa_pss_pss_sha256, rsa_pss_rsae_sha512, rsa_pss_rsae_sha384,
+                         rsa_pss_rsae_sha256, {sha512, ecdsa}, {sha512, rsa}, {sha384, ecdsa},
+                         {sha384, rsa}, {sha256, ecdsa}, {sha256, rsa}]).
 
 %% @doc A listener's connection options, with `tls' set to the ssl server
 %% options when the listener is a TLS one. Exits `{tls, Reason}' on a bad
@@ -77,6 +96,9 @@ format_error({unknown_option, Key}) ->
     fmt("unknown tls option ~0tp", [Key]);
 format_error({bad_option, {transport, V}}) ->
     fmt("transport must be tcp or tls, not ~0tp", [V]);
+format_error({bad_option, {versions, V}}) ->
+    fmt("tls option versions must be a non-empty list of 'tlsv1.3' and 'tlsv1.2', not ~0tp",
+        [V]);
 format_error({bad_option, {tls, V}}) ->
     fmt("tls must be a map of TLS options, not ~0tp", [V]);
 format_error({bad_option, {Key, V}}) ->
@@ -85,6 +107,8 @@ format_error({Key, File, no_certificate}) ->
     fmt("tls ~0tp ~ts holds no PEM certificate", [Key, File]);
 format_error({Key, File, no_private_key}) ->
     fmt("tls ~0tp ~ts holds no PEM private key", [Key, File]);
+format_error({revoked_file, File, {bad_line, N}}) ->
+    fmt("tls revoked_file ~ts line ~b is not a SHA-256 fingerprint (64 hex digits)", [File, N]);
 format_error({Key, File, Why}) ->
     fmt("tls ~0tp ~ts cannot be read: ~ts", [Key, File, file:format_error(Why)]);
 format_error(Other) ->
@@ -96,6 +120,7 @@ check_tls(Tls0) when is_map(Tls0) ->
     %% An empty file name is no file: the release's configuration fills
     %% unset variables in with "".
     Tls = maps:filter(fun(_, V) -> V =/= "" andalso V =/= <<>> end, Tls0),
+    Versions = maps:get(versions, Tls, ?VERSIONS),
     Verify = maps:get(verify, Tls, case is_map_key(cacertfile, Tls) of
                                        true -> verify_peer;
                                        false -> verify_none
@@ -108,8 +133,13 @@ check_tls(Tls0) when is_map(Tls0) ->
                                        not (is_integer(V) andalso V > 0)],
               [{bad_option, {K, V}} || K <- [fail_if_no_peer_cert], V <- [maps:get(K, Tls, true)],
                                        not is_boolean(V)],
-              [{bad_option, {K, V}} || K <- [ssl_opts, versions], V <- [maps:get(K, Tls, [])],
-                                       not is_list(V)]],
+              [{bad_option, {K, V}} || K <- [ssl_opts], V <- [maps:get(K, Tls, [])],
+                                       not is_list(V)],
+              [{bad_option, {versions, Versions}}
+               || not is_list(Versions) orelse Versions =:= []
+                      orelse Versions -- ?VERSIONS =/= []],
+              [{missing, cacertfile} || is_map_key(revoked_file, Tls),
+                                        not is_map_key(cacertfile, Tls)]],
     case lists:append(Checks) of
         [Error | _] ->
             {error, Error};
@@ -126,9 +156,15 @@ check_tls(Other) ->
     {error, {bad_option, {tls, Other}}}.
 
 check_files(Tls) ->
-    Files = [{K, maps:get(K, Tls)} || K <- [certfile, keyfile, cacertfile], is_map_key(K, Tls)],
+    Files = [{K, maps:get(K, Tls)} || K <- [certfile, keyfile, cacertfile, revoked_file],
+                                      is_map_key(K, Tls)],
     first_error([check_file(K, F) || {K, F} <- Files]).
 
+check_file(revoked_file, File) ->
+    case read_revoked(File) of
+        {ok, _} -> ok;
+        {error, Why} -> {error, {revoked_file, File, Why}}
+    end;
 check_file(Key, File) ->
     case file:read_file(File) of
         {ok, Pem} ->
@@ -161,17 +197,100 @@ first_error(Results) ->
     end.
 
 ssl_opts(Tls, Verify) ->
+    Versions = maps:get(versions, Tls, ?VERSIONS),
     Base = [{certfile, maps:get(certfile, Tls)},
             {keyfile, maps:get(keyfile, Tls)},
             {verify, Verify},
-            {versions, maps:get(versions, Tls, ['tlsv1.3', 'tlsv1.2'])}],
+            {versions, Versions}],
     Password = [{password, P} || P <- [maps:get(password, Tls, undefined)], P =/= undefined],
     Peer = case Verify of
                verify_peer -> [{cacertfile, maps:get(cacertfile, Tls)},
                                {fail_if_no_peer_cert, maps:get(fail_if_no_peer_cert, Tls, true)}];
                verify_none -> []
            end,
-    Base ++ Password ++ Peer ++ maps:get(ssl_opts, Tls, []).
+    Revoked = [{verify_fun, {fun verify_revoked/3, File}}
+               || Verify =:= verify_peer, File <- [maps:get(revoked_file, Tls, undefined)],
+                  File =/= undefined],
+    Extra = maps:get(ssl_opts, Tls, []),
+    Defaults = [O || {K, _} = O <- hardened_opts(Versions) ++ Revoked,
+                     not lists:keymember(K, 1, Extra)],
+    Base ++ Password ++ Peer ++ Defaults ++ Extra.
+
+%% @doc The ssl options of the default profile for Versions: TLS 1.3's
+%% suites and Mozilla "intermediate" TLS 1.2 (ECDHE with AES-GCM or
+%% ChaCha20-Poly1305 only: forward secrecy, no CBC, no SHA-1 MAC, no static
+%% ECDH or RSA key exchange), the curves x25519 (TLS 1.3), secp256r1 and
+%% secp384r1, no SHA-1 signatures, the server's order, and no
+%% renegotiation started by the client.
+-spec hardened_opts([ssl:protocol_version()]) -> [ssl:tls_server_option()].
+hardened_opts(Versions) ->
+    Kex = [any || lists:member('tlsv1.3', Versions)]
+        ++ [K || lists:member('tlsv1.2', Versions), K <- ?TLS12_KEX],
+    %% All of TLS 1.3 and 1.2, filtered.
+    Suites = [S || #{key_exchange := K, cipher := C} = S <- ssl:cipher_suites(all, 'tlsv1.3'),
+                   lists:member(K, Kex), lists:member(C, ?AEAD)],
+    %% ssl refuses an option of a version it does not offer.
+    Tls13 = [{supported_groups, ?GROUPS} || lists:member('tlsv1.3', Versions)],
+    Tls12 = [O || lists:member('tlsv1.2', Versions),
+                  O <- [{eccs, [C || C <- ?GROUPS, C =/= x25519]},
+                        {honor_ecc_order, true},
+                        {secure_renegotiate, true},
+                        {client_renegotiation, false}]],
+    [{ciphers, Suites}, {signature_algs, ?SIGNATURE_ALGS}, {honor_cipher_order, true}]
+        ++ Tls13 ++ Tls12.
+
+%% The verify_fun of a listener with a revoked_file: the default checks,
+%% then the client certificate's fingerprint against the file, read at
+%% each handshake. A file that cannot be read refuses every certificate.
+verify_revoked(_, {bad_cert, _} = Reason, _) ->
+    {fail, Reason};
+verify_revoked(_, {extension, _}, File) ->
+    {unknown, File};
+verify_revoked(_, valid, File) ->
+    {valid, File};
+verify_revoked(Cert, valid_peer, File) ->
+    Sha = fingerprint(public_key:pkix_encode('OTPCertificate', Cert, otp)),
+    case read_revoked(File) of
+        {ok, Revoked} ->
+            case lists:member(Sha, Revoked) of
+                %% ssl's alert for this reason is certificate_revoked.
+                true -> {fail, {bad_cert, {revoked, revoked_file}}};
+                false -> {valid, File}
+            end;
+        {error, _} ->
+            {fail, {bad_cert, {revocation_status_undetermined, revoked_file_unreadable}}}
+    end.
+
+%% The fingerprints of a revoked_file: one a line, hex in either case,
+%% colons allowed; blank lines and lines starting with # are skipped.
+read_revoked(File) ->
+    case file:read_file(File) of
+        {ok, Text} ->
+            Lines = binary:split(Text, <<"\n">>, [global]),
+            parse_revoked(lists:zip(lists:seq(1, length(Lines)), Lines), []);
+        {error, _} = Error ->
+            Error
+    end.
+
+parse_revoked([], Acc) ->
+    {ok, Acc};
+parse_revoked([{N, Line0} | Rest], Acc) ->
+    Line = string:trim(Line0),
+    case Line of
+        <<>> -> parse_revoked(Rest, Acc);
+        <<"#", _/binary>> -> parse_revoked(Rest, Acc);
+        _ ->
+            Hex = string:lowercase(binary:replace(Line, <<":">>, <<>>, [global])),
+            case byte_size(Hex) =:= 64 andalso is_hex(Hex) of
+                true -> parse_revoked(Rest, [Hex | Acc]);
+                false -> {error, {bad_line, N}}
+            end
+    end.
+
+is_hex(Bin) -> lists:all(fun(C) -> (C >= $0 andalso C =< $9) orelse (C >= $a andalso C =< $f) end,
+                         binary_to_list(Bin)).
+
+fingerprint(Der) -> string:lowercase(binary:encode_hex(crypto:hash(sha256, Der))).
 
 %% @doc Runs the server side of the TLS handshake on an accepted TCP socket
 %% within `Timeout' ms. The caller becomes the TLS socket's owner. A TCP
@@ -216,8 +335,7 @@ peer_cert(SslSock) ->
 %% or it cannot be read).
 -spec cert_identity(public_key:der_encoded()) -> evatar:peer_cert().
 cert_identity(Der) ->
-    #{sha256 => string:lowercase(binary:encode_hex(crypto:hash(sha256, Der))),
-      cn => common_name(Der)}.
+    #{sha256 => fingerprint(Der), cn => common_name(Der)}.
 
 common_name(Der) ->
     try public_key:pkix_decode_cert(Der, otp) of

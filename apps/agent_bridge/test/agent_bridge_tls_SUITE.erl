@@ -3,22 +3,27 @@
 %% session through the client library, the server checked against a CA or
 %% a pinned fingerprint, client certificates required and verified, and the
 %% attacks of issue 15 (a sniffer on the wire, a server the client does not
-%% trust, a client without a certificate or with a foreign one).
+%% trust, a client without a certificate or with a foreign one), the
+%% default cipher profile against real OTP clients offering only weak
+%% suites, curves or renegotiation, a revoked client certificate, and the
+%% certificates the script makes.
 -module(agent_bridge_tls_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-include_lib("public_key/include/public_key.hrl").
 
 -compile([export_all, nowarn_export_all]).
 
 -define(VA_CRED, evatar_test_fixtures:va_credential()).
 -define(AV_CRED, evatar_test_fixtures:avatar_credential()).
--define(LISTENERS, [tls_open, tls_mutual, tls_plain_tcp]).
+-define(LISTENERS, [tls_open, tls_mutual, tls_plain_tcp, tls_revoking]).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
-    [{group, server}, {group, client_certificates}, {group, attacks}, {group, config}].
+    [{group, server}, {group, client_certificates}, {group, attacks}, {group, config},
+     {group, profile}, {group, certificates}].
 
 groups() ->
     [{server, [], [session_over_tls, ha_session_over_tls, pinned_server, pin_mismatch,
@@ -26,9 +31,13 @@ groups() ->
                    slow_handshakes_do_not_block]},
      {client_certificates, [], [client_certificate_identifies, certificate_identity,
                                 no_client_certificate,
-                                untrusted_client_certificate, plain_client_on_tls]},
+                                untrusted_client_certificate, self_signed_client_certificate,
+                                revoked_client_certificate, plain_client_on_tls]},
      {attacks, [], [sniffer_sees_nothing, sniffer_on_plain_tcp_sees_secrets]},
-     {config, [], [bad_listener_options]}].
+     {config, [], [bad_listener_options]},
+     {profile, [], [static_ecdh_refused, cbc_sha1_refused, weak_curves_refused,
+                    strong_tls12_accepted, client_renegotiation_refused]},
+     {certificates, [], [generated_certificates, server_certificate_renewal]}].
 
 %% ---------------------------------------------------------------------------
 %% Setup
@@ -37,7 +46,7 @@ groups() ->
 init_per_suite(Config) ->
     ok = evatar_test_node:start([]),
     Priv = ?config(priv_dir, Config),
-    Certs = evatar_test_fixtures:bridge_certs(filename:join(Priv, "certs"), ["va", "av"]),
+    Certs = evatar_test_fixtures:bridge_certs(filename:join(Priv, "certs"), ["va", "av", "stolen"]),
     Rogue = evatar_test_fixtures:bridge_certs(filename:join(Priv, "rogue"), ["va"]),
     Server = #{certfile => file(Certs, "server.pem"), keyfile => file(Certs, "server.key")},
     %% Long enough for a TLS handshake and a Hello on a loaded machine (at
@@ -48,8 +57,14 @@ init_per_suite(Config) ->
     Mutual = evatar_test_node:listen(
                tls_mutual, #{tls => Server#{cacertfile => file(Certs, "ca.pem")}, conn => Conn}),
     Plain = evatar_test_node:listen(tls_plain_tcp, #{conn => Conn}),
+    RevokedFile = filename:join(Priv, "revoked"),
+    ok = file:write_file(RevokedFile, <<"# stolen devices, one SHA-256 a line\n">>),
+    Revoking = evatar_test_node:listen(
+                 tls_revoking, #{tls => Server#{cacertfile => file(Certs, "ca.pem"),
+                                                revoked_file => RevokedFile}, conn => Conn}),
     ok = warm_up(Open, file(Certs, "ca.pem")),
-    [{certs, Certs}, {rogue, Rogue}, {open, Open}, {mutual, Mutual}, {plain, Plain} | Config].
+    [{certs, Certs}, {rogue, Rogue}, {open, Open}, {mutual, Mutual}, {plain, Plain},
+     {revoking, Revoking}, {revoked_file, RevokedFile} | Config].
 
 %% The first TLS session of a runtime costs what later ones do not (on a
 %% loaded machine with cover-compiled code, 1 to over 10 s, measured in
@@ -231,6 +246,47 @@ untrusted_client_certificate(Config) ->
     ct:log("client error: ~s", [Text]),
     {ok, []} = evatar:registry(?config(pairing, Config)).
 
+%% A self-signed client certificate (its own CA): the TLS alert
+%% bad_certificate, not unknown_ca.
+self_signed_client_certificate(Config) ->
+    Dir = filename:join(?config(priv_dir, Config), "self-signed"),
+    ok = filelib:ensure_path(Dir),
+    Key = filename:join(Dir, "client.key"),
+    Cert = filename:join(Dir, "client.pem"),
+    Out = os:cmd("openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 2 "
+                 "-subj /CN=va -addext extendedKeyUsage=clientAuth -keyout " ++ Key
+                 ++ " -out " ++ Cert ++ " 2>&1; echo rc=$?"),
+    true = string:find(Out, "rc=0") =/= nomatch,
+    Tls = #{cacertfile => cert(Config, "ca.pem"), certfile => Cert, keyfile => Key},
+    {error, {unreachable, [{_, {tls_alert, {bad_certificate, Text}}}]}} =
+        connect(Config, mutual, agent, <<"va">>, Tls),
+    ct:log("client error: ~s", [Text]),
+    {ok, []} = evatar:registry(?config(pairing, Config)).
+
+%% A listener with a revoked_file refuses a certificate listed there at
+%% the handshake (the TLS alert certificate_revoked; the file is read at
+%% each handshake, so no restart), while a sibling from the same CA joins.
+revoked_client_certificate(Config) ->
+    File = ?config(revoked_file, Config),
+    {ok, C0} = connect(Config, revoking, agent, <<"va">>, client_tls(Config, "stolen")),
+    ok = agent_bridge_client:close(C0),
+    {ok, Fd} = file:open(File, [append]),
+    ok = file:write(Fd, [read(cert(Config, "client-stolen.sha256")), "\n"]),
+    ok = file:close(Fd),
+    {error, {unreachable, [{_, {tls_alert, {certificate_revoked, Text}}}]}} =
+        connect(Config, revoking, agent, <<"va">>, client_tls(Config, "stolen")),
+    ct:log("client error: ~s", [Text]),
+    {ok, []} = evatar:registry(?config(pairing, Config)),
+    {ok, C} = connect(Config, revoking, agent, <<"va">>, client_tls(Config, "va")),
+    ok = agent_bridge_client:close(C),
+    %% Fingerprints as other tools print them (colons, upper case) count too.
+    Pretty = lists:join(":", [string:uppercase(binary_to_list(<<A, B>>))
+                              || <<A, B>> <= read(cert(Config, "client-va.sha256"))]),
+    ok = file:write_file(File, [Pretty, "\n"]),
+    {error, {unreachable, [{_, {tls_alert, {certificate_revoked, _}}}]}} =
+        connect(Config, revoking, agent, <<"va">>, client_tls(Config, "va")),
+    ok = file:write_file(File, <<>>).
+
 %% A plain TCP client's Hello is no TLS ClientHello: the server answers a
 %% TLS alert (which reads as an oversized frame) and closes; nobody joins.
 plain_client_on_tls(Config) ->
@@ -287,10 +343,162 @@ bad_listener_options(Config) ->
     <<"unknown tls option verfy">> =
         Start(#{tls => #{certfile => Cert, keyfile => Key, verfy => verify_peer}}),
     <<"enabled must be true or false">> = Start(#{enabled => maybe}),
+    <<"tls option versions must be a non-empty list of 'tlsv1.3' and 'tlsv1.2', not ['tlsv1.1']">> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, versions => ['tlsv1.1']}}),
+    Ca = cert(Config, "ca.pem"),
+    <<"tls option cacertfile is missing">> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, revoked_file => Cert}}),
+    <<"tls revoked_file ", _/binary>> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, cacertfile => Ca,
+                         revoked_file => "/nonexistent"}}),
+    Bad = filename:join(?config(priv_dir, Config), "bad-revoked"),
+    ok = file:write_file(Bad, <<"# ok\n\nnot-a-fingerprint\n">>),
+    Msg = iolist_to_binary(["tls revoked_file ", Bad,
+                            " line 3 is not a SHA-256 fingerprint (64 hex digits)"]),
+    Msg = Start(#{tls => #{certfile => Cert, keyfile => Key, cacertfile => Ca,
+                           revoked_file => Bad}}),
     %% Empty file names are no files (the release's unset variables).
     <<"tls option certfile is missing">> =
         Start(#{tls => #{certfile => "", keyfile => Key, cacertfile => ""}}),
     {error, not_found} = agent_bridge:address(bad_tls).
+
+%% ---------------------------------------------------------------------------
+%% The default profile, against real OTP clients
+%% ---------------------------------------------------------------------------
+
+%% A TLS 1.2 client offering only static ECDH suites (no forward secrecy)
+%% finds none in common.
+static_ecdh_refused(Config) ->
+    Static = [S || #{key_exchange := K} = S <- ssl:cipher_suites(all, 'tlsv1.2'),
+                   lists:member(K, [ecdh_ecdsa, ecdh_rsa])],
+    [_ | _] = Static,
+    {error, {tls_alert, {insufficient_security, _}}} = raw_tls12(Config, [{ciphers, Static}]).
+
+%% Only CBC suites with SHA-1 MACs: refused.
+cbc_sha1_refused(Config) ->
+    Cbc = [S || #{mac := sha} = S <- ssl:cipher_suites(all, 'tlsv1.2')],
+    [_ | _] = Cbc,
+    {error, {tls_alert, {insufficient_security, _}}} = raw_tls12(Config, [{ciphers, Cbc}]).
+
+%% Only weak binary or small curves: no ECDHE suite can be agreed.
+weak_curves_refused(Config) ->
+    [{error, {tls_alert, {insufficient_security, _}}} = raw_tls12(Config, [{eccs, [C]}])
+     || C <- [sect163k1, sect233r1, secp192r1, secp224r1, brainpoolP256r1]],
+    ok.
+
+%% What the profile keeps: TLS 1.2 with ECDHE and an AEAD cipher on P-256
+%% or P-384, TLS 1.3 with x25519.
+strong_tls12_accepted(Config) ->
+    [begin
+         {ok, S} = raw_tls12(Config, [{eccs, [Curve]}]),
+         {ok, [{selected_cipher_suite, #{key_exchange := ecdhe_ecdsa, mac := aead}},
+               {ecc, {named_curve, Got}}]} =
+             ssl:connection_information(S, [selected_cipher_suite, ecc]),
+         true = lists:member(Got, [secp256r1, secp384r1]),
+         ok = ssl:close(S)
+     end || Curve <- [secp256r1, secp384r1]],
+    {ok, S13} = ssl_try(Config, open, [{versions, ['tlsv1.3']}, {supported_groups, [x25519]}]),
+    {ok, [{protocol, 'tlsv1.3'}]} = ssl:connection_information(S13, [protocol]),
+    ok = ssl:close(S13).
+
+%% A TLS 1.2 client that asks to renegotiate is refused.
+client_renegotiation_refused(Config) ->
+    {ok, S} = raw_tls12(Config, []),
+    {error, renegotiation_rejected} = ssl:renegotiate(S),
+    ok = ssl:close(S).
+
+raw_tls12(Config, Opts) ->
+    ssl_try(Config, open, [{versions, ['tlsv1.2']} | Opts]).
+
+%% ---------------------------------------------------------------------------
+%% Certificates from scripts/gen-bridge-certs.sh
+%% ---------------------------------------------------------------------------
+
+%% The CA is a CA and signs; the server certificate is no CA, valid for at
+%% most 398 days, for digitalSignature and serverAuth with the host names
+%% as subjectAltName; a client certificate is no CA, for clientAuth.
+generated_certificates(Config) ->
+    Ca = decode(cert(Config, "ca.pem")),
+    Server = decode(cert(Config, "server.pem")),
+    Client = decode(cert(Config, "client-va.pem")),
+    #{basic := {true, 0}, key_usage := CaUsage} = Ca,
+    [true = lists:member(U, CaUsage) || U <- [keyCertSign, cRLSign]],
+    #{basic := {false, _}, key_usage := [digitalSignature], eku := [?'id-kp-serverAuth'],
+      san := San, days := Days} = Server,
+    ct:log("server certificate valid ~b days, SAN ~p", [Days, San]),
+    true = Days =< 398,
+    true = lists:member({dNSName, "localhost"}, San),
+    true = lists:member({iPAddress, <<127, 0, 0, 1>>}, San),
+    #{basic := {false, _}, key_usage := [digitalSignature], eku := [?'id-kp-clientAuth']} = Client,
+    [{ok, _} = public_key:pkix_path_validation(der(cert(Config, "ca.pem")),
+                                                [der(cert(Config, F))], [])
+     || F <- ["server.pem", "client-va.pem"]],
+    %% The leaves cannot sign certificates.
+    {error, {bad_cert, _}} = public_key:pkix_path_validation(
+                               der(cert(Config, "ca.pem")),
+                               [der(cert(Config, "server.pem")), der(cert(Config, "client-va.pem"))],
+                               []).
+
+%% --server renews the server certificate with the same CA and touches
+%% nothing else: a client that trusts the CA connects to a listener with
+%% the new certificate; longer than 398 days is refused.
+server_certificate_renewal(Config) ->
+    Dir = filename:join(?config(priv_dir, Config), "renewal"),
+    _ = evatar_test_fixtures:bridge_certs(Dir, ["va"]),
+    Keep = ["ca.pem", "ca.key", "client-va.pem", "client-va.key"],
+    Before = [{F, read(filename:join(Dir, F))} || F <- ["server.pem" | Keep]],
+    Script = filename:join([evatar_test_fixtures:repo_root(), "scripts", "gen-bridge-certs.sh"]),
+    Out = os:cmd("EVATAR_SERVER_HOSTS='localhost 127.0.0.1' bash " ++ Script ++ " --server "
+                 ++ Dir ++ " 2>&1; echo rc=$?"),
+    ct:log("~s", [Out]),
+    true = string:find(Out, "rc=0") =/= nomatch,
+    [{_, OldServer} | Kept] = Before,
+    true = OldServer =/= read(filename:join(Dir, "server.pem")),
+    [Bin = read(filename:join(Dir, F)) || {F, Bin} <- Kept],
+    Long = os:cmd("EVATAR_SERVER_DAYS=399 bash " ++ Script ++ " --server " ++ Dir
+                  ++ " 2>&1; echo rc=$?"),
+    true = string:find(Long, "1 to 398") =/= nomatch,
+    true = string:find(Long, "rc=2") =/= nomatch,
+    Addr = evatar_test_node:listen(tls_renewed, #{tls => #{certfile => file(Dir, "server.pem"),
+                                                          keyfile => file(Dir, "server.key")}}),
+    try
+        {ok, C} = agent_bridge_client:connect(
+                    [Addr], (client_opts(Config, agent, <<"va">>))#{
+                              tls => #{cacertfile => file(Dir, "ca.pem")}}),
+        ok = agent_bridge_client:close(C)
+    after
+        ok = agent_bridge:stop_listener(tls_renewed)
+    end.
+
+der(File) ->
+    {ok, Pem} = file:read_file(File),
+    [{'Certificate', Der, not_encrypted}] = public_key:pem_decode(Pem),
+    Der.
+
+%% The parts of a certificate a browser checks.
+decode(File) ->
+    #'OTPCertificate'{tbsCertificate = Tbs} = public_key:pkix_decode_cert(der(File), otp),
+    #'OTPTBSCertificate'{validity = #'Validity'{notBefore = From, notAfter = To},
+                         extensions = Exts} = Tbs,
+    Ext = fun(Id, Default) ->
+                  case lists:keyfind(Id, #'Extension'.extnID, Exts) of
+                      #'Extension'{extnValue = V} -> V;
+                      false -> Default
+                  end
+          end,
+    Basic = case Ext(?'id-ce-basicConstraints', undefined) of
+                #'BasicConstraints'{cA = IsCa, pathLenConstraint = Len} -> {IsCa, Len};
+                undefined -> {false, asn1_NOVALUE}
+            end,
+    #{basic => Basic, key_usage => Ext(?'id-ce-keyUsage', []),
+      eku => Ext(?'id-ce-extKeyUsage', []), san => Ext(?'id-ce-subjectAltName', []),
+      days => (seconds(To) - seconds(From)) div 86400}.
+
+seconds({utcTime, [Y1, Y2 | Rest]}) -> seconds({generalTime, [$2, $0, Y1, Y2 | Rest]});
+seconds({generalTime, Time}) ->
+    [Y, Mo, D, H, Mi, S] = [list_to_integer(lists:sublist(Time, P, L))
+                            || {P, L} <- [{1, 4}, {5, 2}, {7, 2}, {9, 2}, {11, 2}, {13, 2}]],
+    calendar:datetime_to_gregorian_seconds({{Y, Mo, D}, {H, Mi, S}}).
 
 %% ---------------------------------------------------------------------------
 %% Helpers
@@ -391,10 +599,13 @@ hello(Config, Role, Entity, Cred) ->
                                  protocol_version => 1}}).
 
 ssl_connect(Config, Listener, Extra) ->
-    {Ip, Port} = ?config(Listener, Config),
-    {ok, S} = ssl:connect(Ip, Port, [binary, {packet, 4}, {active, false}, {verify, verify_peer},
-                                     {cacertfile, cert(Config, "ca.pem")} | Extra], 5000),
+    {ok, S} = ssl_try(Config, Listener, Extra),
     S.
+
+ssl_try(Config, Listener, Extra) ->
+    {Ip, Port} = ?config(Listener, Config),
+    ssl:connect(Ip, Port, [binary, {packet, 4}, {active, false}, {verify, verify_peer},
+                           {cacertfile, cert(Config, "ca.pem")} | Extra], 5000).
 
 ssl_recv_doc(S) ->
     {ok, Frame} = ssl:recv(S, 0, 5000),
