@@ -17,7 +17,7 @@
          identities_from_the_file/1,
          bad_broker_is_a_reported_crash_loop/1, init_per_group/2, end_per_group/2,
          release_daemon_runs_the_file/1, release_refuses_a_bad_file/1,
-         release_refuses_another_nodes_data_dir/1]).
+         release_refuses_another_nodes_data_dir/1, release_refuses_token_hash_and_file/1]).
 %% Run on the peer nodes.
 -export([collect/0, log/2, events/0]).
 
@@ -37,7 +37,7 @@ groups() ->
      %% The release as shipped (rebar3 release, bin/evatar): its boot order
      %% and its applications, driven only through bin/evatar.
      {release, [], [release_daemon_runs_the_file, release_refuses_a_bad_file,
-                    release_refuses_another_nodes_data_dir]}].
+                    release_refuses_another_nodes_data_dir, release_refuses_token_hash_and_file]}].
 
 init_per_group(release, Config) ->
     Root = evatar_test_cluster:repo_root(),
@@ -275,6 +275,51 @@ release_refuses_a_bad_file(Config) ->
                   end, ["daemon", "check_config", "foreground"]),
     %% The daemon did not start.
     ?assertNotEqual(nomatch, string:find(evatar_cmd(Config, Env, "ping"), "not running")).
+
+%% An http section with both an operator_token_hash and a token_file (the
+%% HTTP API refuses both at its start): check_config names it, daemon does
+%% not start, and foreground says why and exits with status 1, without
+%% "Kernel pid terminated" or an erl_crash.dump.
+release_refuses_token_hash_and_file(Config) ->
+    Dir = filename:join(?config(priv_dir, Config), "token_both"),
+    ok = filelib:ensure_path(Dir),
+    Token = filename:join(Dir, "token"),
+    ok = file:write_file(Token, "a-long-operator-token\n"),
+    File = filename:join(Dir, "evatar.config"),
+    ok = file:write_file(File, ["{http, #{port => 0, token_file => \"", Token, "\",\n"
+                                "         operator_token_hash => ",
+                                node_config:hashed_credential(<<"another-token">>), "}}.\n"]),
+    Env = release_env(Config, File),
+    Dump = filename:join(?config(rel, Config), "erl_crash.dump"),
+    _ = file:delete(Dump),
+    Expected = File ++ ": line 1: http: operator_token_hash and token_file: give one, not both",
+    lists:foreach(fun(Command) ->
+                          Out = evatar_cmd(Config, Env, Command ++ "; echo \"exit status $?\""),
+                          ct:log("~s:~n~s", [Command, Out]),
+                          ?assertNotEqual(nomatch, string:find(Out, Expected), {Command, Out}),
+                          ?assertNotEqual(nomatch, string:find(Out, "exit status 1"), {Command, Out}),
+                          ?assertEqual(nomatch, string:find(Out, "Kernel pid terminated"),
+                                       {Command, Out}),
+                          ?assertEqual(nomatch, string:find(Out, "crash dump"), {Command, Out})
+                  end, ["check_config", "daemon", "foreground"]),
+    ?assertEqual(false, filelib:is_regular(Dump)),
+    ?assertNotEqual(nomatch, string:find(evatar_cmd(Config, Env, "ping"), "not running")),
+    %% The boot itself, without the start script's check: the release's
+    %% boot file run as bin/evatar runs it (its root, OTP's erlexec), in
+    %% Dir (where a crash dump would land).
+    Rel = ?config(rel, Config),
+    Boot = filename:join([Rel, "releases", "0.1.0", "start"]),
+    Bin = filename:join([code:root_dir(), "erts-" ++ erlang:system_info(version), "bin"]),
+    Out = os:cmd(lists:flatten(
+                   ["cd '", Dir, "' && EVATAR_CONFIG='", File, "' ROOTDIR='", Rel, "' BINDIR='",
+                    Bin, "' EMU=beam PROGNAME=erl timeout 120 '", Bin, "/erlexec' -noinput "
+                    "-mode embedded -boot '", Boot, "' -boot_var SYSTEM_LIB_DIR '",
+                    code:lib_dir(), "' 2>&1; echo \"exit status $?\""])),
+    ct:log("boot:~n~s", [Out]),
+    ?assertNotEqual(nomatch, string:find(Out, Expected), Out),
+    ?assertNotEqual(nomatch, string:find(Out, "exit status 1"), Out),
+    ?assertEqual(nomatch, string:find(Out, "Kernel pid terminated"), Out),
+    ?assertEqual(false, filelib:is_regular(filename:join(Dir, "erl_crash.dump"))).
 
 %% A data directory (EVATAR_DATA_DIR) made by one node name, given to a
 %% node of another name: that node does not start, and its console log

@@ -33,13 +33,27 @@ start(_Type, _Args) ->
                     io:put_chars(standard_error, ["EVATAR will not start: the configuration file has "
                                                   "mistakes\n", Text]),
                     ?LOG_ERROR(#{what => bad_node_config, file => File, problems => element(3, Reason)}),
-                    {error, Reason}
+                    refuse_boot(Reason)
             end
     end.
 
 -spec stop(term()) -> ok.
 stop(_State) ->
     ok.
+
+%% While the boot script starts the release's applications (its progress
+%% is applications_loaded until they all run), a refused start would take
+%% the node down with "Kernel pid terminated" and an erl_crash.dump: the
+%% mistakes are said, so stop there with status 1. Started otherwise (a
+%% test node, application:start/1), the caller gets the error.
+refuse_boot(Reason) ->
+    case init:get_status() of
+        {starting, applications_loaded} ->
+            _ = logger_std_h:filesync(default),
+            erlang:halt(1);
+        _ ->
+            {error, Reason}
+    end.
 
 listeners(#{listeners := undefined}) -> from_environment;
 listeners(#{listeners := Ls}) -> length(Ls).

@@ -188,6 +188,12 @@ http(false) ->
 http({http, L, {not_a_list, E}}) when is_map(E) ->
     Checked = stages([[fun(X) -> unknown(X, ?HTTP_KEYS) end,
                      fun(X) -> texts([token_file], X) end,
+                     %% evatar_web refuses both at its start (docs/api.md).
+                     fun(#{operator_token_hash := H, token_file := F})
+                           when H =/= undefined, F =/= "", F =/= <<>> ->
+                             {error, "operator_token_hash and token_file: give one, not both"};
+                        (X) -> {ok, X}
+                     end,
                      fun(#{ip := Ip} = X) ->
                              case text(Ip) of
                                  {ok, B} ->
