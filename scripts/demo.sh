@@ -35,7 +35,7 @@ erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{
   -config config/sys.config \
   -evatar_web port 0 \
   -eval "case {application:ensure_all_started(evatar_web), evatar_web:url()} of
-           {{ok, _}, Url} when is_binary(Url) ->
+           {{ok, _}, Url} when is_list(Url) ->
              io:format(\"~nDashboard: ~ts  (the page of this node; docs/dashboard.md)~n\", [Url]);
            Other ->
              io:format(\"~nNo dashboard: ~tp~n\", [Other])

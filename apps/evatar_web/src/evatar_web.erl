@@ -32,17 +32,12 @@ port() ->
         undefined -> undefined
     end.
 
-%% @doc The page's address, http://IP:PORT/; `undefined' when the server
-%% does not run.
--spec url() -> binary() | undefined.
+%% @doc The page's address, "http://IP:PORT/" as a string (the shell
+%% prints it as it is); `undefined' when the server does not run.
+-spec url() -> string() | undefined.
 url() ->
     case evatar_web_server:info() of
-        #{ip := Ip, port := Port} ->
-            Host = case Ip of
-                       {_, _, _, _} -> inet:ntoa(Ip);
-                       _ -> ["[", inet:ntoa(Ip), "]"]
-                   end,
-            iolist_to_binary(io_lib:format("http://~ts:~b/", [Host, Port]));
+        #{ip := Ip, port := Port} -> evatar_web_server:url(Ip, Port);
         undefined ->
             undefined
     end.

@@ -6,7 +6,7 @@
 
 -include_lib("kernel/include/logger.hrl").
 
--export([start_link/0, info/0]).
+-export([start_link/0, info/0, url/2, format_listening/1]).
 
 %% @doc Starts httpd with the application environment's options, checked
 %% first (evatar_web:check_opts/1) so a mistake says which key.
@@ -49,14 +49,33 @@ start_httpd(#{ip := Ip, port := Port} = Opts) ->
             %% The instance's id carries the port bound (port 0 picks one).
             [Bound] = [P || {{httpd_instance_sup, _, P, _}, _, _, _} <- supervisor:which_children(Pid)],
             persistent_term:put(?MODULE, #{ip => Ip, port => Bound, max_body => MaxBody}),
+            %% A report for log tools, and a line for a person (the port
+            %% picked when configured with port 0).
             ?LOG_NOTICE(#{what => http_listening, ip => inet:ntoa(Ip), port => Bound,
-                          operator_token => evatar_web_auth:configured()}),
+                          url => url(Ip, Bound), operator_token => evatar_web_auth:configured()},
+                        #{report_cb => fun ?MODULE:format_listening/1}),
             {ok, Pid};
         {error, Why} ->
             ?LOG_ERROR(#{what => http_listen_failed, ip => inet:ntoa(Ip), port => Port,
                          reason => Why}),
             {error, {http_listen_failed, Ip, Port, Why}}
     end.
+
+%% @doc Pure: "http://IP:PORT/" (an IPv6 address in brackets).
+-spec url(inet:ip_address(), inet:port_number()) -> string().
+url(Ip, Port) ->
+    Host = case Ip of
+               {_, _, _, _} -> inet:ntoa(Ip);
+               _ -> "[" ++ inet:ntoa(Ip) ++ "]"
+           end,
+    lists:flatten(io_lib:format("http://~ts:~b/", [Host, Port])).
+
+%% @doc The log line of the `http_listening' report.
+-spec format_listening(#{url := string(), operator_token := boolean(), _ => _}) ->
+          {io:format(), [term()]}.
+format_listening(#{url := Url, operator_token := Token}) ->
+    {"HTTP API and dashboard listening on ~ts (operator token ~ts)",
+     [Url, case Token of true -> "configured"; false -> "not configured: changes refused" end]}.
 
 %% @doc The listener's address, bound port and body limit; `undefined'
 %% when the server has not started.

@@ -10,7 +10,8 @@
          init_per_group/2, end_per_group/2]).
 -export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
          method_not_allowed/1, loopback_reads_check_host/1, body_limit/1,
-         bad_env_refuses_start/1, listen_failure_is_an_error/1]).
+         bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1]).
+-export([log/2]).
 
 -define(T, evatar_web_test).
 
@@ -21,7 +22,7 @@ all() -> [{group, server}, {group, startup}].
 groups() ->
     [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
                    method_not_allowed, loopback_reads_check_host, body_limit]},
-     {startup, [], [bad_env_refuses_start, listen_failure_is_an_error]}].
+     {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged]}].
 
 init_per_suite(Config) ->
     ?T:start(#{}),
@@ -152,3 +153,36 @@ listen_failure_is_an_error(_Config) ->
         ok = application:set_env(evatar_web, port, 0),
         ok = application:start(evatar_web)
     end.
+
+%% The start logs where it listens (the port picked for port 0) as a
+%% report and a line for a person; evatar_web:url() is a string.
+listening_logged(_Config) ->
+    #{level := Level} = logger:get_primary_config(),
+    ok = logger:set_primary_config(level, notice),
+    ok = logger:add_handler(listening_probe, ?MODULE, #{config => #{pid => self()}}),
+    try
+        ok = application:stop(evatar_web),
+        ok = application:start(evatar_web),
+        Port = evatar_web:port(),
+        Url = "http://127.0.0.1:" ++ integer_to_list(Port) ++ "/",
+        Url = evatar_web:url(),
+        true = io_lib:printable_unicode_list(evatar_web:url()),
+        receive
+            {listening, #{port := Port, url := Url, ip := "127.0.0.1"} = Report, Meta} ->
+                #{report_cb := Cb} = Meta,
+                {Format, Args} = Cb(Report),
+                Line = lists:flatten(io_lib:format(Format, Args)),
+                {match, _} = re:run(Line, ["listening on ", Url])
+        after 10000 -> ct:fail(no_listening_report)
+        end
+    after
+        ok = logger:remove_handler(listening_probe),
+        ok = logger:set_primary_config(level, Level)
+    end.
+
+%% logger handler of listening_logged/1.
+log(#{msg := {report, #{what := http_listening} = Report}, meta := Meta},
+    #{config := #{pid := Pid}}) ->
+    Pid ! {listening, Report, Meta};
+log(_, _) ->
+    ok.

@@ -325,7 +325,7 @@ page_in_chromium(Config) ->
     Shots = ?config(priv_dir, Config),
     ok = npm_install(Dir),
     {Home, Arena} = start_worlds(Config),
-    Url = binary_to_list(evatar_web:url()),
+    Url = evatar_web:url(),
     Node = os:find_executable("node"),
     Port = open_port({spawn_executable, Node},
                      [{args, [filename:join(Dir, "dashboard.mjs"), Url, binary_to_list(?P), Shots]},
