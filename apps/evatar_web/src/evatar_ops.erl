@@ -237,7 +237,13 @@ created(Id) ->
 %% new options while it runs, so it is deleted and created again: its
 %% entities are dropped (`pairing_deleted') and join again, the new options
 %% applying to them. The new options are checked before anything stops.
+%% The body holds options only: an `id' (even the pairing's own) is
+%% refused, as a pairing cannot be renamed.
 -spec change(binary(), term()) -> {ok, map()} | {error, error()}.
+change(_Id, #{<<"id">> := _}) ->
+    err(400, <<"bad_request">>, <<"id">>,
+        <<"id is not an option: the pairing is the one of the path, and cannot be renamed "
+          "(delete it and create one with the new id)">>);
 change(Id, Body) ->
     case {evatar:stored_options(Id), pairing_opts(Body)} of
         {{error, not_found}, _} -> not_found(Id);

@@ -267,6 +267,12 @@ change_options(Config) ->
         change(put, "/api/pairings/web-chg", #{feedback_timeout => 1234}),
     {400, #{<<"field">> := <<"feedback_timeout">>}} =
         change(put, "/api/pairings/web-chg", #{feedback_timeout => -5}),
+    %% The body has options only: an id, another or the pairing's own, is refused.
+    {400, #{<<"error">> := <<"bad_request">>, <<"field">> := <<"id">>}} =
+        change(put, "/api/pairings/web-chg", #{id => <<"other">>, feedback_timeout => 99}),
+    {400, #{<<"field">> := <<"id">>}} =
+        change(put, "/api/pairings/web-chg", #{id => <<"web-chg">>, feedback_timeout => 99}),
+    {404, _} = ?T:get("/api/pairings/other"),
     {200, #{<<"options">> := #{<<"feedback_timeout">> := 1234}}} = ?T:get("/api/pairings/web-chg"),
     %% The old credentials still join.
     {ok, C} = agent_bridge_client:connect([?config(addr, Config)],
