@@ -346,14 +346,27 @@ rotated(_Old, _B, _) ->
 %% Checks of input (JSON-decoded: binary keys, binaries, numbers, ...)
 %% ---------------------------------------------------------------------------
 
-pairing_id(Id) when is_binary(Id), Id =/= <<>>, byte_size(Id) =< ?MAX_ID ->
-    case unicode:characters_to_binary(Id) of
-        Id -> ok;
+%% Lengths are in characters (code points), as JSON Schema's minLength and
+%% maxLength in priv/openapi.json count them.
+pairing_id(Id) when is_binary(Id) ->
+    case chars(Id) of
+        N when is_integer(N), N >= 1, N =< ?MAX_ID -> ok;
+        N when is_integer(N) -> id_length();
         _ -> err(400, <<"bad_request">>, <<"id">>, <<"must be UTF-8 text">>)
     end;
 pairing_id(_) ->
+    id_length().
+
+id_length() ->
     err(400, <<"bad_request">>, <<"id">>,
-        iolist_to_binary(io_lib:format("must be text of 1 to ~b bytes", [?MAX_ID]))).
+        iolist_to_binary(io_lib:format("must be text of 1 to ~b characters", [?MAX_ID]))).
+
+%% The number of characters of UTF-8 text, or `invalid'.
+chars(Bin) ->
+    case unicode:characters_to_list(Bin) of
+        L when is_list(L) -> length(L);
+        _ -> invalid
+    end.
 
 pairing_opts(Body) when is_map(Body) ->
     Known = ?INT_OPTS ++ ?POS_OPTS ++ ?CRED_OPTS ++ ?OTHER_OPTS,
@@ -370,6 +383,8 @@ fold_opts([], Acc) ->
 fold_opts([{K, V} | Rest], Acc) ->
     case opt(K, V) of
         {ok, Key, Value} -> fold_opts(Rest, Acc#{Key => Value});
+        %% Well formed, naming something that is not there (as rotate's entity).
+        {error, not_found, Why} -> err(404, <<"not_found">>, K, Why);
         {error, Why} -> err(400, <<"bad_request">>, K, Why)
     end.
 
@@ -394,7 +409,7 @@ other_opt(<<"standby_node">>, N) when is_binary(N) ->
     %% Only a node of the cluster: its atom exists already.
     case [C || C <- cluster_nodes(), atom_to_binary(C) =:= N] of
         [Node | _] -> {ok, standby_node, Node};
-        [] -> {error, <<"must be a node of the cluster (GET /api/cluster lists them)">>}
+        [] -> {error, not_found, <<"no such node in the cluster (GET /api/cluster lists them)">>}
     end;
 other_opt(<<"standby_node">>, _) -> {error, <<"must be a node name (text)">>};
 other_opt(<<"identities">>, Is) when is_list(Is) ->
@@ -438,8 +453,12 @@ identities(_, N, _) ->
 cred_ok(error) -> ok;
 cred_ok({ok, C}) -> credential(C).
 
-credential(C) when is_binary(C), byte_size(C) >= 8, byte_size(C) =< 1024 -> ok;
-credential(_) -> {error, <<"must be text of 8 to 1024 bytes (there is no default credential)">>}.
+credential(C) when is_binary(C) ->
+    case chars(C) of
+        N when is_integer(N), N >= 8, N =< 1024 -> ok;
+        _ -> credential(none)
+    end;
+credential(_) -> {error, <<"must be text of 8 to 1024 characters (there is no default credential)">>}.
 
 %% evatar's verdict on the options as a whole, with the field it names.
 bad_option({missing, Keys}) ->

@@ -230,7 +230,12 @@ create_refusals(_Config) ->
              {400, <<"bad_request">>, <<"agent_credential">>, Good#{agent_credential => <<"short">>}},
              {400, <<"bad_request">>, <<"avatar_credential">>, maps:remove(avatar_credential, Good)},
              {400, <<"bad_request">>, <<"unlisted_ids">>, Good#{unlisted_ids => <<"maybe">>}},
-             {400, <<"bad_request">>, <<"standby_node">>, Good#{standby_node => <<"nobody@nowhere">>}},
+             {404, <<"not_found">>, <<"standby_node">>, Good#{standby_node => <<"nobody@nowhere">>}},
+             {400, <<"bad_request">>, <<"standby_node">>, Good#{standby_node => 7}},
+             %% Lengths count characters, as the document's maxLength does.
+             {400, <<"bad_request">>, <<"id">>, Good#{id => binary:copy(<<"é"/utf8>>, 129)}},
+             {400, <<"bad_request">>, <<"agent_credential">>,
+              Good#{agent_credential => binary:copy(<<"é"/utf8>>, 7)}},
              {400, <<"bad_request">>, <<"identities">>,
               Good#{identities => [#{entity => <<"e">>, role => <<"robot">>, credential => ?VA_CRED}]}},
              {400, <<"bad_request">>, <<"identities">>,
@@ -245,7 +250,7 @@ create_refusals(_Config) ->
     {404, _} = ?T:get("/api/pairings/web-new"),
     false = lists:member(<<"web-new">>, [Id || #{id := Id} <- evatar:pairings()]).
 
-%% Create, read, delete; a second delete is a 404.
+%% Create, read, delete; a second delete is a 404; lengths in characters.
 create_then_delete(_Config) ->
     {201, #{<<"id">> := <<"web-tmp">>, <<"state">> := _}} =
         change(post, "/api/pairings", #{id => <<"web-tmp">>,
@@ -257,7 +262,14 @@ create_then_delete(_Config) ->
         ?T:get("/api/pairings/web-tmp"),
     {200, #{<<"deleted">> := true}} = change(delete, "/api/pairings/web-tmp", none),
     {404, _} = ?T:get("/api/pairings/web-tmp"),
-    {404, _} = change(delete, "/api/pairings/web-tmp", none).
+    {404, _} = change(delete, "/api/pairings/web-tmp", none),
+    %% Lengths count characters, as the document's maxLength does: an id of
+    %% 128 of them in 256 bytes, a credential of 1024 in 2048.
+    Long = binary:copy(<<"é"/utf8>>, 128),
+    {201, #{<<"id">> := Long}} =
+        change(post, "/api/pairings", #{id => Long, avatar_credential => ?AV_CRED,
+                                        agent_credential => binary:copy(<<"ü"/utf8>>, 1024)}),
+    ok = evatar:delete_pairing(Long).
 
 %% PUT replaces the options given and keeps the others; bad input changes nothing.
 change_options(Config) ->

@@ -70,12 +70,13 @@ CASES = [
 ]
 
 
-def check(method, path, pattern, headers, data, status, ctype, raw):
+def check(method, path, pattern, headers, data, status, ctype, raw, answer_headers=None):
     """The problem with one answer under the document, or None."""
     request = MockRequest("http://localhost", method.lower(), path, path_pattern=pattern or path,
                           headers=headers, data=data,
                           content_type="application/json" if data is not None else None)
-    response = MockResponse(raw, status_code=status, content_type=(ctype or "").split(";")[0])
+    response = MockResponse(raw, status_code=status, content_type=(ctype or "").split(";")[0],
+                            headers=answer_headers or {})
     try:
         api.validate_response(request, response)
     except Exception as e:  # every validation error: report it, go on
@@ -99,8 +100,10 @@ for method, path, pattern, headers, body, expected in CASES:
     try:
         with urllib.request.urlopen(req, timeout=60) as r:
             status, ctype, raw = r.status, r.headers.get("Content-Type"), r.read()
+            answer_headers = dict(r.headers.items())
     except urllib.error.HTTPError as e:
         status, ctype, raw = e.code, e.headers.get("Content-Type"), e.read()
+        answer_headers = dict(e.headers.items())
     answers.setdefault((method, path, status), (pattern, headers, data, ctype, raw))
     problem = None
     if status != expected:
@@ -108,7 +111,7 @@ for method, path, pattern, headers, body, expected in CASES:
     elif status == 405:
         pass  # not an operation of the document: checked for its JSON error only
     else:
-        problem = check(method, path, pattern, headers, data, status, ctype, raw)
+        problem = check(method, path, pattern, headers, data, status, ctype, raw, answer_headers)
     if ctype is None or not ctype.startswith("application/json"):
         problem = problem or "content type %r is not JSON" % ctype
     print("%-6s %-45s %d %s" % (method, path, status, "ok" if problem is None else "FAIL " + problem))
