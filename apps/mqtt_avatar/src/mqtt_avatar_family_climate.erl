@@ -123,9 +123,17 @@ from_ha(C, Base) ->
 %% `system_mode', `occupied_heating_setpoint', `local_temperature'...).
 -spec from_z2m(map(), mqtt_avatar_z2m:ctx()) -> [mqtt_avatar_discovery:entity()].
 from_z2m(#{<<"features">> := Features}, Ctx) when is_list(Features) ->
-    Settings = lists:append([mqtt_avatar_z2m:setting(F, Param, Service, Ctx)
-                             || #{<<"name">> := Name} = F <- Features, is_map(F),
-                                {N, Param, Service} <- ?Z2M, N =:= Name]),
+    %% One setting per value: Eurotronic's SPZB0001 exposes both
+    %% occupied_heating_setpoint and current_heating_setpoint, and the
+    %% first is the target temperature (two would repeat its parameter).
+    %% A value without a service (running_state, which Tuya and AVATTO
+    %% TRVs mark settable) is only read: a control would be a service
+    %% without a ServiceType.
+    Settings = first_per_param(
+                 [read_only(S, Service)
+                  || #{<<"name">> := Name} = F <- Features, is_map(F),
+                     {N, Param, Service} <- ?Z2M, N =:= Name,
+                     S <- mqtt_avatar_z2m:setting(F, Param, Service, Ctx)]),
     case Settings of
         [] -> [];
         _ -> [(mqtt_avatar_z2m:entity(climate, <<"climate">>, Ctx))#{settings => Settings,
@@ -134,6 +142,18 @@ from_z2m(#{<<"features">> := Features}, Ctx) when is_list(Features) ->
     end;
 from_z2m(_, _Ctx) ->
     [].
+
+read_only(S, <<>>) -> maps:remove(control, S);
+read_only(S, _Service) -> S.
+
+first_per_param(Settings) ->
+    {Kept, _} = lists:foldl(fun(#{param := P} = S, {Acc, Seen}) ->
+                                    case maps:is_key(P, Seen) of
+                                        true -> {Acc, Seen};
+                                        false -> {[S | Acc], Seen#{P => true}}
+                                    end
+                            end, {[], #{}}, Settings),
+    lists:reverse(Kept).
 
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(#{settings := Settings, power := Power, payloads := Pl} = E, Ctx) ->

@@ -128,9 +128,12 @@ device(#{key := Key, entities := Entities} = D, Overrides, Used) ->
                end,
     Avail = availability_params(maps:get(availability, D)),
     [First | Rest] = Services,
+    %% A parameter twice in one entry is invalid BIL: a read service names
+    %% each value once, though two exposes give it (a power meter's
+    %% `power' on two endpoints, a sensor's name and its device class).
     Component = #{id => Id,
-                  services => [add_params(First, Avail) | Rest],
-                  consumes => Streams ++ Feedback},
+                  services => [distinct(E) || E <- [add_params(First, Avail) | Rest]],
+                  consumes => [distinct(E) || E <- Streams ++ Feedback]},
     {Component, DevKeys ++ EntityKeys}.
 
 lookup(Keys, Overrides) ->
@@ -198,6 +201,18 @@ set_params(#{parameters := Ps} = E, Set) ->
                     false -> {N, V}
                 end || {N, V} <- Ps],
     E#{parameters := Replaced ++ [P || {N, _} = P <- Set, not lists:keymember(N, 1, Ps)]}.
+
+%% The entry with each parameter kept once, at its first place, when
+%% every other occurrence has the same value (a different value stays, and
+%% the check then reports the component).
+distinct(#{parameters := Ps} = E) ->
+    {Kept, _} = lists:foldl(fun(P, {Acc, Seen}) ->
+                                    case maps:is_key(P, Seen) of
+                                        true -> {Acc, Seen};
+                                        false -> {[P | Acc], Seen#{P => true}}
+                                    end
+                            end, {[], #{}}, Ps),
+    E#{parameters := lists:reverse(Kept)}.
 
 first_entity_name(Entities) ->
     case [N || #{name := N} <- Entities, is_binary(N)] of

@@ -8,7 +8,7 @@
 
 -export([parse/2, parse/3]).
 %% For the families (mqtt_avatar_family_*): reading their exposes.
--export([setting/4, entity/3, text/1, text/2]).
+-export([setting/4, entity/3, text/1, text/2, source/1]).
 
 -export_type([ctx/0]).
 
@@ -149,7 +149,7 @@ base_entity(Topic, Uid, Kind, Feature, Expose) ->
     On = text(maps:get(<<"value_on">>, Feature, null), <<"ON">>),
     Off = text(maps:get(<<"value_off">>, Feature, null), <<"OFF">>),
     Settable = case maps:get(<<"access">>, Feature, 0) of
-                   A when is_integer(A) -> A band ?ACCESS_SET =/= 0;
+                   A when is_integer(A) -> A band ?ACCESS_SET =/= 0 andalso is_path_key(Prop);
                    _ -> false
                end,
     #{uid => Uid,
@@ -161,7 +161,7 @@ base_entity(Topic, Uid, Kind, Feature, Expose) ->
                            true -> <<Topic/binary, "/set">>;
                            false -> undefined
                        end,
-      value => {json, [Prop]},
+      value => source(Prop),
       json_command => true,
       on => On, off => Off, state_on => On, state_off => Off,
       press => <<"PRESS">>,
@@ -197,10 +197,10 @@ setting(#{<<"property">> := P} = F, Param, Service, #{topic := Topic}) when is_b
                     mqtt_avatar_part:one_of([V || V <- [text(V0) || V0 <- Vs], is_binary(V)]);
                 _ -> <<>>
             end,
-    S = maps:from_list([{state, #{topic => Topic, source => {json, [P]}}}
+    S = maps:from_list([{state, #{topic => Topic, source => source(P)}}
                         || Access band ?ACCESS_STATE =/= 0]
                        ++ [{control, #{topic => <<Topic/binary, "/set">>, field => P}}
-                           || Access band ?ACCESS_SET =/= 0]),
+                           || Access band ?ACCESS_SET =/= 0, is_path_key(P)]),
     case map_size(S) of
         0 -> [];
         _ -> [S#{param => Param, service => Service, check => Check}]
@@ -251,5 +251,22 @@ text(false) -> <<"false">>;
 text(V) when is_binary(V) -> V;
 text(V) when is_number(V) -> mqtt_avatar_json:to_text(V);
 text(_) -> undefined.
+
+%% @doc Where a property is read from the device's JSON state: a path, or,
+%% for a property a path cannot name (`ntc status' of EFEKTA's sensors: a
+%% space, a dot), a template reading that key (docs/mqtt.md section 2.2).
+-spec source(binary()) -> mqtt_avatar_spec:source().
+source(P) ->
+    case {is_path_key(P), binary:match(P, <<"'">>)} of
+        {true, _} -> {json, [P]};
+        {false, nomatch} -> {template, <<"{{ value_json['", P/binary, "'] }}">>};
+        {false, _} -> {template, <<"{{ value_json[\"", P/binary, "\"] }}">>}
+    end.
+
+is_path_key(P) ->
+    P =/= <<>> andalso
+        lists:all(fun(C) -> (C >= $a andalso C =< $z) orelse (C >= $A andalso C =< $Z)
+                                orelse (C >= $0 andalso C =< $9) orelse C =:= $_ orelse C =:= $-
+                  end, binary_to_list(P)).
 
 valid_topic(T) -> binary:match(T, [<<"+">>, <<"#">>, <<0>>]) =:= nomatch.

@@ -1,0 +1,114 @@
+%% @doc Common Test suite of the BIL generated for zigbee2mqtt's real
+%% device database: every definition of zigbee-herdsman-converters (npm, the
+%% exact version package-lock.json in the data directory pins, installed by
+%% the suite with `npm ci'), printed by `devices.js' as the entry of
+%% `bridge/devices' zigbee2mqtt publishes for it, is fed to the generator as
+%% a one-device network and must give one component that EVATAR's parser
+%% reads back (docs/mqtt.md section 2.2, "The real device database").
+-module(mqtt_avatar_z2m_db_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+-include_lib("stdlib/include/assert.hrl").
+
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([every_definition_is_valid_bil/1]).
+
+suite() -> [{timetrap, {minutes, 10}}].
+
+all() -> [every_definition_is_valid_bil].
+
+init_per_suite(Config) ->
+    case {os:find_executable("node"), os:find_executable("npm")} of
+        {false, _} -> {skip, "node is not installed (scripts/ensure-deps.sh installs it)"};
+        {_, false} -> {skip, "npm is not installed (scripts/ensure-deps.sh installs it)"};
+        {Node, _} ->
+            Dir = ?config(data_dir, Config),
+            ok = npm_install(Dir),
+            Out = filename:join(?config(priv_dir, Config), "devices.jsonl"),
+            Cmd = io_lib:format("cd '~ts' && '~ts' devices.js > '~ts' 2>&1; echo status=$?",
+                                [Dir, Node, Out]),
+            Status = os:cmd(lists:flatten(Cmd)),
+            {ok, Bin} = file:read_file(Out),
+            case string:find(Status, "status=0") of
+                nomatch -> ct:fail({devices_js_failed, Status, binary:part(Bin, 0, min(2000, byte_size(Bin)))});
+                _ -> ok
+            end,
+            Lines = [L || L <- binary:split(Bin, <<"\n">>, [global]), L =/= <<>>],
+            ct:log("~b definitions printed by devices.js", [length(Lines)]),
+            [{definitions, Lines} | Config]
+    end.
+
+end_per_suite(_Config) ->
+    ok.
+
+%% zigbee-herdsman-converters at the version package-lock.json pins,
+%% installed next to the script when missing (a clean clone).
+npm_install(Dir) ->
+    case filelib:is_dir(filename:join([Dir, "node_modules", "zigbee-herdsman-converters"])) of
+        true ->
+            ok;
+        false ->
+            Out = os:cmd("cd '" ++ Dir ++ "' && npm ci --no-audit --no-fund --ignore-scripts 2>&1; "
+                         "echo status=$?"),
+            ct:log("npm ci: ~ts", [Out]),
+            case string:find(Out, "status=0") of
+                nomatch -> {error, {npm_ci_failed, Out}};
+                _ -> ok
+            end
+    end.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% Every definition of the database gives valid BIL: one component, no
+%% problem of the generated description, and a document EVATAR's parser
+%% reads back. Prints how many were expressed and why the others were not.
+every_definition_is_valid_bil(Config) ->
+    Lines = ?config(definitions, Config),
+    Results = [definition(L) || L <- Lines],
+    Failed = [{Name, Why} || {error, Name, Why} <- Results],
+    Expressed = length(Lines) - length(Failed),
+    Reasons = lists:foldl(fun({_, Why}, Acc) -> maps:update_with(reason(Why), fun(N) -> N + 1 end, 1, Acc)
+                          end, #{}, Failed),
+    ct:print("~b definitions, ~b expressed; not expressed: ~p", [length(Lines), Expressed, Reasons]),
+    ct:log("not expressed: ~p", [Failed]),
+    ?assert(length(Lines) > 4000),
+    ?assertEqual([], Failed).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+definition(Line) ->
+    {ok, Dev} = mqtt_avatar_json:decode(Line, #{}),
+    Def = maps:get(<<"definition">>, Dev, #{}),
+    Name = iolist_to_binary([maps:get(<<"vendor">>, Def, <<"?">>), " ",
+                             maps:get(<<"model">>, Def, <<"?">>)]),
+    case Dev of
+        #{<<"error">> := E} ->
+            {error, iolist_to_binary([maps:get(<<"vendor">>, Dev, <<"?">>), " ",
+                                      maps:get(<<"model">>, Dev, <<"?">>)]), {exposes, E}};
+        _ ->
+            Payload = <<"[", Line/binary, "]">>,
+            {D, Problems} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, Payload}],
+                                                 #{entity_id => <<"z2m-db">>}),
+            case {Problems, maps:get(components, D)} of
+                {[], [_]} ->
+                    case mqtt_avatar_spec:round_trip(D) of
+                        ok -> {ok, Name};
+                        {error, M} -> {error, Name, {round_trip, M}}
+                    end;
+                {[], Cs} ->
+                    {error, Name, {components, length(Cs)}};
+                {_, _} ->
+                    {error, Name, {problems, [{W, M} || #{what := W, message := M} <- Problems]}}
+            end
+    end.
+
+reason({problems, [{W, M} | _]}) -> {W, first_words(M)};
+reason({round_trip, M}) -> {round_trip, first_words(M)};
+reason(Other) -> element(1, Other).
+
+first_words(M) ->
+    iolist_to_binary(lists:join(" ", lists:sublist(string:lexemes(M, " "), 6))).
