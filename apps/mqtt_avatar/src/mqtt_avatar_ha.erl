@@ -449,12 +449,16 @@ path_source(Template) ->
 
 %% @doc Understands the templates devices actually send:
 %% `{{ value }}', `{{ value_json.a.b }}', `{{ value_json["a"] }}',
-%% `{{ value_json['a'] }}', each optionally followed by simple filters
-%% (`| int', `| float', `| lower', `| round(1)'...), which are ignored.
+%% `{{ value_json['a'] }}', each optionally followed by filters that do not
+%% change a value read as text (`| int', `| float', `| string', `| trim',
+%% `| lower', `| upper', `| round(1)'), which are ignored. Any other filter
+%% is not a path: the evaluator evaluates it, or refuses it by name
+%% (`format').
 -spec template(binary()) -> {ok, mqtt_avatar_spec:source()} | error.
 template(Text) ->
     case re:run(Text, <<"^\\s*\\{\\{\\s*(value_json(?:\\.[A-Za-z0-9_]+|\\[\\s*['\"][^'\"]+['\"]\\s*\\]|\\[[0-9]+\\])*|value)"
-                       "\\s*(\\|\\s*[a-z_]+(\\([^)]*\\))?\\s*)*\\}\\}\\s*$">>,
+                       "\\s*(\\|\\s*(?:int|float|string|trim|lower|upper|round)(\\([^)]*\\))?\\s*)*"
+                       "\\}\\}\\s*$">>,
                 [{capture, [1], binary}, unicode]) of
         {match, [<<"value">>]} ->
             {ok, raw};

@@ -201,3 +201,27 @@ too_large_json_is_not_a_syntax_error_test() ->
     M = mqtt_avatar_json:format_error(R),
     ?assertEqual(nomatch, binary:match(M, <<"at byte">>)),
     ?assertNotEqual(nomatch, binary:match(M, <<"size limit">>)).
+
+%% A value template with a filter the evaluator does not have (`format',
+%% docs/mqtt.md 2.3) is refused with a message naming it, not read as a
+%% plain path; filters that do not change a value read as text still give
+%% a path, and the others the evaluator has are evaluated.
+value_template_filters_test() ->
+    Sensor = fun(Tpl) ->
+                     #{<<"name">> => <<"Temperature">>, <<"uniq_id">> => <<"t-1">>,
+                       <<"stat_t">> => <<"kitchen/t">>, <<"val_tpl">> => Tpl,
+                       <<"dev">> => #{<<"ids">> => [<<"th-1">>], <<"name">> => <<"Thermo">>}}
+             end,
+    Topic = <<"homeassistant/sensor/th-1/t/config">>,
+    {D, Problems} = mqtt_avatar:generate([{Topic, enc(Sensor(<<"{{ value_json.t | format('%.1f') }}">>))}],
+                                         #{}),
+    ?assertEqual([], maps:get(components, D)),
+    [#{what := bad_discovery, message := M}] = Problems,
+    ?assertMatch({match, _}, re:run(M, <<"unsupported filter 'format' at offset \\d+">>)),
+    Value = fun(Tpl) ->
+                    {#{components := [#{consumes := Cs}]}, []} =
+                        mqtt_avatar:generate([{Topic, enc(Sensor(Tpl))}], #{}),
+                    lists:usort([V || #{parameters := Ps} <- Cs, {<<"MqttValue">>, V} <- Ps])
+            end,
+    ?assertEqual([<<"Temperature=json:t">>], Value(<<"{{ value_json.t | float | round(1) }}">>)),
+    ?assertEqual([<<"Temperature=template">>], Value(<<"{{ value_json.t | multiply(10) }}">>)).
