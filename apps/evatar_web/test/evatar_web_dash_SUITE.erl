@@ -18,8 +18,11 @@
 -define(P, <<"dash-home">>).
 -define(VA, <<"va-dash">>).
 -define(AV, <<"avatar-dash">>).
+%% A pairing id and an entity id of 400 characters (the phone-width check).
+-define(LONG_P, <<"dash-long-", (binary:copy(<<"p">>, 390))/binary>>).
+-define(LONG_AV, <<"avatar-long-", (binary:copy(<<"e">>, 388))/binary>>).
 
-suite() -> [{timetrap, {minutes, 5}}].
+suite() -> [{timetrap, {minutes, 8}}].
 
 all() -> [{group, http}, {group, browser}].
 
@@ -316,53 +319,117 @@ start_worlds(Config) ->
     {Home, Arena}.
 
 %% @doc The page in Debian's chromium: the cluster lists the pairing; its
-%% view shows both entities, the bound edge, the unbound camera with its
-%% reason; a request sent by the VA appears in the live tail and flashes
-%% its edge; the page fits a 390 px wide screen; the graph's periodic
-%% redraw keeps the edge's count of signals. Screenshots go to the logs.
+%% view comes into the window when opened from a table of 200 pairings and
+%% shows both entities, the bound edge, the unbound camera with its reason;
+%% a request sent by the VA appears in the live tail and flashes its edge;
+%% the graph's periodic redraw keeps the edge's count of signals. The
+%% simulated home's pairing (reference_agents_holiday) draws one edge per
+%% bound entry, no label under a box; the rooms show their whole device
+%% lists; the page fits a 390 px screen with a 400-character pairing id and
+%% entity id; the arena shows the names the robot VAs anchored (the robots
+%% story, started as `make demo' starts it, with reference_agents not
+%% loaded); axe-core finds nothing serious or critical on any view, and each
+%% has a heading level one. Screenshots go to the logs.
 page_in_chromium(Config) ->
     Dir = ?config(data_dir, Config),
     Shots = ?config(priv_dir, Config),
     ok = npm_install(Dir),
+    {ok, Addr} = agent_bridge:address(dash),
     {Home, Arena} = start_worlds(Config),
-    Url = evatar_web:url(),
-    Node = os:find_executable("node"),
-    Port = open_port({spawn_executable, Node},
-                     [{args, [filename:join(Dir, "dashboard.mjs"), Url, binary_to_list(?P), Shots]},
-                      {cd, Dir}, {line, 4096}, exit_status, stderr_to_stdout]),
-    Result = browser(Port, ?config(va, Config), []),
-    ok = avatar_sim:stop(Home),
-    ok = avatar_sim:stop(Arena),
-    [ct:log("<a href=\"file://~ts\">~ts</a><br><img src=\"file://~ts\" width=\"640\">",
-            [F, filename:basename(F), F])
-     || F <- [filename:join(Shots, "dashboard.png"), filename:join(Shots, "dashboard-mobile.png")],
-        filelib:is_regular(F)],
-    ok = Result.
-
-browser(Port, Va, Lines) ->
-    receive
-        {Port, {data, {eol, "ready"}}} ->
-            ct:log("browser: ready; the VA sends a request"),
-            light_request(Va),
-            browser(Port, Va, ["ready" | Lines]);
-        {Port, {data, {eol, Line}}} ->
-            ct:log("browser: ~ts", [Line]),
-            browser(Port, Va, [Line | Lines]);
-        {Port, {data, {noeol, Line}}} ->
-            browser(Port, Va, [Line | Lines]);
-        {Port, {exit_status, 0}} ->
-            "OK" = hd(Lines),
-            ok;
-        {Port, {exit_status, Status}} ->
-            {error, {browser_test_failed, Status, lists:reverse(Lines)}}
-    after 120000 ->
-            {error, {browser_silent, lists:reverse(Lines)}}
+    Many = [begin
+                P = iolist_to_binary(io_lib:format("dash-many-~3..0b", [I])),
+                {ok, _} = evatar:create_pairing(P, #{agent_credential => <<"a">>,
+                                                     avatar_credential => <<"b">>}),
+                P
+            end || I <- lists:seq(1, 200)],
+    {ok, _} = evatar:create_pairing(?LONG_P, #{agent_credential => <<"la">>,
+                                               avatar_credential => <<"lb">>,
+                                               max_id_length => 512, join_timeout => 60000}),
+    Long = start_long_avatar(Addr),
+    {ok, Holiday} = reference_agents_holiday:start(
+                      #{print => false, spool => filename:join(Shots, "holiday-spool")}),
+    Stories = #{holiday => Holiday, arena => Arena},
+    try
+        Url = evatar_web:url(),
+        Node = os:find_executable("node"),
+        Port = open_port({spawn_executable, Node},
+                         [{args, [filename:join(Dir, "dashboard.mjs"), Url, binary_to_list(?P),
+                                  "home", binary_to_list(?LONG_P), binary_to_list(?LONG_AV), Shots]},
+                          {cd, Dir}, {line, 16384}, exit_status, stderr_to_stdout]),
+        {Result, Stories1} = browser(Port, ?config(va, Config), Stories, []),
+        put(stories, Stories1),
+        [ct:log("<a href=\"file://~ts\">~ts</a><br><img src=\"file://~ts\" width=\"640\">",
+                [F, filename:basename(F), F])
+         || F <- [filename:join(Shots, "dashboard.png"), filename:join(Shots, "dashboard-mobile.png")],
+            filelib:is_regular(F)],
+        ok = Result
+    after
+        Left = case get(stories) of undefined -> Stories; S -> S end,
+        [ok = reference_agents_holiday:stop(H) || #{holiday := H} <- [Left]],
+        [ok = reference_agents_robots:stop(R) || #{robots := R} <- [Left]],
+        [ok = avatar_sim:stop(A) || #{arena := A} <- [Left]],
+        ok = avatar_sim:stop(Home),
+        exit(Long, shutdown),
+        [ok = evatar:delete_pairing(P) || P <- [?LONG_P | Many]]
     end.
 
-%% playwright-core from npm, at the version package-lock.json pins,
-%% installed next to the script when missing (a clean clone).
+%% An Avatar whose entity id is 400 characters long, in a pairing whose id
+%% is too.
+start_long_avatar(Addr) ->
+    Parent = self(),
+    Pid = spawn(fun() ->
+                        {ok, C} = agent_bridge_client:connect(
+                                    [Addr], #{pairing => ?LONG_P, role => avatar,
+                                              entity_id => ?LONG_AV, credential => <<"lb">>}),
+                        ok = agent_bridge_client:describe(
+                               C, description(?LONG_AV, avatar,
+                                              [{<<"KitchenLight">>, [entry(<<"ACTUATOR">>, <<"TurnLightOn">>, [])], []}])),
+                        Parent ! {avatar_up, self()},
+                        avatar_loop(C)
+                end),
+    receive {avatar_up, Pid} -> Pid after 20000 -> ct:fail(long_avatar_did_not_join) end.
+
+%% The script says `ready' when the VA should send its requests, `robots'
+%% when it is done with the home and wants the robots story (the holiday
+%% and the other arena stopped first: the anchors are drawn on every
+%% arena shown).
+browser(Port, Va, Stories, Lines) ->
+    receive
+        {Port, {data, {eol, "ready"}}} ->
+            ct:log("browser: ready; the VA sends 20 requests"),
+            [light_request(Va) || _ <- lists:seq(1, 20)],
+            browser(Port, Va, Stories, ["ready" | Lines]);
+        {Port, {data, {eol, "robots"}}} ->
+            ct:log("browser: robots; the holiday stops, the robots story starts"),
+            #{holiday := H, arena := A} = Stories,
+            ok = reference_agents_holiday:stop(H),
+            ok = avatar_sim:stop(A),
+            %% As in `make demo': nothing has loaded the application.
+            case lists:keymember(reference_agents, 1, application:which_applications()) of
+                false -> _ = application:unload(reference_agents);
+                true -> ok
+            end,
+            {ok, R} = reference_agents_robots:start(#{print => false}),
+            browser(Port, Va, #{robots => R}, ["robots" | Lines]);
+        {Port, {data, {eol, Line}}} ->
+            ct:log("browser: ~ts", [Line]),
+            browser(Port, Va, Stories, [Line | Lines]);
+        {Port, {data, {noeol, Line}}} ->
+            browser(Port, Va, Stories, [Line | Lines]);
+        {Port, {exit_status, 0}} ->
+            "OK" = hd(Lines),
+            {ok, Stories};
+        {Port, {exit_status, Status}} ->
+            {{error, {browser_test_failed, Status, lists:reverse(Lines)}}, Stories}
+    after 180000 ->
+            {{error, {browser_silent, lists:reverse(Lines)}}, Stories}
+    end.
+
+%% playwright-core and axe-core from npm, at the versions package-lock.json
+%% pins, installed next to the script when missing (a clean clone).
 npm_install(Dir) ->
-    case filelib:is_dir(filename:join([Dir, "node_modules", "playwright-core"])) of
+    case lists:all(fun(P) -> filelib:is_dir(filename:join([Dir, "node_modules", P])) end,
+                   ["playwright-core", "axe-core"]) of
         true ->
             ok;
         false ->

@@ -76,6 +76,10 @@ start(Opts) ->
     S6 = reference_agents_scenario:add(coordinator, Coordinator,
                                        reference_agents_scenario:add(robot_vas, Vas, S5)),
     %% For the dashboard (anchors/0): the robot VAs of the running story.
+    %% evatar_web finds anchors/0 in this application's environment
+    %% (dashboard_scenes), there only once the application is loaded: the
+    %% demo calls this module without starting or loading it.
+    ok = load_application(),
     ok = application:set_env(reference_agents, robot_vas, Vas),
     Embodied = [reference_agents_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
                 || {Name, Va} <- maps:to_list(Vas)],
@@ -86,6 +90,12 @@ start(Opts) ->
         [E | _] ->
             ok = stop(S6),
             E
+    end.
+
+load_application() ->
+    case application:load(reference_agents) of
+        ok -> ok;
+        {error, {already_loaded, reference_agents}} -> ok
     end.
 
 va_name(N) -> <<"golem-lego-va-0", (integer_to_binary(N))/binary>>.

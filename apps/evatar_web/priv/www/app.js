@@ -26,6 +26,16 @@ function h(tag, attrs = {}, ...children) {
   return e;
 }
 
+// An id as text: ids longer than `max' characters are cut in the middle,
+// the full id in the title (shown on hover, read by screen readers).
+const MAX_ID = 40;
+function idText(id, max = MAX_ID) {
+  const s = String(id);
+  if (s.length <= max) return h('span', { class: 'id' }, s);
+  const keep = Math.floor((max - 1) / 2);
+  return h('span', { class: 'id cut', title: s }, `${s.slice(0, keep)}…${s.slice(-keep)}`);
+}
+
 // --- cluster ----------------------------------------------------------------
 
 async function refreshCluster() {
@@ -40,8 +50,8 @@ async function refreshCluster() {
         `${n.node}${n.self ? ' (this node)' : ''} · ${n.suspected ? 'suspected' : n.up ? 'up' : 'down'}`)));
     $('#pairings tbody').replaceChildren(...c.pairings.map(p =>
       h('tr', { 'data-pairing': p.id },
-        h('td', {}, h('a', { href: `#/pairing/${encodeURIComponent(p.id)}` }, p.id)),
-        h('td', {}, p.active || '—'), h('td', {}, p.standby || '—'),
+        h('td', {}, h('a', { href: `#/pairing/${encodeURIComponent(p.id)}`, title: p.id }, idText(p.id))),
+        h('td', {}, p.active ? idText(p.active) : '—'), h('td', {}, p.standby ? idText(p.standby) : '—'),
         h('td', {}, String(p.epoch)), h('td', {}, p.standby ? (p.synced ? 'yes' : 'no') : '—'))));
   } catch (e) {
     $('#cluster-error').hidden = false;
@@ -58,7 +68,7 @@ async function refreshGraph() {
     $('#pairing-state').textContent = `${g.state} · node ${g.node}`;
     $('#entities').replaceChildren(...g.entities.map(e =>
       h('li', { class: e.attached ? 'attached' : 'detached', 'data-entity': e.id },
-        h('b', {}, e.id), ` ${e.role} · `,
+        h('b', {}, idText(e.id)), ` ${e.role} · `,
         e.attached ? 'connected' : 'detached', ' · ',
         e.registered ? `described (${e.components.length} components)` : 'not described',
         ` · ${e.delivered} delivered`)));
@@ -103,7 +113,7 @@ function tailRow(i) {
 
 function onItem(i) {
   if (i.kind === 'hello') { $('#tail-status').textContent = `live on ${i.node}`; return; }
-  if (i.from && i.to) graph.flash(i.from, i.to);
+  if (i.from && i.to) graph.flash(i);
   if (i.kind === 'bindings' || i.kind === 'entity') scheduleGraph();
   if (paused) return;
   const list = $('#tail');
@@ -132,7 +142,7 @@ function openTail() {
 
 function showPairing(id) {
   current = id;
-  $('#pairing-id').textContent = id;
+  $('#pairing-id').replaceChildren(idText(id, 60));
   $('#tail').replaceChildren();
   graph.reset();
   refreshGraph();
@@ -158,7 +168,13 @@ function route() {
   if (m) {
     $('#pairing-view').hidden = false;
     const id = decodeURIComponent(m[1]);
-    if (id !== current) showPairing(id);
+    if (id !== current) {
+      showPairing(id);
+      // The view is below the cluster's table, which can be long: bring it
+      // into the window and give it the focus (keyboard and screen reader).
+      $('#pairing-view').scrollIntoView({ block: 'start' });
+      $('#pairing-heading').focus({ preventScroll: true });
+    }
   } else {
     $('#pairing-view').hidden = true;
     if (closeTail) { closeTail(); closeTail = null; }

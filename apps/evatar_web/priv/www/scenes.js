@@ -27,29 +27,20 @@ export function renderScenes(container, scenes) {
 }
 
 function home(s) {
+  // The rooms as an HTML grid, not SVG text: a room's list of devices
+  // wraps instead of being cut at the room's edge.
   const cols = Math.ceil(Math.sqrt(s.rooms.length || 1));
-  const W = 200, H = 130;
-  const rows = Math.ceil(s.rooms.length / cols) || 1;
-  const svg = el('svg', { viewBox: `0 0 ${cols * W} ${rows * H}`, class: 'floorplan', role: 'img', 'aria-label': 'floor plan' });
-  s.rooms.forEach((r, i) => {
-    const x = (i % cols) * W, y = Math.floor(i / cols) * H;
-    const g = el('g', { class: `room light-${r.light || 'none'}`, 'data-room': r.name });
-    g.append(el('rect', { x: x + 2, y: y + 2, width: W - 4, height: H - 4 }));
-    g.append(el('text', { x: x + 10, y: y + 22, class: 'room-name' }, r.name));
-    g.append(el('text', { x: x + 10, y: y + 40, class: 'room-detail' },
-      `light ${r.light || '-'} · motion ${time(r.last_motion)}`));
-    g.append(el('text', { x: x + 10, y: y + 56, class: 'room-detail' }, r.devices.join(', ')));
-    r.people.forEach((p, j) => {
-      const cx = x + 24 + j * 46, cy = y + H - 30;
-      g.append(el('circle', { cx, cy, r: 10, class: 'person' }));
-      g.append(el('text', { x: cx, y: cy + 24, class: 'person-name', 'text-anchor': 'middle' }, p));
-    });
-    svg.append(g);
-  });
+  const plan = h('div', { class: 'floorplan', role: 'list', 'aria-label': 'floor plan',
+    style: `grid-template-columns: repeat(${cols}, minmax(0, 1fr))` },
+    ...s.rooms.map(r => h('div', { class: `room light-${r.light || 'none'}`, 'data-room': r.name, role: 'listitem' },
+      h('div', { class: 'room-name' }, r.name),
+      h('div', { class: 'room-detail' }, `light ${r.light || '-'} · motion ${time(r.last_motion)}`),
+      h('div', { class: 'room-devices' }, r.devices.join(', ')),
+      h('div', { class: 'people' }, ...r.people.map(p => h('span', { class: 'person' }, p))))));
   const a = s.alarm;
   const wrong = a.keypad.filter(k => k.wrong).length;
-  return h('div', { class: 'panel wide', id: 'scene-home' },
-    h('h3', {}, `Home · ${time(s.time)}`), svg,
+  return h('div', { class: 'panel wide scene-home' },
+    h('h3', {}, `Home · ${time(s.time)}`), plan,
     h('p', { class: wrong ? 'alarm on' : 'alarm' },
       `alarm: ${a.attempts} attempts, ${wrong} wrong code(s); ${a.played.length} sound(s) played; ${a.emails} e-mail(s), ${a.sms} SMS`),
     h('ul', { class: 'photos' }, ...s.photos.slice(-8).map(p =>
@@ -77,10 +68,10 @@ function arena(s, agents) {
   }
   for (const a of agents) {
     for (const an of a.anchors) {
-      svg.append(el('text', { x: an.x + 45, y: Y(an.y) - 45, class: 'anchor' }, an.symbol));
+      svg.append(el('text', { x: an.x + 45, y: Y(an.y) - 45, class: 'anchor', 'data-symbol': an.symbol }, an.symbol));
     }
   }
-  return h('div', { class: 'panel wide', id: 'scene-arena' }, h('h3', {}, `LEGO arena · ${time(s.time)}`), svg,
+  return h('div', { class: 'panel wide scene-arena' }, h('h3', {}, `LEGO arena · ${time(s.time)}`), svg,
     h('ul', { class: 'anchors' }, ...agents.map(a =>
       h('li', {}, `${a.name}: ${a.anchors.map(x => `${x.symbol} (${x.colour})`).join(', ') || 'nothing anchored yet'}`))));
 }
