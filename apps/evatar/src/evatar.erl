@@ -9,7 +9,7 @@
 %% is internal.
 -module(evatar).
 
--export([check_pairing_opts/1, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
+-export([check_pairing_opts/1, pairing_option_ranges/0, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
          join/5, resume/5, describe/2, leave_async/1,
          send/2, ack/2, report_binding/1, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
@@ -164,6 +164,16 @@ check_pairing_opts(Opts) ->
         {ok, _} -> ok;
         {error, _} = Error -> Error
     end.
+
+%% @doc Pure: the inclusive range of each numeric pairing option (an
+%% integer outside it is `{error, {bad_option, {Key, Value}}}'): timers
+%% in ms 0 to 4294967295 (2^32-1, erlang:start_timer/3's limit),
+%% max_avatars, max_consumes and max_id_length 1 to 65536, dedup_window,
+%% max_unacked_out and max_open_requests 1 to 1048576,
+%% max_binding_report 4096 to 268435456 bytes.
+-spec pairing_option_ranges() -> #{atom() => {non_neg_integer(), pos_integer()}}.
+pairing_option_ranges() ->
+    evatar_pairing_logic:option_ranges().
 
 %% @doc Makes sure the cluster has pairing `PairingId': when neither the
 %% catalogue nor an alive node has it, records it with `Opts' (its home is

@@ -21,7 +21,7 @@
 %% for `resume_timeout' ms for a Resume.
 -module(evatar_pairing_logic).
 
--export([config/1, new/2, handle/3]).
+-export([config/1, option_ranges/0, new/2, handle/3]).
 -export([phase/1, summary/1, bindings/1, registration_list/1, stats/1,
          timers/2, pairing_id/1, epoch/1, entity_ids/1, config_of/1,
          unacked_since/1, attached_ids/1, last_accepted/2]).
@@ -135,6 +135,24 @@
                    max_id_length => 128, max_open_requests => 1024, max_consumes => 256,
                    max_binding_report => 1048576}).
 
+%% The one table of the numeric options' ranges, inclusive (docs/api.md
+%% and docs/protocol.md section 7 list them): every path that makes a
+%% pairing (evatar:create_pairing/2, ensure_pairing/2, the node
+%% configuration file, the HTTP API) goes through config/1. A timer must
+%% stay within erlang:start_timer/3's limit (2^32-1 ms, 49.7 days); counts
+%% are bounded so one option cannot make a pairing hold unbounded memory.
+-define(MAX_TIMER_MS, 4294967295).
+-define(RANGES, #{join_timeout => {0, ?MAX_TIMER_MS},
+                  feedback_timeout => {0, ?MAX_TIMER_MS},
+                  resume_timeout => {0, ?MAX_TIMER_MS},
+                  max_avatars => {1, 65536},
+                  dedup_window => {1, 1048576},
+                  max_unacked_out => {1, 1048576},
+                  max_open_requests => {1, 1048576},
+                  max_consumes => {1, 65536},
+                  max_id_length => {1, 65536},
+                  max_binding_report => {4096, 268435456}}).
+
 %% The bytes of a Binding report that do not depend on its values: the
 %% document around the Entities list, one EntityID entry, and one Bound row
 %% with its Score and Candidates at 20 digits (an Unbound row is shorter).
@@ -160,15 +178,14 @@ config(Opts) when is_map(Opts) ->
 config(Other) ->
     {error, {bad_option, Other}}.
 
+check_options([{K, V} | Rest], Opts) when is_map_key(K, ?RANGES) ->
+    {Min, Max} = maps:get(K, ?RANGES),
+    case is_integer(V) andalso V >= Min andalso V =< Max of
+        true -> check_options(Rest, Opts);
+        false -> {error, {bad_option, {K, V}}}
+    end;
 check_options([{K, V} | Rest], Opts)
-  when (K =:= join_timeout orelse K =:= feedback_timeout orelse K =:= resume_timeout),
-       is_integer(V), V >= 0;
-       (K =:= max_avatars orelse K =:= dedup_window orelse K =:= max_unacked_out orelse
-        K =:= max_open_requests orelse K =:= max_consumes),
-       is_integer(V), V > 0;
-       K =:= max_id_length, is_integer(V), V > 0, V =< 65536;
-       K =:= max_binding_report, is_integer(V), V >= 4096;
-       K =:= standby_node, is_atom(V);
+  when K =:= standby_node, is_atom(V);
        K =:= agent_credential; K =:= avatar_credential; K =:= identities;
        K =:= unlisted_ids ->
     check_options(Rest, Opts);
@@ -176,6 +193,12 @@ check_options([Bad | _], _Opts) ->
     {error, {bad_option, Bad}};
 check_options([], Opts) ->
     {ok, maps:merge(?DEFAULTS, Opts)}.
+
+%% @doc Pure: the inclusive range of every numeric pairing option, as
+%% config/1 checks it.
+-spec option_ranges() -> #{atom() => {non_neg_integer(), pos_integer()}}.
+option_ranges() ->
+    ?RANGES.
 
 %% @doc A pairing with nobody joined yet, at epoch 1.
 -spec new(evatar:pairing_id(), config()) -> state().

@@ -109,6 +109,29 @@ config_refuses_bad_options_test_() ->
                    evatar_pairing_logic:config(#{agent_credential => <<"a">>})),
      ?_assertEqual({error, {bad_option, nope}}, evatar_pairing_logic:config(nope))].
 
+%% Every numeric option has a range: its bounds are accepted, one past
+%% them is refused naming the option; a timer never reaches
+%% erlang:start_timer/3 past its limit (2^32-1 ms).
+config_ranges_test_() ->
+    Base = #{agent_credential => <<"a">>, avatar_credential => <<"b">>},
+    Ranges = evatar:pairing_option_ranges(),
+    Keys = [join_timeout, feedback_timeout, resume_timeout, max_avatars, dedup_window,
+            max_unacked_out, max_open_requests, max_consumes, max_id_length, max_binding_report],
+    [?_assertEqual(lists:sort(Keys), lists:sort(maps:keys(Ranges))),
+     ?_assertEqual({0, 4294967295}, maps:get(join_timeout, Ranges)),
+     ?_assertEqual({error, {bad_option, {join_timeout, 1000000000000000000000000000000}}},
+                   evatar:check_pairing_opts(Base#{join_timeout => 1000000000000000000000000000000}))]
+    ++ [?_assertMatch({ok, #{K := Min}}, evatar_pairing_logic:config(Base#{K => Min}))
+        || {K, {Min, _}} <- maps:to_list(Ranges)]
+    ++ [?_assertMatch({ok, #{K := Max}}, evatar_pairing_logic:config(Base#{K => Max}))
+        || {K, {_, Max}} <- maps:to_list(Ranges)]
+    ++ [?_assertEqual({error, {bad_option, {K, Max + 1}}}, evatar_pairing_logic:config(Base#{K => Max + 1}))
+        || {K, {_, Max}} <- maps:to_list(Ranges)]
+    ++ [?_assertEqual({error, {bad_option, {K, Min - 1}}}, evatar_pairing_logic:config(Base#{K => Min - 1}))
+        || {K, {Min, _}} <- maps:to_list(Ranges)]
+    ++ [?_assertEqual({error, {bad_option, {K, 1.5}}}, evatar_pairing_logic:config(Base#{K => 1.5}))
+        || K <- Keys].
+
 %% ---------------------------------------------------------------------------
 %% Joining
 %% ---------------------------------------------------------------------------

@@ -390,10 +390,12 @@ fold_opts([{K, V} | Rest], Acc) ->
 
 opt(K, V) ->
     case {lists:member(K, ?INT_OPTS), lists:member(K, ?POS_OPTS), lists:member(K, ?CRED_OPTS)} of
-        {true, _, _} when is_integer(V), V >= 0 -> {ok, binary_to_existing_atom(K), V};
-        {true, _, _} -> {error, <<"must be an integer of at least 0 (milliseconds)">>};
-        {_, true, _} when is_integer(V), V > 0 -> {ok, binary_to_existing_atom(K), V};
-        {_, true, _} -> {error, <<"must be an integer of at least 1">>};
+        {Ms, Count, _} when Ms; Count ->
+            Key = binary_to_existing_atom(K),
+            case in_range(Key, V) of
+                true -> {ok, Key, V};
+                false -> {error, range_message(Key)}
+            end;
         {_, _, true} ->
             case credential(V) of
                 ok -> {ok, binary_to_existing_atom(K), V};
@@ -415,6 +417,20 @@ other_opt(<<"standby_node">>, _) -> {error, <<"must be a node name (text)">>};
 other_opt(<<"identities">>, Is) when is_list(Is) ->
     identities(Is, 0, []);
 other_opt(<<"identities">>, _) -> {error, <<"must be a list of {\"entity\", \"role\", \"credential\"}">>}.
+
+%% evatar's ranges (evatar:pairing_option_ranges/0): one table for the
+%% API, the configuration file and evatar:create_pairing/2.
+in_range(Key, V) ->
+    {Min, Max} = maps:get(Key, evatar:pairing_option_ranges()),
+    is_integer(V) andalso V >= Min andalso V =< Max.
+
+range_message(Key) ->
+    {Min, Max} = maps:get(Key, evatar:pairing_option_ranges()),
+    Unit = case lists:member(atom_to_binary(Key), ?INT_OPTS) of
+               true -> " (milliseconds)";
+               false -> ""
+           end,
+    iolist_to_binary(io_lib:format("must be an integer from ~b to ~b~ts", [Min, Max, Unit])).
 
 cluster_nodes() ->
     #{configured := C, up := U} = evatar:cluster_status(),
@@ -472,7 +488,11 @@ bad_option({identity, _, {cert_sha256, _}}) ->
     err(400, <<"bad_request">>, <<"identities">>,
         <<"a cert_sha256 is not a SHA-256 fingerprint (64 hex digits, colons allowed)">>);
 bad_option({K, _}) when is_atom(K) ->
-    err(400, <<"bad_request">>, atom_to_binary(K), <<"not accepted by the pairing">>);
+    err(400, <<"bad_request">>, atom_to_binary(K),
+        case maps:is_key(K, evatar:pairing_option_ranges()) of
+            true -> range_message(K);
+            false -> <<"not accepted by the pairing">>
+        end);
 bad_option(Bad) ->
     err(400, <<"bad_request">>, null,
         iolist_to_binary(io_lib:format("options not accepted: ~0tp", [Bad]))).

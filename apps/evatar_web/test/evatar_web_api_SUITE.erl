@@ -227,6 +227,13 @@ create_refusals(_Config) ->
              {400, <<"bad_request">>, <<"join_timeout">>, Good#{join_timeout => -1}},
              {400, <<"bad_request">>, <<"join_timeout">>, Good#{join_timeout => <<"5">>}},
              {400, <<"bad_request">>, <<"max_avatars">>, Good#{max_avatars => 0}},
+             %% Past a range: a timer past erlang:start_timer/3's limit crashed the pairing.
+             {400, <<"bad_request">>, <<"join_timeout">>, Good#{join_timeout => 1000000000000000000000000000000}},
+             {400, <<"bad_request">>, <<"feedback_timeout">>, Good#{feedback_timeout => 4294967296}},
+             {400, <<"bad_request">>, <<"resume_timeout">>, Good#{resume_timeout => 4294967296}},
+             {400, <<"bad_request">>, <<"max_avatars">>, Good#{max_avatars => 1000000000000000000000}},
+             {400, <<"bad_request">>, <<"dedup_window">>, Good#{dedup_window => 1048577}},
+             {400, <<"bad_request">>, <<"max_binding_report">>, Good#{max_binding_report => 100}},
              {400, <<"bad_request">>, <<"agent_credential">>, Good#{agent_credential => <<"short">>}},
              {400, <<"bad_request">>, <<"avatar_credential">>, maps:remove(avatar_credential, Good)},
              {400, <<"bad_request">>, <<"unlisted_ids">>, Good#{unlisted_ids => <<"maybe">>}},
@@ -243,6 +250,8 @@ create_refusals(_Config) ->
              {400, <<"bad_request">>, <<"identities">>,
               Good#{identities => [#{entity => <<"e">>, role => <<"agent">>, cert_sha256 => <<"zz">>}]}},
              {409, <<"already_exists">>, <<"id">>, Good#{id => ?PAIRING}}]],
+    {400, #{<<"message">> := <<"must be an integer from 0 to 4294967295 (milliseconds)">>}} =
+        change(post, "/api/pairings", Good#{join_timeout => 1000000000000000000000000000000}),
     {400, #{<<"error">> := <<"bad_json">>}} =
         ?T:request(post, "/api/pairings", [auth(?TOKEN)], "{\"id\": "),
     {400, #{<<"error">> := <<"bad_request">>}} =
@@ -285,6 +294,8 @@ change_options(Config) ->
     {400, #{<<"field">> := <<"id">>}} =
         change(put, "/api/pairings/web-chg", #{id => <<"web-chg">>, feedback_timeout => 99}),
     {404, _} = ?T:get("/api/pairings/other"),
+    {400, #{<<"field">> := <<"join_timeout">>}} =
+        change(put, "/api/pairings/web-chg", #{join_timeout => 4294967296}),
     {200, #{<<"options">> := #{<<"feedback_timeout">> := 1234}}} = ?T:get("/api/pairings/web-chg"),
     %% The old credentials still join.
     {ok, C} = agent_bridge_client:connect([?config(addr, Config)],

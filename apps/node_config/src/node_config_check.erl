@@ -316,7 +316,16 @@ bad_pairing({unlisted_ids, _}) ->
 bad_pairing({K, _Credential}) when K =:= agent_credential; K =:= avatar_credential ->
     io_lib:format("~ts is not a hashed credential as bin/evatar hash_credential prints it", [K]);
 bad_pairing({K, V}) when is_atom(K) ->
-    io_lib:format("~ts ~0tp is not accepted", [K, V]);
+    case evatar:pairing_option_ranges() of
+        #{K := {Min, Max}} ->
+            io_lib:format("~ts ~0tp is not accepted: an integer from ~b to ~b~ts", [K, V, Min, Max,
+                          case lists:member(K, [join_timeout, feedback_timeout, resume_timeout]) of
+                              true -> " (milliseconds)";
+                              false -> ""
+                          end]);
+        #{} ->
+            io_lib:format("~ts ~0tp is not accepted", [K, V])
+    end;
 bad_pairing(Bad) ->
     io_lib:format("bad option ~0tp", [Bad]).
 

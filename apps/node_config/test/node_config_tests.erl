@@ -254,7 +254,13 @@ wrong_types_test() ->
     has("{pairings, [#{id => home, agent_credential => \"a\", avatar_credential => \"b\"}]}.",
         "id must be text"),
     has("{pairings, [#{id => \"h\", agent_credential => \"a\", avatar_credential => \"b\", "
-        "join_timeout => -1}]}.", "join_timeout -1 is not accepted"),
+        "join_timeout => -1}]}.", "join_timeout -1 is not accepted: an integer from 0 to 4294967295"),
+    has("{pairings, [#{id => \"h\", agent_credential => \"a\", avatar_credential => \"b\", "
+        "feedback_timeout => 1000000000000000000000000000000}]}.",
+        "feedback_timeout 1000000000000000000000000000000 is not accepted: an integer from 0 to "
+        "4294967295 (milliseconds)"),
+    has("{pairings, [#{id => \"h\", agent_credential => \"a\", avatar_credential => \"b\", "
+        "max_avatars => 65537}]}.", "max_avatars 65537 is not accepted: an integer from 1 to 65536"),
     has(?PAIRING ?AVATAR(", settle => \"soon\""), "settle must be an integer"),
     has(?PAIRING "{mqtt_avatars, [#{entity_id => \"a\", pairing => \"home\", "
         "mqtt => #{host => \"h\", port => 0}}]}.", "port must be an integer of at least 1"),
