@@ -251,19 +251,32 @@ release_daemon_runs_the_file(Config) ->
 %% `bin/evatar foreground' with a file with mistakes: the node does not
 %% start, and its output names the file, the line, the entry and every
 %% mistake of each entry, one line each (an Avatar's unknown key and its
-%% port in quotes in one run: MQTT_REVIEW D9).
+%% port in quotes in one run: MQTT_REVIEW D9; a pairing's unknown word and
+%% its bad values; the http section's four mistakes).
 release_refuses_a_bad_file(Config) ->
     File = filename:join(?config(priv_dir, Config), "release_bad.config"),
     ok = file:write_file(File, "{pairings, [#{id => \"home\", agent_credential => \"a\",\n"
-                               "              avatar_credential => \"b\", join_timeout => -5}]}.\n"
+                               "              avatar_credential => \"b\", join_timeout => -5,\n"
+                               "              zz_colour_of_node_config_suite => blue, "
+                               "max_avatars => \"many\"}]}.\n"
                                "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"home\", "
                                "discover => #{},\n"
-                               "                  mqtt => #{host => \"localhost\", port => \"1883\"}}]}.\n"),
+                               "                  mqtt => #{host => \"localhost\", port => \"1883\"}}]}.\n"
+                               "{http, #{colour => \"red\", ip => \"no-address\", port => 70000, "
+                               "max_clients => 0}}.\n"),
     Env = release_env(Config, File),
+    %% An unknown word does not stop the reading of its entry, and the
+    %% http section's four mistakes are all named.
     Expected = [File ++ ": line 1: pairings entry 1 (home): join_timeout -5 is not accepted",
-                File ++ ": line 3: mqtt_avatars entry 1 (house): unknown key discover (known: ",
-                File ++ ": line 3: mqtt_avatars entry 1 (house): mqtt: port must be an integer of "
-                        "at least 1"],
+                File ++ ": line 1: pairings entry 1 (home): max_avatars \"many\" is not accepted",
+                File ++ ": line 3: unknown word zz_colour_of_node_config_suite",
+                File ++ ": line 4: mqtt_avatars entry 1 (house): unknown key discover (known: ",
+                File ++ ": line 4: mqtt_avatars entry 1 (house): mqtt: port must be an integer of "
+                        "at least 1",
+                File ++ ": line 6: http: unknown key colour",
+                File ++ ": line 6: http: ip \"no-address\" is not an IP address",
+                File ++ ": line 6: http: port: ",
+                File ++ ": line 6: http: max_clients: "],
     %% daemon (its pre-start hook), check_config and foreground (the boot
     %% itself) all refuse, with the message on the terminal.
     lists:foreach(fun(Command) ->

@@ -52,10 +52,10 @@ load(File) ->
     %% module at boot.
     _ = [code:ensure_loaded(M) || A <- Apps, {ok, Ms} <- [application:get_key(A, modules)], M <- Ms],
     case node_config_file:read(File, node_config_check:known_words()) of
-        {ok, Sections} ->
+        {ok, Sections, WordProblems} ->
             Defaults = #{listeners => application:get_env(agent_bridge, listeners, []),
                          dir => filename:dirname(filename:absname(File))},
-            case node_config_check:check(Sections, Defaults) of
+            case node_config_check:check(Sections, Defaults, WordProblems) of
                 {ok, Config} -> {ok, Config};
                 {error, Problems} -> {error, {bad_config, File, Problems}}
             end;

@@ -9,7 +9,7 @@
 %% they do.
 -module(node_config_check).
 
--export([check/2, known_words/0]).
+-export([check/2, check/3, known_words/0]).
 
 -export_type([config/0]).
 
@@ -56,7 +56,15 @@ known_words() ->
 -spec check([node_config_file:section()], #{listeners := list(), dir => file:filename()}) ->
           {ok, config()} | {error, [binary()]}.
 check(Sections, Defaults) ->
-    Problems0 = [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars, "
+    check(Sections, Defaults, []).
+
+%% @doc check/2, with the mistakes the reading found (`Earlier': its
+%% unknown words, node_config_file:read/2), reported with the checks' in
+%% the order of their lines.
+-spec check([node_config_file:section()], #{listeners := list(), dir => file:filename()},
+            [node_config_file:problem()]) -> {ok, config()} | {error, [binary()]}.
+check(Sections, Defaults, Earlier) ->
+    Problems0 = Earlier ++ [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars, "
                         "http)",
                      [Name])
                  || {Name, L, _} <- Sections, not lists:member(Name, ?SECTIONS)]
@@ -186,38 +194,42 @@ check_listener(E) ->
 http(false) ->
     {#{}, []};
 http({http, L, {not_a_list, E}}) when is_map(E) ->
-    Checked = stages([[fun(X) -> unknown(X, ?HTTP_KEYS) end,
-                     fun(X) -> texts([token_file], X) end,
-                     %% evatar_web refuses both at its start (docs/api.md).
-                     fun(#{operator_token_hash := H, token_file := F})
-                           when H =/= undefined, F =/= "", F =/= <<>> ->
-                             {error, "operator_token_hash and token_file: give one, not both"};
-                        (X) -> {ok, X}
-                     end,
-                     fun(#{ip := Ip} = X) ->
-                             case text(Ip) of
-                                 {ok, B} ->
-                                     case inet:parse_strict_address(binary_to_list(B)) of
-                                         {ok, Addr} -> {ok, X#{ip => Addr}};
-                                         {error, _} -> {error, io_lib:format("ip \"~ts\" is not an IP "
-                                                                             "address", [B])}
-                                     end;
-                                 error ->
-                                     {error, "ip must be an address in double quotes, for example "
-                                             "\"127.0.0.1\""}
-                             end;
-                        (X) -> {ok, X}
-                     end],
-                     %% evatar_web's own check of its options, once they read
-                     [fun(X) ->
-                              case evatar_web:check_opts(X) of
-                                  ok -> {ok, X};
-                                  {error, {K, Why}} -> {error, io_lib:format("~0tp: ~ts", [K, Why])}
-                              end
-                      end]], E),
-    case Checked of
-        {ok, Http} -> {#{http => Http}, []};
-        {error, Why} -> {#{}, [msg(L, "http: ~ts", [M]) || M <- lines(Why)]}
+    %% Each key on its own, so that every mistake is named: the keys this
+    %% module reads (unknown ones, the text of token_file and ip, the two
+    %% ways of giving a token), then evatar_web's own check of each key
+    %% that read.
+    {Read, Errors} = each([fun(X) -> unknown(X, ?HTTP_KEYS) end,
+                           fun(X) -> texts([token_file], X) end,
+                           %% evatar_web refuses both at its start (docs/api.md).
+                           fun(#{operator_token_hash := H, token_file := F})
+                                 when H =/= undefined, F =/= "", F =/= <<>> ->
+                                   {error, "operator_token_hash and token_file: give one, not both"};
+                              (X) -> {ok, X}
+                           end,
+                           fun(#{ip := Ip} = X) ->
+                                   case text(Ip) of
+                                       {ok, B} ->
+                                           case inet:parse_strict_address(binary_to_list(B)) of
+                                               {ok, Addr} -> {ok, X#{ip => Addr}};
+                                               {error, _} -> {error, io_lib:format("ip \"~ts\" is not an "
+                                                                                   "IP address", [B])}
+                                           end;
+                                       error ->
+                                           {error, "ip must be an address in double quotes, for "
+                                                   "example \"127.0.0.1\""}
+                                   end;
+                              (X) -> {ok, X}
+                           end], E,
+                          %% What a failed check read is not checked again.
+                          #{1 => fun(X) -> maps:with(?HTTP_KEYS, X) end,
+                            2 => fun(X) -> maps:remove(token_file, X) end,
+                            4 => fun(X) -> maps:remove(ip, X) end}),
+    Web = [io_lib:format("~0tp: ~ts", [K, Why])
+           || {K, V} <- lists:sort(maps:to_list(Read)),
+              {error, {_, Why}} <- [evatar_web:check_opts(#{K => V})]],
+    case Errors ++ Web of
+        [] -> {#{http => Read}, []};
+        Whys -> {#{}, [msg(L, "http: ~ts", [M]) || M <- lines({mistakes, Whys})]}
     end;
 http({http, L, _}) ->
     {#{}, [msg(L, "http: the value must be one map #{ip => \"127.0.0.1\", port => 7480, "
@@ -228,36 +240,62 @@ http({http, L, _}) ->
 %% ---------------------------------------------------------------------------
 
 pairing(E) when is_map(E) ->
-    stages([[fun(P) -> chain([fun(P1) -> texts([id], P1) end,
-                              fun(#{id := Id} = P1) when Id =/= <<>> -> {ok, P1};
-                                 (_) -> {error, "id (text, for example \"home\") is required"}
-                              end], P)
-             end,
-             fun(P) -> credentials([agent_credential, avatar_credential], P) end,
-             fun(#{identities := Is} = P) when is_list(Is) ->
-                     Results = [{N, identity(I)} || {N, I} <- lists:zip(lists:seq(1, length(Is)), Is)],
-                     case [{N, Why} || {N, {error, Why}} <- Results] of
-                         [] -> {ok, P#{identities := [I || {_, {ok, I}} <- Results]}};
-                         Bad -> {error, {mistakes,
-                                         [prefixed(io_lib:format("identities entry ~b~ts: ",
-                                                                 [N, label(lists:nth(N, Is))]), Why)
-                                          || {N, Why} <- Bad]}}
-                     end;
-                (#{identities := _}) ->
-                     {error, "identities must be a list [#{entity => \"...\", role => agent, "
-                             "credential => \"...\"}, ...]"};
-                (P) -> {ok, P}
-             end],
-            %% evatar's own check of a pairing's options, once they read
-            [fun(P) ->
-                     case evatar:check_pairing_opts(maps:remove(id, P)) of
-                         ok -> {ok, P};
-                         {error, {bad_option, Bad}} -> {error, bad_pairing(Bad)}
-                     end
-             end]], E);
+    %% The keys this module reads, each on its own; then evatar's own check
+    %% of the options, once per mistake it finds (pairing_opts/3).
+    {P, Errors} = each([fun(P) -> chain([fun(P1) -> texts([id], P1) end,
+                                          fun(#{id := Id} = P1) when Id =/= <<>> -> {ok, P1};
+                                             (_) -> {error, "id (text, for example \"home\") is required"}
+                                          end], P)
+                        end,
+                        fun(P) -> credentials([agent_credential, avatar_credential], P) end,
+                        fun(#{identities := Is} = P) when is_list(Is) ->
+                                Results = [{N, identity(I)} || {N, I} <- lists:zip(lists:seq(1, length(Is)), Is)],
+                                case [{N, Why} || {N, {error, Why}} <- Results] of
+                                    [] -> {ok, P#{identities := [I || {_, {ok, I}} <- Results]}};
+                                    Bad -> {error, {mistakes,
+                                                    [prefixed(io_lib:format("identities entry ~b~ts: ",
+                                                                            [N, label(lists:nth(N, Is))]), Why)
+                                                     || {N, Why} <- Bad]}}
+                                end;
+                           (#{identities := _}) ->
+                                {error, "identities must be a list [#{entity => \"...\", role => agent, "
+                                        "credential => \"...\"}, ...]"};
+                           (P) -> {ok, P}
+                        end], E,
+                       #{1 => fun(X) -> maps:remove(id, X) end,
+                         2 => fun(X) -> maps:without([agent_credential, avatar_credential], X) end,
+                         3 => fun(X) -> maps:remove(identities, X) end}),
+    %% Who may join cannot be judged without the keys that say it.
+    Who = [agent_credential, avatar_credential, identities],
+    Unjudged = [K || K <- Who, maps:is_key(K, E), not maps:is_key(K, P)],
+    case Errors ++ pairing_opts(maps:remove(id, P), Unjudged, []) of
+        [] -> {ok, P};
+        [One] -> {error, One};
+        Many -> {error, {mistakes, Many}}
+    end;
 pairing(_) ->
     {error, "a pairing is a map #{id => \"...\", agent_credential => \"...\", "
             "avatar_credential => \"...\"} or #{id => \"...\", identities => [...]}"}.
+
+%% evatar's verdict on a pairing's options, every mistake: a key it
+%% refuses is named and taken out, and the options checked again (at most
+%% once per key). Which credentials are missing is not said when one of
+%% them (or the identities) was taken out.
+pairing_opts(Opts, Unjudged, Acc) ->
+    case evatar:check_pairing_opts(Opts) of
+        ok ->
+            lists:reverse(Acc);
+        {error, {bad_option, {missing, _}}} when Unjudged =/= [] ->
+            lists:reverse(Acc);
+        {error, {bad_option, {K, _} = Bad}} when is_atom(K), is_map_key(K, Opts) ->
+            Unjudged1 = case lists:member(K, [agent_credential, avatar_credential, identities]) of
+                            true -> [K | Unjudged];
+                            false -> Unjudged
+                        end,
+            pairing_opts(maps:remove(K, Opts), Unjudged1, [iolist_to_binary(bad_pairing(Bad)) | Acc]);
+        {error, {bad_option, Bad}} ->
+            lists:reverse([iolist_to_binary(bad_pairing(Bad)) | Acc])
+    end.
 
 %% One device of a pairing's `identities': its text becomes binaries, its
 %% role stays one of the two words; evatar checks the rest.
@@ -620,6 +658,23 @@ all_of(Checks, V) ->
         [One] -> {error, One};
         Many -> {error, {mistakes, Many}}
     end.
+
+%% Independent checks, all run in turn on the value as the ones before
+%% left it; when check N fails, `Drop' (a map from N) may take out of the
+%% value what it read, so that later checks do not judge it again.
+%% Returns the value and every mistake.
+each(Checks, V, Drop) ->
+    {V1, Errors, _} = lists:foldl(
+                        fun(F, {Acc, Es, N}) ->
+                                case F(Acc) of
+                                    {ok, Acc1} ->
+                                        {Acc1, Es, N + 1};
+                                    {error, Why} ->
+                                        Rest = (maps:get(N, Drop, fun(X) -> X end))(Acc),
+                                        {Rest, Es ++ lines(Why), N + 1}
+                                end
+                        end, {V, [], 1}, Checks),
+    {V1, Errors}.
 
 %% Groups of independent checks, each group run once the one before
 %% passed (it needs what they check).

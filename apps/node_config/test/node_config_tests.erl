@@ -354,3 +354,50 @@ mistakes_are_bounded_test() ->
     Ps = problems(?PAIRING ?AVATAR(", overrides => #{" ++ lists:flatten(Overrides) ++ "}")),
     ?assertEqual(10, length(Ps)),
     ?assertNotEqual(nomatch, binary:match(lists:last(Ps), <<"and 21 more mistakes">>)).
+
+%% An unknown word is a mistake, and the reading goes on: the other
+%% mistakes of its entry (and of the file) are named in the same run. A
+%% misspelt key is left out, a misspelt value reads as the text it spells.
+unknown_word_does_not_stop_the_reading_test() ->
+    W1 = "zz_" ++ integer_to_list(erlang:unique_integer([positive])),
+    W2 = "zz_" ++ integer_to_list(erlang:unique_integer([positive])),
+    Ps = problems("{pairings, [#{id => \"home\", agent_credential => \"a\", avatar_credential => \"b\",\n"
+                  "  " ++ W1 ++ " => 1, join_timeout => -1, max_avatars => \"many\",\n"
+                  "  unlisted_ids => " ++ W2 ++ "}]}.\n"
+                  "{mqtt_avatars, [#{entity_id => \"house\", pairing => \"home\",\n"
+                  "  mqtt => #{host => \"h\", port => \"1\", protocol => '" ++ W2 ++ "'}}]}.\n"),
+    %% In the order of their lines (an entry's at the line it starts).
+    ?assertMatch([<<"line 1: pairings entry 1 (home): ", _/binary>>,
+                  <<"line 1: pairings entry 1 (home): ", _/binary>>,
+                  <<"line 1: pairings entry 1 (home): ", _/binary>>,
+                  <<"line 2: unknown word ", _/binary>>,
+                  <<"line 3: unknown word ", _/binary>>,
+                  <<"line 4: mqtt_avatars entry 1 (house): mqtt: port must be an integer", _/binary>>,
+                  <<"line 4: mqtt_avatars entry 1 (house): mqtt: protocol must be one of v311, v5">>,
+                  <<"line 5: unknown word ", _/binary>>],
+                 Ps, Ps),
+    Text = iolist_to_binary(lists:join("\n", Ps)),
+    [?assertNotEqual(nomatch, binary:match(Text, list_to_binary(S)), {S, Ps})
+     || S <- ["line 2: unknown word " ++ W1, "line 3: unknown word " ++ W2,
+              "line 5: unknown word " ++ W2, "join_timeout -1", "max_avatars \"many\"",
+              "unlisted_ids must be refuse or role_credential"]],
+    ?assertEqual(8, length(Ps)),
+    ?assertError(badarg, list_to_existing_atom(W1)),
+    ?assertError(badarg, list_to_existing_atom(W2)),
+    %% Only the first twenty unknown words are named.
+    Many = lists:flatten([io_lib:format("zz_many_~b => 1, ", [N]) || N <- lists:seq(1, 25)]),
+    Ps2 = problems("{pairings, [#{" ++ Many ++ "id => \"x\", agent_credential => \"a\", "
+                   "avatar_credential => \"b\"}]}.\n"),
+    ?assertEqual(21, length(Ps2)),
+    ?assertEqual(<<"line 1: and 5 more unknown words">>, lists:last(Ps2)).
+
+%% Every mistake of the http section in one run: an unknown key, an ip
+%% that is no address, and evatar_web's verdict on each key that read (a
+%% port out of range, a max_clients that is no positive integer).
+every_mistake_of_the_http_section_test() ->
+    Ps = problems("{http, #{colour => \"red\", ip => \"no-address\", port => 70000,\n"
+                  "         max_clients => 0, enabled => true}}.\n"),
+    ?assertMatch([<<"line 1: http: unknown key colour", _/binary>>,
+                  <<"line 1: http: ip \"no-address\" is not an IP address">>,
+                  <<"line 1: http: max_clients: ", _/binary>>,
+                  <<"line 1: http: port: ", _/binary>>], Ps).
