@@ -9,7 +9,7 @@
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1,
          init_per_group/2, end_per_group/2]).
 -export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
-         method_not_allowed/1, loopback_reads_check_host/1, body_limit/1,
+         method_not_allowed/1, loopback_reads_check_host/1, body_limit/1, nodelay/1,
          bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1]).
 -export([log/2]).
 
@@ -21,7 +21,7 @@ all() -> [{group, server}, {group, startup}].
 
 groups() ->
     [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
-                   method_not_allowed, loopback_reads_check_host, body_limit]},
+                   method_not_allowed, loopback_reads_check_host, body_limit, nodelay]},
      {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged]}].
 
 init_per_suite(Config) ->
@@ -116,6 +116,20 @@ body_limit(_Config) ->
         <<>> -> ok;                             % closed without an answer
         _ -> {match, _} = re:run(Chunked, "^HTTP/1.1 (413|500)")
     end.
+
+%% The server's accepted sockets have Nagle's algorithm off: a response
+%% written in more than one send must not wait for the client's delayed
+%% ACK (about 40 ms a request on a kept-alive connection otherwise).
+nodelay(_Config) ->
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
+    ok = gen_tcp:send(S, "GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
+    {ok, <<"HTTP/1.1 200", _/binary>>} = gen_tcp:recv(S, 0, 10000),
+    {ok, Mine} = inet:sockname(S),
+    %% The server's end of this connection: the socket whose peer is us.
+    [Server] = [P || P <- erlang:ports(), erlang:port_info(P, name) =:= {name, "tcp_inet"},
+                     inet:peername(P) =:= {ok, Mine}],
+    {ok, [{nodelay, true}]} = inet:getopts(Server, [nodelay]),
+    ok = gen_tcp:close(S).
 
 %% A mistake in the environment stops the start with the key named.
 bad_env_refuses_start(_Config) ->
