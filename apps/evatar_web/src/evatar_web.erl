@@ -12,16 +12,19 @@
 %% The application environment (docs/api.md, "Configuration"): `enabled'
 %% (true), `ip' (127.0.0.1), `port' (7480; 0 picks a free one),
 %% `operator_token_hash' (none), `token_file' (none), `max_body' (1 MiB),
-%% `max_clients' (64).
+%% `max_clients' (64), `things' (none: the WoT consumers, docs/wot.md).
 -type opts() :: #{enabled => boolean(),
                   ip => inet:ip_address(),
                   port => inet:port_number(),
                   operator_token_hash => undefined | evatar_auth:hashed(),
                   token_file => string() | binary(),
                   max_body => pos_integer(),
-                  max_clients => pos_integer()}.
+                  max_clients => pos_integer(),
+                  things => [#{pairing := binary() | string(),
+                               credential := binary() | string(),
+                               entity_id => binary() | string()}]}.
 
--define(KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients]).
+-define(KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients, things]).
 
 %% @doc The port the HTTP server listens on (the one it picked when
 %% configured with port 0); `undefined' when it does not run.
@@ -54,6 +57,16 @@ check_opts(Opts) when is_map(Opts) ->
 check_opts(_) ->
     {error, {http, <<"must be a map">>}}.
 
+thing(#{pairing := P, credential := C} = T) ->
+    lists:all(fun text/1, [P, C | [E || #{entity_id := E} <- [T]]])
+        andalso maps:size(maps:without([pairing, credential, entity_id], T)) =:= 0;
+thing(_) ->
+    false.
+
+text(B) when is_binary(B), B =/= <<>> -> true;
+text([_ | _] = L) -> io_lib:printable_unicode_list(L);
+text(_) -> false.
+
 check([]) -> ok;
 check([{K, V} | Rest]) ->
     case valid(K, V) of
@@ -84,6 +97,17 @@ valid(token_file, V) when is_list(V) ->
     end;
 valid(token_file, V) when is_binary(V) -> true;
 valid(token_file, _) -> <<"must be a file name">>;
+valid(things, V) when is_list(V) ->
+    Pairings = [P || #{pairing := P} <- V],
+    Unique = length(lists:usort(Pairings)) =:= length(Pairings),
+    case lists:all(fun thing/1, V) of
+        false -> <<"must be a list of #{pairing => Id, credential => Secret, entity_id => Id} "
+                   "(texts; entity_id optional, default wot)">>;
+        true when not Unique ->
+            <<"names a pairing more than once (one WoT consumer per pairing)">>;
+        true -> true
+    end;
+valid(things, _) -> <<"must be a list">>;
 valid(K, V) when K =:= max_body; K =:= max_clients ->
     case is_integer(V) andalso V > 0 of
         true -> true;

@@ -53,7 +53,18 @@ routes() ->
      {<<"GET">>, <<"/api/mqtt_avatars">>, evatar_web_api, mqtt_avatars},
      {<<"GET">>, <<"/api/mqtt_avatars/:id">>, evatar_web_api, mqtt_avatar},
      {<<"GET">>, <<"/api/mqtt_avatars/:id/problems">>, evatar_web_api, problems},
-     {<<"PUT">>, <<"/api/mqtt_avatars/:id/description">>, evatar_web_api, override_description}].
+     {<<"PUT">>, <<"/api/mqtt_avatars/:id/description">>, evatar_web_api, override_description}]
+    ++ evatar_web_things_routes().
+
+%% The Web of Things binding (docs/wot.md).
+evatar_web_things_routes() ->
+    T = <<"/api/things/:pairing/:entity">>,
+    [{<<"GET">>, <<"/.well-known/wot">>, evatar_web_things, well_known},
+     {<<"GET">>, <<"/api/things">>, evatar_web_things, list},
+     {<<"GET">>, T, evatar_web_things, td},
+     {<<"GET">>, <<T/binary, "/properties">>, evatar_web_things, read_all},
+     {<<"GET">>, <<T/binary, "/properties/:component/:service">>, evatar_web_things, read},
+     {<<"POST">>, <<T/binary, "/actions/:component/:service">>, evatar_web_things, invoke}].
 
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.

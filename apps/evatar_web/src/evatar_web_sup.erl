@@ -18,7 +18,11 @@ init([]) ->
     Children = case application:get_env(evatar_web, enabled, true) of
                    true ->
                        %% The event streams' admission (evatar_web_events).
-                       [#{id => evatar_web_streams,
+                       %% The WoT consumers (docs/wot.md).
+                       [#{id => evatar_web_things_sup,
+                          start => {evatar_web_things_sup, start_link, []},
+                          type => supervisor},
+                        #{id => evatar_web_streams,
                           start => {evatar_web_streams, start_link, []}},
                         #{id => evatar_web_server,
                           start => {evatar_web_server, start_link, []},

@@ -1,0 +1,212 @@
+%% @doc The Web of Things export (docs/wot.md): the simulated smart home
+%% (avatar_sim) joins a pairing over TCP, the node's WoT consumer joins it as
+%% the agent (http option `things'), and its TDs are checked with the Thing
+%% Description Playground (TD 1.1 JSON Schema and assertion checks, npm
+%% @thing-description-playground/core) and driven by a real node-wot
+%% consumer (npm @node-wot/core, @node-wot/binding-http), pinned in this
+%% suite's data dir and installed into _build/wot-npm (again when the lock
+%% file changes).
+-module(evatar_web_wot_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
+-export([tds_pass_schema_and_assertions/1, consumer_is_bound_like_a_va/1,
+         node_wot_switches_the_lamp/1, feedback_timeout_is_504/1, actions_need_the_token/1,
+         a_va_cannot_join_beside_it/1, bad_things_option_is_named/1]).
+
+-define(T, evatar_web_test).
+-define(TOKEN, "wot-operator-token-0123456789abcdef").
+-define(HOME, <<"wot-home">>).
+-define(VA_CRED, <<"wot-va-secret">>).
+-define(AV_CRED, <<"wot-av-secret">>).
+-define(LAMP, "BedroomSocketSwitch01").
+
+suite() -> [{timetrap, {minutes, 6}}].
+
+all() -> [bad_things_option_is_named, tds_pass_schema_and_assertions, consumer_is_bound_like_a_va,
+          actions_need_the_token, node_wot_switches_the_lamp, a_va_cannot_join_beside_it,
+          feedback_timeout_is_504].
+
+init_per_suite(Config) ->
+    Npm = npm_install(),
+    ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
+    {ok, _} = application:ensure_all_started(evatar),
+    {ok, _} = application:ensure_all_started(agent_bridge),
+    {ok, _} = application:ensure_all_started(avatar_sim),
+    {ok, _} = agent_bridge:start_listener(wot, #{port => 0}),
+    {ok, Addr} = agent_bridge:address(wot),
+    _ = evatar:delete_pairing(?HOME),
+    {ok, _} = evatar:create_pairing(?HOME, #{agent_credential => ?VA_CRED,
+                                             avatar_credential => ?AV_CRED,
+                                             feedback_timeout => 2000}),
+    ?T:start(#{operator_token_hash => evatar:hash_credential(list_to_binary(?TOKEN)),
+               things => [#{pairing => ?HOME, credential => ?VA_CRED, entity_id => <<"wot">>}]}),
+    {ok, Home} = avatar_sim:start_home(#{endpoints => [Addr], spool => ?config(priv_dir, Config),
+                                         gateways => [#{pairing => ?HOME, credential => ?AV_CRED}]}),
+    wait_until(fun() -> home_bound() end),
+    [{npm, Npm}, {home, Home} | Config].
+
+end_per_suite(Config) ->
+    ok = avatar_sim:stop(?config(home, Config)),
+    _ = evatar:delete_pairing(?HOME),
+    ok = agent_bridge:stop_listener(wot),
+    ?T:stop().
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% A wrong `things' option stops the start naming the key.
+bad_things_option_is_named(_Config) ->
+    {error, {things, _}} = evatar_web:check_opts(#{things => [#{pairing => <<"p">>}]}),
+    {error, {things, _}} = evatar_web:check_opts(#{things => [#{pairing => <<"p">>, credential => <<"c">>},
+                                                              #{pairing => <<"p">>, credential => <<"d">>}]}),
+    {error, {things, _}} = evatar_web:check_opts(#{things => [#{pairing => <<"p">>, credential => <<"c">>,
+                                                                 room => 1}]}),
+    ok = evatar_web:check_opts(#{things => [#{pairing => "p", credential => "secret", entity_id => "wot"}]}).
+
+%% Every TD the node exports (the home's, the listing's, /.well-known/wot)
+%% passes the TD 1.1 JSON Schema and the playground's assertions; each
+%% actuator service is an action with its input and output, each sensor
+%% stream a property, and the security is the bearer token.
+tds_pass_schema_and_assertions(Config) ->
+    {200, Hdrs, Body} = ?T:raw(get, "/api/things", [], none),
+    "application/json" = proplists:get_value("content-type", Hdrs),
+    {ok, [TD]} = evatar_web_json:decode(list_to_binary(Body)),
+    #{<<"@context">> := [<<"https://www.w3.org/2019/wot/td/v1">>, <<"https://www.w3.org/2022/wot/td/v1.1">>, _],
+      <<"id">> := Id, <<"security">> := [<<"bearer_sc">>],
+      <<"securityDefinitions">> := #{<<"bearer_sc">> := #{<<"scheme">> := <<"bearer">>}},
+      <<"actions">> := #{<<?LAMP, ".SwitchSocketOn">> := #{<<"input">> := In, <<"output">> := Out,
+                                                             <<"forms">> := [Form]}},
+      <<"properties">> := #{<<"TimeSensor01.TimeOfDay">> := #{<<"readOnly">> := true}}} = TD,
+    {match, _} = re:run(Id, "^urn:evatar:thing:.+:wot-home:easy-home-01$"),
+    #{<<"properties">> := #{<<"Appliance">> := _, <<"Room">> := _}} = In,
+    #{<<"properties">> := #{<<"Feedback">> := _, <<"Device">> := _}} = Out,
+    #{<<"additionalResponses">> := [#{<<"success">> := false, <<"schema">> := <<"error">>}]} = Form,
+    {200, TdHdrs, One} = ?T:raw(get, "/api/things/wot-home/easy-home-01", [], none),
+    "application/td+json" = proplists:get_value("content-type", TdHdrs),
+    {200, _, Node} = ?T:raw(get, "/.well-known/wot", [], none),
+    Files = [write(Config, "list.json", Body), write(Config, "one.json", One),
+             write(Config, "node.json", Node)],
+    {0, Report} = node(Config, "validate.js", Files),
+    ct:pal("~ts", [Report]),
+    {match, _} = re:run(Report, "checked 3 TDs, 0 failed"),
+    %% The checker can fail: a TD without its security is refused.
+    Broken = write(Config, "broken.json", evatar_web_json:encode(maps:remove(<<"security">>, TD))),
+    {1, Refused} = node(Config, "validate.js", [Broken]),
+    {match, _} = re:run(Refused, "checked 1 TDs, 1 failed").
+
+%% The WoT consumer is an agent of the pairing: it is in the Body Mapping
+%% Registry, bound to the home's components like any VA.
+consumer_is_bound_like_a_va(_Config) ->
+    {200, #{<<"agents">> := [#{<<"entity">> := <<"wot">>}], <<"bound">> := Bound}} =
+        ?T:get("/api/pairings/wot-home/bindings"),
+    [_] = [B || #{<<"consumer">> := #{<<"entity">> := <<"wot">>, <<"component">> := <<"wot.", ?LAMP>>},
+                  <<"provider">> := #{<<"component">> := <<?LAMP>>},
+                  <<"type">> := <<"SwitchSocketOn">>} = B <- Bound].
+
+%% Invoking an action is a change: without the operator token, 401.
+actions_need_the_token(_Config) ->
+    {401, #{<<"error">> := <<"unauthorized">>}} =
+        ?T:request(post, action_path("SwitchSocketOn"), [], "{}"),
+    {401, #{<<"error">> := <<"bad_token">>}} =
+        ?T:request(post, action_path("SwitchSocketOn"), [{"authorization", "Bearer wrong-token"}], "{}").
+
+%% A node-wot consumer fetches the lamp's TD and invokes SwitchSocketOn
+%% through it: the request goes through the pairing to the simulated
+%% socket, whose feedback is the action's output; the house's socket is on.
+node_wot_switches_the_lamp(Config) ->
+    Url = ?T:url("/api/things/wot-home/easy-home-01"),
+    {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, ?LAMP ".SwitchSocketOn", "{}"]),
+    ct:pal("~ts", [Out]),
+    {match, [Json]} = re:run(Out, "^OUTPUT (.*)$", [multiline, {capture, all_but_first, binary}]),
+    {ok, #{<<"Socket">> := <<"on">>, <<"Room">> := <<"bedroom">>}} = evatar_web_json:decode(Json),
+    {0, Off} = node(Config, "consume.js", [Url, ?TOKEN, ?LAMP ".SwitchSocketOff", "{}"]),
+    {match, _} = re:run(Off, "OUTPUT .*\"Socket\":\"off\"").
+
+%% A pairing holds one agent: while the WoT consumer is joined, a VA is
+%% refused `occupied' (docs/wot.md, limits).
+a_va_cannot_join_beside_it(_Config) ->
+    {error, occupied} = evatar:join(?HOME, agent, <<"another-va">>, ?VA_CRED).
+
+%% A muted lamp does not answer: after the pairing's feedback timeout the
+%% action answers 504 feedback_timeout, the error its TD declares.
+feedback_timeout_is_504(Config) ->
+    ok = avatar_sim:mute(?config(home, Config), <<?LAMP>>),
+    try
+        {504, #{<<"error">> := <<"feedback_timeout">>}} =
+            ?T:request(post, action_path("SwitchSocketOn"), auth(), "{}")
+    after
+        avatar_sim:unmute(?config(home, Config), <<?LAMP>>)
+    end,
+    {200, #{<<"Socket">> := <<"on">>}} = ?T:request(post, action_path("SwitchSocketOn"), auth(), "{}").
+
+%% ---------------------------------------------------------------------------
+
+auth() -> [{"authorization", "Bearer " ?TOKEN}].
+
+action_path(Service) -> "/api/things/wot-home/easy-home-01/actions/" ?LAMP "/" ++ Service.
+
+home_bound() ->
+    case ?T:get("/api/pairings/wot-home/bindings") of
+        {200, #{<<"bound">> := Bound, <<"agents">> := [_]}} ->
+            lists:any(fun(#{<<"provider">> := #{<<"component">> := C}}) -> C =:= <<?LAMP>> end, Bound);
+        _ ->
+            false
+    end.
+
+write(Config, Name, Data) ->
+    F = filename:join(?config(priv_dir, Config), Name),
+    ok = file:write_file(F, Data),
+    F.
+
+%% Runs a script of the data dir with the installed node_modules.
+node(Config, Script, Args) ->
+    Node = os:find_executable("node"),
+    Node =/= false orelse ct:fail("node is not installed (Debian: nodejs, npm)"),
+    run(Node, [filename:join(?config(data_dir, Config), Script) | Args],
+        [{"NODE_PATH", filename:join(?config(npm, Config), "node_modules")}]).
+
+%% npm ci of the data dir's lock file into _build/wot-npm
+%% (EVATAR_WOT_NPM to choose another), again when the lock file changes.
+npm_install() ->
+    Npm = os:find_executable("npm"),
+    Npm =/= false orelse ct:fail("npm is not installed (Debian: npm)"),
+    Src = proplists:get_value(source, evatar_web:module_info(compile)),
+    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Dir = case os:getenv("EVATAR_WOT_NPM") of
+              V when is_list(V), V =/= "" -> V;
+              _ -> filename:join([Root, "_build", "wot-npm"])
+          end,
+    Data = filename:join([Root, "apps", "evatar_web", "test", "evatar_web_wot_SUITE_data"]),
+    {ok, Lock} = file:read_file(filename:join(Data, "package-lock.json")),
+    Marker = filename:join(Dir, "lock.installed"),
+    case file:read_file(Marker) of
+        {ok, Lock} ->
+            ok;
+        _ ->
+            ok = filelib:ensure_dir(filename:join(Dir, "x")),
+            [{ok, _} = file:copy(filename:join(Data, F), filename:join(Dir, F))
+             || F <- ["package.json", "package-lock.json"]],
+            case run(Npm, ["ci", "--no-audit", "--no-fund", "--prefix", Dir], []) of
+                {0, _} -> ok;
+                {S, Out} -> ct:fail({cannot_install_npm_packages, S, Out})
+            end,
+            ok = file:write_file(Marker, Lock)
+    end,
+    Dir.
+
+run(Exe, Args, Env) ->
+    Port = open_port({spawn_executable, Exe}, [{args, Args}, {env, Env}, exit_status, binary,
+                                               stderr_to_stdout]),
+    collect(Port, []).
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D]);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after 300000 -> ct:fail({no_exit, iolist_to_binary(Acc)})
+    end.
+
+wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 30000, interval => 100}).
