@@ -21,6 +21,8 @@
 -define(VA_CRED, <<"wot-va-secret">>).
 -define(AV_CRED, <<"wot-av-secret">>).
 -define(LAMP, "BedroomSocketSwitch01").
+-define(MQTT, <<"wot-mqtt">>).
+-define(MQTT_AV, <<"wot-mqtt-home">>).
 
 suite() -> [{timetrap, {minutes, 6}}].
 
@@ -40,16 +42,33 @@ init_per_suite(Config) ->
     {ok, _} = evatar:create_pairing(?HOME, #{agent_credential => ?VA_CRED,
                                              avatar_credential => ?AV_CRED,
                                              feedback_timeout => 2000}),
+    _ = evatar:delete_pairing(?MQTT),
+    {ok, _} = evatar:create_pairing(?MQTT, #{agent_credential => ?VA_CRED,
+                                             avatar_credential => ?AV_CRED}),
     ?T:start(#{operator_token_hash => evatar:hash_credential(list_to_binary(?TOKEN)),
-               things => [#{pairing => ?HOME, credential => ?VA_CRED, entity_id => <<"wot">>}]}),
+               things => [#{pairing => ?HOME, credential => ?VA_CRED, entity_id => <<"wot">>},
+                          #{pairing => ?MQTT, credential => ?VA_CRED}]}),
     {ok, Home} = avatar_sim:start_home(#{endpoints => [Addr], spool => ?config(priv_dir, Config),
                                          gateways => [#{pairing => ?HOME, credential => ?AV_CRED}]}),
+    %% The MQTT Avatar: devices announced by Home Assistant discovery on a
+    %% real mosquitto, discovered by mqtt_avatar, joined to ?MQTT.
+    {ok, _} = application:ensure_all_started(mqtt_avatar),
+    {ok, Broker} = evatar_test_mosquitto:start(),
+    Mqtt = #{host => "127.0.0.1", port => maps:get(port, Broker)},
+    ok = announce(Mqtt),
+    {ok, _} = mqtt_avatar:keep(#{entity_id => ?MQTT_AV, mqtt => Mqtt, discovery => #{},
+                                 evatar => #{endpoints => [Addr], pairing => ?MQTT,
+                                             credential => ?AV_CRED}}),
     wait_until(fun() -> home_bound() end),
-    [{npm, Npm}, {home, Home} | Config].
+    wait_until(fun() -> length(things()) =:= 2 end),
+    [{npm, Npm}, {home, Home}, {broker, Broker} | Config].
 
 end_per_suite(Config) ->
     ok = avatar_sim:stop(?config(home, Config)),
+    _ = mqtt_avatar:unkeep(?MQTT_AV),
+    ok = evatar_test_mosquitto:stop(?config(broker, Config)),
     _ = evatar:delete_pairing(?HOME),
+    _ = evatar:delete_pairing(?MQTT),
     ok = agent_bridge:stop_listener(wot),
     ?T:stop().
 
@@ -66,14 +85,19 @@ bad_things_option_is_named(_Config) ->
                                                                  room => 1}]}),
     ok = evatar_web:check_opts(#{things => [#{pairing => "p", credential => "secret", entity_id => "wot"}]}).
 
-%% Every TD the node exports (the home's, the listing's, /.well-known/wot)
+%% Every TD the node exports (the simulated home's and the MQTT Avatar's,
+%% one of them alone, /.well-known/wot)
 %% passes the TD 1.1 JSON Schema and the playground's assertions; each
 %% actuator service is an action with its input and output, each sensor
 %% stream a property, and the security is the bearer token.
 tds_pass_schema_and_assertions(Config) ->
     {200, Hdrs, Body} = ?T:raw(get, "/api/things", [], none),
     "application/json" = proplists:get_value("content-type", Hdrs),
-    {ok, [TD]} = evatar_web_json:decode(list_to_binary(Body)),
+    {ok, TDs} = evatar_web_json:decode(list_to_binary(Body)),
+    [TD] = [X || #{<<"title">> := <<"easy-home-01">>} = X <- TDs],
+    [#{<<"actions">> := MqttActions, <<"properties">> := MqttProps}] =
+        [X || #{<<"title">> := ?MQTT_AV} = X <- TDs],
+    true = maps:size(MqttActions) >= 2 andalso maps:size(MqttProps) >= 2,
     #{<<"@context">> := [<<"https://www.w3.org/2019/wot/td/v1">>, <<"https://www.w3.org/2022/wot/td/v1.1">>, _],
       <<"id">> := Id, <<"security">> := [<<"bearer_sc">>],
       <<"securityDefinitions">> := #{<<"bearer_sc">> := #{<<"scheme">> := <<"bearer">>}},
@@ -91,7 +115,7 @@ tds_pass_schema_and_assertions(Config) ->
              write(Config, "node.json", Node)],
     {0, Report} = node(Config, "validate.js", Files),
     ct:pal("~ts", [Report]),
-    {match, _} = re:run(Report, "checked 3 TDs, 0 failed"),
+    {match, _} = re:run(Report, "checked 4 TDs, 0 failed"),
     %% The checker can fail: a TD without its security is refused.
     Broken = write(Config, "broken.json", evatar_web_json:encode(maps:remove(<<"security">>, TD))),
     {1, Refused} = node(Config, "validate.js", [Broken]),
@@ -145,6 +169,37 @@ feedback_timeout_is_504(Config) ->
 %% ---------------------------------------------------------------------------
 
 auth() -> [{"authorization", "Bearer " ?TOKEN}].
+
+things() ->
+    {200, _, Body} = ?T:raw(get, "/api/things", [], none),
+    {ok, TDs} = evatar_web_json:decode(list_to_binary(Body)),
+    TDs.
+
+%% Retained Home Assistant discovery configs of a light, a switch, a
+%% temperature sensor and a motion sensor (docs/mqtt.md section 2.1).
+announce(Mqtt) ->
+    {ok, C} = mqtt_client:start(Mqtt#{client_id => <<"wot-suite-announcer">>}),
+    ok = mqtt_client:await_connected(C, 10000),
+    Dev = fun(Id) -> #{<<"ids">> => [Id], <<"name">> => Id} end,
+    Configs = [{<<"light/kitchen_light">>,
+                #{<<"name">> => <<"Kitchen light">>, <<"uniq_id">> => <<"kitchen_light">>,
+                  <<"cmd_t">> => <<"home/kitchen_light/set">>, <<"stat_t">> => <<"home/kitchen_light/state">>,
+                  <<"dev">> => Dev(<<"kitchen_light">>)}},
+               {<<"switch/hall_plug">>,
+                #{<<"name">> => <<"Hall plug">>, <<"uniq_id">> => <<"hall_plug">>,
+                  <<"cmd_t">> => <<"home/hall_plug/set">>, <<"stat_t">> => <<"home/hall_plug/state">>,
+                  <<"dev">> => Dev(<<"hall_plug">>)}},
+               {<<"sensor/hall_temperature">>,
+                #{<<"name">> => <<"Hall temperature">>, <<"uniq_id">> => <<"hall_temperature">>,
+                  <<"stat_t">> => <<"home/hall_temperature">>, <<"dev_cla">> => <<"temperature">>,
+                  <<"unit_of_meas">> => <<"C">>, <<"dev">> => Dev(<<"hall_temperature">>)}},
+               {<<"binary_sensor/hall_motion">>,
+                #{<<"name">> => <<"Hall motion">>, <<"uniq_id">> => <<"hall_motion">>,
+                  <<"stat_t">> => <<"home/hall_motion">>, <<"dev_cla">> => <<"motion">>,
+                  <<"dev">> => Dev(<<"hall_motion">>)}}],
+    [ok = mqtt_client:publish(C, <<"homeassistant/", T/binary, "/config">>, evatar_web_json:encode(J),
+                              #{qos => 1, retain => true}) || {T, J} <- Configs],
+    mqtt_client:stop(C).
 
 action_path(Service) -> "/api/things/wot-home/easy-home-01/actions/" ?LAMP "/" ++ Service.
 
