@@ -70,7 +70,10 @@ end_per_suite(Config) ->
     _ = evatar:delete_pairing(?HOME),
     _ = evatar:delete_pairing(?MQTT),
     ok = agent_bridge:stop_listener(wot),
-    ?T:stop().
+    ?T:stop(),
+    %% evatar_web_test's defaults have no `things': later suites must not
+    %% start this suite's consumers.
+    application:unset_env(evatar_web, things).
 
 %% ---------------------------------------------------------------------------
 %% Cases
