@@ -9,7 +9,7 @@
 %% is internal.
 -module(evatar).
 
--export([check_pairing_opts/1, pairing_option_ranges/0, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
+-export([check_data_dir/0, check_pairing_opts/1, pairing_option_ranges/0, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
          join/5, resume/5, describe/2, leave_async/1,
          send/2, ack/2, report_binding/1, leave/1, session_pid/1, session_info/1]).
 -export([pairings/0, bindings/1, registry/1, stats/1,
@@ -138,9 +138,12 @@
 %% on this node, and records it in the cluster's catalogue (durable: it
 %% comes back after every node restarted, docs/ha.md section 2). Returns
 %% the pid of the pairing process. `already_exists' when an alive node runs
-%% an instance of that id, or the catalogue has it.
+%% an instance of that id, or the catalogue has it; `{disk_full, Dir}'
+%% when this node's data directory has no room to record it (nothing is
+%% started; docs/ha.md section 6, "A full disk").
 -spec create_pairing(pairing_id(), pairing_opts()) ->
-          {ok, pid()} | {error, already_exists | {bad_option, term()}}.
+          {ok, pid()} | {error, already_exists | {bad_option, term()}
+                               | {disk_full, file:filename()}}.
 create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     case pairing_config(Opts) of
         {ok, Config} ->
@@ -155,6 +158,19 @@ create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     end;
 create_pairing(PairingId, _Opts) ->
     {error, {bad_option, {id, PairingId}}}.
+
+%% @doc Whether this node's data directory (mnesia's `dir',
+%% `EVATAR_DATA_DIR') has room for a catalogue change
+%% (`data_dir_reserve_bytes', default 1 MiB): `ok', also with no data
+%% directory or one not made yet, or `{error, {disk_full, Dir}}'. Needs
+%% evatar's code, not its processes: node_config asks it before mnesia
+%% starts (docs/ha.md section 6, "A full disk").
+-spec check_data_dir() -> ok | {error, {disk_full, file:filename()}}.
+check_data_dir() ->
+    case application:get_env(mnesia, dir) of
+        undefined -> ok;
+        {ok, Dir} -> evatar_data_dir:check(Dir)
+    end.
 
 %% @doc Pure: checks a pairing's options as create_pairing/2 would, so a
 %% configuration file's mistakes are found before the node starts.
@@ -181,15 +197,20 @@ pairing_option_ranges() ->
 %% the alive nodes and hears a majority (at once on a lone node). When it
 %% exists, nothing changes (`exists'), even if `Opts' differ: for a node's
 %% configuration file, read at every start, that lists pairings to create
-%% when absent. Options are checked as by {@link create_pairing/2}.
+%% when absent. Options are checked as by {@link create_pairing/2};
+%% `{disk_full, Dir}' as there.
 -spec ensure_pairing(pairing_id(), pairing_opts()) ->
-          {ok, created | exists} | {error, {bad_option, term()}}.
+          {ok, created | exists} | {error, {bad_option, term()} | {disk_full, file:filename()}}.
 ensure_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     case pairing_config(Opts) of
         {ok, Config} ->
             case evatar_registry:whereis_name(PairingId) =:= undefined andalso
                 not exists_elsewhere(PairingId) of
-                true -> {ok, evatar_catalogue:ensure(PairingId, Config)};
+                true ->
+                    case evatar_catalogue:ensure(PairingId, Config) of
+                        {error, _} = Full -> Full;
+                        Done -> {ok, Done}
+                    end;
                 false -> {ok, exists}
             end;
         {error, _} = Error ->
@@ -221,6 +242,8 @@ start_pairing(PairingId, Config) ->
             {ok, Pid};
         {error, already_exists} ->
             {error, already_exists};
+        {error, {disk_full, _}} = Full ->
+            Full;
         %% Lost a race with another create of the same id.
         {error, {shutdown, {failed_to_start_child, evatar_pairing, {already_started, _}}}} ->
             {error, already_exists}
@@ -235,7 +258,10 @@ start_pairing(PairingId, Config) ->
 %% (application env `call_timeout', default 15 s: it is working through a
 %% large operation); the request stays queued, so the pairing goes once it
 %% gets to it (and the deletion is recorded already).
--spec delete_pairing(pairing_id()) -> ok | {error, not_found | busy}.
+%% `{error, {disk_full, Dir}}' when this node's data directory has no room
+%% to record the deletion: nothing stops.
+-spec delete_pairing(pairing_id()) ->
+          ok | {error, not_found | busy | {disk_full, file:filename()}}.
 delete_pairing(PairingId) ->
     Target = case evatar_registry:role(PairingId) of
                  %% Deleting through the standby's node deletes at the active.
@@ -247,6 +273,8 @@ delete_pairing(PairingId) ->
     %% recorded all the same, so that entry cannot bring it back.
     Catalogued = evatar_catalogue:remove(PairingId, Target =/= undefined),
     case {Target, Catalogued} of
+        {_, {error, {disk_full, _}} = Full} ->
+            Full;
         {undefined, ok} ->
             ok;
         {undefined, not_found} ->

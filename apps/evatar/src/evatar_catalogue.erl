@@ -19,19 +19,28 @@
 %% it starts the pairings it owns of which no instance runs anywhere, and
 %% stops local instances of deleted ones. Messages between nodes have the
 %% shape `{evatar_catalogue, 1, Body}' (introduced in 0.1.0).
+%%
+%% A full data directory (evatar_data_dir: no room for
+%% `data_dir_reserve_bytes'), found before each change and every
+%% `disk_check_ms', is logged as `disk_full' with the directory: the
+%% changes asked of this node are refused (`{error, {disk_full, Dir}}'),
+%% what peers send is held in memory, and everything runs as before. When
+%% there is room again (`disk_space_back') what was held is written
+%% (docs/ha.md section 6, "A full disk").
 -module(evatar_catalogue).
 -behaviour(gen_server).
 
 -include_lib("kernel/include/logger.hrl").
 
 -export([start_link/0, create/2, remove/2, ensure/2, lookup/1, entries/0, durable/0,
-         sync_now/0]).
+         sync_now/0, disk_full/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, evatar_catalogue).
 -define(TICK_MS, 500).
 -define(RESTORE_BACKOFF_MIN, 1000).
 -define(RESTORE_BACKOFF_MAX, 300000).
+-define(DISK_FULL, {?MODULE, disk_full}).
 
 -record(?TABLE, {id :: evatar:pairing_id(),
                  version :: evatar_catalogue_rules:version(),
@@ -50,6 +59,12 @@
             %% stopped on purpose (stepped down for a newer instance, or
             %% for a claim found stale), watched through `watched'.
             ran = #{} :: #{evatar:pairing_id() => true},
+            %% The data directory when it was found full, and what peers
+            %% sent meanwhile (written once there is room).
+            full = false :: false | file:filename(),
+            held = [] :: [evatar_catalogue_rules:entry()],
+            last_disk_check :: integer(),
+            %% Last: evatar_catalogue_SUITE reads it from the state.
             watched = #{} :: #{pid() => evatar:pairing_id()}}).
 
 %% @doc Starts the catalogue process, registered as `evatar_catalogue'.
@@ -61,7 +76,7 @@ start_link() ->
 %% records it, telling the alive peers; `already_exists' when the catalogue
 %% has it. One at a time with the restores, so neither undoes the other.
 -spec create(evatar:pairing_id(), evatar_pairing_logic:config()) ->
-          {ok, pid()} | {error, already_exists | term()}.
+          {ok, pid()} | {error, already_exists | {disk_full, file:filename()} | term()}.
 create(Id, Config) ->
     gen_server:call(?MODULE, {create, Id, Config}, infinity).
 
@@ -71,15 +86,18 @@ create(Id, Config) ->
 %% catalogue has no live entry of that id (its creation has not reached
 %% this node yet), else the creation would come back later and undo the
 %% deletion. `not_found' when the catalogue has no live entry of that id
-%% and `Running' is false.
--spec remove(evatar:pairing_id(), Running :: boolean()) -> ok | not_found.
+%% and `Running' is false; `{error, {disk_full, Dir}}' when the deletion
+%% cannot be written.
+-spec remove(evatar:pairing_id(), Running :: boolean()) ->
+          ok | not_found | {error, {disk_full, file:filename()}}.
 remove(Id, Running) ->
     gen_server:call(?MODULE, {remove, Id, Running}, infinity).
 
 %% @doc Records a pairing unless the catalogue already has it (live):
 %% then nothing changes, whatever `Config' says. The pairing is started
 %% by the node that owns it once the catalogues are in sync.
--spec ensure(evatar:pairing_id(), evatar_pairing_logic:config()) -> created | exists.
+-spec ensure(evatar:pairing_id(), evatar_pairing_logic:config()) ->
+          created | exists | {error, {disk_full, file:filename()}}.
 ensure(Id, Config) ->
     gen_server:call(?MODULE, {ensure, Id, Config}, infinity).
 
@@ -101,6 +119,12 @@ entries() ->
 -spec durable() -> boolean().
 durable() ->
     gen_server:call(?MODULE, durable, infinity).
+
+%% @doc The data directory when this node found it full (and has not
+%% seen room since), else `false'. Free to call: read by the metrics.
+-spec disk_full() -> false | file:filename().
+disk_full() ->
+    persistent_term:get(?DISK_FULL, false).
 
 %% @doc Sends this node's catalogue to every alive peer now.
 -spec sync_now() -> ok.
@@ -132,7 +156,8 @@ init([]) ->
             self() ! tick,
             Now = now_ms(),
             ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
-            {ok, #s{durable = Durable, started = Now, last_sync = Now}}
+            persistent_term:put(?DISK_FULL, false),
+            {ok, #s{durable = Durable, started = Now, last_sync = Now, last_disk_check = Now}}
     end.
 
 %% mnesia makes its directory but not the directory's parents (it would
@@ -207,11 +232,13 @@ ensure_storage() ->
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
-handle_call({create, Id, Config}, _From, S) ->
-    case lookup(Id) of
-        {ok, _} ->
+handle_call({create, Id, Config}, _From, S0) ->
+    case {lookup(Id), room(S0)} of
+        {{ok, _}, {_, S}} ->
             {reply, {error, already_exists}, S};
-        none ->
+        {none, {{error, _} = Full, S}} ->
+            {reply, Full, S};
+        {none, {ok, S}} ->
             case evatar_pairings_sup:start_pairing(Id, Config) of
                 {ok, Sup} ->
                     ok = write_new(Id, {live, Config, node()}, S),
@@ -220,19 +247,23 @@ handle_call({create, Id, Config}, _From, S) ->
                     {reply, Error, S}
             end
     end;
-handle_call({remove, Id, Running}, _From, S) ->
-    case {lookup(Id), Running} of
-        {none, false} ->
+handle_call({remove, Id, Running}, _From, S0) ->
+    case {lookup(Id), Running, room(S0)} of
+        {none, false, {_, S}} ->
             {reply, not_found, S};
-        _ ->
+        {_, _, {{error, _} = Full, S}} ->
+            {reply, Full, S};
+        {_, _, {ok, S}} ->
             ok = write_new(Id, deleted, S),
             {reply, ok, S}
     end;
-handle_call({ensure, Id, Config}, _From, S) ->
-    case lookup(Id) of
-        {ok, _} ->
+handle_call({ensure, Id, Config}, _From, S0) ->
+    case {lookup(Id), room(S0)} of
+        {{ok, _}, {_, S}} ->
             {reply, exists, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})};
-        none ->
+        {none, {{error, _} = Full, S}} ->
+            {reply, Full, S};
+        {none, {ok, S}} ->
             ok = write_new(Id, {live, Config, node()}, S),
             {reply, created, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})}
     end;
@@ -253,11 +284,19 @@ handle_cast(_Msg, S) ->
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
 handle_info(tick, S) ->
     erlang:send_after(?TICK_MS, self(), tick),
-    {noreply, reconcile(sync(S))};
-handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S)
+    {noreply, reconcile(sync(check_disk(S)))};
+handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S0)
   when is_atom(From), is_list(Entries), is_boolean(Full) ->
     Changed = evatar_catalogue_rules:changed(entries(), Entries),
-    ok = write(Changed, S),
+    S = case room(S0) of
+            {ok, S2} ->
+                ok = write(Changed, S2),
+                S2;
+            {{error, _}, S2} ->
+                _ = [?LOG_NOTICE(#{what => catalogue_held, pairing => Id, from => From,
+                                   reason => disk_full}) || {Id, _, _} <- Changed],
+                S2#s{held = evatar_catalogue_rules:merge(S2#s.held, Changed)}
+        end,
     _ = [?LOG_INFO(#{what => catalogue_learned, pairing => Id, from => From,
                      deleted => Val =:= deleted}) || {Id, _, Val} <- Changed],
     S1 = case Full of
@@ -322,6 +361,42 @@ write(Entries, #s{durable = Durable}) ->
         true -> mnesia:sync_log();
         false -> ok
     end.
+
+%% Whether a change can be written now: a catalogue in memory always can;
+%% on disc, when the data directory has room (evatar_data_dir). Says so
+%% when it fills and when there is room again, then writes what was held.
+room(#s{durable = false} = S) ->
+    {ok, S};
+room(#s{full = Was} = S) ->
+    {ok, Dir} = application:get_env(mnesia, dir),
+    S1 = S#s{last_disk_check = now_ms()},
+    case {evatar_data_dir:check(Dir), Was} of
+        {ok, false} ->
+            {ok, S1};
+        {ok, _} ->
+            Held = evatar_catalogue_rules:changed(entries(), S#s.held),
+            ok = write(Held, S1),
+            persistent_term:put(?DISK_FULL, false),
+            ?LOG_NOTICE(#{what => disk_space_back, dir => Dir, written => length(Held)}),
+            {ok, S1#s{full = false, held = []}};
+        {{error, _} = Full, false} ->
+            persistent_term:put(?DISK_FULL, Dir),
+            ?LOG_ERROR(#{what => disk_full, dir => Dir,
+                         reserve_bytes => evatar_data_dir:reserve_bytes(),
+                         hint => "EVATAR_DATA_DIR's file system is full: pairings keep running, "
+                                 "creating and deleting them is refused until there is room"}),
+            {Full, S1#s{full = Dir}};
+        {{error, _} = Full, _} ->
+            {Full, S1}
+    end.
+
+check_disk(#s{durable = true, last_disk_check = Last} = S) ->
+    case now_ms() - Last >= opt(disk_check_ms) of
+        true -> element(2, room(S));
+        false -> S
+    end;
+check_disk(S) ->
+    S.
 
 %% Peers that became alive get the whole catalogue; so does every alive
 %% peer every `catalogue_sync_ms' (what a silent partition held back).
@@ -473,4 +548,5 @@ now_ms() -> erlang:monotonic_time(millisecond).
 
 %% docs/architecture.md, section 8.11.
 opt(catalogue_sync_ms) -> application:get_env(evatar, catalogue_sync_ms, 10000);
-opt(catalogue_alone_ms) -> application:get_env(evatar, catalogue_alone_ms, 30000).
+opt(catalogue_alone_ms) -> application:get_env(evatar, catalogue_alone_ms, 30000);
+opt(disk_check_ms) -> application:get_env(evatar, disk_check_ms, 5000).

@@ -129,7 +129,10 @@ gauge_definitions() ->
       <<"Connections the bridge's listeners hold now (admitted, not yet closed).">>},
      {evatar_metrics_pairings_unlabelled, gauge,
       <<"Active pairings on this node without per-pairing series (over "
-        "metrics_max_pairings).">>}].
+        "metrics_max_pairings).">>},
+     {evatar_data_dir_full, gauge,
+      <<"1 while this node's data directory has no room for a catalogue change "
+        "(creating and deleting pairings is refused), else 0.">>}].
 
 %% ---------------------------------------------------------------------------
 %% Counting
@@ -338,7 +341,11 @@ gauges() ->
                   length([x || {Id, Pid, active} <- Live,
                                ets:match_object(?TABLE, {Id, Pid, '_'}) =:= []])},
     Collected = lists:append([collect(MF) || MF <- persistent_term:get(?COLLECTORS, [])]),
-    Instances ++ [Unlabelled | Collected].
+    Full = {evatar_data_dir_full, [], case evatar_catalogue:disk_full() of
+                                          false -> 0;
+                                          _ -> 1
+                                      end},
+    Instances ++ [Unlabelled, Full | Collected].
 
 collect({M, F}) ->
     try M:F() of

@@ -220,6 +220,7 @@ create(Id, Body) ->
                 {error, already_exists} ->
                     err(409, <<"already_exists">>, <<"id">>,
                         <<"a pairing with this id exists in the cluster">>);
+                {error, {disk_full, Dir}} -> disk_full(Dir);
                 {error, {bad_option, Bad}} -> bad_option(Bad)
             end;
         {{error, _} = Error, _} -> Error;
@@ -256,6 +257,7 @@ replace(Id, Opts) ->
         ok ->
             case evatar:delete_pairing(Id) of
                 ok -> recreate(Id, Opts, erlang:monotonic_time(millisecond) + ?RECREATE_WAIT_MS);
+                {error, {disk_full, Dir}} -> disk_full(Dir);
                 {error, not_found} -> not_found(Id);
                 {error, busy} -> busy(Id)
             end;
@@ -276,15 +278,24 @@ recreate(Id, Opts, Deadline) ->
                              <<"the pairing was deleted but its old instances did not go in time; "
                                "create it again">>)
             end;
+        {error, {disk_full, Dir}} ->
+            disk_full(Dir);
         {error, {bad_option, Bad}} ->
             bad_option(Bad)
     end.
+
+%% A change this node cannot write: 507 Insufficient Storage.
+disk_full(Dir) ->
+    err(507, <<"disk_full">>, null,
+        iolist_to_binary(["this node's data directory ", Dir, " is full: nothing was changed; "
+                          "free space there, or ask another node"])).
 
 %% @doc Deletes a pairing in the whole cluster.
 -spec delete(binary()) -> ok | {error, error()}.
 delete(Id) ->
     case evatar:delete_pairing(Id) of
         ok -> ok;
+        {error, {disk_full, Dir}} -> disk_full(Dir);
         {error, not_found} -> not_found(Id);
         {error, busy} -> busy(Id)
     end.

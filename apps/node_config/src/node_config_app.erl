@@ -8,8 +8,12 @@
 
 -export([start/2, stop/1]).
 
+-define(DISK_POLL_MS, 1000).
+-define(DISK_FULL_REPEAT_MS, 60000).
+
 -spec start(application:start_type(), term()) -> {ok, pid()} | {error, term()}.
 start(_Type, _Args) ->
+    ok = await_data_dir_room(),
     case node_config:file() of
         none ->
             ?LOG_NOTICE(#{what => no_node_config,
@@ -40,6 +44,39 @@ start(_Type, _Args) ->
 -spec stop(term()) -> ok.
 stop(_State) ->
     ok.
+
+%% mnesia, which starts after this application, cannot start over a full
+%% data directory: it dies (an erl_crash.dump) and may delete its log as
+%% corrupt, the catalogue of pairings with it. So the boot waits here,
+%% before mnesia, saying why, until there is room; then it goes on
+%% (docs/ha.md section 6, "A full disk").
+await_data_dir_room() ->
+    case evatar:check_data_dir() of
+        ok ->
+            ok;
+        {error, {disk_full, Dir}} ->
+            io:put_chars(standard_error, ["EVATAR is waiting to start: its data directory ", Dir,
+                                          " is full (free some space there)\n"]),
+            await_data_dir_room(Dir, erlang:monotonic_time(millisecond) - ?DISK_FULL_REPEAT_MS)
+    end.
+
+await_data_dir_room(Dir, LastSaid) ->
+    Now = erlang:monotonic_time(millisecond),
+    Said = case Now - LastSaid >= ?DISK_FULL_REPEAT_MS of
+               true ->
+                   ?LOG_ERROR(#{what => disk_full, dir => Dir, phase => boot,
+                                hint => "EVATAR_DATA_DIR's file system is full: the node starts "
+                                        "once there is room (the catalogue is kept as it is)"}),
+                   _ = logger_std_h:filesync(default),
+                   Now;
+               false ->
+                   LastSaid
+           end,
+    receive after ?DISK_POLL_MS -> ok end,
+    case evatar:check_data_dir() of
+        ok -> ?LOG_NOTICE(#{what => disk_space_back, dir => Dir, phase => boot});
+        {error, {disk_full, _}} -> await_data_dir_room(Dir, Said)
+    end.
 
 %% While the boot script starts the release's applications (its progress
 %% is applications_loaded until they all run), a refused start would take
