@@ -20,7 +20,7 @@
 %%  starting --start/4, answers--> active | (offer) --snapshot--> standby
 %%  active  --silent link, rebalancer--> handing_over --handover_done--> standby
 %%          <--------------- aborted (timer) ------------
-%%  active  --fence (no majority, refused)--> fenced --won again--> active
+%%  active, handing_over --fence (no majority, refused)--> fenced --won again--> active
 %%  standby --won (election, handover)--> active
 %%  any     --lost, dismissed, newer instance met--> stop
 %% '''
@@ -363,7 +363,9 @@ cluster({node_alive, Node}, V, #inst{role = standby, active = A, active_lost = t
     end;
 cluster({quorum, true}, V, #inst{role = standby, active_lost = true} = S) ->
     core({elect, active_silent, false}, V, S);
-cluster({quorum, false}, V, #inst{role = active} = S) ->
+cluster({quorum, false}, V, #inst{role = Role} = S) when Role =:= active; Role =:= handing_over ->
+    %% Handing over is still serving until the standby takes the pairing:
+    %% it fences as an active does.
     maybe_fence(V, S);
 cluster(stalled, V, #inst{role = active} = S) ->
     %% This node was stopped for longer than suspect_ms: the pairing may
@@ -416,8 +418,12 @@ timeout(K, V, S) when K =:= election; K =:= register; K =:= deadline ->
     core({timeout, K}, V, S);
 timeout(place, V, S) ->
     place(V, S#inst{placing = false});
-timeout(handover, _V, #inst{role = handing_over} = S) ->
-    {S#inst{role = active}, [{log, warning, #{what => handover_aborted}}]};
+timeout(handover, V, #inst{role = handing_over} = S) ->
+    %% No handover_done: serve again, unless the cluster may have moved on
+    %% meanwhile (no majority, the standby's node unheard): then fence, as
+    %% an active would have when the majority went.
+    {S1, Fence} = maybe_fence(V, S#inst{role = active}),
+    {S1, [{log, warning, #{what => handover_aborted}} | Fence]};
 timeout(_Key, _V, S) ->
     {S, []}.
 

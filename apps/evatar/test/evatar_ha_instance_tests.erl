@@ -194,6 +194,27 @@ silent_link_test() ->
     ?assertMatch({_, [{log, warning, #{what := handover_aborted}}]}, h({timeout, handover}, S1)),
     ?assertEqual(active, evatar_ha_instance:role(element(1, h({timeout, handover}, S1)))).
 
+%% A handover under way does not keep an active from fencing: the
+%% majority lost while handing over fences at once, and a handover that
+%% times out without a majority and without word from the standby's node
+%% fences instead of serving again (else a cut-off node would serve beside
+%% the standby that took over: seen at slow HA timings in ha_SUITE).
+handover_fences_without_majority_test() ->
+    S = active_with_standby(),
+    V = #{synced => true, version => 5, confirmed => 5},
+    {S1, _} = h({silent, [{<<"e">>, 1000}], 10000}, V, S),
+    ?assertEqual(handing_over, evatar_ha_instance:role(S1)),
+    Cut = #{majority => false, heard => [a]},
+    {S2, Es} = h({cluster, {quorum, false}}, Cut, S1),
+    ?assertEqual(fenced, evatar_ha_instance:role(S2)),
+    ?assert(lists:member({metric, evatar_fenced_total}, Es)),
+    {S3, Es3} = h({timeout, handover}, Cut, S1),
+    ?assertEqual(fenced, evatar_ha_instance:role(S3)),
+    ?assertMatch([{log, warning, #{what := handover_aborted}}, {log, warning, #{what := fenced}} | _], Es3),
+    %% The standby's node still heard: no fence, serving again.
+    ?assertEqual(active, evatar_ha_instance:role(
+                           element(1, h({timeout, handover}, #{majority => false}, S1)))).
+
 %% Held deliveries were never sent: no silent link while holding.
 silent_while_holding_test() ->
     {S, _} = h({cluster, {node_suspected, b}}, active_with_standby()),
