@@ -35,16 +35,16 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(FAILOVER_TIMEOUT, 30000).
--define(HEAL_TIMEOUT, 60000).
+-define(FAILOVER_TIMEOUT, evatar_test_time:ms(30000)).
+-define(HEAL_TIMEOUT, evatar_test_time:guard()).
 -define(TRAFFIC, #{request_interval => 25, sensor_interval => 25}).
 %% Failure detection slower than the defaults (50/250/150 ms, which
 %% bench/failover_bench.erl measures): on a loaded two-core machine the
 %% defaults sometimes suspect a node that is only slow, and the needless
 %% (safe) takeover would blur what a case asserts about its own fault.
--define(TIMING, [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600}]).
+-define(TIMING, evatar_test_time:ha_timing()).
 
-suite() -> [{timetrap, {minutes, 4}}].
+suite() -> [{timetrap, evatar_test_time:ms(240000)}].
 
 all() ->
     [{group, os_process}, {group, peer}, {group, two_nodes}, {group, tls}, {group, scale},
@@ -279,16 +279,20 @@ kill_active(Config) ->
 %% comes back fenced or as a standby, never as a second active.
 stall_active(Config) ->
     {C, Id, Pair} = start(Config),
+    T = trace(C),
     {ok, 1, #{epoch := E0, standby_node := SN}} = evatar_test_pairing:active(C, Id),
     S = evatar_test_cluster:index(C, SN),
     ok = evatar_test_cluster:stall(C, 1),
     {ok, S, #{epoch := E1}} = await_takeover(C, Id, E0),
     {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
     ?assert(Epoch >= E1),
+    Mark = evatar_test_trace:mark(T),
     ok = evatar_test_cluster:resume(C, 1),
-    ok = never_active_again(C, 1, Id, 3000),
+    ok = woken_active_gives_up(T, C, 1, Id, Mark),
     ok = evatar_test_pairing:await_healthy(C, Id, ?HEAL_TIMEOUT),
     {ok, S, _} = evatar_test_pairing:active(C, Id),
+    ok = never_took_over(T, C, 1, Id, Mark),
+    ok = evatar_test_trace:stop(T),
     finish(Pair).
 
 %% A silent partition cuts the active's node off from both others; the
@@ -334,7 +338,7 @@ partial_partition(Config) ->
     Watch = watch_actives(C, Id),
     ok = evatar_test_cluster:cut(C, [{1, S}]),
     %% Long enough for any suspicion, takeover and fencing to play out.
-    timer:sleep(3000),
+    timer:sleep(evatar_test_time:ms(3000)),
     {ok, _} = evatar_test_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
     ok = evatar_test_cluster:heal(C, flush),
     ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),
@@ -586,19 +590,34 @@ is_active(C, I, Id) ->
         _ -> false
     end.
 
-%% Node I must not report an active instance of Id at any time during Ms.
-never_active_again(C, I, Id, Ms) ->
-    Deadline = erlang:monotonic_time(millisecond) + Ms,
-    never_active_loop(C, I, Id, Deadline).
+%% A trace of every node of cluster C (evatar_test_trace).
+trace(C) ->
+    {ok, T} = evatar_test_trace:start(),
+    _ = [ok = evatar_test_trace:attach(T, N) || #{name := N, status := up} <- evatar_test_cluster:info(C)],
+    T.
 
-never_active_loop(C, I, Id, Deadline) ->
-    case erlang:monotonic_time(millisecond) > Deadline of
-        true -> ok;
-        false ->
-            case evatar_test_cluster:call(C, I, evatar, ha_status, [Id]) of
-                {ok, #{role := active} = St} -> {error, {second_active, I, St}};
-                _ -> timer:sleep(20), never_active_loop(C, I, Id, Deadline)
-            end
+%% The woken active of Id on node I learns it lost, from what it reports
+%% after Mark: it steps down for the newer active, or fences itself for
+%% the majority it lost.
+woken_active_gives_up(T, C, I, Id, Mark) ->
+    GivesUp = fun(#{what := W, pairing := P}) -> P =:= Id andalso (W =:= stepping_down orelse W =:= fenced);
+                 (_) -> false
+              end,
+    #{report := R} = evatar_test_trace:wait(T, GivesUp, #{since => Mark, node => evatar_test_cluster:node(C, I),
+                                                          what => {woken_active_gives_up, I, Id}}),
+    ct:pal("node ~b woke: ~p", [I, R]),
+    ok.
+
+%% Node I never took Id over after Mark: an instance becomes the active
+%% only through a takeover (or a re-election while it serves), each
+%% reported.
+never_took_over(T, C, I, Id, Mark) ->
+    Active = fun(#{what := W, pairing := P}) -> P =:= Id andalso (W =:= takeover orelse W =:= reelected);
+                (_) -> false
+             end,
+    case evatar_test_trace:events(T, Active, #{since => Mark, node => evatar_test_cluster:node(C, I)}) of
+        [] -> ok;
+        Events -> {error, {second_active, I, Events}}
     end.
 
 %% Samples the roles of Id's instances until stopped; never two actives of

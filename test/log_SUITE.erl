@@ -21,10 +21,10 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(TIMING, [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600}]).
--define(WAIT, 60000).
+-define(TIMING, evatar_test_time:ha_timing()).
+-define(WAIT, evatar_test_time:guard()).
 
-suite() -> [{timetrap, {minutes, 4}}].
+suite() -> [{timetrap, evatar_test_time:ms(240000)}].
 
 all() ->
     [dev_config_logs_the_same, refusal, feedback_timeout, fencing].

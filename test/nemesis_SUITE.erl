@@ -37,7 +37,7 @@
 -define(TRAFFIC, #{request_interval => 40, sensor_interval => 40}).
 -define(DEFAULT_SECONDS, 45).
 
-suite() -> [{timetrap, {seconds, seconds() + 300}}].
+suite() -> [{timetrap, 1000 * seconds() + evatar_test_time:ms(300000)}].
 
 all() -> [{group, checker}, {group, nemesis}].
 
@@ -59,8 +59,7 @@ init_nemesis(Config) ->
     ok = filelib:ensure_path(Dir),
     %% Detection as in ha_SUITE (see there); the nemesis is the faults.
     {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "nem",
-                                          evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000},
-                                                     {lease_ms, 600}]}),
+                                          evatar => evatar_test_time:ha_timing()}),
     [{cluster, C}, {dist, Dist} | Config].
 
 end_per_group(nemesis, Config) ->
@@ -200,12 +199,12 @@ nemesis(C, Ids, Deadline, Log) ->
                         power_cut -> {power_cut, erlang:monotonic_time(millisecond)};
                         _ -> Fault0
                     end,
-            timer:sleep(500 + rand:uniform(2500)),
+            timer:sleep(evatar_test_time:ms(500 + rand:uniform(2500))),
             ok = repair(C, Fault),
             _ = evatar_test_cluster:await_formed(C, 20000),
             _ = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end,
                                                              Ids) end, 20000, healthy),
-            timer:sleep(rand:uniform(1500)),
+            timer:sleep(evatar_test_time:ms(rand:uniform(1500))),
             nemesis(C, Ids, Deadline, [{T, Fault} | Log])
     end.
 

@@ -20,20 +20,20 @@
 -export([node_cut_from_nodes/1, node_cut_from_everything/1, one_link_cut/1,
          rebalance_after_return/1]).
 
-%% The suites' detection timings (100/1000/600 ms): on a loaded machine the
+%% The suites' detection timings (evatar_test_time:ha_timing/0): on a loaded machine the
 %% release's 50/250/150 suspect live nodes, and a needless takeover would
 %% move the pairings the scenario places. So would the rebalancer after
 %% each heal: it is on only for the case about it.
--define(EVATAR, [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
-                 {rebalance, false}]).
--define(TIMEOUT, 60000).
+-define(EVATAR, evatar_test_time:ha_timing() ++ [{rebalance, false}]).
+-define(TIMEOUT, evatar_test_time:guard()).
 %% The first partition outlasts suspect_ms and an election; the measured
 %% one leaves a failover (suspect_ms, clients' 3 bridge heartbeats) well
 %% inside its first half.
--define(SCENARIO, #{first_ms => 2500, cut_ms => 5000, timeout => ?TIMEOUT}).
+-define(SCENARIO, #{first_ms => evatar_test_time:ms(2500), cut_ms => evatar_test_time:ms(5000),
+                    timeout => ?TIMEOUT}).
 
 suite() ->
-    [{timetrap, {minutes, 5}}].
+    [{timetrap, evatar_test_time:ms(300000)}].
 
 all() ->
     [node_cut_from_nodes, node_cut_from_everything, one_link_cut, rebalance_after_return].
@@ -168,7 +168,7 @@ rebalance_after_return(Config) ->
     Pairs = ?config(pairs, Config),
     {ok, R} = evatar_test_partition:rebalance(
                 Net, Pairs, #{node => 3, timeout => ?TIMEOUT,
-                              env => [{rebalance, true}, {rebalance_delay_ms, 1000}]}),
+                              env => [{rebalance, true}, {rebalance_delay_ms, evatar_test_time:ms(1000)}]}),
     ct:pal("rebalance: ~p", [R]),
     ?assertEqual(#{1 => {2, 2}, 2 => {2, 2}, 3 => {2, 2}}, maps:get(counts_after, R)),
     check(rebalance, Pairs).

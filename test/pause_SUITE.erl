@@ -26,19 +26,19 @@
 
 -compile([export_all, nowarn_export_all]).
 
--define(TIMEOUT, 60000).
+-define(TIMEOUT, evatar_test_time:guard()).
 %% Slower than the defaults, so the load of a shared two-core machine does
 %% not look like a pause, and with room between the lease and suspect_ms
 %% for a pause that outlasts the one but not the other.
--define(CLUSTER_TIMING, [{heartbeat_ms, 100}, {suspect_ms, 2000}, {lease_ms, 600}]).
+-define(CLUSTER_TIMING, evatar_test_time:ha_timing(#{suspect_ms => 2000})).
 %% Pauses of the lone node, ms: under, around and well over suspect_ms
 %% (250 by default), the clients' 3 heartbeats and the ack timeout.
 -define(LONE_PAUSES, [100, 250, 400, 1000, 2000, 5500]).
 %% Longer than the cluster's lease, well under its suspect_ms: the node's
 %% own pause must not cost it its majority.
--define(SHORT_PAUSE, 1000).
+-define(SHORT_PAUSE, evatar_test_time:ms(1000)).
 
-suite() -> [{timetrap, {minutes, 5}}].
+suite() -> [{timetrap, evatar_test_time:ms(300000)}].
 
 all() ->
     [{group, lone}, {group, cluster}].
@@ -118,19 +118,23 @@ short_pause_changes_nothing(Config) ->
 %% to the once paused node); nothing accepted is lost or duplicated.
 long_pause_fails_over(Config) ->
     {C, Id, Pair} = start(Config),
+    T = ha_SUITE:trace(C),
     ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
     {ok, 1, #{epoch := E0, standby_node := SN}} = evatar_test_pairing:active(C, Id),
     S = evatar_test_cluster:index(C, SN),
     ok = evatar_test_cluster:stall(C, 1),
     {ok, S, #{epoch := E1}} = evatar_test_pairing:await_active(
                                  C, Id, fun(_I, #{epoch := E}) -> E > E0 end, ?TIMEOUT),
+    Mark = evatar_test_trace:mark(T),
     ok = evatar_test_cluster:resume(C, 1),
-    ok = ha_SUITE:never_active_again(C, 1, Id, 3000),
+    ok = ha_SUITE:woken_active_gives_up(T, C, 1, Id, Mark),
     {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?TIMEOUT),
     ?assert(Epoch >= E1),
     ok = evatar_test_cluster:await_formed(C, ?TIMEOUT),
     ok = evatar_test_pairing:await_healthy(C, Id, ?TIMEOUT),
     {ok, S, _} = evatar_test_pairing:active(C, Id),
+    ok = ha_SUITE:never_took_over(T, C, 1, Id, Mark),
+    ok = evatar_test_trace:stop(T),
     %% Node 1 is a full member again: with the third node gone, the
     %% pairing's standby goes there.
     [Third] = [I || I <- [1, 2, 3], I =/= 1, I =/= S],

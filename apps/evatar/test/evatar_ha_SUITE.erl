@@ -28,7 +28,7 @@
 -define(CRED_AV, <<"av-secret">>).
 -define(WAIT, 10000).
 
-suite() -> [{timetrap, {seconds, 60}}].
+suite() -> [{timetrap, evatar_test_time:ms(60000)}].
 
 all() ->
     [single_node_resume_dedup, replication_keeps_state_equal, kill_active_takes_over,
@@ -52,8 +52,8 @@ init_per_testcase(TC, Config) ->
                 #{n => N, dir => Dir, launcher => peer, control => stdio, net => cookie,
                   prefix => "ha",
                   modules => [?MODULE], conn => #{heartbeat => 100},
-                  evatar => [{heartbeat_ms, 100}, {suspect_ms, 1000}, {lease_ms, 600},
-                             {resume_timeout, 10000}]}),
+                  evatar => evatar_test_time:ha_timing()
+                      ++ [{resume_timeout, evatar_test_time:ms(10000)}]}),
     [{cluster, C}, {pairing, atom_to_binary(TC)} | Config].
 
 end_per_testcase(_TC, Config) ->

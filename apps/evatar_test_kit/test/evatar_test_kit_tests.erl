@@ -129,3 +129,88 @@ mosquitto_public_key_ca_verifies_test_() ->
                      end
              end}
     end.
+
+%% ---------------------------------------------------------------------------
+%% evatar_test_trace, evatar_test_time
+%% ---------------------------------------------------------------------------
+
+trace_test_() ->
+    {foreach, fun trace_setup/0, fun trace_cleanup/1,
+     [fun trace_waits_for_a_later_report/1,
+      fun trace_finds_a_report_already_there/1,
+      fun trace_since_a_mark_ignores_earlier_reports/1,
+      fun trace_count_and_predicate/1,
+      fun trace_times_out_saying_what_it_saw/1]}.
+
+trace_setup() ->
+    {ok, T} = evatar_test_trace:start(),
+    ok = evatar_test_trace:attach(T),
+    T.
+
+trace_cleanup(T) ->
+    ok = evatar_test_trace:stop(T).
+
+trace_waits_for_a_later_report(T) ->
+    Self = self(),
+    _ = spawn(fun() -> Self ! go, logger:info(#{what => kit_later, n => 1}) end),
+    receive go -> ok end,
+    ?_assertMatch(#{node := N, level := info, report := #{what := kit_later, n := 1}}
+                      when N =:= node(),
+                  evatar_test_trace:wait(T, #{what => kit_later})).
+
+trace_finds_a_report_already_there(T) ->
+    logger:info(#{what => kit_before, pairing => <<"p">>}),
+    %% A report without `what' is not a trace point.
+    logger:info(#{pairing => <<"p">>}),
+    #{seq := Seq} = evatar_test_trace:wait(T, #{what => kit_before, pairing => '_'}),
+    [?_assertEqual(1, Seq),
+     ?_assertEqual(1, length(evatar_test_trace:events(T, #{pairing => <<"p">>}))),
+     ?_assertEqual([], evatar_test_trace:events(T, #{pairing => <<"p">>}, #{node => 'other@host'})),
+     ?_assertEqual([], evatar_test_trace:events(T, #{pairing => <<"p">>}, #{since => Seq}))].
+
+trace_since_a_mark_ignores_earlier_reports(T) ->
+    logger:info(#{what => kit_step, n => 1}),
+    _ = evatar_test_trace:wait(T, #{what => kit_step}),
+    Mark = evatar_test_trace:mark(T),
+    logger:info(#{what => kit_step, n => 2}),
+    ?_assertMatch(#{report := #{n := 2}},
+                  evatar_test_trace:wait(T, #{what => kit_step}, #{since => Mark})).
+
+trace_count_and_predicate(T) ->
+    _ = [logger:info(#{what => kit_count, n => N}) || N <- lists:seq(1, 5)],
+    Odd = fun(#{what := kit_count, n := N}) -> N rem 2 =:= 1; (_) -> false end,
+    Events = evatar_test_trace:wait(T, Odd, #{count => 3}),
+    ?_assertEqual([1, 3, 5], [N || #{report := #{n := N}} <- Events]).
+
+trace_times_out_saying_what_it_saw(T) ->
+    logger:info(#{what => kit_seen}),
+    _ = evatar_test_trace:wait(T, #{what => kit_seen}),
+    ?_assertError({trace_timeout, #{what := never, seen := [{_, kit_seen}]}},
+                  evatar_test_trace:wait(T, #{what => kit_never}, #{timeout => 20, what => never})).
+
+%% Attaching lowers a stricter primary level to info for the trace, keeps
+%% the default handler's output as it was, and detaching puts both back.
+trace_levels_restored_test() ->
+    #{level := Primary} = logger:get_primary_config(),
+    try
+        ok = logger:set_primary_config(level, notice),
+        {ok, T} = evatar_test_trace:start(),
+        ok = evatar_test_trace:attach(T),
+        ?assertMatch(#{level := info}, logger:get_primary_config()),
+        logger:info(#{what => kit_info}),
+        ?assertMatch(#{report := #{what := kit_info}}, evatar_test_trace:wait(T, #{what => kit_info})),
+        ok = evatar_test_trace:stop(T),
+        ?assertMatch(#{level := notice}, logger:get_primary_config())
+    after
+        logger:set_primary_config(level, Primary)
+    end.
+
+time_scale_keeps_ratios_test() ->
+    S = evatar_test_time:scale(),
+    ?assert(S >= 1),
+    Timing = maps:from_list(evatar_test_time:ha_timing()),
+    ?assertEqual(evatar_test_time:ms(1000), maps:get(suspect_ms, Timing)),
+    ?assertEqual(evatar_test_time:ms(100), maps:get(heartbeat_ms, Timing)),
+    ?assertEqual(evatar_test_time:ms(2000),
+                 maps:get(suspect_ms, maps:from_list(evatar_test_time:ha_timing(#{suspect_ms => 2000})))),
+    ?assertEqual(evatar_test_time:ms(60000), evatar_test_time:guard()).
