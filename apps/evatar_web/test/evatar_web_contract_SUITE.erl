@@ -4,7 +4,8 @@
 %% content type, header or body outside the document. The node has the
 %% operator token, a pairing bound to the simulated smart home (avatar_sim)
 %% and a VA, a pairing with identities, one for the fuzzer to change and
-%% delete, and a kept MQTT Avatar, so that routes with ids answer real data.
+%% delete, a kept MQTT Avatar and a WoT consumer exporting the home as a
+%% Thing, so that routes with ids answer real data.
 %% docs/api.md section 6 says how to run it alone.
 -module(evatar_web_contract_SUITE).
 
@@ -20,6 +21,10 @@
 -define(SCRATCH, <<"contract-scratch">>).
 -define(MQTT_PAIRING, <<"contract-mqtt">>).
 -define(MQTT_AV, <<"contract-plug">>).
+%% The pairing the node's WoT consumer exports (docs/wot.md), and the
+%% home's entity in it.
+-define(THINGS, <<"contract-things">>).
+-define(THING, <<"contract-thing">>).
 -define(VA_CRED, <<"contract-va-secret">>).
 -define(AV_CRED, <<"contract-av-secret">>).
 %% A failure found by the fuzzer reproduces with this seed (docs/api.md).
@@ -38,10 +43,12 @@ init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(avatar_sim),
     {ok, _} = agent_bridge:start_listener(contract, #{port => 0}),
     {ok, Addr} = agent_bridge:address(contract),
-    ?T:start(#{operator_token_hash => evatar:hash_credential(list_to_binary(?TOKEN))}),
-    [_ = evatar:delete_pairing(P) || P <- [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING]],
+    [_ = evatar:delete_pairing(P) || P <- pairings()],
     Creds = #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED},
     {ok, _} = evatar:create_pairing(?HOME, Creds#{join_timeout => 600000}),
+    {ok, _} = evatar:create_pairing(?THINGS, Creds#{join_timeout => 600000}),
+    ?T:start(#{operator_token_hash => evatar:hash_credential(list_to_binary(?TOKEN)),
+               things => [#{pairing => ?THINGS, credential => ?VA_CRED}]}),
     {ok, _} = evatar:create_pairing(?SCRATCH, Creds),
     {ok, _} = evatar:create_pairing(?IDS, #{agent_credential => ?VA_CRED,
                                            identities => [#{entity => <<"cam">>, role => avatar,
@@ -49,7 +56,9 @@ init_per_suite(Config) ->
     %% The simulated smart home joins ?HOME as its Avatar, and a VA with
     %% its counterpart description (bil's smart_home_va.xml) as the agent.
     {ok, Home} = avatar_sim:start_home(#{endpoints => [Addr], spool => ?config(priv_dir, Config),
-                                         gateways => [#{pairing => ?HOME, credential => ?AV_CRED}]}),
+                                         gateways => [#{pairing => ?HOME, credential => ?AV_CRED},
+                                                      #{pairing => ?THINGS, credential => ?AV_CRED,
+                                                        entity_id => ?THING}]}),
     Va = start_va(Addr),
     %% A kept MQTT Avatar on a real mosquitto, joined to its own pairing.
     {ok, Broker} = evatar_test_mosquitto:start(),
@@ -66,6 +75,10 @@ init_per_suite(Config) ->
                        end
                end),
     wait_until(fun() -> element(1, ?T:get("/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV))) =:= 200 end),
+    wait_until(fun() ->
+                       element(1, ?T:raw(get, "/api/things/" ++ binary_to_list(?THINGS) ++ "/"
+                                         ++ binary_to_list(?THING), [], none)) =:= 200
+               end),
     [{python, Python}, {home, Home}, {va, Va}, {broker, Broker} | Config].
 
 end_per_suite(Config) ->
@@ -73,11 +86,16 @@ end_per_suite(Config) ->
     ok = avatar_sim:stop(?config(home, Config)),
     _ = mqtt_avatar:unkeep(?MQTT_AV),
     ok = evatar_test_mosquitto:stop(?config(broker, Config)),
-    [_ = evatar:delete_pairing(P) || P <- [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING]],
+    [_ = evatar:delete_pairing(P) || P <- pairings()],
     %% What the fuzzer created.
     [_ = evatar:delete_pairing(Id) || #{id := Id} <- evatar:pairings()],
     ok = agent_bridge:stop_listener(contract),
-    ?T:stop().
+    ?T:stop(),
+    %% evatar_web_test's defaults have no `things': later suites must not
+    %% start this suite's consumer.
+    application:unset_env(evatar_web, things).
+
+pairings() -> [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING, ?THINGS].
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -180,6 +198,10 @@ config() ->
      "[dictionaries.events]\nvalues = [", Ids([?HOME]), "]\n",
      "[dictionaries.nodes]\nvalues = [", Ids([atom_to_binary(node())]), "]\n",
      "[dictionaries.xml]\nvalues = ['", mqtt_xml(), "']\n",
+     "[dictionaries.things]\nvalues = [", Ids([?THINGS]), "]\n",
+     "[dictionaries.thing]\nvalues = [", Ids([?THING]), "]\n",
+     "[dictionaries.component]\nvalues = [\"BedroomSocketSwitch01\"]\n",
+     "[dictionaries.service]\nvalues = [\"SwitchSocketOn\"]\n",
      %% One criterion per entry (several are or'ed); the first entry that
      %% matches an operation is the one that applies.
      "[[operations]]\ninclude-name-regex = \"^GET /api/pairings/\"\n",
@@ -192,6 +214,19 @@ config() ->
      "[[operations]]\ninclude-name-regex = \"^PUT /api/mqtt_avatars/\"\n",
      "parameters = { \"path.id\" = { dictionary = \"avatars\", probability = 0.5 },"
      " \"body.xml\" = { dictionary = \"xml\", probability = 1.0 } }\n",
+     "[dictionaries.sensor]\nvalues = [\"TimeSensor01\"]\n",
+     "[dictionaries.reading]\nvalues = [\"TimeOfDay\"]\n",
+     %% A property with a reading: the home's clock sends one at its start.
+     "[[operations]]\ninclude-name-regex = \"^GET /api/things/.*/properties/\"\n",
+     "parameters = { \"path.pairing\" = { dictionary = \"things\", probability = 0.7 },"
+     " \"path.entity\" = { dictionary = \"thing\", probability = 0.7 },"
+     " \"path.component\" = { dictionary = \"sensor\", probability = 0.7 },"
+     " \"path.service\" = { dictionary = \"reading\", probability = 0.7 } }\n",
+     "[[operations]]\ninclude-name-regex = \"^(GET|POST) /api/things/\"\n",
+     "parameters = { \"path.pairing\" = { dictionary = \"things\", probability = 0.7 },"
+     " \"path.entity\" = { dictionary = \"thing\", probability = 0.7 },"
+     " \"path.component\" = { dictionary = \"component\", probability = 0.7 },"
+     " \"path.service\" = { dictionary = \"service\", probability = 0.7 } }\n",
      "[[operations]]\ninclude-name = \"GET /api/events\"\n",
      "parameters = { \"query.pairing\" = { dictionary = \"events\", probability = 0.5 } }\n"].
 
