@@ -105,6 +105,18 @@ http_section_test() ->
     has("{http, #{enabled => yes}}.\n", "http: enabled: must be true or false"),
     has("{http, [#{port => 1}]}.\n", "http: the value must be one map").
 
+%% The http section's WoT consumers (docs/wot.md) are read and checked by
+%% evatar_web; a pairing named twice is named as the mistake.
+http_things_test() ->
+    {ok, #{http := #{things := [#{pairing := "home", credential := "agent-secret",
+                                   entity_id := "wot"}]}}} =
+        load("{http, #{things => [#{pairing => \"home\", credential => \"agent-secret\", "
+             "entity_id => \"wot\"}]}}.\n"),
+    has("{http, #{things => [#{pairing => \"p\", credential => \"c\"}, "
+        "#{pairing => \"p\", credential => \"d\"}]}}.\n",
+        "http: things: names a pairing more than once"),
+    has("{http, #{things => [#{pairing => \"p\"}]}}.\n", "http: things: must be a list of").
+
 %% Per-device identities: text becomes binaries, roles stay the two
 %% words, fingerprints and hashed credentials pass to evatar, which accepts
 %% the pairing without role credentials.
