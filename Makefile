@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-partition bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -33,6 +33,11 @@ test-ha: deps
 ## Randomized faults while traffic flows, for EVATAR_SOAK_SECONDS (default 600).
 soak: deps
 	EVATAR_SOAK_SECONDS=$${EVATAR_SOAK_SECONDS:-600} $(REBAR) ct --suite test/nemesis_SUITE --group nemesis
+
+## Rolling upgrade from the previous release and replacing a dead machine,
+## on real release nodes (docs/ha.md section 8; about 3 minutes).
+test-upgrade: deps
+	@bash scripts/test-upgrade.sh
 
 ## BIL codec and binding benchmarks (figures printed side by side with xmerl).
 bench-bil: deps
