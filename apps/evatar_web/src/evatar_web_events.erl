@@ -134,7 +134,8 @@ stop(Sub, Timer) ->
 event(Item) ->
     ["data: ", evatar_web_json:encode(Item), "\n\n"].
 
-active_once(ip_comm, Socket) ->
+active_once(Type, Socket) when Type =:= ip_comm; element(1, Type) =:= ip_comm ->
+    %% `{ip_comm, Options}' when the listener sets socket options (nodelay).
     case inet:setopts(Socket, [{active, once}]) of
         ok -> ok;
         %% Closed already: the loop's next write fails and ends it.

@@ -153,8 +153,7 @@ gone(Why, #{pending := Pending} = St) ->
     St#{session := undefined, status := {refused, Why}, pending := #{}, described => false}.
 
 reason(W) when is_atom(W) -> W;
-reason({not_active, _}) -> not_active;
-reason(_) -> other.
+reason({not_active, _}) -> not_active.
 
 %% Reads the pairing's registration list and registers the counterpart of
 %% its Avatars when it changed (a registration rebinds and reports again:
