@@ -4,8 +4,8 @@
 %% descriptions (evatar_web_td:counterpart/2), so that binding pairs it
 %% with every Avatar component. An invoked TD action is a
 %% RequestAwaitingFeedback from its stand-in component; the Feedback (or
-%% EVATAR's Timeout) is the caller's answer. SensorData kept, last per
-%% stream, is what a property read returns.
+%% EVATAR's Timeout) is the caller's answer. SensorData (or an Event) kept,
+%% last per stream, is what a property read returns.
 %%
 %% ```
 %%  joining --ok--> joined --dropped/pairing down--> joining
@@ -104,16 +104,20 @@ handle_cast(_, St) ->
     {noreply, St}.
 
 %% @private
+handle_info(join, #{session := S} = St) when S =/= undefined ->
+    %% A second retry timer (dropped, then the pairing's DOWN): joined already.
+    {noreply, St};
 handle_info(join, #{config := #{pairing := P, entity_id := E, credential := C}} = St) ->
     case evatar:join(P, agent, E, C) of
         {ok, Session} ->
-            _ = erlang:monitor(process, evatar:session_pid(Session)),
+            Ref = erlang:monitor(process, evatar:session_pid(Session)),
             Options = case evatar:stored_options(P) of
                           {ok, O} -> O;
                           {error, _} -> #{}
                       end,
             ?LOG_NOTICE(#{what => wot_consumer_joined, pairing => P, entity => E}),
-            {noreply, describe(St#{session := Session, status := joined, options := Options})};
+            {noreply, describe(St#{session := Session, status := joined, options := Options,
+                                   monitor => Ref})};
         {error, Why} ->
             case maps:get(status, St) of
                 {refused, Why} -> ok;
@@ -121,7 +125,9 @@ handle_info(join, #{config := #{pairing := P, entity_id := E, credential := C}} 
                                    reason => Why, retry_ms => ?RETRY_MS})
             end,
             _ = erlang:send_after(?RETRY_MS, self(), join),
-            {noreply, St#{status := {refused, reason(Why)}}}
+            %% The TDs stay listed while it cannot join; their operations
+            %% answer 503 not_joined with the reason.
+            {noreply, refresh(St#{status := {refused, reason(Why)}})}
     end;
 handle_info({evatar, P, {bound, _Report}}, #{config := #{pairing := P}} = St) ->
     {noreply, describe(St)};
@@ -134,23 +140,30 @@ handle_info({evatar, P, {signal, #{in_reply_to := R} = Signal}},
             gen_server:reply(maps:get(R, Pending), {ok, Signal}),
             {noreply, St#{pending := maps:remove(R, Pending)}}
     end;
-handle_info({evatar, P, {signal, #{context := sensor_data, sender := From,
+handle_info({evatar, P, {signal, #{context := Ctx, sender := From,
                                    body := #{type := T}} = Signal}},
-            #{config := #{pairing := P}, readings := R} = St) ->
+            #{config := #{pairing := P}, readings := R} = St)
+  when Ctx =:= sensor_data; Ctx =:= event ->
+    %% A stream pushed as SensorData or as Event (the microphone's).
     {noreply, St#{readings := R#{{From, bil:keyword(T)} => Signal}}};
 handle_info({evatar, P, {signal, _}}, #{config := #{pairing := P}} = St) ->
     {noreply, St};
 handle_info({evatar, P, {dropped, Code, _Why}}, #{config := #{pairing := P}} = St) ->
     {noreply, gone(Code, St)};
-handle_info({'DOWN', _, process, _, _}, St) ->
+handle_info({'DOWN', Ref, process, _, _}, #{monitor := Ref, session := S} = St) when S =/= undefined ->
     {noreply, gone(pairing_down, St)};
 handle_info(_, St) ->
     {noreply, St}.
 
 gone(Why, #{pending := Pending} = St) ->
     _ = [gen_server:reply(F, {error, {not_joined, {refused, Why}}}) || F <- maps:values(Pending)],
+    _ = case St of
+            #{monitor := Ref} -> erlang:demonitor(Ref, [flush]);
+            #{} -> true
+        end,
     _ = erlang:send_after(?RETRY_MS, self(), join),
-    St#{session := undefined, status := {refused, Why}, pending := #{}, described => false}.
+    St#{session := undefined, status := {refused, Why}, pending := #{}, described => false,
+        monitor => undefined}.
 
 reason(W) when is_atom(W) -> W;
 reason({not_active, _}) -> not_active.
@@ -177,6 +190,12 @@ describe(#{config := #{pairing := P, entity_id := E}, session := S} = St) ->
             end;
         {error, _} ->
             St
+    end.
+
+refresh(#{config := #{pairing := P}} = St) ->
+    case evatar:registry(P) of
+        {ok, List} -> St#{avatars := [D || #{role := avatar, description := D} <- List, D =/= undefined]};
+        {error, _} -> St#{avatars := []}
     end.
 
 find(Entity, Comp, Side, Type, #{avatars := Avatars}) ->

@@ -13,7 +13,8 @@
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([tds_pass_schema_and_assertions/1, consumer_is_bound_like_a_va/1,
          node_wot_switches_the_lamp/1, feedback_timeout_is_504/1, actions_need_the_token/1,
-         a_va_cannot_join_beside_it/1, bad_things_option_is_named/1]).
+         a_va_cannot_join_beside_it/1, bad_things_option_is_named/1,
+         node_wot_reads_the_time/1, a_joined_va_keeps_it_out/1]).
 
 -define(T, evatar_web_test).
 -define(TOKEN, "wot-operator-token-0123456789abcdef").
@@ -23,12 +24,13 @@
 -define(LAMP, "BedroomSocketSwitch01").
 -define(MQTT, <<"wot-mqtt">>).
 -define(MQTT_AV, <<"wot-mqtt-home">>).
+-define(BUSY, <<"wot-busy">>).
 
 suite() -> [{timetrap, {minutes, 6}}].
 
 all() -> [bad_things_option_is_named, tds_pass_schema_and_assertions, consumer_is_bound_like_a_va,
-          actions_need_the_token, node_wot_switches_the_lamp, a_va_cannot_join_beside_it,
-          feedback_timeout_is_504].
+          actions_need_the_token, node_wot_switches_the_lamp, node_wot_reads_the_time, a_va_cannot_join_beside_it,
+          feedback_timeout_is_504, a_joined_va_keeps_it_out].
 
 init_per_suite(Config) ->
     Npm = npm_install(),
@@ -43,11 +45,19 @@ init_per_suite(Config) ->
                                              avatar_credential => ?AV_CRED,
                                              feedback_timeout => 2000}),
     _ = evatar:delete_pairing(?MQTT),
+    _ = evatar:delete_pairing(?BUSY),
+    %% ?BUSY: a VA (this suite's process) holds the agent slot before the
+    %% consumer starts; an Avatar with bil's light_actuator.xml is described.
+    {ok, _} = evatar:create_pairing(?BUSY, #{agent_credential => ?VA_CRED,
+                                             avatar_credential => ?AV_CRED, join_timeout => 600000}),
+    Va = hold(agent, <<"busy-va">>, smart_home_va_stub()),
+    Lamp = hold(avatar, <<"7008">>, example("light_actuator.xml")),
     {ok, _} = evatar:create_pairing(?MQTT, #{agent_credential => ?VA_CRED,
                                              avatar_credential => ?AV_CRED}),
     ?T:start(#{operator_token_hash => evatar:hash_credential(list_to_binary(?TOKEN)),
                things => [#{pairing => ?HOME, credential => ?VA_CRED, entity_id => <<"wot">>},
-                          #{pairing => ?MQTT, credential => ?VA_CRED}]}),
+                          #{pairing => ?MQTT, credential => ?VA_CRED},
+                          #{pairing => ?BUSY, credential => ?VA_CRED}]}),
     {ok, Home} = avatar_sim:start_home(#{endpoints => [Addr], spool => ?config(priv_dir, Config),
                                          gateways => [#{pairing => ?HOME, credential => ?AV_CRED}]}),
     %% The MQTT Avatar: devices announced by Home Assistant discovery on a
@@ -60,8 +70,8 @@ init_per_suite(Config) ->
                                  evatar => #{endpoints => [Addr], pairing => ?MQTT,
                                              credential => ?AV_CRED}}),
     wait_until(fun() -> home_bound() end),
-    wait_until(fun() -> length(things()) =:= 2 end),
-    [{npm, Npm}, {home, Home}, {broker, Broker} | Config].
+    wait_until(fun() -> length(things()) =:= 3 end),
+    [{npm, Npm}, {home, Home}, {broker, Broker}, {busy_va, Va}, {busy_lamp, Lamp} | Config].
 
 end_per_suite(Config) ->
     ok = avatar_sim:stop(?config(home, Config)),
@@ -69,6 +79,8 @@ end_per_suite(Config) ->
     ok = evatar_test_mosquitto:stop(?config(broker, Config)),
     _ = evatar:delete_pairing(?HOME),
     _ = evatar:delete_pairing(?MQTT),
+    [P ! stop || P <- [?config(busy_va, Config), ?config(busy_lamp, Config)]],
+    _ = evatar:delete_pairing(?BUSY),
     ok = agent_bridge:stop_listener(wot),
     ?T:stop(),
     %% evatar_web_test's defaults have no `things': later suites must not
@@ -118,7 +130,7 @@ tds_pass_schema_and_assertions(Config) ->
              write(Config, "node.json", Node)],
     {0, Report} = node(Config, "validate.js", Files),
     ct:pal("~ts", [Report]),
-    {match, _} = re:run(Report, "checked 4 TDs, 0 failed"),
+    {match, _} = re:run(Report, "checked 5 TDs, 0 failed"),
     %% The checker can fail: a TD without its security is refused.
     Broken = write(Config, "broken.json", evatar_web_json:encode(maps:remove(<<"security">>, TD))),
     {1, Refused} = node(Config, "validate.js", [Broken]),
@@ -131,7 +143,10 @@ consumer_is_bound_like_a_va(_Config) ->
         ?T:get("/api/pairings/wot-home/bindings"),
     [_] = [B || #{<<"consumer">> := #{<<"entity">> := <<"wot">>, <<"component">> := <<"wot.", ?LAMP>>},
                   <<"provider">> := #{<<"component">> := <<?LAMP>>},
-                  <<"type">> := <<"SwitchSocketOn">>} = B <- Bound].
+                  <<"type">> := <<"SwitchSocketOn">>} = B <- Bound],
+    %% The dashboard's graph shows it on the agents' side.
+    {200, Graph} = ?T:get("/api/pairings/wot-home/graph"),
+    {match, _} = re:run(evatar_web_json:encode(Graph), "\"wot\\.BedroomSocketSwitch01\"").
 
 %% Invoking an action is a change: without the operator token, 401.
 actions_need_the_token(_Config) ->
@@ -145,12 +160,30 @@ actions_need_the_token(_Config) ->
 %% socket, whose feedback is the action's output; the house's socket is on.
 node_wot_switches_the_lamp(Config) ->
     Url = ?T:url("/api/things/wot-home/easy-home-01"),
-    {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, ?LAMP ".SwitchSocketOn", "{}"]),
+    {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, "invoke", ?LAMP ".SwitchSocketOn", "{}"]),
     ct:pal("~ts", [Out]),
     {match, [Json]} = re:run(Out, "^OUTPUT (.*)$", [multiline, {capture, all_but_first, binary}]),
     {ok, #{<<"Socket">> := <<"on">>, <<"Room">> := <<"bedroom">>}} = evatar_web_json:decode(Json),
-    {0, Off} = node(Config, "consume.js", [Url, ?TOKEN, ?LAMP ".SwitchSocketOff", "{}"]),
+    {0, Off} = node(Config, "consume.js", [Url, ?TOKEN, "invoke", ?LAMP ".SwitchSocketOff", "{}"]),
     {match, _} = re:run(Off, "OUTPUT .*\"Socket\":\"off\"").
+
+%% The time sensor pushes TimeOfDay readings once bound: node-wot reads
+%% the property, the reading's parameters.
+node_wot_reads_the_time(Config) ->
+    Path = "/api/things/wot-home/easy-home-01/properties/TimeSensor01/TimeOfDay",
+    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
+    {200, #{<<"TimeOfDay">> := _}} = ?T:get(Path),
+    Url = ?T:url("/api/things/wot-home/easy-home-01"),
+    {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, "read", "TimeSensor01.TimeOfDay"]),
+    ct:pal("~ts", [Out]),
+    {match, _} = re:run(Out, "OUTPUT .*\"TimeOfDay\":\"[0-9][0-9]:[0-9][0-9]\""),
+    {200, #{<<"TimeSensor01.TimeOfDay">> := #{<<"TimeOfDay">> := _}}} =
+        ?T:get("/api/things/wot-home/easy-home-01/properties"),
+    %% A stream that never pushed (nothing publishes the MQTT devices'
+    %% states): 503 no_reading, the error the TD declares.
+    [#{<<"properties">> := MqttProps}] = [X || #{<<"title">> := ?MQTT_AV} = X <- things()],
+    [#{<<"forms">> := [#{<<"href">> := Href}]} | _] = maps:values(MqttProps),
+    {503, #{<<"error">> := <<"no_reading">>}} = ?T:get("/" ++ binary_to_list(Href)).
 
 %% A pairing holds one agent: while the WoT consumer is joined, a VA is
 %% refused `occupied' (docs/wot.md, limits).
@@ -169,7 +202,41 @@ feedback_timeout_is_504(Config) ->
     end,
     {200, #{<<"Socket">> := <<"on">>}} = ?T:request(post, action_path("SwitchSocketOn"), auth(), "{}").
 
+%% A pairing holds one agent (docs/wot.md, limits): while a VA holds it the
+%% consumer lists the Avatar's TD but its actions answer 503 not_joined,
+%% naming the taken slot; once the VA leaves, the consumer joins.
+a_joined_va_keeps_it_out(Config) ->
+    Path = "/api/things/wot-busy/7008/actions/HomeLightActuator01/TurnLightOn",
+    {503, #{<<"error">> := <<"not_joined">>, <<"message">> := M}} = ?T:request(post, Path, auth(), "{}"),
+    {match, _} = re:run(M, "agent slot is taken"),
+    ?config(busy_va, Config) ! stop,
+    wait_until(fun() ->
+                       case ?T:get("/api/pairings/wot-busy/bindings") of
+                           {200, #{<<"agents">> := [#{<<"entity">> := <<"wot">>}]}} -> true;
+                           _ -> false
+                       end
+               end).
+
 %% ---------------------------------------------------------------------------
+
+%% A process joined to ?BUSY as Role, described, until told to stop.
+hold(Role, Entity, Description) ->
+    Parent = self(),
+    Cred = case Role of agent -> ?VA_CRED; avatar -> ?AV_CRED end,
+    Pid = spawn(fun() ->
+                        {ok, S} = evatar:join(?BUSY, Role, Entity, Cred),
+                        ok = evatar:describe(S, Description#{entity_id := Entity}),
+                        Parent ! {held, self()},
+                        receive stop -> evatar:leave(S) end
+                end),
+    receive {held, Pid} -> Pid after 30000 -> ct:fail({cannot_join, Entity}) end.
+
+example(File) ->
+    {ok, Xml} = file:read_file(filename:join([code:priv_dir(bil), "examples", File])),
+    {ok, D} = bil:parse_description(Xml),
+    D.
+
+smart_home_va_stub() -> example("light_va.xml").
 
 auth() -> [{"authorization", "Bearer " ?TOKEN}].
 
