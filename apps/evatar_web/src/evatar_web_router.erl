@@ -69,10 +69,22 @@ evatar_web_things_routes() ->
 %% @private
 -spec do(#mod{}) -> {proceed, list()}.
 do(#mod{parsed_header = Headers} = Mod) ->
+    ok = nodelay(Mod),
     case header(evatar_web_limit:too_large_header(), Headers) of
         undefined -> route(Mod);
         Declared -> too_large(Declared, Mod)
     end.
+
+%% httpd writes a response's head and body in two sends: with Nagle's
+%% algorithm the body waited for the client's delayed ACK (about 40 ms a
+%% request on a kept-alive connection). Set on every request (one
+%% setsockopt), since httpd gives no hook at accept.
+nodelay(#mod{socket_type = ip_comm, socket = Socket}) ->
+    _ = inet:setopts(Socket, [{nodelay, true}]),
+    ok;
+nodelay(#mod{socket = Socket}) ->
+    _ = ssl:setopts(Socket, [{nodelay, true}]),
+    ok.
 
 %% httpd has not read the body (evatar_web_limit renamed its length): the
 %% answer goes out here with `connection: close' and the socket is closed,

@@ -30,11 +30,10 @@ start_httpd(#{ip := Ip, port := Port} = Opts) ->
     Config = [{port, Port},
               {bind_address, Ip},
               {ipfamily, case tuple_size(Ip) of 4 -> inet; 8 -> inet6 end},
-              %% httpd writes a response's head and body in two sends: with
-              %% Nagle's algorithm the body waited for the client's delayed
-              %% ACK (about 40 ms a request on a kept-alive connection).
-              %% Accepted sockets inherit the option.
-              {socket_type, {ip_comm, [{nodelay, true}]}},
+              %% Not {socket_type, {ip_comm, [{nodelay, true}]}}: OTP 25's
+              %% httpd cannot listen on a fixed port with it (function_clause
+              %% in http_transport:listen/4; only port 0 worked). The router
+              %% sets nodelay on each accepted socket instead.
               {server_name, "evatar"},
               {server_root, Priv},
               {document_root, filename:join(Priv, "www")},

@@ -10,7 +10,8 @@
          init_per_group/2, end_per_group/2]).
 -export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
          method_not_allowed/1, loopback_reads_check_host/1, body_limit/1, nodelay/1,
-         bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1]).
+         bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1,
+         fixed_port_starts/1]).
 -export([log/2]).
 
 -define(T, evatar_web_test).
@@ -22,7 +23,8 @@ all() -> [{group, server}, {group, startup}].
 groups() ->
     [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
                    method_not_allowed, loopback_reads_check_host, body_limit, nodelay]},
-     {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged]}].
+     {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged,
+                    fixed_port_starts]}].
 
 init_per_suite(Config) ->
     ?T:start(#{}),
@@ -164,6 +166,26 @@ listen_failure_is_an_error(_Config) ->
             application:start(evatar_web)
     after
         ok = gen_tcp:close(Holder),
+        ok = application:set_env(evatar_web, port, 0),
+        ok = application:start(evatar_web)
+    end.
+
+%% A configured port (what a release has) is listened on and served, with
+%% nodelay on the accepted socket (httpd's socket_type with options broke
+%% exactly this start, while port 0 worked).
+fixed_port_starts(_Config) ->
+    {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Free} = inet:port(Probe),
+    ok = gen_tcp:close(Probe),
+    ok = application:stop(evatar_web),
+    try
+        ok = application:set_env(evatar_web, port, Free),
+        ok = application:start(evatar_web),
+        Free = evatar_web:port(),
+        {200, #{<<"quorum">> := true}} = ?T:get("/api/cluster"),
+        nodelay([])
+    after
+        ok = application:stop(evatar_web),
         ok = application:set_env(evatar_web, port, 0),
         ok = application:start(evatar_web)
     end.
