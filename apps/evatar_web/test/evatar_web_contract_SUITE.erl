@@ -163,7 +163,7 @@ schemathesis(Config, Spec, Extra) ->
     ok = file:write_file(Toml, config()),
     Exe = filename:join(filename:dirname(?config(python, Config)), "schemathesis"),
     Checks = "not_a_server_error,status_code_conformance,content_type_conformance,"
-             "response_schema_conformance,response_headers_conformance,positive_data_acceptance",
+             "response_schema_conformance,response_headers_conformance,positive_data_acceptance,negative_data_rejection",
     Args = ["--config-file", Toml, "--no-color", "run", Spec,
             "--url", string:trim(?T:url(""), trailing, "/"),
             "--checks", Checks, "--seed", ?SEED, "--workers", "1",
