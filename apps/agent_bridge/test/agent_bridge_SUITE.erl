@@ -47,9 +47,11 @@ init_per_suite(Config) ->
     %% The default handshake timeout (5 s) here: the timer starts with the
     %% connection process, and the case's Hello, read by cover-compiled code
     %% on a loaded machine, must not race a short one. silent_client has a
-    %% listener of its own with a short timeout.
+    %% listener of its own with a short timeout (its case waits for it to
+    %% fire, and nothing else is on that listener).
     Addr = evatar_test_node:listen(test, #{conn => #{linger => 200}}),
-    Silent = evatar_test_node:listen(silent, #{conn => #{handshake_timeout => 500}}),
+    Silent = evatar_test_node:listen(silent, #{conn => #{handshake_timeout =>
+                                                             evatar_test_time:ms(500)}}),
     Small = evatar_test_node:listen(small, #{conn => #{max_out_frames => 50,
                                                              max_out_bytes => 65536,
                                                              pairing_watermark => 20,
@@ -68,14 +70,20 @@ end_per_suite(Config) ->
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
     {ok, _} = evatar_test_fixtures:create_pairing(
-                Pairing, #{join_timeout => 2000, feedback_timeout => answer_within(Case)}),
+                Pairing, #{join_timeout => join_timeout(), feedback_timeout => answer_within(Case)}),
     [{pairing, Pairing} | Config].
 
-%% Short where a case waits for EVATAR's Timeout; elsewhere the default,
-%% so that an answer slowed by a loaded machine (the port program's, a
-%% Python process) is not overtaken by a Timeout.
-answer_within(Case) when Case =:= feedback_timeout; Case =:= request_closed_to_provider -> 300;
-answer_within(_Case) -> 5000.
+%% The cases' join timeout: none waits for it (join_timeout_drops has a
+%% pairing of its own), so no load must reach it.
+join_timeout() -> evatar_test_time:guard().
+
+%% Short where a case waits for EVATAR's Timeout (and nothing answers);
+%% elsewhere the hang guard, so that an answer slowed by a loaded machine
+%% (the port program's, a Python process) is never overtaken by a Timeout.
+answer_within(Case) when Case =:= feedback_timeout; Case =:= request_closed_to_provider ->
+    evatar_test_time:ms(300);
+answer_within(_Case) ->
+    evatar_test_time:guard().
 
 end_per_testcase(_Case, Config) ->
     %% A busy case may end with its pairing still suspended.
@@ -97,7 +105,8 @@ handshake_ok(Config) ->
     {control, {welcome, W}} = recv_doc(S),
     %% JoinTimeout is the pairing's (init_per_testcase), not a listener default.
     #{pairing := P, entity_id := <<"va">>, session_id := Sid, max_frame := 1048576,
-      join_timeout := 2000} = W,
+      join_timeout := JoinTimeout} = W,
+    JoinTimeout = join_timeout(),
     P = ?config(pairing, Config),
     32 = byte_size(Sid),
     ok = gen_tcp:close(S).
@@ -199,7 +208,7 @@ bad_first_document(Config) ->
     expect_refused(S3, <<"BadHandshake">>).
 
 %% A client that connects and sends nothing gets HandshakeTimeout (500 ms
-%% on this listener).
+%% on this listener, on evatar_test_time's scale).
 silent_client(Config) ->
     S = raw_connect([{addr, ?config(silent, Config)} | Config]),
     expect_refused(S, <<"HandshakeTimeout">>).
@@ -221,13 +230,14 @@ malformed_signal_keeps_connection(Config) ->
 %% An entity that never describes itself is dropped after the join timeout.
 join_timeout_drops(Config) ->
     Pairing = <<"join_timeout_short">>,
-    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 200}),
+    JoinTimeout = evatar_test_time:ms(200),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => JoinTimeout}),
     S = raw_connect(Config),
     ok = gen_tcp:send(S, bil_control:encode({hello, #{pairing => Pairing, role => avatar,
                                                       entity_id => <<"av">>,
                                                       credential => ?AV_CRED,
                                                       protocol_version => 1}})),
-    {control, {welcome, #{join_timeout := 200}}} = recv_doc(S),
+    {control, {welcome, #{join_timeout := JoinTimeout}}} = recv_doc(S),
     {signal, #{context := error, body := #{type := <<"JoinTimeout">>}}} = recv_doc(S),
     expect_refused(S, <<"JoinTimeout">>),
     ok = evatar:delete_pairing(Pairing).

@@ -47,8 +47,8 @@ init_per_suite(Config) ->
                                     max_failure_delay => 200, max_failures => 10,
                                     lockout => 600000}},
           slow => #{conn => #{max_out_frames => 50, max_out_bytes => 65536}},
-          idle => #{conn => #{idle_timeout => 300}},
-          idle_slow => #{conn => #{idle_timeout => 2000}},
+          idle => #{conn => #{idle_timeout => evatar_test_time:ms(300)}},
+          idle_slow => #{conn => #{idle_timeout => evatar_test_time:ms(2000)}},
           main => #{}},
     Addrs = maps:map(fun(Name, Opts) -> call(Peer, ?MODULE, listen, [Name, Opts]) end, Listeners),
     Bystander = start_bystander(Peer, maps:get(main, Addrs)),
@@ -210,19 +210,22 @@ slow_consumer_closed(Config) ->
     gen_tcp:close(S).
 
 %% A version 1 session with no frame either way for idle_timeout (300 ms
-%% here) is closed with Refused IdleTimeout.
+%% here, on evatar_test_time's scale) is closed with Refused IdleTimeout.
 idle_v1_session(Config) ->
     S = joined_v1(addr(idle, Config), Config),
     ?assertMatch({control, {refused, #{code := <<"IdleTimeout">>}}}, until_not_binding(S)),
     {error, closed} = gen_tcp:recv(S, 0, 5000).
 
 %% A version 1 client that sends an empty Ack more often than the idle
-%% timeout (2 s here) keeps its session: after 20 keepalives over twice
-%% the timeout its Bye is answered with a Bye.
+%% timeout (2 s here, on evatar_test_time's scale) keeps its session:
+%% after 20 keepalives over twice the timeout its Bye is answered with a
+%% Bye. The pause between keepalives is the case's subject (a tenth of the
+%% timeout), not a wait for an event.
 idle_v1_keepalive(Config) ->
     S = joined_v1(addr(idle_slow, Config), Config),
     Ack = bil_control:encode({ack, #{}}),
-    [begin ok = gen_tcp:send(S, Ack), timer:sleep(200) end || _ <- lists:seq(1, 20)],
+    [begin ok = gen_tcp:send(S, Ack), timer:sleep(evatar_test_time:ms(200)) end
+     || _ <- lists:seq(1, 20)],
     ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
     %% A Binding may come first (the description was accepted).
     ?assertEqual(bye, until_bye(S)).

@@ -15,6 +15,7 @@
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
 -export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0, stored_options/1]).
+-export([expire_timer/2]).
 -export([hash_credential/1, hash_credential/2, verify_credential/2]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
@@ -531,6 +532,27 @@ inspect(PairingId, What) ->
                 {error, gone} -> {error, not_found};
                 {error, busy} -> {error, busy};
                 Reply -> {ok, Reply}
+            end
+    end.
+
+%% @doc For tests: fires this node's instance's timer Key now, as if it
+%% had expired (`{feedback, Component, SignalId}', `{join, EntityId}',
+%% `{resume, EntityId}': evatar_pairing_logic:timer_key()), so that a case
+%% checks what the timeout does without a short timeout that a loaded
+%% machine could reach early or late elsewhere in the case. The timer is
+%% cancelled and its expiry handled as the real one would be (after what
+%% the pairing received before this call); `{error, no_timer}' when no
+%% such timer is running (never armed, already expired or cancelled).
+-spec expire_timer(pairing_id(), evatar_pairing_logic:timer_key()) ->
+          ok | {error, no_timer | not_found | busy}.
+expire_timer(PairingId, Key) ->
+    case evatar_registry:whereis_name(PairingId) of
+        undefined ->
+            {error, not_found};
+        Pid ->
+            case call(Pid, {expire_timer, Key}) of
+                {error, gone} -> {error, not_found};
+                Reply -> Reply
             end
     end.
 

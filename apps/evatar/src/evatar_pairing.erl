@@ -195,6 +195,18 @@ call({auth, Role, EntityId}, From, _State, #data{config = Config}) ->
                 {error, _} = Error -> Error
             end,
     {keep_state_and_data, [{reply, From, Reply}]};
+call({expire_timer, Key}, From, _State, #data{timers = Timers}) ->
+    %% evatar:expire_timer/2 (tests): the expiry goes through the mailbox
+    %% like the real one, and the real one, cancelled, is ignored if it
+    %% was already on its way (its key no longer maps to this reference).
+    case Timers of
+        #{Key := TRef} ->
+            _ = erlang:cancel_timer(TRef, [{async, true}, {info, false}]),
+            self() ! {timeout, TRef, Key},
+            {keep_state_and_data, [{reply, From, ok}]};
+        #{} ->
+            {keep_state_and_data, [{reply, From, {error, no_timer}}]}
+    end;
 call(_Request, _From, handing_over, _Data) ->
     {keep_state_and_data, [postpone]};
 call(delete, From, _State, #data{id = Id, inst = Inst}) ->

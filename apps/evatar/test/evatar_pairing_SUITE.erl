@@ -151,7 +151,7 @@ sensor_stream_in_order(Config) ->
 %% delivered: its sender gets NoOpenRequest, and it is counted.
 feedback_timeout(Config) ->
     #{va := Va, av := Av, id := Id, va_pid := VaPid} =
-        bound_pairing(Config, #{feedback_timeout => 50}),
+        bound_pairing(Config, #{feedback_timeout => evatar_test_time:ms(50)}),
     ok = evatar:send(Va, ?E:signal(<<"r1">>, request, ?EMU, ?LIGHT)),
     #{id := <<"r1">>} = ?E:recv(?AV, signal),
     #{context := feedback, in_reply_to := <<"r1">>, sender := <<"EVATAR">>,
@@ -250,9 +250,10 @@ not_bound_and_bad_sender(Config) ->
 %% signal, then `dropped'; the pairing forgets it.
 join_timeout_drops(Config) ->
     Id = ?config(pairing, Config),
-    {ok, _} = evatar:create_pairing(Id, opts(#{join_timeout => 50})),
+    JoinTimeout = evatar_test_time:ms(50),
+    {ok, _} = evatar:create_pairing(Id, opts(#{join_timeout => JoinTimeout})),
     {ok, Av, _} = ?E:start(Id, avatar, ?AV, ?AVATAR_CRED),
-    #{join_timeout := 50, entity := ?AV, role := avatar} = evatar:session_info(Av),
+    #{join_timeout := JoinTimeout, entity := ?AV, role := avatar} = evatar:session_info(Av),
     #{context := error, receiver := ?AV,
       body := #{type := <<"JoinTimeout">>}} = ?E:recv(?AV, signal),
     {join_timeout, Reason} = ?E:recv(?AV, dropped),

@@ -170,7 +170,8 @@ device_never_answers(Config) ->
     Spool = filename:join(?config(priv_dir, Config), "mute"),
     {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool,
                                                start => {{2024, 11, 15}, {21, 35, 0}},
-                                               feedback_timeout => 500}),
+                                               feedback_timeout =>
+                                                   evatar_test_time:ms(500)}),
     try
         Home = reference_agents_scenario:get(home, S),
         ok = avatar_sim:mute(Home, <<"HallSpeaker01">>),
