@@ -17,7 +17,9 @@
 %% verify_none; `fail_if_no_peer_cert' defaults to true with verify_peer.
 %% `revoked_file' names a file of client certificate SHA-256 fingerprints,
 %% one a line, refused at the handshake (read at each handshake, so an
-%% edit takes effect without a restart). `send_timeout' (ms, default 5000)
+%% edit takes effect without a restart; parsed again only when its
+%% content changed). A `verify_fun' in `ssl_opts' would replace that
+%% check, so the two together are refused. `send_timeout' (ms, default 5000)
 %% closes a connection whose peer takes no TLS data for that long.
 %% `versions' is a subset of TLS 1.3 and 1.2. The ciphers, groups and
 %% renegotiation rule are hardened (hardened_opts/1); `ssl_opts' replace
@@ -107,6 +109,8 @@ format_error({Key, File, no_certificate}) ->
     fmt("tls ~0tp ~ts holds no PEM certificate", [Key, File]);
 format_error({Key, File, no_private_key}) ->
     fmt("tls ~0tp ~ts holds no PEM private key", [Key, File]);
+format_error({conflict, revoked_file, {ssl_opts, verify_fun}}) ->
+    <<"tls ssl_opts verify_fun would replace the revoked_file check: give one of them">>;
 format_error({revoked_file, File, {bad_line, N}}) ->
     fmt("tls revoked_file ~ts line ~b is not a SHA-256 fingerprint (64 hex digits)", [File, N]);
 format_error({Key, File, Why}) ->
@@ -139,7 +143,10 @@ check_tls(Tls0) when is_map(Tls0) ->
                || not is_list(Versions) orelse Versions =:= []
                       orelse Versions -- ?VERSIONS =/= []],
               [{missing, cacertfile} || is_map_key(revoked_file, Tls),
-                                        not is_map_key(cacertfile, Tls)]],
+                                        not is_map_key(cacertfile, Tls)],
+              [{conflict, revoked_file, {ssl_opts, verify_fun}}
+               || is_map_key(revoked_file, Tls), Extra <- [maps:get(ssl_opts, Tls, [])],
+                  is_list(Extra), lists:keymember(verify_fun, 1, Extra)]],
     case lists:append(Checks) of
         [Error | _] ->
             {error, Error};
@@ -250,9 +257,9 @@ verify_revoked(_, valid, File) ->
     {valid, File};
 verify_revoked(Cert, valid_peer, File) ->
     Sha = fingerprint(public_key:pkix_encode('OTPCertificate', Cert, otp)),
-    case read_revoked(File) of
+    case revoked_set(File) of
         {ok, Revoked} ->
-            case lists:member(Sha, Revoked) of
+            case is_map_key(Sha, Revoked) of
                 %% ssl's alert for this reason is certificate_revoked.
                 true -> {fail, {bad_cert, {revoked, revoked_file}}};
                 false -> {valid, File}
@@ -261,16 +268,42 @@ verify_revoked(Cert, valid_peer, File) ->
             {fail, {bad_cert, {revocation_status_undetermined, revoked_file_unreadable}}}
     end.
 
+%% The fingerprints of File as a set, parsed again only when the file's
+%% content differs from the last parsed (kept per file in a persistent
+%% term: an edit rewrites it once; a handshake reads the file and compares
+%% it, so a list of thousands costs one read, not a parse and a scan).
+revoked_set(File) ->
+    Key = {?MODULE, revoked, File},
+    case file:read_file(File) of
+        {ok, Text} ->
+            case persistent_term:get(Key, undefined) of
+                {Text, Set} ->
+                    {ok, Set};
+                _ ->
+                    case parse_revoked(Text) of
+                        {ok, List} ->
+                            Set = maps:from_keys(List, []),
+                            persistent_term:put(Key, {Text, Set}),
+                            {ok, Set};
+                        {error, _} = Error ->
+                            Error
+                    end
+            end;
+        {error, _} = Error ->
+            Error
+    end.
+
 %% The fingerprints of a revoked_file: one a line, hex in either case,
 %% colons allowed; blank lines and lines starting with # are skipped.
 read_revoked(File) ->
     case file:read_file(File) of
-        {ok, Text} ->
-            Lines = binary:split(Text, <<"\n">>, [global]),
-            parse_revoked(lists:zip(lists:seq(1, length(Lines)), Lines), []);
-        {error, _} = Error ->
-            Error
+        {ok, Text} -> parse_revoked(Text);
+        {error, _} = Error -> Error
     end.
+
+parse_revoked(Text) ->
+    Lines = binary:split(Text, <<"\n">>, [global]),
+    parse_revoked(lists:zip(lists:seq(1, length(Lines)), Lines), []).
 
 parse_revoked([], Acc) ->
     {ok, Acc};

@@ -359,6 +359,13 @@ bad_listener_options(Config) ->
                             " line 3 is not a SHA-256 fingerprint (64 hex digits)"]),
     Msg = Start(#{tls => #{certfile => Cert, keyfile => Key, cacertfile => Ca,
                            revoked_file => Bad}}),
+    %% A verify_fun of ssl_opts would silently replace the revocation check.
+    Empty = filename:join(?config(priv_dir, Config), "empty-revoked"),
+    ok = file:write_file(Empty, <<>>),
+    <<"tls ssl_opts verify_fun would replace the revoked_file check: give one of them">> =
+        Start(#{tls => #{certfile => Cert, keyfile => Key, cacertfile => Ca,
+                         revoked_file => Empty,
+                         ssl_opts => [{verify_fun, {fun(_, _, U) -> {valid, U} end, []}}]}}),
     %% Empty file names are no files (the release's unset variables).
     <<"tls option certfile is missing">> =
         Start(#{tls => #{certfile => "", keyfile => Key, cacertfile => ""}}),
