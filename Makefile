@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-partition bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -56,6 +56,12 @@ bench-brokers: deps
 ## Failover times (kill -9, silent stall: p50/p99 over 50 trials) and TLS distribution's cost.
 bench-failover: deps
 	@bash scripts/bench-failover.sh $(BENCH_ARGS)
+
+## Failover storm: kill -9 of the node holding N actives with traffic (3 nodes);
+## per pairing the time until its new active serves a round trip, the time until
+## every standby is synced again, lost and duplicated signals. BENCH_ARGS='[quick]'.
+bench-storm: deps
+	@bash scripts/bench-storm.sh $(BENCH_ARGS)
 
 ## Partitions of a real network (each node in a network namespace; root): the longest
 ## unserved time of a majority-side pairing per kind of partition, this build beside the

@@ -1,0 +1,175 @@
+%% @doc Failover storm benchmark: kill -9 of a node that holds the actives
+%% of N pairings, on a three-node cluster of real OS-process nodes on this
+%% machine (evatar_test_cluster, the release's HA timings), every pairing
+%% with traffic (its Avatar sends a sensor reading every `sensor_ms').
+%%
+%% The N pairings are created with their actives on node 1 (the rebalancer
+%% off, so they stay there); each gets a VA and an Avatar, HA clients of the
+%% bridge knowing every node, and does one round trip. Then node 1 is
+%% killed. At the kill every pair starts a round trip (the VA's request,
+%% the Avatar's feedback): the clients reconnect to the new active and the
+%% request, resent by the VA's client, is answered there. Figures:
+%%
+%% - served: per pairing, from the kill until its round trip is answered
+%%   at an epoch above the one it had on node 1; p50, p99, max, and how
+%%   many of the N within 1 s and 3 s (the goals: 1,000 within 1 s, 5,000
+%%   within 3 s);
+%% - synced: from the kill until every pairing has an active and a synced
+%%   standby again (on nodes 2 and 3);
+%% - lost / duplicated: evatar_test_checker over every pair's history
+%%   (sensor readings and requests, both directions) once traffic has
+%%   stopped and settled: both must be 0.
+%%
+%% Options: `{pairings, [N]}' (default [1000]), `{sensor_ms, Ms}' (default
+%% 1000), `quick' (pairings [50]: a smoke run), `{dir, Dir}' (node logs).
+%% Run it with scripts/bench-storm.sh (`make bench-storm').
+-module(storm_bench).
+
+-export([main/0, main/1]).
+
+%% @doc The default run.
+-spec main() -> ok.
+main() -> main([]).
+
+-spec main([term()]) -> ok.
+main(Opts) ->
+    _ = evatar_test_cluster:ensure_distributed(),
+    Quick = lists:member(quick, Opts),
+    Sizes = proplists:get_value(pairings, Opts, case Quick of true -> [50]; false -> [1000] end),
+    SensorMs = proplists:get_value(sensor_ms, Opts, 1000),
+    Dir = proplists:get_value(dir, Opts, temp_dir()),
+    io:format("EVATAR failover storm: kill -9 of the node holding N actives, 3 nodes, "
+              "~b schedulers here, a sensor reading every ~b ms per pairing, node logs in ~s~n",
+              [erlang:system_info(schedulers_online), SensorMs, Dir]),
+    Rows = [storm(N, SensorMs, filename:join(Dir, integer_to_list(N))) || N <- Sizes],
+    print(Rows).
+
+temp_dir() ->
+    Dir = filename:join("/tmp", "evatar-storm-bench-" ++ os:getpid()),
+    ok = filelib:ensure_path(Dir),
+    Dir.
+
+storm(N, SensorMs, Dir) ->
+    ok = filelib:ensure_path(Dir),
+    %% N pairings are 2N clients from one address: above the listener's
+    %% default connection and handshake limits (docs/ha.md says how to
+    %% raise them, as here).
+    {ok, C} = evatar_test_cluster:start(#{dir => Dir, prefix => "st", net => none,
+                                          conn => #{},
+                                          listener => #{max_connections => infinity,
+                                                        handshake => #{rate => infinity}},
+                                          evatar => [{rebalance, false}]}),
+    Shell = open_port({spawn, "/bin/sh"}, [binary, stderr_to_stdout]),
+    try
+        run(C, Shell, N, SensorMs)
+    after
+        port_close(Shell),
+        evatar_test_cluster:stop(C)
+    end.
+
+run(C, Shell, N, SensorMs) ->
+    Ids = [iolist_to_binary(io_lib:format("storm-~5..0b", [K])) || K <- lists:seq(1, N)],
+    {CreateUs, _} = timer:tc(fun() ->
+                                     pmap(fun(Id) -> ok = evatar_test_pairing:create(C, 1, Id) end,
+                                          Ids, 16)
+                             end),
+    Eps = evatar_test_cluster:endpoints(C),
+    Me = self(),
+    Client = #{reconnect_limit => 600000, handshake_timeout => 5000},
+    Pairs = pmap(fun(Id) ->
+                         {ok, P} = evatar_test_traffic:start_pair(
+                                     Eps, Id, #{owner => Me, client => Client,
+                                                sensor_interval => SensorMs}),
+                         P
+                 end, Ids, 16),
+    _ = pmap(fun(P) -> {ok, _} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
+    Before = maps:from_list(pmap(fun(Id) -> {Id, placed(C, Id)} end, Ids, 16)),
+    OnNode1 = [Id || {Id, {1, _}} <- maps:to_list(Before)],
+    io:format("  ~b pairings created in ~b ms (~b a second); ~b of them active on node 1~n",
+              [N, CreateUs div 1000, round(N / max(1, CreateUs) * 1.0e6), length(OnNode1)]),
+    %% Every pair waits at the start line; the kill releases them.
+    Go = make_ref(),
+    Runners = [spawn_link(fun() ->
+                                  receive {Go, T0} -> ok end,
+                                  Me ! {served, P, served(P, T0, maps:get(Id, Before))}
+                          end) || #{pairing := Id} = P <- Pairs],
+    T0 = erlang:monotonic_time(microsecond),
+    true = port_command(Shell, ["kill -KILL ", evatar_test_cluster:os_pid(C, 1), "\n"]),
+    _ = [R ! {Go, T0} || R <- Runners],
+    Served = [receive {served, P, S} -> S end || P <- Pairs],
+    ok = evatar_test_cluster:await(
+           fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
+           600000, all_synced),
+    SyncedMs = (erlang:monotonic_time(microsecond) - T0) / 1000,
+    _ = pmap(fun(P) -> ok = evatar_test_traffic:stop_traffic(P),
+                       ok = evatar_test_traffic:settle(P, 60000)
+             end, Pairs, 32),
+    Check = evatar_test_checker:check_pairs([evatar_test_traffic:history(P) || P <- Pairs]),
+    _ = [evatar_test_traffic:close(P) || P <- Pairs],
+    #{n => N, on_node1 => length(OnNode1), served => Served, synced_ms => SyncedMs,
+      check => Check}.
+
+%% Ms from the kill until P's round trip is answered above the epoch it
+%% had on node 1 (one more try when the first was answered by node 1
+%% before it died, or below that epoch); `failed' after 60 s.
+served(P, T0, {_, E0}) ->
+    case evatar_test_traffic:round_trip(P, 60000) of
+        {ok, E} when is_integer(E), E > E0 ->
+            (erlang:monotonic_time(microsecond) - T0) / 1000;
+        {ok, _} ->
+            case (erlang:monotonic_time(microsecond) - T0) < 60000000 of
+                true -> served(P, T0, {x, E0});
+                false -> failed
+            end;
+        {error, _} ->
+            failed
+    end.
+
+placed(C, Id) ->
+    {ok, I, #{epoch := E}} = evatar_test_pairing:await_active(C, Id, fun(_, _) -> true end, 60000),
+    {I, E}.
+
+print(Rows) ->
+    io:format("~n  ~8s ~8s ~9s ~9s ~9s ~9s ~9s ~10s ~6s ~6s~n",
+              ["N", "on kill", "p50 ms", "p99 ms", "max ms", "<= 1 s", "<= 3 s", "synced ms",
+               "lost", "dup"]),
+    _ = [begin
+             Ok = lists:sort([T || T <- S, is_number(T)]),
+             Failed = length(S) - length(Ok),
+             Within = fun(L) -> length([T || T <- Ok, T =< L]) end,
+             io:format("  ~8b ~8b ~9s ~9s ~9s ~9b ~9b ~10s ~6b ~6b~s~n",
+                       [N, On, fmt(pct(Ok, 50)), fmt(pct(Ok, 99)), fmt(last(Ok)),
+                        Within(1000), Within(3000), fmt(Synced), lost(Check), dup(Check),
+                        case Failed of 0 -> ""; _ -> io_lib:format("  (~b not served in 60 s)", [Failed]) end])
+         end || #{n := N, on_node1 := On, served := S, synced_ms := Synced, check := Check} <- Rows],
+    _ = [io:format("~n  checker, N = ~b:~n~s~n", [N, evatar_test_checker:format(Check)])
+         || #{n := N, check := Check} <- Rows],
+    io:format("~n  goals: all 1,000 served within 1 s, all 5,000 within 3 s; lost and dup 0~n"),
+    ok.
+
+lost(#{lost := L}) -> length(L).
+dup(#{duplicated := D, unexpected := U}) -> length(D) + length(U).
+
+pct([], _) -> undefined;
+pct(Sorted, P) -> lists:nth(max(1, ceil(P / 100 * length(Sorted))), Sorted).
+
+last([]) -> undefined;
+last(L) -> lists:last(L).
+
+fmt(undefined) -> "-";
+fmt(X) -> io_lib:format("~.1f", [X]).
+
+pmap(F, Items, Width) -> pmap(F, Items, Width, []).
+
+pmap(_F, [], _Width, Acc) ->
+    lists:append(lists:reverse(Acc));
+pmap(F, Items, Width, Acc) ->
+    {Batch, Rest} = lists:split(min(Width, length(Items)), Items),
+    Parent = self(),
+    Refs = [begin
+                Ref = make_ref(),
+                _ = spawn_link(fun() -> Parent ! {Ref, F(X)} end),
+                Ref
+            end || X <- Batch],
+    Results = [receive {Ref, R} -> R end || Ref <- Refs],
+    pmap(F, Rest, Width, [Results | Acc]).
