@@ -69,23 +69,13 @@ storm(N, SensorMs, Dir) ->
 
 run(C, Shell, N, SensorMs) ->
     Ids = [iolist_to_binary(io_lib:format("storm-~5..0b", [K])) || K <- lists:seq(1, N)],
-    {CreateUs, _} = timer:tc(fun() ->
-                                     pmap(fun(Id) -> ok = evatar_test_pairing:create(C, 1, Id) end,
-                                          Ids, 16)
-                             end),
-    Eps = evatar_test_cluster:endpoints(C),
     Me = self(),
-    Client = #{reconnect_limit => 600000, handshake_timeout => 5000},
-    Pairs = pmap(fun(Id) ->
-                         {ok, P} = evatar_test_traffic:start_pair(
-                                     Eps, Id, #{owner => Me, client => Client,
-                                                sensor_interval => SensorMs}),
-                         P
-                 end, Ids, 16),
-    _ = pmap(fun(P) -> {ok, _} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
-    Before = maps:from_list(pmap(fun(Id) -> {Id, placed(C, Id)} end, Ids, 16)),
+    {CreateUs, {Pairs, Before}} =
+        timer:tc(fun() ->
+                         evatar_test_pairing:start_many(C, Ids, #{sensor_interval => SensorMs})
+                 end),
     OnNode1 = [Id || {Id, {1, _}} <- maps:to_list(Before)],
-    io:format("  ~b pairings created in ~b ms (~b a second); ~b of them active on node 1~n",
+    io:format("  ~b pairings created and serving in ~b ms (~b a second); ~b of them active on node 1~n",
               [N, CreateUs div 1000, round(N / max(1, CreateUs) * 1.0e6), length(OnNode1)]),
     %% Every pair waits at the start line; the kill releases them.
     Go = make_ref(),
@@ -101,9 +91,9 @@ run(C, Shell, N, SensorMs) ->
            fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
            600000, all_synced),
     SyncedMs = (erlang:monotonic_time(microsecond) - T0) / 1000,
-    _ = pmap(fun(P) -> ok = evatar_test_traffic:stop_traffic(P),
-                       ok = evatar_test_traffic:settle(P, 60000)
-             end, Pairs, 32),
+    _ = evatar_test_pairing:pmap(fun(P) -> ok = evatar_test_traffic:stop_traffic(P),
+                                           ok = evatar_test_traffic:settle(P, 60000)
+                                 end, Pairs, 32),
     Check = evatar_test_checker:check_pairs([evatar_test_traffic:history(P) || P <- Pairs]),
     _ = [evatar_test_traffic:close(P) || P <- Pairs],
     #{n => N, on_node1 => length(OnNode1), served => Served, synced_ms => SyncedMs,
@@ -124,10 +114,6 @@ served(P, T0, {_, E0}) ->
         {error, _} ->
             failed
     end.
-
-placed(C, Id) ->
-    {ok, I, #{epoch := E}} = evatar_test_pairing:await_active(C, Id, fun(_, _) -> true end, 60000),
-    {I, E}.
 
 print(Rows) ->
     io:format("~n  ~8s ~8s ~9s ~9s ~9s ~9s ~9s ~10s ~6s ~6s~n",
@@ -159,17 +145,3 @@ last(L) -> lists:last(L).
 fmt(undefined) -> "-";
 fmt(X) -> io_lib:format("~.1f", [X]).
 
-pmap(F, Items, Width) -> pmap(F, Items, Width, []).
-
-pmap(_F, [], _Width, Acc) ->
-    lists:append(lists:reverse(Acc));
-pmap(F, Items, Width, Acc) ->
-    {Batch, Rest} = lists:split(min(Width, length(Items)), Items),
-    Parent = self(),
-    Refs = [begin
-                Ref = make_ref(),
-                _ = spawn_link(fun() -> Parent ! {Ref, F(X)} end),
-                Ref
-            end || X <- Batch],
-    Results = [receive {Ref, R} -> R end || Ref <- Refs],
-    pmap(F, Rest, Width, [Results | Acc]).

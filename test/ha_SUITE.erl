@@ -444,27 +444,16 @@ tls_refuses_foreign_node(Config) ->
 %% synced for each. Where each was active is read before the kill, not
 %% assumed: a loaded machine can cost node 1 its lease while they are
 %% created, and a pairing may then be active again at a higher epoch, on
-%% node 1 or on node 2 (placed/2).
-%% The clients keep trying for as long as the case waits (the client's
-%% default reconnect_limit and handshake_timeout, not the test kit's short
-%% ones): on a loaded machine 600 clients resuming at once on one node can
+%% node 1 or on node 2 (evatar_test_pairing:start_many/3).
+%% The clients keep trying for as long as the case waits (start_many's
+%% patient clients, not the test kit's short ones): on a loaded machine 600 clients resuming at once on one node can
 %% take longer than the kit's 1 s handshake, and a client that gives up
 %% after the kit's 120 s would fail a takeover the case still allows.
 many_pairings_fail_over(Config) ->
     C = ?config(cluster, Config),
     N = list_to_integer(os:getenv("EVATAR_HA_PAIRINGS", "300")),
     Ids = [iolist_to_binary(io_lib:format("many-~3..0b", [K])) || K <- lists:seq(1, N)],
-    _ = pmap(fun(Id) -> ok = evatar_test_pairing:create(C, 1, Id) end, Ids, 16),
-    Eps = evatar_test_cluster:endpoints(C),
-    Case = self(),
-    Client = #{reconnect_limit => 600000, handshake_timeout => 5000},
-    Pairs = pmap(fun(Id) ->
-                         {ok, P} = evatar_test_traffic:start_pair(Eps, Id, #{owner => Case,
-                                                                             client => Client}),
-                         P
-                 end, Ids, 16),
-    _ = pmap(fun(P) -> {ok, _} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
-    Before = maps:from_list(pmap(fun(Id) -> {Id, placed(C, Id)} end, Ids, 16)),
+    {Pairs, Before} = evatar_test_pairing:start_many(C, Ids, #{}),
     OnNode1 = [Id || {Id, {1, _}} <- maps:to_list(Before)],
     ct:pal("before the kill: ~b of ~b pairings active on node 1; elsewhere: ~p",
            [length(OnNode1), N, maps:to_list(maps:without(OnNode1, Before))]),
@@ -475,29 +464,21 @@ many_pairings_fail_over(Config) ->
                           fun() -> lists:all(fun(Id) -> taken_over(C, Id, Before) end, Ids) end,
                           120000, all_taken_over), C, Ids, Before),
     T1 = erlang:monotonic_time(millisecond),
-    ?assertEqual([], lists:append(pmap(fun(P) -> round_trip_after_takeover(P, Before) end,
-                                       Pairs, 32))),
+    ?assertEqual([], lists:append(evatar_test_pairing:pmap(
+                                    fun(P) -> round_trip_after_takeover(P, Before) end,
+                                    Pairs, 32))),
     T2 = erlang:monotonic_time(millisecond),
     ok = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
                                    120000, all_healthy),
     ct:comment("~b pairings: all active again after ~b ms, all round trips after ~b ms",
                [N, T1 - T0, T2 - T0]),
-    _ = pmap(fun(P) -> ok = evatar_test_traffic:stop_traffic(P), ok = evatar_test_traffic:settle(P, 60000) end,
-             Pairs, 32),
+    _ = evatar_test_pairing:pmap(fun(P) -> ok = evatar_test_traffic:stop_traffic(P),
+                                           ok = evatar_test_traffic:settle(P, 60000)
+                                 end, Pairs, 32),
     Result = evatar_test_checker:check_pairs([evatar_test_traffic:history(P) || P <- Pairs]),
     ct:pal("~s", [evatar_test_checker:format(Result)]),
     ?assert(evatar_test_checker:passed(Result)),
     ok.
-
-%% Where pairing Id is active before the kill: {NodeIndex, Epoch}. Node 1,
-%% at epoch 1, unless the machine's load cost node 1 its lease while the
-%% pairings were created (seen at load 17-24: node 1 fenced, the standbys
-%% on node 2 took over at epoch 2 and some stepped down again for node 1's
-%% re-election): then at a higher epoch, on node 1 or another node.
-placed(C, Id) ->
-    {ok, I, #{epoch := E}} = evatar_test_pairing:await_active(C, Id, fun(_, _) -> true end,
-                                                              60000),
-    {I, E}.
 
 %% What the kill promises each pairing (docs/ha.md 6): an active on a node
 %% that is up above the epoch it had on node 1; a pairing that was active
@@ -702,18 +683,3 @@ gen_certs(Dir) ->
     Dir.
 
 %% Runs F over Items with at most Width at once; the results in order.
-pmap(F, Items, Width) ->
-    pmap(F, Items, Width, []).
-
-pmap(_F, [], _Width, Acc) ->
-    lists:append(lists:reverse(Acc));
-pmap(F, Items, Width, Acc) ->
-    {Batch, Rest} = lists:split(min(Width, length(Items)), Items),
-    Parent = self(),
-    Refs = [begin
-                Ref = make_ref(),
-                spawn_link(fun() -> Parent ! {Ref, F(X)} end),
-                Ref
-            end || X <- Batch],
-    Results = [receive {Ref, R} -> R end || Ref <- Refs],
-    pmap(F, Rest, Width, [Results | Acc]).

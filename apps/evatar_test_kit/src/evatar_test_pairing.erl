@@ -7,7 +7,7 @@
 -module(evatar_test_pairing).
 
 -export([create/3, create/4, statuses/2, active/2, await_active/4, await_healthy/3,
-         healthy/2, roles/2, delete/3, reset/3]).
+         healthy/2, roles/2, delete/3, reset/3, start_many/3, placed/2, pmap/3]).
 
 -type status() :: #{role := atom(), epoch := non_neg_integer(), atom() => term()}.
 
@@ -30,6 +30,55 @@ create(C, I, Id, Extra) ->
         [_] -> ok;  % a lone node: no standby to wait for
         _ -> ok = evatar_test_cluster:await(Synced, 60000, {synced, Id})
     end.
+
+%% @doc Many pairings at once, as the failover storms use them: creates
+%% each of Ids with its active on node 1, starts a traffic pair for each
+%% (evatar_test_traffic:start_pair/3 with PairOpts, owned by the caller; their clients patient
+%% enough for 2N reconnections at once on a loaded machine: a 600 s
+%% reconnect limit and a 5 s handshake), waits for each pair's first
+%% round trip, and reads where each is active ({NodeIndex, Epoch}: node 1
+%% unless the machine's load cost node 1 its lease meanwhile). Returns the
+%% pairs in the order of Ids, and that placement.
+-spec start_many(evatar_test_cluster:cluster(), [binary()], map()) ->
+          {[evatar_test_traffic:pair()], #{binary() => {pos_integer(), non_neg_integer()}}}.
+start_many(C, Ids, PairOpts) ->
+    _ = pmap(fun(Id) -> ok = create(C, 1, Id) end, Ids, 16),
+    Eps = evatar_test_cluster:endpoints(C),
+    %% Owned by the caller: a pmap worker exits as soon as its pair is up.
+    Opts = maps:merge(#{owner => self(),
+                        client => #{reconnect_limit => 600000, handshake_timeout => 5000}},
+                      PairOpts),
+    Pairs = pmap(fun(Id) ->
+                         {ok, P} = evatar_test_traffic:start_pair(Eps, Id, Opts),
+                         P
+                 end, Ids, 16),
+    _ = pmap(fun(P) -> {ok, _} = evatar_test_traffic:round_trip(P, 60000) end, Pairs, 32),
+    {Pairs, maps:from_list(pmap(fun(Id) -> {Id, placed(C, Id)} end, Ids, 16))}.
+
+%% @doc Where pairing Id is active now: {NodeIndex, Epoch} (waits up to
+%% 60 s for an active).
+-spec placed(evatar_test_cluster:cluster(), binary()) -> {pos_integer(), non_neg_integer()}.
+placed(C, Id) ->
+    {ok, I, #{epoch := E}} = await_active(C, Id, fun(_, _) -> true end, 60000),
+    {I, E}.
+
+%% @doc F over Items, at most Width at a time (each in a linked process),
+%% results in the order of Items.
+-spec pmap(fun((A) -> B), [A], pos_integer()) -> [B].
+pmap(F, Items, Width) -> pmap(F, Items, Width, []).
+
+pmap(_F, [], _Width, Acc) ->
+    lists:append(lists:reverse(Acc));
+pmap(F, Items, Width, Acc) ->
+    {Batch, Rest} = lists:split(min(Width, length(Items)), Items),
+    Parent = self(),
+    Refs = [begin
+                Ref = make_ref(),
+                _ = spawn_link(fun() -> Parent ! {Ref, F(X)} end),
+                Ref
+            end || X <- Batch],
+    Results = [receive {Ref, R} -> R end || Ref <- Refs],
+    pmap(F, Rest, Width, [Results | Acc]).
 
 %% @doc Deletes pairing Id through node I (its active).
 -spec delete(evatar_test_cluster:cluster(), pos_integer(), binary()) -> term().
