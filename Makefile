@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-partition bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-scale bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
@@ -62,6 +62,13 @@ bench-failover: deps
 ## every standby is synced again, lost and duplicated signals. BENCH_ARGS='[quick]'.
 bench-storm: deps
 	@bash scripts/bench-storm.sh $(BENCH_ARGS)
+
+## How far one cluster goes, in simulation (docs/scale.md): the pure HA core's takeover
+## storm and the placement planner at 50 nodes and 1,000,000 pairings, with this
+## machine's cost of a distribution message. BENCH_ARGS='[quick]' for a smoke run.
+bench-scale: deps
+	$(REBAR) as bench compile
+	erl -noshell $(BENCH_PA) -eval 'scale_sim:main($(or $(BENCH_ARGS),[])), halt().'
 
 ## Partitions of a real network (each node in a network namespace; root): the longest
 ## unserved time of a majority-side pairing per kind of partition, this build beside the
