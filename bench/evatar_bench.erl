@@ -48,13 +48,20 @@ main() -> main([]).
 main(Options) ->
     ok = io:setopts([{encoding, unicode}]),
     Cfg = config(Options),
-    Ctx0 = start(Cfg),
     %% The second node also holds the idle clients' sockets: with both ends
     %% in one OS process, its file-descriptor limit halves what fits.
-    {Ctx, Cfg1} = case lists:member(split, maps:get(modes, Cfg))
-                      orelse maps:get(idle, Cfg) > 0 of
-                      true -> gen_node(Ctx0, Cfg);
-                      false -> {Ctx0, Cfg}
+    %% Distribution starts before EVATAR does: the pairings' catalogue is an
+    %% mnesia table of this node's name, which a later net_kernel:start/1
+    %% would change.
+    WantGen = lists:member(split, maps:get(modes, Cfg)) orelse maps:get(idle, Cfg) > 0,
+    Dist = case WantGen of
+               true -> start_distribution();
+               false -> off
+           end,
+    Ctx0 = start(Cfg),
+    {Ctx, Cfg1} = case Dist of
+                      off -> {Ctx0, Cfg};
+                      _ -> gen_node(Ctx0, Cfg, Dist)
                   end,
     Env = environment(Ctx),
     print_header(Cfg1, Env),
@@ -175,14 +182,16 @@ loadavg() ->
 %% The `split' generator runs in a second node, a peer OS process on the
 %% same machine, so that this node's CPU is EVATAR's alone. Distribution
 %% is started for it; without epmd the mode is dropped with a note.
-gen_node(Ctx, Cfg) ->
+start_distribution() ->
     _ = os:cmd("epmd -daemon"),
     Name = list_to_atom("evatar_bench_" ++ os:getpid()),
-    Started = case net_kernel:start([Name, shortnames]) of
-                  {ok, _} -> ok;
-                  {error, {already_started, _}} -> ok;
-                  {error, Why} -> {error, Why}
-              end,
+    case net_kernel:start([Name, shortnames]) of
+        {ok, _} -> ok;
+        {error, {already_started, _}} -> ok;
+        {error, Why} -> {error, Why}
+    end.
+
+gen_node(Ctx, Cfg, Started) ->
     case Started of
         ok ->
             OtpLib = code:lib_dir(),
@@ -685,14 +694,20 @@ idle(Target, #{addr := Addr, conn_sup := ConnSup} = Ctx) ->
     M0 = erlang:memory(total),
     Ids = [<<"idle-", (integer_to_binary(I))/binary>> || I <- lists:seq(1, Target)],
     Opts = (evatar_bench_gen:credentials())#{join_timeout => 60000},
+    C0 = erlang:monotonic_time(microsecond),
     _ = [{ok, _} = evatar:create_pairing(Id, Opts) || Id <- Ids],
+    CreateUs = erlang:monotonic_time(microsecond) - C0,
+    io:format("   ~b pairings created in ~b ms (~s a second)~n",
+              [Target, CreateUs div 1000, int(per_second(Target, CreateUs))]),
     gc_all(),
     M1 = erlang:memory(total),
     G1 = groups(classify()),
-    T0 = erlang:monotonic_time(millisecond),
+    T0 = erlang:monotonic_time(microsecond),
     ok = join_idle(K, Sink, Addr, ClientNode),
-    JoinMs = erlang:monotonic_time(millisecond) - T0,
-    io:format("   ~b pairings bound in ~b ms~n", [K, JoinMs]),
+    JoinUs = erlang:monotonic_time(microsecond) - T0,
+    JoinMs = JoinUs div 1000,
+    io:format("   ~b pairings bound in ~b ms (~s a second)~n",
+              [K, JoinMs, int(per_second(K, JoinUs))]),
     %% Idle means idle: past the connections' and pairings' hibernate_after
     %% (5 s), as a quiet home is most of the time.
     timer:sleep(6000),
@@ -703,6 +718,9 @@ idle(Target, #{addr := Addr, conn_sup := ConnSup} = Ctx) ->
     G3 = groups(classify()),
     Fs = erlang:memory(),
     Result = #{live => Target, bound => K, join_ms => JoinMs, note => list_to_binary(Note),
+               create_ms => CreateUs div 1000,
+               created_per_s => per_second(Target, CreateUs),
+               bound_per_s => per_second(K, JoinUs),
                clients_in => list_to_binary(Where),
                fd_limit => max_fds(),
                as_is => idle_figures(M2 - M1, G2, G1, K, Target, (M1 - M0) / Target),
@@ -714,6 +732,10 @@ idle(Target, #{addr := Addr, conn_sup := ConnSup} = Ctx) ->
     _ = [evatar:delete_pairing(Id) || Id <- Ids],
     ok = wait_empty(ConnSup, 6000),
     Result.
+
+%% Events a second over a span of microseconds.
+per_second(_N, 0) -> undefined;
+per_second(N, Us) -> N * 1.0e6 / Us.
 
 mem(Groups, Class, Key) -> maps:get(Key, maps:get(Class, Groups, #{}), 0).
 
@@ -1011,6 +1033,13 @@ idle_table(#{live := Live, bound := K} = Idle) ->
                    " through agent_bridge_client, in ~s), nothing sent~n",
                    [int(Live), int(K), maps:get(clients_in, Idle, <<"this node">>)]),
      [io_lib:format("   NOTE: ~s~n", [maps:get(note, Idle)]) || maps:get(note, Idle) =/= <<>>],
+     io_lib:format("   Created: ~s pairings in ~s ms, ~s a second (evatar:create_pairing/2, one after"
+                   " the other);~n"
+                   "   bound: ~s in ~s ms, ~s a second (~b workers joining a VA and an Avatar each,"
+                   " until bound)~n",
+                   [int(Live), int(maps:get(create_ms, Idle)), int(maps:get(created_per_s, Idle)),
+                    int(K), int(maps:get(join_ms, Idle)), int(maps:get(bound_per_s, Idle)),
+                    ?JOIN_WORKERS]),
      "   Per bound pairing, KiB. Roles are separated by summing process_info(memory) of each\n"
      "   role's processes and port_info(memory) of the sockets they own; rest = node delta not\n"
      "   in any process or socket (ETS, binaries). 'after GC' = after garbage-collecting every\n"
