@@ -3,6 +3,10 @@
 .PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-scale bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
+# The HTTP server's libraries (cowboy, ranch, cowlib), copied into _deps/
+# by scripts/ensure-deps.sh, for every erl started here (rebar3 finds them
+# through rebar.config.script).
+export ERL_LIBS := $(CURDIR)/_deps$(if $(ERL_LIBS),:$(ERL_LIBS))
 BENCH_PA = -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench
 
 all: compile

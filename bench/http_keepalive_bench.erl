@@ -2,7 +2,7 @@
 %% connection, then 100 each on a new connection, against evatar_web on
 %% a free loopback port; prints the mean of each. Run:
 %%   rebar3 as bench compile
-%%   erl -noshell -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench \
+%%   ERL_LIBS=_deps erl -noshell -pa _build/bench/lib/*/ebin -pa _build/bench/extras/bench \
 %%       -config config/test.config -eval 'http_keepalive_bench:main(), halt().'
 %% With Nagle's algorithm on the server's sockets the kept-alive figure
 %% was about 45 ms (a delayed ACK a request), 0.1 ms without.

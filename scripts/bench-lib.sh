@@ -6,6 +6,9 @@
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 REBAR=${REBAR:-rebar3}
 BASE=${REBAR_BASE_DIR:-_build}
+# The HTTP server's libraries (cowboy, ranch, cowlib), which
+# scripts/ensure-deps.sh copies into _deps/.
+export ERL_LIBS="$PWD/_deps${ERL_LIBS:+:$ERL_LIBS}"
 
 bench_compile() {
   "$REBAR" as bench compile

@@ -29,6 +29,9 @@ if [ "$#" -gt 0 ]; then args=$(printf '"%s",' "$@"); args="[${args%,}]"; fi
 # when this starts it), with the cookie of $HOME/.erlang.cookie, which
 # Erlang makes random (mode 0400) when there is none.
 export ERL_EPMD_ADDRESS=${ERL_EPMD_ADDRESS:-127.0.0.1}
+# The HTTP server's libraries (cowboy, ranch, cowlib), which
+# scripts/ensure-deps.sh copies into _deps/.
+export ERL_LIBS="$PWD/_deps${ERL_LIBS:+:$ERL_LIBS}"
 erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{127,0,0,1}' \
   -kernel logger_level notice \
   -pa _build/default/lib/*/ebin \

@@ -8,4 +8,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BASE=${REBAR_BASE_DIR:-_build}
-ERL_LIBS="$BASE/default/lib" exec escript scripts/test-node-ctl.escript "$@"
+# _deps/: the HTTP server's libraries (scripts/ensure-deps.sh).
+ERL_LIBS="$BASE/default/lib:$PWD/_deps" exec escript scripts/test-node-ctl.escript "$@"

@@ -23,6 +23,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BASE=${REBAR_BASE_DIR:-_build}
+# The HTTP server's libraries (cowboy, ranch, cowlib), which
+# scripts/ensure-deps.sh copies into _deps/.
+export ERL_LIBS="$PWD/_deps${ERL_LIBS:+:$ERL_LIBS}"
 PORT=${EVATAR_PORT:-0}
 specs=""
 for arg in "$@"; do

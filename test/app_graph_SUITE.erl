@@ -15,9 +15,11 @@
 %% (node_config.app.src). No other app may call what it does not declare.
 -define(UNDECLARED, #{node_config => [agent_bridge, evatar, evatar_web, mqtt_avatar]}).
 
-%% OTP applications (and Debian's jiffy) the project's apps may call.
+%% OTP applications (and Debian's jiffy, and cowboy, ranch and cowlib from
+%% _deps/) the project's apps may call.
 -define(OTP, [kernel, stdlib, crypto, ssl, public_key, mnesia, inets, sasl, xmerl,
-              runtime_tools, compiler, tools, syntax_tools, asn1, os_mon, jiffy]).
+              runtime_tools, compiler, tools, syntax_tools, asn1, os_mon, jiffy,
+              cowboy, ranch, cowlib]).
 
 all() -> [declared_dependencies, xref_queries_hold, wrong_way_calls_are_caught].
 

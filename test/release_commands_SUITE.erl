@@ -21,7 +21,7 @@ suite() -> [{timetrap, {minutes, 5}}].
 
 all() ->
     [cluster_text_and_json, cookie_not_on_command_lines, usage_and_unreachable,
-     commands_on_a_running_node, refusals_exit_1].
+     commands_on_a_running_node, refusals_exit_1, http_api_of_the_release].
 
 init_per_suite(Config) ->
     ct:timetrap({minutes, 10}),
@@ -53,6 +53,27 @@ cluster_text_and_json(Config) ->
     ?assertMatch({match, _}, re:run(Text, "quorum: yes"), Text),
     #{<<"node">> := NodeBin, <<"quorum">> := true} = json(evatar(Config, ["cluster", "--json"])),
     ?assertEqual(list_to_binary(Node), NodeBin).
+
+%% The release carries the HTTP server's libraries and its node serves the
+%% API: a read, OPTIONS with Allow, and a JSON 405 with Allow.
+http_api_of_the_release(Config) ->
+    Rel = ?config(rel, Config),
+    [[_] = filelib:wildcard(filename:join([Rel, "lib", App ++ "-*"])) || App <- ["cowboy", "ranch", "cowlib"]],
+    Log = rel_node:console_log(env(Config)),
+    ok = evatar_test_wait:until(
+           fun() -> re:run(Log(), "listening on http://127.0.0.1:[0-9]+/") =/= nomatch end,
+           #{timeout => 60000, interval => 200}),
+    {match, [Port]} = re:run(Log(), "listening on http://127.0.0.1:([0-9]+)/", [{capture, all_but_first, list}]),
+    Url = "http://127.0.0.1:" ++ Port ++ "/api/cluster",
+    {ok, _} = application:ensure_all_started(inets),
+    {ok, {{_, 200, _}, Headers, Body}} = httpc:request(get, {Url, []}, [], []),
+    "application/json" = proplists:get_value("content-type", Headers),
+    {ok, #{<<"quorum">> := true}} = evatar_web_json:decode(list_to_binary(Body)),
+    {ok, {{_, 204, _}, Options, ""}} = httpc:request(options, {Url, []}, [], []),
+    "GET, HEAD, OPTIONS" = proplists:get_value("allow", Options),
+    {ok, {{_, 405, _}, NotAllowed, Json}} = httpc:request(delete, {Url, []}, [], []),
+    "GET, HEAD, OPTIONS" = proplists:get_value("allow", NotAllowed),
+    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_web_json:decode(list_to_binary(Json)).
 
 %% Bad usage exits 2 with the usage, before reaching any node, and a secret
 %% given as an argument is refused; a node that does not run: exit 3.

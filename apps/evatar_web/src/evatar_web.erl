@@ -1,18 +1,21 @@
 %% @doc Public API of evatar_web, EVATAR's HTTP side: the operator's JSON
-%% API (docs/api.md) and the dashboard's files, served by OTP's inets httpd
-%% with one module of ours, evatar_web_router. The operations themselves
+%% API (docs/api.md) and the dashboard's files, served by cowboy (ranch's
+%% listener, evatar_web_server) with one handler of ours, evatar_web_router.
+%% The operations themselves
 %% are evatar_ops's, shared with the release's commands. Every other
 %% evatar_web_* module is internal.
 -module(evatar_web).
 
--export([port/0, url/0, check_opts/1]).
+-export([port/0, url/0, check_opts/1, default/1]).
 
 -export_type([opts/0]).
 
 %% The application environment (docs/api.md, "Configuration"): `enabled'
 %% (true), `ip' (127.0.0.1), `port' (7480; 0 picks a free one),
 %% `operator_token_hash' (none), `token_file' (none), `max_body' (1 MiB),
-%% `max_clients' (64), `things' (none: the WoT consumers, docs/wot.md).
+%% `max_clients' (64), `header_timeout' (10000 ms: the request line and
+%% headers must have arrived this long after the connection opened or the
+%% last answer), `things' (none: the WoT consumers, docs/wot.md).
 -type opts() :: #{enabled => boolean(),
                   ip => inet:ip_address(),
                   port => inet:port_number(),
@@ -20,11 +23,13 @@
                   token_file => string() | binary(),
                   max_body => pos_integer(),
                   max_clients => pos_integer(),
+                  header_timeout => pos_integer(),
                   things => [#{pairing := binary() | string(),
                                credential := binary() | string(),
                                entity_id => binary() | string()}]}.
 
--define(KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients, things]).
+-define(KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients,
+               header_timeout, things]).
 
 %% @doc The port the HTTP server listens on (the one it picked when
 %% configured with port 0); `undefined' when it does not run.
@@ -44,6 +49,10 @@ url() ->
         undefined ->
             undefined
     end.
+
+%% @doc The default of an option that may be left out of the environment.
+-spec default(header_timeout) -> pos_integer().
+default(header_timeout) -> 10000.
 
 %% @doc Pure: checks the options (the environment's, or the node
 %% configuration file's `http' section); the error names the key.
@@ -108,6 +117,8 @@ valid(things, V) when is_list(V) ->
         true -> true
     end;
 valid(things, _) -> <<"must be a list">>;
+valid(header_timeout, V) when is_integer(V), V > 0, V =< 3600000 -> true;
+valid(header_timeout, _) -> <<"must be a time in milliseconds, 1 to 3600000">>;
 valid(K, V) when K =:= max_body; K =:= max_clients ->
     case is_integer(V) andalso V > 0 of
         true -> true;

@@ -53,7 +53,7 @@ config() ->
     persistent_term:get(?KEY, #{hash => none, loopback => true}).
 
 %% @doc The verdict on a request: its kind (`read' or `change'), its
-%% `authorization' and `host' headers (lower-case names, as httpd gives them).
+%% `authorization' and `host' headers (as strings; `undefined' when absent).
 -spec check(read | change, string() | undefined, string() | undefined) -> verdict().
 check(Kind, Authorization, Host) ->
     #{hash := Hash, loopback := Loopback} = config(),

@@ -1,16 +1,16 @@
 %% @doc Internal. `GET /api/events?pairing=ID&kind=K1,K2&entity=E': a
 %% pairing's live signal tail (evatar_tap) as server-sent events
-%% (text/event-stream, docs/dashboard.md). The httpd request process runs
-%% the stream itself: it writes the response head and each item on the
-%% socket (httpd_socket:deliver/3) and loops until the client goes (the
-%% socket is put in active-once mode, so a close is seen at once), a write
-%% fails, or the server stops. A comment line every 15 s keeps proxies and
-%% the browser's EventSource from timing out; httpd's own keep-alive
-%% timeout does not run while a module is answering. Streams are admitted
-%% by evatar_web_streams (at most half of `max_clients').
+%% (text/event-stream, docs/dashboard.md). cowboy's request process runs
+%% the stream itself: it sends the response head (cowboy_req:stream_reply/3,
+%% not chunked, `connection: close') and each item (stream_body/3) and
+%% loops until the client goes: the connection process sees the close and
+%% ends this process, whose monitors (evatar_tap's, evatar_web_streams')
+%% then free its watch and its slot. The connection's idle timeout is off
+%% for the stream (the client sends nothing); a comment line every 15 s
+%% keeps proxies and the browser's EventSource from timing out. Streams are
+%% admitted by evatar_web_streams (at most half of `max_clients'). HEAD
+%% answers the head alone.
 -module(evatar_web_events).
-
--include_lib("inets/include/httpd.hrl").
 
 -export([stream/1]).
 
@@ -19,7 +19,13 @@
 
 %% @doc The route's handler (evatar_web_router).
 -spec stream(evatar_web_router:request()) -> evatar_web_router:reply().
-stream(#{query := Query, mod := Mod}) ->
+stream(#{req := Req} = Request) ->
+    case cowboy_req:method(Req) of
+        <<"HEAD">> -> {raw, 200, headers(), <<>>};
+        _ -> watch(Request)
+    end.
+
+watch(#{query := Query, req := Req}) ->
     Pairing = param(<<"pairing">>, Query),
     case {Pairing, evatar_tap:filter(param(<<"kind">>, Query), param(<<"entity">>, Query))} of
         {<<>>, _} ->
@@ -32,7 +38,7 @@ stream(#{query := Query, mod := Mod}) ->
              iolist_to_binary(["unknown kind '", evatar_log:id(Kind), "'; the kinds: ",
                                lists:join(", ", evatar_tap:kinds())])};
         {_, {ok, Filter}} ->
-            admitted(Pairing, Filter, Mod)
+            admitted(Pairing, Filter, Req)
     end.
 
 param(Name, Query) ->
@@ -41,12 +47,12 @@ param(Name, Query) ->
         _ -> <<>>
     end.
 
-admitted(Pairing, Filter, Mod) ->
+admitted(Pairing, Filter, Req) ->
     case evatar_web_streams:admit() of
         ok ->
             case evatar_tap:watch(Pairing, Filter) of
                 {ok, Sub} ->
-                    run(Pairing, Filter, Sub, Mod);
+                    run(Pairing, Filter, Sub, Req);
                 Error ->
                     ok = evatar_web_streams:release(),
                     refused(Pairing, Error)
@@ -67,82 +73,42 @@ refused(_Pairing, {error, busy}) ->
     {error, 503, <<"busy">>, <<"pairing">>,
      <<"the pairing did not answer in time (or has no active now); try again">>}.
 
-run(Pairing, Filter, Sub, #mod{socket_type = Type, socket = Socket}) ->
-    Head = ["HTTP/1.1 200 OK\r\n",
-            "Content-Type: text/event-stream; charset=utf-8\r\n",
-            "Cache-Control: no-store\r\n",
-            "X-Content-Type-Options: nosniff\r\n",
-            "Connection: close\r\n\r\n",
-            event(#{kind => <<"hello">>, pairing => Pairing, node => atom_to_binary(node()),
-                    filter => Filter, window => evatar_tap:window(),
-                    at => erlang:system_time(millisecond)})],
-    case httpd_socket:deliver(Type, Socket, Head) of
-        ok ->
-            ok = active_once(Type, Socket),
-            Timer = erlang:send_after(?KEEPALIVE_MS, self(), {?MODULE, keepalive}),
-            loop(Type, Socket, Sub, Timer);
-        _ ->
-            ok = evatar_tap:unwatch(Sub)
-    end,
-    %% The stream is over: the connection too (the close message, already
-    %% taken here, would not reach httpd, which would wait for a next
-    %% request until its keep-alive timeout).
-    _ = http_transport:close(Type, Socket),
-    ok = evatar_web_streams:release(),
-    {proceed, [{response, {already_sent, 200, 0}}]}.
+headers() ->
+    [{"content-type", "text/event-stream; charset=utf-8"},
+     {"cache-control", "no-store"},
+     {"x-content-type-options", "nosniff"},
+     {"connection", "close"}].
 
-loop(Type, Socket, Sub, Timer) ->
+run(Pairing, Filter, Sub, Req0) ->
+    %% Items as they come, not in chunks; no idle timeout (docs above).
+    ok = cowboy_req:cast({set_options, #{idle_timeout => infinity, chunked => false}}, Req0),
+    Req = cowboy_req:stream_reply(200, maps:from_list([{list_to_binary(K), list_to_binary(V)}
+                                                       || {K, V} <- headers()]), Req0),
+    ok = cowboy_req:stream_body(event(#{kind => <<"hello">>, pairing => Pairing,
+                                        node => atom_to_binary(node()), filter => Filter,
+                                        window => evatar_tap:window(),
+                                        at => erlang:system_time(millisecond)}),
+                                nofin, Req),
+    Timer = erlang:send_after(?KEEPALIVE_MS, self(), {?MODULE, keepalive}),
+    loop(Req, Sub, Timer).
+
+%% Runs until the process is ended with the connection.
+loop(Req, Sub, Timer) ->
     receive
-        {Closed, Socket} when Closed =:= tcp_closed; Closed =:= ssl_closed ->
-            stop(Sub, Timer);
-        {Error, Socket, _} when Error =:= tcp_error; Error =:= ssl_error ->
-            stop(Sub, Timer);
-        {Data, Socket, _} when Data =:= tcp; Data =:= ssl ->
-            %% Nothing is expected from an event stream's client.
-            ok = active_once(Type, Socket),
-            loop(Type, Socket, Sub, Timer);
-        {'EXIT', _, Reason} ->
-            %% httpd shutting the connection down (the handler traps exits).
-            stop(Sub, Timer),
-            exit(Reason);
         {?MODULE, keepalive} ->
-            case httpd_socket:deliver(Type, Socket, <<": keepalive\n\n">>) of
-                ok ->
-                    loop(Type, Socket, Sub,
-                         erlang:send_after(?KEEPALIVE_MS, self(), {?MODULE, keepalive}));
-                _ ->
-                    stop(Sub, Timer)
-            end;
+            ok = cowboy_req:stream_body(<<": keepalive\n\n">>, nofin, Req),
+            loop(Req, Sub, erlang:send_after(?KEEPALIVE_MS, self(), {?MODULE, keepalive}));
         Msg ->
             case evatar_tap:handle(Msg, Sub) of
                 {items, [], Sub1} ->
-                    loop(Type, Socket, Sub1, Timer);
+                    loop(Req, Sub1, Timer);
                 {items, Items, Sub1} ->
-                    case httpd_socket:deliver(Type, Socket, [event(I) || I <- Items]) of
-                        ok -> loop(Type, Socket, Sub1, Timer);
-                        _ -> stop(Sub1, Timer)
-                    end;
+                    ok = cowboy_req:stream_body([event(I) || I <- Items], nofin, Req),
+                    loop(Req, Sub1, Timer);
                 ignore ->
-                    loop(Type, Socket, Sub, Timer)
+                    loop(Req, Sub, Timer)
             end
     end.
 
-stop(Sub, Timer) ->
-    _ = erlang:cancel_timer(Timer),
-    evatar_tap:unwatch(Sub).
-
 event(Item) ->
     ["data: ", evatar_web_json:encode(Item), "\n\n"].
-
-active_once(Type, Socket) when Type =:= ip_comm; element(1, Type) =:= ip_comm ->
-    %% `{ip_comm, Options}' when the listener sets socket options (nodelay).
-    case inet:setopts(Socket, [{active, once}]) of
-        ok -> ok;
-        %% Closed already: the loop's next write fails and ends it.
-        {error, _} -> self() ! {tcp_closed, Socket}, ok
-    end;
-active_once(_Ssl, Socket) ->
-    case ssl:setopts(Socket, [{active, once}]) of
-        ok -> ok;
-        {error, _} -> self() ! {ssl_closed, Socket}, ok
-    end.

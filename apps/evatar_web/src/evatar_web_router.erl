@@ -1,19 +1,23 @@
-%% @doc Internal. The one httpd module of the server (its `do/1' callback):
-%% matches method and path against routes/0, checks the operator
-%% credential (evatar_web_auth), and calls the route's handler with a
-%% request map; any other GET serves a file of priv/www/. Every error is
-%% JSON: `{"error": Code, "field": Name | null, "message": Text}'.
+%% @doc Internal. The server's one cowboy middleware (execute/2, in the
+%% request's process): matches method and path against routes/0 (HEAD as
+%% GET; OPTIONS answers 204 with `Allow'; another method of a known path
+%% the 405 with `Allow'), checks the operator credential
+%% (evatar_web_auth), reads the body up to `max_body' (a declared length
+%% over it, or a chunked body that passes it, gets the 413 and the
+%% connection closes), and calls the route's handler with a request map;
+%% any other GET serves a file of priv/www/. Every error is JSON:
+%% `{"error": Code, "field": Name | null, "message": Text}'.
 %%
 %% A handler is `Module:Function(Request)' and returns
 %% `{Status, JsonTerm}', `{error, Status, Code, Field, Message}',
-%% `{raw, Status, Headers, Body}', or `{proceed, HttpdData}' for one that
-%% answered on the socket itself (a stream).
+%% `{raw, Status, Headers, Body}', or `{done, Req}' for one that answered
+%% on the request itself (a stream, with cowboy_req:stream_reply/3).
 -module(evatar_web_router).
+-behaviour(cowboy_middleware).
 
--include_lib("inets/include/httpd.hrl").
 -include_lib("kernel/include/logger.hrl").
 
--export([do/1, routes/0, match/3, max_body/0]).
+-export([execute/2, routes/0, match/3, max_body/0]).
 
 -export_type([request/0, reply/0]).
 
@@ -22,12 +26,12 @@
                      bindings := #{binary() => binary()},
                      query := [{binary(), binary() | true}],
                      body := binary(),
-                     headers := [{string(), string()}],
-                     mod := #mod{}}.
+                     headers := #{binary() => binary()},
+                     req := cowboy_req:req()}.
 -type reply() :: {100..599, term()}
                | {error, 400..599, binary(), binary() | null, binary()}
                | {raw, 100..599, [{string(), string()}], iodata()}
-               | {proceed, list()}.
+               | {done, cowboy_req:req()}.
 -type route() :: {binary(), binary(), module(), atom()}.
 
 %% @doc Every route: method, path pattern (a segment `:name' binds
@@ -66,47 +70,20 @@ evatar_web_things_routes() ->
      {<<"GET">>, <<T/binary, "/properties/:component/:service">>, evatar_web_things, read},
      {<<"POST">>, <<T/binary, "/actions/:component/:service">>, evatar_web_things, invoke}].
 
-%% @private
--spec do(#mod{}) -> {proceed, list()}.
-do(#mod{parsed_header = Headers} = Mod) ->
-    ok = nodelay(Mod),
-    case header(evatar_web_limit:too_large_header(), Headers) of
-        undefined -> route(Mod);
-        Declared -> too_large(Declared, Mod)
-    end.
-
-%% httpd writes a response's head and body in two sends: with Nagle's
-%% algorithm the body waited for the client's delayed ACK (about 40 ms a
-%% request on a kept-alive connection). Set on every request (one
-%% setsockopt), since httpd gives no hook at accept.
-nodelay(#mod{socket_type = ip_comm, socket = Socket}) ->
-    _ = inet:setopts(Socket, [{nodelay, true}]),
-    ok;
-nodelay(#mod{socket = Socket}) ->
-    _ = ssl:setopts(Socket, [{nodelay, true}]),
-    ok.
-
-%% httpd has not read the body (evatar_web_limit renamed its length): the
-%% answer goes out here with `connection: close' and the socket is closed,
-%% so the unread body is never parsed as a next request.
-too_large(Declared, #mod{socket_type = Type, socket = Socket} = Mod) ->
-    Max = max_body(),
-    case string:to_integer(string:trim(Declared)) of
-        {N, []} when is_integer(N), N > Max ->
-            Body = evatar_web_json:encode(body_too_large(Max)),
-            Size = byte_size(Body),
-            Head = ["HTTP/1.1 413 Request Entity Too Large\r\n",
-                    "content-type: application/json\r\n",
-                    "cache-control: no-store\r\n",
-                    "x-content-type-options: nosniff\r\n",
-                    "connection: close\r\n",
-                    "content-length: ", integer_to_list(Size), "\r\n\r\n"],
-            _ = httpd_socket:deliver(Type, Socket, [Head, Body]),
-            _ = httpd_socket:close(Type, Socket),
-            {proceed, [{response, {already_sent, 413, Size}}]};
-        _ ->
-            %% Sent by the client itself, not renamed: it means nothing.
-            route(Mod)
+%% @private cowboy's middleware callback: the whole request, answered here.
+-spec execute(cowboy_req:req(), cowboy_middleware:env()) -> {stop, cowboy_req:req()}.
+execute(Req0, _Env) ->
+    %% The body first, whatever the route: a body over the limit gets the
+    %% 413 before anything else is decided.
+    case body(Req0, max_body()) of
+        {ok, Body, Req} ->
+            {stop, respond(route(Req, Body), Req)};
+        {error, too_large} ->
+            #{message := Message} = body_too_large(max_body()),
+            %% The rest of the body is never read: the connection closes
+            %% after the answer.
+            {stop, respond({error, 413, <<"body_too_large">>, null, Message,
+                            [{"connection", "close"}]}, Req0)}
     end.
 
 body_too_large(Max) ->
@@ -114,47 +91,97 @@ body_too_large(Max) ->
       message => iolist_to_binary(io_lib:format("the request body is larger than the limit ~b bytes "
                                                 "(http.max_body, docs/api.md)", [Max]))}.
 
-route(#mod{method = Method, request_uri = Uri} = Mod) ->
-    {Path, Query} = split_uri(Uri),
-    M = list_to_binary(Method),
-    Reply = case match(M, Path, routes()) of
-                {ok, Module, Function, Bindings} ->
-                    handle(M, Path, Query, Bindings, Module, Function, Mod);
-                {error, method_not_allowed, Allowed} ->
-                    {error, 405, <<"method_not_allowed">>, null,
-                     iolist_to_binary(["allowed: ", lists:join(", ", Allowed)])};
-                {error, not_found} when M =:= <<"GET">>, not (Path =:= <<"/api">>) ->
-                    case binary:match(Path, <<"/api/">>) of
-                        {0, _} -> not_found(Path);
-                        %% The page's files hold no data: open, even where
-                        %% reads of the API need the token.
-                        _ -> static(Path)
+route(Req, Body) ->
+    M = cowboy_req:method(Req),
+    Path = cowboy_req:path(Req),
+    %% HEAD is GET without the body (cowboy leaves it out).
+    Method = case M of
+                 <<"HEAD">> -> <<"GET">>;
+                 _ -> M
+             end,
+    case match(Method, Path, routes()) of
+        {ok, Module, Function, Bindings} ->
+            handle(Method, Path, Bindings, Module, Function, Req, Body);
+        {error, method_not_allowed, Allowed} when M =:= <<"OPTIONS">> ->
+            {raw, 204, [{"allow", allow(Allowed)}], <<>>};
+        {error, method_not_allowed, Allowed} ->
+            method_not_allowed(Allowed);
+        {error, not_found} ->
+            case {Method, static_path(Path)} of
+                {<<"GET">>, true} -> static(Path);
+                {<<"OPTIONS">>, true} ->
+                    case static(Path) of
+                        {raw, 200, _, _} -> {raw, 204, [{"allow", allow([<<"GET">>])}], <<>>};
+                        NotFound -> NotFound
                     end;
-                {error, not_found} ->
+                {_, true} ->
+                    case static(Path) of
+                        {raw, 200, _, _} -> method_not_allowed([<<"GET">>]);
+                        NotFound -> NotFound
+                    end;
+                {_, false} ->
                     not_found(Path)
-            end,
-    respond(Reply).
+            end
+    end.
 
-handle(Method, Path, Query, Bindings, Module, Function, Mod) ->
+%% The page's files hold no data: open, even where reads of the API need
+%% the token.
+static_path(<<"/api">>) -> false;
+static_path(<<"/api/", _/binary>>) -> false;
+static_path(_) -> true.
+
+method_not_allowed(Allowed) ->
+    Allow = allow(Allowed),
+    {error, 405, <<"method_not_allowed">>, null, iolist_to_binary(["allowed: ", Allow]),
+     [{"allow", Allow}]}.
+
+%% The methods of a path as its Allow header: its routes', HEAD with GET,
+%% and OPTIONS.
+allow(Methods) ->
+    Head = [<<"HEAD">> || lists:member(<<"GET">>, Methods)],
+    binary_to_list(iolist_to_binary(lists:join(", ", lists:usort(Methods ++ Head ++ [<<"OPTIONS">>])))).
+
+handle(Method, Path, Bindings, Module, Function, Req, Body) ->
     Kind = case Method of
                <<"GET">> -> read;
                _ -> change
            end,
-    with_auth(Kind, Mod,
+    with_auth(Kind, Req,
               fun() ->
-                      Body = iolist_to_binary(Mod#mod.entity_body),
-                      Max = max_body(),
-                      case byte_size(Body) > Max of
-                          true ->
-                              #{message := Message} = body_too_large(Max),
-                              {error, 413, <<"body_too_large">>, null, Message};
-                          false ->
-                              call(Module, Function,
-                                   #{method => Method, path => Path, bindings => Bindings,
-                                     query => Query, body => Body,
-                                     headers => Mod#mod.parsed_header, mod => Mod})
-                      end
+                      call(Module, Function,
+                           #{method => Method, path => Path, bindings => Bindings,
+                             query => query(Req), body => Body,
+                             headers => cowboy_req:headers(Req), req => Req})
               end).
+
+%% The body, at most Max bytes: a declared length over it is refused
+%% before a byte is read; a chunked one as soon as it passes the limit.
+body(Req, Max) ->
+    case cowboy_req:has_body(Req) of
+        false -> {ok, <<>>, Req};
+        true ->
+            case cowboy_req:body_length(Req) of
+                N when is_integer(N), N > Max -> {error, too_large};
+                _ -> read_body(Req, Max, [], 0)
+            end
+    end.
+
+read_body(Req, Max, Acc, Size) ->
+    {More, Data, Req1} = cowboy_req:read_body(Req, #{length => min(Max + 1 - Size, 65536)}),
+    Size1 = Size + byte_size(Data),
+    case {More, Size1 > Max} of
+        {_, true} -> {error, too_large};
+        {ok, false} -> {ok, iolist_to_binary([Acc, Data]), Req1};
+        {more, false} -> read_body(Req1, Max, [Acc, Data], Size1)
+    end.
+
+%% A query string cowboy cannot parse counts as none.
+query(Req) ->
+    try cowboy_req:parse_qs(Req)
+    catch
+        exit:{request_error, qs, _} -> [];
+        error:_ -> []
+    end.
 
 %% A handler that crashed is our defect, not the client's: it gets a JSON
 %% 500 and the log gets the crash; the server goes on.
@@ -170,16 +197,16 @@ call(Module, Function, Request) ->
              <<"the request failed inside the node; its log has the details">>}
     end.
 
-with_auth(Kind, #mod{parsed_header = Headers}, Fun) ->
-    case evatar_web_auth:check(Kind, header("authorization", Headers), header("host", Headers)) of
+with_auth(Kind, Req, Fun) ->
+    case evatar_web_auth:check(Kind, header(<<"authorization">>, Req), header(<<"host">>, Req)) of
         ok -> Fun();
         {error, Status, Code, Message} -> {error, Status, Code, null, Message}
     end.
 
-header(Name, Headers) ->
-    case lists:keyfind(Name, 1, Headers) of
-        {_, V} -> V;
-        false -> undefined
+header(Name, Req) ->
+    case cowboy_req:header(Name, Req) of
+        undefined -> undefined;
+        V -> binary_to_list(V)
     end.
 
 %% @doc The body limit in bytes (`max_body'), of the running server or
@@ -219,20 +246,6 @@ bind([<<":", Name/binary>> | Ps], [S | Ss], Acc) ->
     end;
 bind([P | Ps], [P | Ss], Acc) -> bind(Ps, Ss, Acc);
 bind(_, _, _) -> error.
-
-split_uri(Uri) ->
-    {Path, Q} = case string:split(Uri, "?") of
-                    [P] -> {P, ""};
-                    [P, Rest] -> {P, Rest}
-                end,
-    Query = case uri_string:dissect_query(Q) of
-                L when is_list(L) -> [{unicode:characters_to_binary(K), value(V)} || {K, V} <- L];
-                {error, _, _} -> []
-            end,
-    {unicode:characters_to_binary(Path), Query}.
-
-value(true) -> true;
-value(V) -> unicode:characters_to_binary(V).
 
 %% ---------------------------------------------------------------------------
 %% Static files of priv/www/: no directory listing, no `..', known types only.
@@ -282,24 +295,30 @@ content_type(Ext) ->
 %% Responses
 %% ---------------------------------------------------------------------------
 
-respond({proceed, Data}) ->
-    {proceed, Data};
-respond({raw, Status, Headers, Body}) ->
+respond({done, Req}, _Req0) ->
+    Req;
+respond({raw, Status, Headers, Body}, Req) ->
     B = iolist_to_binary(Body),
-    Head = [{code, Status}, {content_length, integer_to_list(byte_size(B))},
-            {"x-content-type-options", "nosniff"}, {"referrer-policy", "no-referrer"}
-            | [{K, V} || {K, V} <- Headers, K =/= "content-type"]]
-        ++ [{content_type, V} || {"content-type", V} <- Headers],
-    {proceed, [{response, {response, Head, [B]}}]};
-respond({error, Status, Code, Field, Message}) ->
+    Length = case Status of
+                 204 -> #{};
+                 %% Set here for HEAD, whose body cowboy leaves out.
+                 _ -> #{<<"content-length">> => integer_to_binary(byte_size(B))}
+             end,
+    Head = maps:merge(Length#{<<"x-content-type-options">> => <<"nosniff">>,
+                              <<"referrer-policy">> => <<"no-referrer">>},
+                      maps:from_list([{list_to_binary(K), list_to_binary(V)} || {K, V} <- Headers])),
+    cowboy_req:reply(Status, Head, B, Req);
+respond({error, Status, Code, Field, Message}, Req) ->
+    respond({error, Status, Code, Field, Message, []}, Req);
+respond({error, Status, Code, Field, Message, Extra}, Req) ->
     json(Status, #{error => Code, field => Field, message => Message},
          case Status of
-             401 -> [{"www-authenticate", "Bearer realm=\"evatar\""}];
-             _ -> []
-         end);
-respond({Status, Term}) when is_integer(Status) ->
-    json(Status, Term, []).
+             401 -> [{"www-authenticate", "Bearer realm=\"evatar\""} | Extra];
+             _ -> Extra
+         end, Req);
+respond({Status, Term}, Req) when is_integer(Status) ->
+    json(Status, Term, [], Req).
 
-json(Status, Term, Extra) ->
+json(Status, Term, Extra, Req) ->
     respond({raw, Status, [{"content-type", "application/json"}, {"cache-control", "no-store"} | Extra],
-             evatar_web_json:encode(Term)}).
+             evatar_web_json:encode(Term)}, Req).

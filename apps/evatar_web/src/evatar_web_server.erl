@@ -1,15 +1,18 @@
-%% @doc Internal. Starts the HTTP server: OTP inets httpd, stand-alone
-%% (linked to evatar_web_sup, not an inets service), with one module,
-%% evatar_web_router, which answers every request. httpd's own limits are
-%% set here (docs/api.md, "Limits").
+%% @doc Internal. Starts the HTTP server: a ranch listener (embedded: its
+%% supervisor is this child of evatar_web_sup) whose connections run
+%% cowboy's HTTP/1.1 through evatar_web_conn, with one handler of ours,
+%% evatar_web_router, for every request. The limits of docs/api.md
+%% ("Limits") are set here as cowboy's and ranch's options.
 -module(evatar_web_server).
 
 -include_lib("kernel/include/logger.hrl").
 
 -export([start_link/0, info/0, url/2, format_listening/1]).
 
-%% @doc Starts httpd with the application environment's options, checked
-%% first (evatar_web:check_opts/1) so a mistake says which key.
+-define(REF, evatar_web_http).
+
+%% @doc Starts the listener with the application environment's options,
+%% checked first (evatar_web:check_opts/1) so a mistake says which key.
 -spec start_link() -> {ok, pid()} | {error, term()}.
 start_link() ->
     Opts = maps:from_list([{K, V} || {K, V} <- application:get_all_env(evatar_web),
@@ -17,53 +20,75 @@ start_link() ->
     case evatar_web:check_opts(Opts) of
         ok ->
             case evatar_web_auth:setup(Opts) of
-                ok -> start_httpd(Opts);
+                ok -> start_listener(Opts);
                 {error, _} = Error -> Error
             end;
         {error, {Key, Why}} ->
             {error, {bad_http_option, Key, Why}}
     end.
 
-start_httpd(#{ip := Ip, port := Port} = Opts) ->
-    Priv = code:priv_dir(evatar_web),
+start_listener(#{ip := Ip, port := Port} = Opts) ->
     MaxBody = maps:get(max_body, Opts),
-    Config = [{port, Port},
-              {bind_address, Ip},
-              {ipfamily, case tuple_size(Ip) of 4 -> inet; 8 -> inet6 end},
-              %% Not {socket_type, {ip_comm, [{nodelay, true}]}}: OTP 25's
-              %% httpd cannot listen on a fixed port with it (function_clause
-              %% in http_transport:listen/4; only port 0 worked). The router
-              %% sets nodelay on each accepted socket instead.
-              {server_name, "evatar"},
-              {server_root, Priv},
-              {document_root, filename:join(Priv, "www")},
-              {modules, [evatar_web_router]},
-              %% A declared length over max_body gets the router's JSON 413.
-              {customize, evatar_web_limit},
-              {max_clients, maps:get(max_clients, Opts)},
-              {max_body_size, MaxBody},
-              {max_content_length, MaxBody},
-              {max_header_size, 16384},
-              {max_uri_size, 4096},
-              {keep_alive_timeout, 30},
-              {max_keep_alive_request, 1000},
-              {log_format, compact}],
-    case inets:start(httpd, Config, stand_alone) of
+    MaxClients = maps:get(max_clients, Opts),
+    HeaderTimeout = maps:get(header_timeout, Opts, evatar_web:default(header_timeout)),
+    Family = case tuple_size(Ip) of 4 -> inet; 8 -> inet6 end,
+    TransOpts = #{socket_opts => [Family, {ip, Ip}, {port, Port},
+                                  %% A response goes out in more than one send
+                                  %% (head, body): Nagle would hold the second
+                                  %% until the client's delayed ACK (about 40 ms
+                                  %% a request on a kept-alive connection).
+                                  {nodelay, true}],
+                  %% Past max_clients a connection is still accepted, to be
+                  %% answered 503 by evatar_web_conn; past twice that ranch
+                  %% stops accepting and the kernel's backlog holds them.
+                  max_connections => 2 * MaxClients,
+                  num_acceptors => 4},
+    ProtoOpts = #{env => #{max_clients => MaxClients},
+                  middlewares => [evatar_web_router],
+                  stream_handlers => [evatar_web_conn, cowboy_stream_h],
+                  protocols => [http],
+                  %% The request line and headers must have arrived this long
+                  %% after the connection opened or the last answer went out
+                  %% (so it is the idle keep-alive time too): a client that
+                  %% trickles them gets a 408 and the connection closes.
+                  request_timeout => HeaderTimeout,
+                  %% No byte from the client this long while a request is
+                  %% being read or answered (an event stream turns it off).
+                  idle_timeout => 30000,
+                  max_keepalive => 1000,
+                  max_request_line_length => 4096,
+                  max_header_value_length => 8192,
+                  max_headers => 100,
+                  max_skip_body_length => MaxBody},
+    #{start := {M, F, A}} = ranch:child_spec(?REF, ranch_tcp, TransOpts, evatar_web_conn, ProtoOpts),
+    case apply(M, F, A) of
         {ok, Pid} ->
-            %% The instance's id carries the port bound (port 0 picks one).
-            [Bound] = [P || {{httpd_instance_sup, _, P, _}, _, _, _} <- supervisor:which_children(Pid)],
-            persistent_term:put(?MODULE, #{ip => Ip, port => Bound, max_body => MaxBody}),
+            Bound = ranch:get_port(?REF),
+            persistent_term:put(?MODULE, #{ip => Ip, port => Bound, max_body => MaxBody,
+                                           max_clients => MaxClients}),
             %% A report for log tools, and a line for a person (the port
             %% picked when configured with port 0).
             ?LOG_NOTICE(#{what => http_listening, ip => inet:ntoa(Ip), port => Bound,
                           url => url(Ip, Bound), operator_token => evatar_web_auth:configured()},
                         #{report_cb => fun ?MODULE:format_listening/1}),
             {ok, Pid};
-        {error, Why} ->
+        {error, Error} ->
+            Why = listen_error(Error),
             ?LOG_ERROR(#{what => http_listen_failed, ip => inet:ntoa(Ip), port => Port,
                          reason => Why}),
             {error, {http_listen_failed, Ip, Port, Why}}
     end.
+
+%% ranch's acceptors exit with {listen_error, Ref, Reason}, nested in the
+%% start errors of its supervisors.
+listen_error({listen_error, ?REF, Why}) -> Why;
+listen_error(T) when is_tuple(T) -> listen_error(tuple_to_list(T));
+listen_error([H | Rest]) ->
+    case listen_error(H) of
+        undefined -> listen_error(Rest);
+        Why -> Why
+    end;
+listen_error(_) -> undefined.
 
 %% @doc Pure: "http://IP:PORT/" (an IPv6 address in brackets).
 -spec url(inet:ip_address(), inet:port_number()) -> string().
@@ -81,10 +106,10 @@ format_listening(#{url := Url, operator_token := Token}) ->
     {"HTTP API and dashboard listening on ~ts (operator token ~ts)",
      [Url, case Token of true -> "configured"; false -> "not configured: changes refused" end]}.
 
-%% @doc The listener's address, bound port and body limit; `undefined'
-%% when the server has not started.
+%% @doc The listener's address, bound port and limits; `undefined' when
+%% the server has not started.
 -spec info() -> #{ip := inet:ip_address(), port := inet:port_number(),
-                  max_body := pos_integer()} | undefined.
+                  max_body := pos_integer(), max_clients := pos_integer()} | undefined.
 info() ->
     case whereis(evatar_web_sup) =/= undefined andalso
         lists:keymember(evatar_web_server, 1, supervisor:which_children(evatar_web_sup)) of

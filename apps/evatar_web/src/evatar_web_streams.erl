@@ -1,5 +1,5 @@
 %% @doc Internal. Admits the server-sent event streams of `GET /api/events'
-%% (evatar_web_events): at most half of httpd's `max_clients' at once (32
+%% (evatar_web_events): at most half of the server's `max_clients' at once (32
 %% by default), so open streams never take every connection from the API.
 %% Each admitted stream's process is monitored: its slot is free again when
 %% it ends, however it ends.

@@ -1,6 +1,7 @@
-%% @doc Internal. The supervisor of evatar_web: one child, the HTTP server
-%% (inets httpd started stand-alone, evatar_web_server), absent when the
-%% environment's `enabled' is false. The server is `permanent' with a low
+%% @doc Internal. The supervisor of evatar_web: the WoT consumers, the event
+%% streams' admission and the HTTP server (ranch's embedded listener running
+%% cowboy, evatar_web_server), all absent when the environment's `enabled'
+%% is false. The server is `permanent' with a low
 %% intensity: a listener that cannot open (the port taken, a bad address)
 %% stops the application's start with the reason, like the bridge's.
 -module(evatar_web_sup).

@@ -137,8 +137,8 @@ base(#{headers := Headers}) ->
                  "https" ++ _ -> "https://";
                  _ -> "http://"
              end,
-    case lists:keyfind("host", 1, Headers) of
-        {_, Host} when Host =/= "" ->
+    case maps:get(<<"host">>, Headers, <<>>) of
+        Host when Host =/= <<>> ->
             unicode:characters_to_binary([Scheme, Host, "/"], latin1);
         _ ->
             unicode:characters_to_binary(evatar_web:url())

@@ -1,6 +1,7 @@
-%% Common Test: the HTTP server of evatar_web over real TCP (httpc as the
-%% client): routing, static files, JSON errors, limits and the operator
-%% credential.
+%% Common Test: the HTTP server of evatar_web over real TCP (httpc, or a
+%% raw socket for what a client library would not send): routing, static
+%% files, HEAD and OPTIONS, JSON errors, limits (body, header deadline,
+%% connections), keep-alive and the operator credential.
 -module(evatar_web_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -10,6 +11,8 @@
          init_per_group/2, end_per_group/2]).
 -export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
          method_not_allowed/1, loopback_reads_check_host/1, body_limit/1, nodelay/1,
+         chunked_body_limit/1, options_allow/1, head_requests/1, keepalive_requests/1,
+         header_timeout/1, max_clients/1,
          bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1,
          fixed_port_starts/1]).
 -export([log/2]).
@@ -18,11 +21,14 @@
 
 suite() -> [{timetrap, {minutes, 2}}].
 
-all() -> [{group, server}, {group, startup}].
+all() -> [{group, server}, {group, limits}, {group, startup}].
 
 groups() ->
     [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
-                   method_not_allowed, loopback_reads_check_host, body_limit, nodelay]},
+                   method_not_allowed, loopback_reads_check_host, body_limit, nodelay,
+                   chunked_body_limit, options_allow, head_requests, keepalive_requests]},
+     %% Each restarts the server with a small limit, then the defaults.
+     {limits, [], [header_timeout, max_clients]},
      {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged,
                     fixed_port_starts]}].
 
@@ -73,12 +79,50 @@ no_path_escapes(_Config) ->
 %% An unknown /api route is a JSON 404.
 unknown_route(_Config) ->
     {404, #{<<"error">> := <<"not_found">>, <<"field">> := null, <<"message">> := _}} =
-        ?T:get("/api/nothing/here").
+        ?T:get("/api/nothing/here"),
+    %% A query string that is not one counts as none.
+    {400, _, Json} = parse_response(?T:raw_tcp("GET /api/events?a=%zz&pairing HTTP/1.1\r\n"
+                                               "Host: localhost\r\nConnection: close\r\n\r\n")),
+    {ok, #{<<"error">> := <<"missing_field">>}} = evatar_web_json:decode(Json).
 
-%% A known path with another method is a JSON 405 naming the allowed ones.
+%% A known path with another method is a JSON 405 naming the allowed ones,
+%% in the message and in `Allow'; so is a method no route has (QUERY).
 method_not_allowed(_Config) ->
-    {405, #{<<"error">> := <<"method_not_allowed">>, <<"message">> := <<"allowed: GET">>}} =
-        ?T:request(delete, "/api/cluster", [], none).
+    {405, Headers, Body} = ?T:raw(delete, "/api/cluster", [], none),
+    "GET, HEAD, OPTIONS" = proplists:get_value("allow", Headers),
+    "application/json" = proplists:get_value("content-type", Headers),
+    {ok, #{<<"error">> := <<"method_not_allowed">>, <<"message">> := <<"allowed: GET, HEAD, OPTIONS">>}} =
+        evatar_web_json:decode(list_to_binary(Body)),
+    Reply = ?T:raw_tcp("QUERY /api/pairings HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"),
+    {405, RawHeaders, Json} = parse_response(Reply),
+    <<"GET, HEAD, OPTIONS, POST">> = maps:get(<<"allow">>, RawHeaders),
+    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_web_json:decode(Json).
+
+%% OPTIONS on a known path (a route, or a file of the page) answers 204
+%% with the methods in `Allow' and no body; on an unknown one the JSON 404.
+options_allow(_Config) ->
+    [begin
+         {204, Headers, ""} = ?T:raw(options, Path, [], none),
+         Allow = proplists:get_value("allow", Headers),
+         undefined = proplists:get_value("content-length", Headers),
+         undefined = proplists:get_value("content-type", Headers)
+     end || {Path, Allow} <- [{"/api/cluster", "GET, HEAD, OPTIONS"},
+                              {"/api/pairings", "GET, HEAD, OPTIONS, POST"},
+                              {"/api/pairings/x", "DELETE, GET, HEAD, OPTIONS, PUT"},
+                              {"/", "GET, HEAD, OPTIONS"}]],
+    {404, #{<<"error">> := <<"not_found">>}} = ?T:request(options, "/api/nothing", [], none).
+
+%% HEAD is GET without the body: the same status and headers, the length
+%% of the body it would have.
+head_requests(_Config) ->
+    {200, GetHeaders, Body} = ?T:raw(get, "/index.html", [], none),
+    {200, Headers, ""} = ?T:raw(head, "/index.html", [], none),
+    Length = integer_to_list(length(Body)),
+    Length = proplists:get_value("content-length", Headers),
+    Type = proplists:get_value("content-type", GetHeaders),
+    Type = proplists:get_value("content-type", Headers),
+    {200, ApiHeaders, ""} = ?T:raw(head, "/api/cluster", [], none),
+    "application/json" = proplists:get_value("content-type", ApiHeaders).
 
 %% On a loopback listener reads need no token, but only for a loopback
 %% Host: a page of another origin rebinding its name to 127.0.0.1 is refused.
@@ -107,17 +151,53 @@ body_limit(_Config) ->
                           "Content-Type: application/json\r\n"
                           "Content-Length: ", integer_to_list(Max), "\r\n\r\n", binary:copy(<<" ">>, Max)]),
     nomatch = re:run(AtLimit, "^HTTP/1.1 413"),
-    %% The renamed header sent by a client itself means nothing.
-    {200, _} = ?T:request(get, "/api/cluster", [{"x-evatar-body-too-large", "1"}], none),
-    Chunk = binary:copy(<<"a">>, 65536),
-    Chunked = ?T:raw_tcp(["POST /api/cluster HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
-                          "Transfer-Encoding: chunked\r\n\r\n",
-                          [["10000\r\n", Chunk, "\r\n"] || _ <- lists:seq(1, Max div 65536 + 2)],
-                          "0\r\n\r\n"]),
-    case Chunked of
-        <<>> -> ok;                             % closed without an answer
-        _ -> {match, _} = re:run(Chunked, "^HTTP/1.1 (413|500)")
+    ok.
+
+%% A chunked body (no declared length) that passes max_body gets the same
+%% JSON 413 once it does, and the connection closes: the client, still
+%% sending, sees the answer and the close.
+chunked_body_limit(_Config) ->
+    Max = application:get_env(evatar_web, max_body, 1048576),
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, true}]),
+    ok = gen_tcp:send(S, "POST /api/pairings HTTP/1.1\r\nHost: localhost\r\n"
+                         "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"),
+    Chunk = ["10000\r\n", binary:copy(<<" ">>, 65536), "\r\n"],
+    %% The body is sent by another process, so that this one sees the
+    %% answer while it is still being sent (and its sends then fail).
+    Sender = spawn_link(fun() -> [gen_tcp:send(S, Chunk) || _ <- lists:seq(1, 2 * Max div 65536)] end),
+    Reply = until_closed(S, <<>>),
+    unlink(Sender),
+    {413, Headers, Json} = parse_response(Reply),
+    <<"application/json">> = maps:get(<<"content-type">>, Headers),
+    <<"close">> = maps:get(<<"connection">>, Headers),
+    {ok, #{<<"error">> := <<"body_too_large">>, <<"field">> := null, <<"message">> := Message}} =
+        evatar_web_json:decode(Json),
+    {match, _} = re:run(Message, ["limit ", integer_to_list(Max), " bytes"]),
+    %% A chunked body within the limit is read and reaches the route.
+    Small = ?T:raw_tcp(["POST /api/pairings HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n"
+                        "Content-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n",
+                        "2\r\n{}\r\n0\r\n\r\n"]),
+    {403, _, _} = parse_response(Small).
+
+%% Everything the server sends on an active socket until it closes it (a
+%% guard of 30 s, whose length does not matter, fails a server that never does).
+until_closed(S, Acc) ->
+    receive
+        {tcp, S, Data} -> until_closed(S, <<Acc/binary, Data/binary>>);
+        {tcp_closed, S} -> Acc;
+        {tcp_error, S, _} -> until_closed(S, Acc)
+    after 30000 -> ct:fail({not_closed, Acc})
     end.
+
+%% One response: status, headers (lower-case names), body.
+parse_response(Reply) ->
+    [Head, Body] = binary:split(Reply, <<"\r\n\r\n">>),
+    [<<"HTTP/1.1 ", Code:3/binary, _/binary>> | Lines] = binary:split(Head, <<"\r\n">>, [global]),
+    Headers = maps:from_list([begin
+                                  [K, V] = binary:split(L, <<":">>),
+                                  {string:lowercase(K), string:trim(V)}
+                              end || L <- Lines]),
+    {binary_to_integer(Code), Headers, Body}.
 
 %% The server's accepted sockets have Nagle's algorithm off: a response
 %% written in more than one send must not wait for the client's delayed
@@ -133,6 +213,107 @@ nodelay(_Config) ->
     {ok, [{nodelay, true}]} = inet:getopts(Server, [nodelay]),
     ok = gen_tcp:close(S).
 
+%% Twenty requests one after the other on one kept-alive connection are
+%% each answered on it (the server's end is the same socket throughout,
+%% with nodelay on: no answer waits for the client's delayed ACK).
+keepalive_requests(_Config) ->
+    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
+    {ok, Mine} = inet:sockname(S),
+    [begin
+         ok = gen_tcp:send(S, "GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
+         {200, _, _} = recv_response(S, <<>>)
+     end || _ <- lists:seq(1, 20)],
+    [Server] = [P || P <- erlang:ports(), erlang:port_info(P, name) =:= {name, "tcp_inet"},
+                     inet:peername(P) =:= {ok, Mine}],
+    {ok, [{nodelay, true}]} = inet:getopts(Server, [nodelay]),
+    ok = gen_tcp:close(S).
+
+%% One whole response (its content-length read) from a passive socket.
+recv_response(S, Acc) ->
+    case binary:split(Acc, <<"\r\n\r\n">>) of
+        [Head, Rest] ->
+            {Status, Headers, _} = parse_response(<<Head/binary, "\r\n\r\n">>),
+            Length = binary_to_integer(maps:get(<<"content-length">>, Headers)),
+            Body = recv_more(S, Rest, Length),
+            {Status, Headers, Body};
+        [_] ->
+            {ok, More} = gen_tcp:recv(S, 0, 10000),
+            recv_response(S, <<Acc/binary, More/binary>>)
+    end.
+
+recv_more(_S, Buf, Length) when byte_size(Buf) >= Length -> Buf;
+recv_more(S, Buf, Length) ->
+    {ok, More} = gen_tcp:recv(S, 0, 10000),
+    recv_more(S, <<Buf/binary, More/binary>>, Length).
+
+%% A client that trickles its request headers (a byte at a time, never
+%% done) gets the JSON 408 `request_timeout' once header_timeout has passed
+%% since it connected, and the connection closes; a client that sent
+%% nothing is closed then too.
+header_timeout(_Config) ->
+    ok = ?T:restart(#{header_timeout => 300}),
+    try
+        {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, true}]),
+        ok = gen_tcp:send(S, "GET /api/cluster HTTP/1.1\r\nHost: localhost\r\nX-Slow: "),
+        Trickle = spawn_link(fun() -> trickle(S) end),
+        Reply = until_closed(S, <<>>),
+        unlink(Trickle),
+        exit(Trickle, kill),
+        {408, Headers, Json} = parse_response(Reply),
+        <<"application/json">> = maps:get(<<"content-type">>, Headers),
+        {ok, #{<<"error">> := <<"request_timeout">>, <<"field">> := null}} = evatar_web_json:decode(Json),
+        {ok, Quiet} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, true}]),
+        <<>> = until_closed(Quiet, <<>>),
+        %% Once the headers are in, the deadline is over for that request.
+        {200, _} = ?T:get("/api/cluster")
+    after
+        ok = ?T:restart(#{})
+    end.
+
+%% A byte of a header value every 50 ms, until the socket is closed.
+trickle(S) ->
+    {ok, _} = timer:send_interval(50, byte),
+    trickle_loop(S).
+
+trickle_loop(S) ->
+    receive
+        byte ->
+            case gen_tcp:send(S, "a") of
+                ok -> trickle_loop(S);
+                {error, _} -> ok
+            end
+    end.
+
+%% With max_clients connections open, the next one is answered the JSON
+%% 503 `too_many_clients' and closed; once one closes, a new one is served.
+max_clients(_Config) ->
+    ok = ?T:restart(#{max_clients => 2}),
+    try
+        Open = [begin
+                    {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
+                    ok = gen_tcp:send(S, "GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
+                    {200, _, _} = recv_response(S, <<>>),
+                    S
+                end || _ <- [1, 2]],
+        Reply = ?T:raw_tcp("GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
+        {503, Headers, Json} = parse_response(Reply),
+        <<"application/json">> = maps:get(<<"content-type">>, Headers),
+        {ok, #{<<"error">> := <<"too_many_clients">>}} = evatar_web_json:decode(Json),
+        [First | Rest] = Open,
+        ok = gen_tcp:close(First),
+        %% The server sees the close in its own time: retry until served.
+        ok = evatar_test_wait:until(
+               fun() ->
+                       {Status, _, _} = parse_response(
+                                          ?T:raw_tcp("GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n"
+                                                     "Connection: close\r\n\r\n")),
+                       Status =:= 200
+               end, #{timeout => 10000, interval => 50}),
+        [ok = gen_tcp:close(S) || S <- Rest]
+    after
+        ok = ?T:restart(#{})
+    end.
+
 %% A mistake in the environment stops the start with the key named.
 bad_env_refuses_start(_Config) ->
     ok = application:stop(evatar_web),
@@ -145,6 +326,7 @@ bad_env_refuses_start(_Config) ->
              true = is_binary(Why),
              ok = application:set_env(evatar_web, K, Good)
          end || {K, V, Good} <- [{port, -1, 0}, {ip, "localhost", {127, 0, 0, 1}}, {max_body, 0, 1048576},
+                                 {header_timeout, 0, 10000},
                                  {operator_token_hash, <<"plain">>, undefined}]],
         ok = application:set_env(evatar_web, token_file, "/nonexistent/token"),
         {error, {{shutdown, {failed_to_start_child, evatar_web_server,
@@ -171,8 +353,8 @@ listen_failure_is_an_error(_Config) ->
     end.
 
 %% A configured port (what a release has) is listened on and served, with
-%% nodelay on the accepted socket (httpd's socket_type with options broke
-%% exactly this start, while port 0 worked).
+%% nodelay on the accepted socket (OTP 25's httpd broke exactly this start,
+%% while port 0 worked).
 fixed_port_starts(_Config) ->
     {ok, Probe} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
     {ok, Free} = inet:port(Probe),

@@ -18,7 +18,8 @@ restart(Env) ->
     _ = application:stop(evatar_web),
     _ = application:load(evatar_web),
     Defaults = #{enabled => true, ip => {127, 0, 0, 1}, port => 0, operator_token_hash => undefined,
-                 token_file => "", max_body => 1048576, max_clients => 64},
+                 token_file => "", max_body => 1048576, max_clients => 64,
+                 header_timeout => 10000},
     [ok = application:set_env(evatar_web, K, V) || {K, V} <- maps:to_list(maps:merge(Defaults, Env))],
     {ok, _} = application:ensure_all_started(evatar_web),
     ok.

@@ -24,7 +24,7 @@
 
 -define(SECTIONS, [listeners, pairings, mqtt_avatars, http]).
 -define(HTTP_KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients,
-                    things]).
+                    header_timeout, things]).
 -define(PAIRING_KEYS, [id, agent_credential, avatar_credential, identities, unlisted_ids]).
 -define(IDENTITY_KEYS, [entity, role, credential, cert_sha256]).
 -define(PAIRING_INT, [join_timeout, feedback_timeout, max_avatars, resume_timeout, dedup_window,

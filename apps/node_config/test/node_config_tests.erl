@@ -103,6 +103,8 @@ http_section_test() ->
     has("{http, #{operator_token_hash => \"plain\"}}.\n",
         "http: operator_token_hash: must be a hashed credential"),
     has("{http, #{enabled => yes}}.\n", "http: enabled: must be true or false"),
+    {ok, #{http := #{header_timeout := 2000}}} = load("{http, #{header_timeout => 2000}}.\n"),
+    has("{http, #{header_timeout => 0}}.\n", "http: header_timeout: must be a time in milliseconds"),
     has("{http, [#{port => 1}]}.\n", "http: the value must be one map").
 
 %% The http section's WoT consumers (docs/wot.md) are read and checked by
