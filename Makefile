@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-scale bench-partition bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-flood bench-scale bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 # The HTTP server's libraries (cowboy, ranch, cowlib), copied into _deps/
@@ -66,6 +66,12 @@ bench-failover: deps
 ## every standby is synced again, lost and duplicated signals. BENCH_ARGS='[quick]'.
 bench-storm: deps
 	@bash scripts/bench-storm.sh $(BENCH_ARGS)
+
+## Isolation on one node: 1,000 pairings in an open loop, rounds without and with
+## a flooded pairing (a VA that never reads; an Avatar that never answers), the
+## others' p50/p99/p99.9 side by side and the flood's cost. BENCH_ARGS='[quick]'.
+bench-flood: deps
+	@bash scripts/bench-flood.sh $(BENCH_ARGS)
 
 ## How far one cluster goes, in simulation (docs/scale.md): the pure HA core's takeover
 ## storm and the placement planner at 50 nodes and 1,000,000 pairings, with this

@@ -9,6 +9,8 @@
 -module(evatar_bench).
 
 -export([main/0, main/1]).
+%% For flood_bench, which measures on the same system under test.
+-export([start/1, environment/1, closed_loop/3, open_loop/4, teardown/2, gc_all/0]).
 
 -export_type([option/0]).
 
@@ -128,6 +130,11 @@ config(Options) ->
 %% The system under test
 %% ---------------------------------------------------------------------------
 
+%% @doc Starts EVATAR in this node with the benchmark's listener (no
+%% connection limits; `conn' of Cfg: its connection options); returns its
+%% address and connection supervisor.
+-spec start(map()) -> #{addr := {inet:ip_address(), inet:port_number()}, conn_sup := pid(),
+                        floor := term()}.
 start(Cfg) ->
     %% Logging at info for 10,000 joins would measure the logger.
     ok = logger:set_primary_config(level, warning),
@@ -148,6 +155,8 @@ start(Cfg) ->
     #{addr => Addr, conn_sup => agent_bridge_listener_sup:conn_sup(LSup),
       floor => evatar_bench_floor:listen()}.
 
+%% @doc The machine, the VM and the listener, for the results.
+-spec environment(#{addr := {inet:ip_address(), inet:port_number()}, _ => _}) -> map().
 environment(#{addr := {Ip, Port}}) ->
     #{otp => list_to_binary(erlang:system_info(otp_release)),
       erts => list_to_binary(erlang:system_info(version)),
@@ -370,8 +379,12 @@ per_pairing(Delta, Groups, N) ->
       client_procs => G(client, memory) + G(generator, memory),
       client_sockets => G(client, port_memory) + G(generator, port_memory)}.
 
-%% Closed loop: every VA keeps W requests in flight; throughput is counted
-%% over the window after the warm-up.
+%% @doc Closed loop: every VA keeps W requests in flight; throughput is
+%% counted over the window after the warm-up. Gen: `local', or the
+%% generator's node.
+-spec closed_loop([evatar_bench_gen:pair()], #{inflight := pos_integer(), warmup := number(),
+                                               seconds := number(), _ => _},
+                  local | map()) -> map().
 closed_loop(Pairs, #{inflight := W, warmup := Warm, seconds := Secs}, Gen) ->
     N = length(Pairs),
     %% A counters reference works only on the node that made it.
@@ -400,8 +413,10 @@ closed_loop(Pairs, #{inflight := W, warmup := Warm, seconds := Secs}, Gen) ->
                      errors => sum(errors, Drained), timeouts => sum(timeouts, Drained),
                      unanswered => sum(unanswered, Drained)}.
 
-%% Open loop at Rate round trips/s over all pairings: each VA sends on its
-%% own fixed schedule, latency counted from the scheduled time.
+%% @doc Open loop at Rate round trips/s over all pairings: each VA sends on
+%% its own fixed schedule, latency counted from the scheduled time.
+-spec open_loop([evatar_bench_gen:pair()], number(),
+                #{warmup := number(), seconds := number(), _ => _}, local | map()) -> map().
 open_loop(Pairs, Rate, #{warmup := Warm, seconds := Secs}, Gen) ->
     N = length(Pairs),
     Interval = max(1, round(N * 1.0e6 / Rate)),
@@ -453,6 +468,9 @@ add(K, V, Acc) ->
 to_bin(A) when is_atom(A) -> atom_to_binary(A);
 to_bin(B) when is_binary(B) -> B.
 
+%% @doc Stops the generator's processes of Pairs, deletes the pairings,
+%% and waits until no connection or pairing is left.
+-spec teardown([evatar_bench_gen:pair()], pid()) -> ok.
 teardown(Pairs, ConnSup) ->
     %% The generator goes first, and is waited for (it may be on another
     %% node), so no client sees its pairing deleted under it.
@@ -653,6 +671,8 @@ bump(Class, KVs, Acc) ->
     G = maps:get(Class, Acc, #{memory => 0, procs => 0, port_memory => 0, ports => 0}),
     Acc#{Class => lists:foldl(fun({K, V}, M) -> M#{K := maps:get(K, M) + V} end, G, KVs)}.
 
+%% @doc Garbage-collects every process of the node.
+-spec gc_all() -> ok.
 gc_all() ->
     _ = [erlang:garbage_collect(P) || P <- processes()],
     ok.

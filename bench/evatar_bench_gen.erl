@@ -8,8 +8,9 @@
 -export([setup/3, setup/4, new_counters/2, count/1, request_body/0, feedback_body/0,
          descriptions/2, credentials/0, idle_join/4, answer_kind/1]).
 -export([va_init/6, avatar_init/5, sink/0, start_reading/2, read_on/2, reactivate/2]).
+-export([flood_va_init/6, silent_avatar_init/4]).
 
--export_type([mode/0, pair/0]).
+-export_type([mode/0, pair/0, flood_kind/0]).
 
 %% `floor' is the raw generator against evatar_bench_floor's relays, which
 %% forward frames untouched: the same sockets and process hops as EVATAR
@@ -457,6 +458,142 @@ answer_kind(#{in_reply_to := <<"q", N/binary>>, context := Ctx, body := #{catego
     {binary_to_integer(N), Kind};
 answer_kind(_) ->
     ignore.
+
+%% ---------------------------------------------------------------------------
+%% Flooders (flood_bench)
+%% ---------------------------------------------------------------------------
+
+%% `no_read': a VA that sends requests as fast as its socket takes them
+%% and never reads its socket; its Avatar answers, so the feedback piles
+%% up towards it. `silent': a VA that sends as fast as its socket takes
+%% them and reads what comes back, to an Avatar that never answers, so
+%% open requests and their feedback timeouts pile up.
+-type flood_kind() :: no_read | silent.
+
+%% Counters of a flooder (counters:new(5, [write_concurrency])).
+-define(F_SENT, 1).
+-define(F_REJOINS, 2).
+-define(F_TIMEOUTS, 3).
+-define(F_ERRORS, 4).
+-define(F_READ, 5).
+
+%% @private
+%% A flooding VA: joins over raw TCP and waits until bound, tells Parent
+%% `{self(), flooding}', then floods. Its current socket's local address
+%% is kept in the public table Tab under its pid, so that the benchmark
+%% can find the bridge connection that serves it. A `no_read' VA whose
+%% connection is reset (the slow consumer's bound) joins again and goes on.
+-spec flood_va_init(pid(), flood_kind(), address(), binary(), bil:description(),
+                    #{counters := counters:counters_ref(), table := ets:tid()}) -> no_return().
+flood_va_init(Parent, Kind, Addr, Pairing, Desc, Info) ->
+    monitor(process, Parent),
+    S = flood_join(Kind, Addr, Pairing, Desc, Info),
+    Parent ! {self(), flooding},
+    flood(Kind, S, request_template(), 1, {Addr, Pairing, Desc, Info}).
+
+flood_join(Kind, Addr, Pairing, Desc, #{table := Tab} = Info) ->
+    flood_join(Kind, Addr, Pairing, Desc, Info, Tab, 1000).
+
+flood_join(_Kind, _Addr, Pairing, _Desc, _Info, _Tab, 0) ->
+    exit({flooder_cannot_join, Pairing});
+flood_join(Kind, {Ip, Port} = Addr, Pairing, #{entity_id := Entity} = Desc, Info, Tab, Tries) ->
+    {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false},
+                                         {nodelay, true}], 10000),
+    Hello = {hello, #{pairing => Pairing, role => agent, entity_id => Entity,
+                      credential => cred(agent), protocol_version => 1}},
+    ok = gen_tcp:send(S, bil_control:encode(Hello)),
+    %% A join right after a reset can meet the entity not yet dropped
+    %% (Refused): the next attempt follows the answer, not a timer.
+    case gen_tcp:recv(S, 0, 10000) of
+        {ok, Frame} ->
+            case bil_control:parse_frame(Frame, #{}) of
+                {ok, {control, {welcome, _}}} ->
+                    ok = gen_tcp:send(S, bil:encode_description(Desc)),
+                    ok = await_bound({raw, S}),
+                    {ok, Name} = inet:sockname(S),
+                    true = ets:insert(Tab, {self(), Name}),
+                    ok = case Kind of
+                             silent -> activate({raw, S});
+                             no_read -> ok
+                         end,
+                    S;
+                _Refused ->
+                    ok = gen_tcp:close(S),
+                    flood_join(Kind, Addr, Pairing, Desc, Info, Tab, Tries - 1)
+            end;
+        {error, _} ->
+            ok = gen_tcp:close(S),
+            flood_join(Kind, Addr, Pairing, Desc, Info, Tab, Tries - 1)
+    end.
+
+flood(no_read, S, {P1, P2} = T, K, {Addr, Pairing, Desc, #{counters := C} = Info} = Join) ->
+    case gen_tcp:send(S, [P1, <<"f", (integer_to_binary(K))/binary>>, P2]) of
+        ok ->
+            ok = counters:add(C, ?F_SENT, 1),
+            flood(no_read, S, T, K + 1, Join);
+        {error, _} ->
+            _ = gen_tcp:close(S),
+            ok = counters:add(C, ?F_REJOINS, 1),
+            flood(no_read, flood_join(no_read, Addr, Pairing, Desc, Info), T, K + 1, Join)
+    end;
+flood(silent, S, {P1, P2} = T, K, {_, _, _, #{counters := C}} = Join) ->
+    ok = drain_answers(S, C),
+    ok = gen_tcp:send(S, [P1, <<"f", (integer_to_binary(K))/binary>>, P2]),
+    ok = counters:add(C, ?F_SENT, 1),
+    flood(silent, S, T, K + 1, Join).
+
+%% What has come back so far, counted: EVATAR's Timeout feedbacks, and
+%% every other frame that answers a request (TooManyRequests errors).
+drain_answers(S, C) ->
+    receive
+        {tcp, S, Frame} ->
+            ok = read_on(S, ?ACTIVE_N),
+            ok = counters:add(C, ?F_READ, 1),
+            _ = case {binary:match(Frame, <<"<InReplyTo>f">>),
+                      binary:match(Frame, <<"<ServiceCategory>EVATAR<">>),
+                      binary:match(Frame, <<"<Context>Feedback</Context>">>)} of
+                    {nomatch, _, _} -> ok;
+                    {_, nomatch, _} -> counters:add(C, ?F_ERRORS, 1);
+                    {_, _, nomatch} -> counters:add(C, ?F_ERRORS, 1);
+                    _ -> counters:add(C, ?F_TIMEOUTS, 1)
+                end,
+            drain_answers(S, C);
+        {tcp_passive, S} ->
+            ok = reactivate(S, ?ACTIVE_N),
+            drain_answers(S, C);
+        {tcp_closed, S} ->
+            exit(flooder_closed);
+        {'DOWN', _, process, _, _} ->
+            exit(normal)
+    after 0 ->
+            ok
+    end.
+
+%% @private
+%% An Avatar that joins over raw TCP, describes itself, reads everything
+%% and never answers.
+-spec silent_avatar_init(pid(), address(), binary(), bil:description()) -> no_return().
+silent_avatar_init(Parent, Addr, Pairing, Desc) ->
+    monitor(process, Parent),
+    {raw, S} = Conn = join(raw, Addr, Pairing, avatar, Desc),
+    Parent ! {self(), described},
+    ok = await_bound(raw, Conn),
+    ok = activate(Conn),
+    silent_loop(S).
+
+silent_loop(S) ->
+    receive
+        {tcp, S, _Frame} ->
+            ok = read_on(S, ?ACTIVE_N),
+            silent_loop(S);
+        {tcp_passive, S} ->
+            ok = reactivate(S, ?ACTIVE_N),
+            silent_loop(S);
+        {tcp_closed, S} ->
+            exit(normal);
+        {'DOWN', _, process, _, _} ->
+            exit(normal)
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Idle pairings
