@@ -513,7 +513,7 @@ flood_join(Kind, {Ip, Port} = Addr, Pairing, #{entity_id := Entity} = Desc, Info
                     {ok, Name} = inet:sockname(S),
                     true = ets:insert(Tab, {self(), Name}),
                     ok = case Kind of
-                             silent -> activate({raw, S});
+                             silent -> start_reader(S, Info);
                              no_read -> ok
                          end,
                     S;
@@ -537,14 +537,31 @@ flood(no_read, S, {P1, P2} = T, K, {Addr, Pairing, Desc, #{counters := C} = Info
             flood(no_read, flood_join(no_read, Addr, Pairing, Desc, Info), T, K + 1, Join)
     end;
 flood(silent, S, {P1, P2} = T, K, {_, _, _, #{counters := C}} = Join) ->
-    ok = drain_answers(S, C),
-    ok = gen_tcp:send(S, [P1, <<"f", (integer_to_binary(K))/binary>>, P2]),
-    ok = counters:add(C, ?F_SENT, 1),
-    flood(silent, S, T, K + 1, Join).
+    case gen_tcp:send(S, [P1, <<"f", (integer_to_binary(K))/binary>>, P2]) of
+        ok ->
+            ok = counters:add(C, ?F_SENT, 1),
+            flood(silent, S, T, K + 1, Join);
+        {error, Why} ->
+            exit({flooder_closed, Why})
+    end.
 
-%% What has come back so far, counted: EVATAR's Timeout feedbacks, and
-%% every other frame that answers a request (TooManyRequests errors).
-drain_answers(S, C) ->
+%% The silent VA reads in a process of its own, the socket's owner: a
+%% sender blocked in gen_tcp:send while EVATAR holds back its reads
+%% (docs/protocol.md section 8) would otherwise stop reading too and be
+%% reset as a slow consumer, which is the other flooder's case.
+start_reader(S, #{counters := C}) ->
+    Reader = spawn_link(fun() ->
+                                receive {go, S} -> ok end,
+                                ok = start_reading(S, ?ACTIVE_N),
+                                read_answers(S, C)
+                        end),
+    ok = gen_tcp:controlling_process(S, Reader),
+    Reader ! {go, S},
+    ok.
+
+%% What comes back, counted: EVATAR's Timeout feedbacks, and every other
+%% frame that answers a request (TooManyRequests errors).
+read_answers(S, C) ->
     receive
         {tcp, S, Frame} ->
             ok = read_on(S, ?ACTIVE_N),
@@ -557,16 +574,12 @@ drain_answers(S, C) ->
                     {_, _, nomatch} -> counters:add(C, ?F_ERRORS, 1);
                     _ -> counters:add(C, ?F_TIMEOUTS, 1)
                 end,
-            drain_answers(S, C);
+            read_answers(S, C);
         {tcp_passive, S} ->
             ok = reactivate(S, ?ACTIVE_N),
-            drain_answers(S, C);
+            read_answers(S, C);
         {tcp_closed, S} ->
-            exit(flooder_closed);
-        {'DOWN', _, process, _, _} ->
-            exit(normal)
-    after 0 ->
-            ok
+            exit(flooder_closed)
     end.
 
 %% @private
