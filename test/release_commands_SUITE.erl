@@ -15,13 +15,14 @@
 -compile([export_all, nowarn_export_all]).
 
 -import(rel_node, [release/1, node_env/3, env/2, home/1, node_name/1, start_node/2,
-                   stop_node/2, rel/3, run/4]).
+                   stop_node/2, rel/3, run/4, quote/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
 
 all() ->
     [cluster_text_and_json, cookie_not_on_command_lines, usage_and_unreachable,
-     commands_on_a_running_node, refusals_exit_1, http_api_of_the_release].
+     commands_on_a_running_node, refusals_exit_1, http_api_of_the_release,
+     commands_leave_no_atoms].
 
 init_per_suite(Config) ->
     ct:timetrap({minutes, 10}),
@@ -200,6 +201,98 @@ refusals(Config) ->
     #{<<"error">> := _, <<"message">> := _} =
         json1(evatar(Config, ["pairing", "no-such-pairing", "--json"])),
     {1, _} = evatar(Config, ["delete", "no-such-pairing"]).
+
+%% 1,000 commands, from four shells at once, leave at most a few atoms in
+%% the node: every node name a node sees stays an atom, and the helper
+%% node of each command used to take a new one (relx's nodetool and our
+%% operator commands: +1 or +2 per command, a health check every 10 s
+%% fills the atom table in months). Each shell runs 250: 4 `cluster', 2
+%% `ping' and 2 `eval' with USE_NODETOOL=1 (TLS distribution's path),
+%% and 242 `ping', `rpc' and `eval' through erl_call. The helpers of
+%% `cluster' and nodetool now take one of the fixed evatar_ctl1..4@HOST,
+%% erl_call's a dynamic name, which the node gives again to the next one
+%% once the first is gone. Every command must succeed: four at once used
+%% to fail now and then on the vm.args another one was writing.
+commands_leave_no_atoms(Config0) ->
+    Config = [{rel, release_with_erts(Config0)} | Config0],
+    Atoms = fun() ->
+                    {0, Out} = evatar(Config, ["eval", "erlang:system_info(atom_count)."]),
+                    list_to_integer(string:trim(Out))
+            end,
+    Before = Atoms(),
+    Bin = filename:join([?config(rel, Config), "bin", "evatar"]),
+    Shell = filename:join(?config(dir, Config), "commands.sh"),
+    ok = file:write_file(Shell, commands_script(Bin)),
+    Env = env(Config),
+    Port = open_port({spawn_executable, "/bin/sh"},
+                     [{args, [Shell, "4"]}, {env, Env}, exit_status, stderr_to_stdout, binary]),
+    {Status, Out} = collect(Port, []),
+    ct:pal("commands: exit ~p~n~ts", [Status, Out]),
+    After = Atoms(),
+    ct:pal("atom_count: ~p before, ~p after 1000 commands (+~p)", [Before, After, After - Before]),
+    ct:comment("1000 commands: atom_count +~p", [After - Before]),
+    ?assertEqual(0, Status, Out),
+    ?assertMatch({match, _}, re:run(Out, "^ran 1000 commands, 0 failed", [multiline]), Out),
+    %% Four shells: the four evatar_ctl names, and as many dynamic names as
+    %% erl_call helpers were connected at once (four, and a few more when
+    %% one connected before the node had seen the last one go).
+    ?assert(After - Before =< 12, {atoms, Before, After}).
+
+%% Four shells, each running its 250 commands one after another; prints
+%% how many ran and how many failed.
+commands_script(Bin) ->
+    ["#!/bin/sh\n"
+     "B=", quote(Bin), "\n"
+     "shell() {\n"
+     "  f=0\n"
+     "  for i in 1 2; do\n"
+     "    \"$B\" cluster >/dev/null 2>&1 || f=$((f+1))\n"
+     "    USE_NODETOOL=1 \"$B\" ping >/dev/null 2>&1 || f=$((f+1))\n"
+     "    USE_NODETOOL=1 \"$B\" eval 'ok.' >/dev/null 2>&1 || f=$((f+1))\n"
+     "    \"$B\" cluster >/dev/null 2>&1 || f=$((f+1))\n"
+     "  done\n"
+     "  for i in $(seq 1 80); do\n"
+     "    \"$B\" ping >/dev/null 2>&1 || f=$((f+1))\n"
+     "    \"$B\" rpc erlang node >/dev/null 2>&1 || f=$((f+1))\n"
+     "    \"$B\" eval 'ok.' >/dev/null 2>&1 || f=$((f+1))\n"
+     "  done\n"
+     "  \"$B\" ping >/dev/null 2>&1 || f=$((f+1))\n"
+     "  \"$B\" ping >/dev/null 2>&1 || f=$((f+1))\n"
+     "  echo $f > \"$1\"\n"
+     "}\n"
+     "dir=$(mktemp -d)\n"
+     "for s in $(seq 1 \"$1\"); do shell \"$dir/$s\" & done\n"
+     "wait\n"
+     "failed=$(cat \"$dir\"/* | awk '{n += $1} END {print n}')\n"
+     "rm -rf \"$dir\"\n"
+     "echo \"ran $(($1 * 250)) commands, $failed failed\"\n"].
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [D | Acc]);
+        {Port, {exit_status, S}} -> {S, binary_to_list(iolist_to_binary(lists:reverse(Acc)))}
+    after 600000 ->
+            ct:fail({commands_hang, lists:reverse(Acc)})
+    end.
+
+%% The release as the tarball of `make tar' lays it out, with the ERTS it
+%% runs on inside: a copy of bin/ beside links to the rest and to this
+%% machine's ERTS. Without one, bin/evatar starts an `erl' for every command
+%% to find the ERTS (half a second each here).
+release_with_erts(Config) ->
+    Rel = ?config(rel, Config),
+    View = filename:join(?config(dir, Config), "rel"),
+    ok = filelib:ensure_path(View),
+    {0, _} = run(Config, [], "/bin/cp", ["-a", filename:join(Rel, "bin"), View]),
+    Erts = "erts-" ++ erlang:system_info(version),
+    _ = [ok = file:make_symlink(filename:join(Rel, F), filename:join(View, F))
+         || F <- filelib:wildcard("*", Rel), F =/= "bin", F =/= Erts],
+    Own = filename:join(Rel, Erts),
+    ok = file:make_symlink(case filelib:is_dir(Own) of
+                               true -> Own;
+                               false -> filename:join(code:root_dir(), Erts)
+                           end, filename:join(View, Erts)),
+    View.
 
 %% ---------------------------------------------------------------------------
 %% Helpers
