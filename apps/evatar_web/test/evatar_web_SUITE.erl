@@ -12,7 +12,7 @@
 -export([cluster_read/1, static_files/1, no_path_escapes/1, unknown_route/1,
          method_not_allowed/1, loopback_reads_check_host/1, body_limit/1, nodelay/1,
          chunked_body_limit/1, options_allow/1, head_requests/1, keepalive_requests/1,
-         header_timeout/1, max_clients/1,
+         header_timeout/1, max_clients/1, refusals_are_json/1,
          bad_env_refuses_start/1, listen_failure_is_an_error/1, listening_logged/1,
          fixed_port_starts/1]).
 -export([log/2]).
@@ -26,7 +26,8 @@ all() -> [{group, server}, {group, limits}, {group, startup}].
 groups() ->
     [{server, [], [cluster_read, static_files, no_path_escapes, unknown_route,
                    method_not_allowed, loopback_reads_check_host, body_limit, nodelay,
-                   chunked_body_limit, options_allow, head_requests, keepalive_requests]},
+                   chunked_body_limit, options_allow, head_requests, keepalive_requests,
+                   refusals_are_json]},
      %% Each restarts the server with a small limit, then the defaults.
      {limits, [], [header_timeout, max_clients]},
      {startup, [], [bad_env_refuses_start, listen_failure_is_an_error, listening_logged,
@@ -111,6 +112,24 @@ options_allow(_Config) ->
                               {"/api/pairings/x", "DELETE, GET, HEAD, OPTIONS, PUT"},
                               {"/", "GET, HEAD, OPTIONS"}]],
     {404, #{<<"error">> := <<"not_found">>}} = ?T:request(options, "/api/nothing", [], none).
+
+%% What cowboy refuses before any route runs is answered with the API's
+%% JSON error too, and the connection closes: a request line that is not
+%% one, a URI over 4,096 bytes, a header value over 8,192, TRACE.
+refusals_are_json(_Config) ->
+    Long = lists:duplicate(5000, $a),
+    [begin
+         {Status, Headers, Json} = parse_response(?T:raw_tcp(Request)),
+         <<"application/json">> = maps:get(<<"content-type">>, Headers),
+         <<"close">> = maps:get(<<"connection">>, Headers),
+         {ok, #{<<"error">> := Code, <<"field">> := null, <<"message">> := <<_, _/binary>>}} =
+             evatar_web_json:decode(Json)
+     end || {Request, Status, Code} <-
+                [{"GET\r\n\r\n", 400, <<"bad_request">>},
+                 {["GET /", Long, " HTTP/1.1\r\nHost: localhost\r\n\r\n"], 414, <<"uri_too_long">>},
+                 {["GET /api/cluster HTTP/1.1\r\nHost: localhost\r\nX-Big: ", Long, Long, "\r\n\r\n"],
+                  431, <<"headers_too_large">>},
+                 {"TRACE /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n", 501, <<"not_implemented">>}]].
 
 %% HEAD is GET without the body: the same status and headers, the length
 %% of the body it would have.
