@@ -1,6 +1,6 @@
 #!/bin/sh
 # Patches the start script relx writes (bin/evatar and bin/evatar-VSN) in
-# two places. Run by rebar3 after `release' and `tar' (rebar.config,
+# three places. Run by rebar3 after `release' and `tar' (rebar.config,
 # post_hooks), with the profile's build directory in REBAR_BUILD_DIR; by
 # hand:  scripts/patch-start-script.sh release|tar [BUILD_DIR]
 #
@@ -46,6 +46,8 @@ patch() {
 }
 
 patch_script() {
+    patch "$1" 'VMARGS_PATH=$(check_replace_os_vars vm.args "$VMARGS_PATH")' \
+          '. "$SCRIPT_DIR/extensions/evatar_name"; VMARGS_PATH=$(check_replace_os_vars vm.args "$VMARGS_PATH")  # evatar: -name or -sname (scripts/patch-start-script.sh)'
     patch "$1" 'nodetool_id="maint$(relx_gen_id)-${NAME}"' \
           '. "$SCRIPT_DIR/extensions/evatar_slot"; nodetool_id="$EVATAR_CTL_NAME -dist_listen false"  # evatar: a fixed name (scripts/patch-start-script.sh)'
     patch "$1" "}1' < \"\$1\" > \"\$2\"" \
