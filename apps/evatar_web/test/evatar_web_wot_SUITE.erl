@@ -5,7 +5,7 @@
 %% @thing-description-playground/core) and driven by a real node-wot
 %% consumer (npm @node-wot/core, @node-wot/binding-http), pinned in this
 %% suite's data dir and installed into _build/wot-npm (again when the lock
-%% file changes).
+%% file changes; evatar_test_npm).
 -module(evatar_web_wot_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -33,7 +33,7 @@ all() -> [bad_things_option_is_named, tds_pass_schema_and_assertions, consumer_i
           feedback_timeout_is_504, a_joined_va_keeps_it_out].
 
 init_per_suite(Config) ->
-    Npm = npm_install(),
+    Npm = evatar_test_npm:install(),
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
@@ -290,48 +290,7 @@ write(Config, Name, Data) ->
 node(Config, Script, Args) ->
     Node = os:find_executable("node"),
     Node =/= false orelse ct:fail("node is not installed (Debian: nodejs, npm)"),
-    run(Node, [filename:join(?config(data_dir, Config), Script) | Args],
-        [{"NODE_PATH", filename:join(?config(npm, Config), "node_modules")}]).
-
-%% npm ci of the data dir's lock file into _build/wot-npm
-%% (EVATAR_WOT_NPM to choose another), again when the lock file changes.
-npm_install() ->
-    Npm = os:find_executable("npm"),
-    Npm =/= false orelse ct:fail("npm is not installed (Debian: npm)"),
-    Src = proplists:get_value(source, evatar_web:module_info(compile)),
-    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
-    Dir = case os:getenv("EVATAR_WOT_NPM") of
-              V when is_list(V), V =/= "" -> V;
-              _ -> filename:join([Root, "_build", "wot-npm"])
-          end,
-    Data = filename:join([Root, "apps", "evatar_web", "test", "evatar_web_wot_SUITE_data"]),
-    {ok, Lock} = file:read_file(filename:join(Data, "package-lock.json")),
-    Marker = filename:join(Dir, "lock.installed"),
-    case file:read_file(Marker) of
-        {ok, Lock} ->
-            ok;
-        _ ->
-            ok = filelib:ensure_dir(filename:join(Dir, "x")),
-            [{ok, _} = file:copy(filename:join(Data, F), filename:join(Dir, F))
-             || F <- ["package.json", "package-lock.json"]],
-            case run(Npm, ["ci", "--no-audit", "--no-fund", "--prefix", Dir], []) of
-                {0, _} -> ok;
-                {S, Out} -> ct:fail({cannot_install_npm_packages, S, Out})
-            end,
-            ok = file:write_file(Marker, Lock)
-    end,
-    Dir.
-
-run(Exe, Args, Env) ->
-    Port = open_port({spawn_executable, Exe}, [{args, Args}, {env, Env}, exit_status, binary,
-                                               stderr_to_stdout]),
-    collect(Port, []).
-
-collect(Port, Acc) ->
-    receive
-        {Port, {data, D}} -> collect(Port, [Acc, D]);
-        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after 300000 -> ct:fail({no_exit, iolist_to_binary(Acc)})
-    end.
+    evatar_test_npm:run(Node, [filename:join(?config(data_dir, Config), Script) | Args],
+                        evatar_test_npm:node_env(?config(npm, Config))).
 
 wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 30000, interval => 100}).

@@ -3,7 +3,7 @@
 %% to the Thing's forms: one component, actions as ACTUATOR services,
 %% properties as `Read' (and, when writable, `Set') services and SENSOR
 %% streams (observed, or polled every `poll_ms'), events as SENSOR streams
-%% pushed as Event signals. docs/wot.md section 6 lists the rules. Pure.
+%% pushed as Event signals and a `Read' service answering the last one. docs/wot.md section 6 lists the rules. Pure.
 -module(wot_avatar_generate).
 
 -export([description/2, camel/1, default_poll_ms/0]).
@@ -20,8 +20,9 @@
 %% `{value, Field}' (one scalar as parameter `Value'), `{object, Fields}'
 %% (a JSON object, each field a parameter: BIL name, JSON name, field).
 -type shape() :: none | {value, field()} | {object, [{binary(), binary(), field()}]}.
--type route() :: #{op := invokeaction | readproperty | writeproperty, type := binary(),
-                   form := wot_avatar_td:form(), input := shape(), output := shape()}.
+%% `readevent': answered from the last event of stream `stream' (no form).
+-type route() :: #{op := invokeaction | readproperty | writeproperty | readevent, type := binary(),
+                   form => wot_avatar_td:form(), stream => binary(), input := shape(), output := shape()}.
 -type stream() :: #{type := binary(), context := sensor_data | event, form := wot_avatar_td:form(),
                     mode := longpoll | sse | {poll, pos_integer()}, output := shape()}.
 %% `services': keyed by the ServiceType's keyword (bil:keyword/1).
@@ -116,8 +117,14 @@ event(#{name := Name, schema := S, forms := #{subscribeevent := #{subprotocol :=
     with_name(Name, fun(Type) ->
         case shape(S) of
             {error, Pr} -> #{name => Name, problems => [Pr]};
-            {ok, Shape, Ps} -> #{name => Name, problems => Ps,
-                                 streams => [stream(Type, event, F, Sub, Shape, Room)]}
+            {ok, Shape, Ps} ->
+                %% A Read service too: a component needs one, and a VA may ask
+                %% for the last event's data.
+                #{name => Name, problems => Ps,
+                  services => [{entry(<<"SENSOR">>, <<"Read", Type/binary>>, params(Shape, false) ++ Room),
+                                #{op => readevent, type => <<"Read", Type/binary>>, stream => Type,
+                                  input => none, output => Shape}}],
+                  streams => [stream(Type, event, F, Sub, Shape, Room)]}
         end
     end).
 

@@ -65,7 +65,8 @@ lamp_description_test() ->
     {ok, D, Routes, []} = describe(lamp()),
     #{entity_id := <<"wot-lamp">>, entity_type := avatar, context := <<"WotDescription">>,
       components := [#{id := <<"Lamp">>, services := Ss, consumes := Cs}]} = D,
-    ?assertEqual([<<"Fade">>, <<"Toggle">>, <<"ReadBrightness">>, <<"SetBrightness">>, <<"ReadOn">>],
+    ?assertEqual([<<"Fade">>, <<"Toggle">>, <<"ReadBrightness">>, <<"SetBrightness">>, <<"ReadOn">>,
+                  <<"ReadOverheated">>],
                  [T || #{type := T} <- Ss]),
     #{category := <<"ACTUATOR">>, parameters := Fade} = service(<<"Fade">>, D),
     ?assertEqual([{<<"Mode">>, <<"yes">>}, {<<"ModeType">>, <<"string">>}, {<<"ModeValues">>, <<"linear|ease">>},
@@ -217,3 +218,61 @@ camel_test() ->
     {ok, <<"N2ndFloor">>} = wot_avatar_generate:camel(<<"2nd floor">>),
     {ok, <<"TimeOfDay">>} = wot_avatar_generate:camel(<<"TimeOfDay">>),
     {error, _} = wot_avatar_generate:camel(<<"ü">>).
+
+%% ---------------------------------------------------------------------------
+%% wot_avatar_route: requests, answers, SSE
+%% ---------------------------------------------------------------------------
+
+req(Type, Params) ->
+    #{id => <<"s1">>, sender => <<"Va">>, receiver => <<"Lamp">>, context => request,
+      body => #{category => <<"ACTUATOR">>, type => Type, parameters => Params}}.
+
+%% A request becomes its form's HTTP request, or is answered at once: an
+%% unknown service, a value the schema refuses (never sent to the Thing).
+route_request_test() ->
+    {ok, _, Routes, []} = describe(lamp()),
+    {http, #{method := <<"PUT">>, url := <<?BASE "/properties/brightness">>, body := <<"42">>}, P} =
+        wot_avatar_route:request(req(<<"SetBrightness">>, [{<<"Value">>, <<"42">>}]), Routes, #{}),
+    [#{context := feedback, in_reply_to := <<"s1">>,
+       body := #{type := <<"ACTION FEEDBACK">>, parameters := Ps}}] =
+        wot_avatar_route:answer(P, <<>>, #{component => <<"Lamp">>}),
+    ?assertEqual([{<<"Service">>, <<"SetBrightness">>}, {<<"Result">>, <<"done">>}, {<<"Value">>, <<"42">>}], Ps),
+    {answer, [#{context := error, body := #{type := <<"BadParameter">>}}]} =
+        wot_avatar_route:request(req(<<"SetBrightness">>, [{<<"Value">>, <<"142">>}]), Routes, #{}),
+    {answer, [#{body := #{type := <<"UnknownService">>}}]} =
+        wot_avatar_route:request(req(<<"Explode">>, []), Routes, #{}),
+    {answer, [#{body := #{type := <<"UnknownComponent">>}}]} =
+        wot_avatar_route:request((req(<<"Toggle">>, []))#{receiver => <<"Other">>}, Routes, #{}),
+    %% An HTTP error or a timeout is the request's Error; no feedback asked, no answer.
+    [#{context := error, body := #{type := <<"DeviceError">>, parameters := [{_, M}]}}] =
+        wot_avatar_route:failure(P, {status, 500, <<"boom\n">>}, #{component => <<"Lamp">>}),
+    ?assertEqual(<<"the Thing answered HTTP 500: boom ">>, M),
+    [#{body := #{type := <<"DeviceTimeout">>}}] = wot_avatar_route:failure(P, timeout, #{component => <<"Lamp">>}),
+    [] = wot_avatar_route:failure(P#{awaiting := false}, timeout, #{component => <<"Lamp">>}),
+    %% An event's Read service is answered from the last event.
+    {last, <<"Overheated">>, L} = wot_avatar_route:request(req(<<"ReadOverheated">>, []), Routes, #{}),
+    [#{body := #{type := <<"NoReading">>}}] = wot_avatar_route:last(L, none, #{component => <<"Lamp">>}).
+
+%% Basic and bearer credentials go in the Authorization header.
+route_headers_test() ->
+    Form = #{content_type => <<"application/json">>, subprotocol => none, security => bearer},
+    ?assertEqual([{"accept", "application/json"}, {"authorization", "Bearer t0k"}],
+                 wot_avatar_route:headers(Form, #{token => <<"t0k">>})),
+    ?assertEqual([{"accept", "text/event-stream"}, {"authorization", "Basic dTpw"}],
+                 wot_avatar_route:headers(Form#{security := basic, subprotocol := sse},
+                                          #{username => <<"u">>, password => <<"p">>})).
+
+%% SSE: complete events' data (multi-line joined), the rest kept; a
+%% partial event over the limit is refused.
+route_sse_test() ->
+    ?assertEqual({[<<"1">>, <<"a\nb">>], <<"data: 3">>},
+                 wot_avatar_route:sse(<<": hi\n\ndata: 1\r\n\r\nevent: x\ndata:a\ndata: b\n\ndata: 3">>, 100)),
+    ?assertEqual(too_large, wot_avatar_route:sse(binary:copy(<<"x">>, 101), 100)),
+    %% A reading goes to the bound components, with the Room.
+    {ok, _, #{streams := [Bright | _]}, []} = describe(lamp()),
+    Bound = [#{consumer => #{entity => <<"wot-lamp">>, component => <<"Lamp">>},
+               provider => #{entity => <<"va">>, component => <<"VaLamp">>},
+               category => <<"SENSOR">>, type => <<"brightness">>, score => 1, candidates => 1}],
+    [<<"VaLamp">>] = R = wot_avatar_route:receivers(<<"wot-lamp">>, <<"Lamp">>, <<"Brightness">>, Bound),
+    {[{<<"Value">>, <<"7">>}, {<<"Room">>, <<"hall">>}], [#{context := sensor_data, receiver := <<"VaLamp">>}]} =
+        wot_avatar_route:reading(Bright, <<"7">>, R, #{component => <<"Lamp">>, room => <<"hall">>}).

@@ -1,0 +1,58 @@
+%% @doc Test support: the npm packages of the Web of Things suites
+%% (node-wot 0.9.2 and the Thing Description Playground), pinned in
+%% apps/evatar_web/test/evatar_web_wot_SUITE_data/package-lock.json and
+%% installed once with `npm ci' into _build/wot-npm (EVATAR_WOT_NPM to
+%% choose another directory), again when the lock file changes; and node
+%% scripts run with them. evatar_web_wot_SUITE and wot_avatar_SUITE share it.
+-module(evatar_test_npm).
+
+-export([install/0, node_env/1, run/3]).
+
+%% @doc Installs the packages if the lock file changed since; their
+%% directory. Raises when npm is missing or fails.
+-spec install() -> file:filename().
+install() ->
+    Npm = os:find_executable("npm"),
+    Npm =/= false orelse error({npm_not_installed, "Debian: npm"}),
+    Src = proplists:get_value(source, ?MODULE:module_info(compile)),
+    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Dir = case os:getenv("EVATAR_WOT_NPM") of
+              V when is_list(V), V =/= "" -> V;
+              _ -> filename:join([Root, "_build", "wot-npm"])
+          end,
+    Data = filename:join([Root, "apps", "evatar_web", "test", "evatar_web_wot_SUITE_data"]),
+    {ok, Lock} = file:read_file(filename:join(Data, "package-lock.json")),
+    Marker = filename:join(Dir, "lock.installed"),
+    case file:read_file(Marker) of
+        {ok, Lock} ->
+            ok;
+        _ ->
+            ok = filelib:ensure_dir(filename:join(Dir, "x")),
+            _ = [{ok, _} = file:copy(filename:join(Data, F), filename:join(Dir, F))
+                 || F <- ["package.json", "package-lock.json"]],
+            case run(Npm, ["ci", "--no-audit", "--no-fund", "--prefix", Dir], []) of
+                {0, _} -> ok;
+                {S, Out} -> error({cannot_install_npm_packages, S, Out})
+            end,
+            ok = file:write_file(Marker, Lock)
+    end,
+    Dir.
+
+%% @doc The environment a node script needs to find the installed packages.
+-spec node_env(file:filename()) -> [{string(), string()}].
+node_env(Dir) ->
+    [{"NODE_PATH", filename:join(Dir, "node_modules")}].
+
+%% @doc Runs a program to its end: exit status and output (stderr too).
+-spec run(file:filename(), [string()], [{string(), string()}]) -> {non_neg_integer(), string()}.
+run(Exe, Args, Env) ->
+    Port = open_port({spawn_executable, Exe}, [{args, Args}, {env, Env}, exit_status, binary,
+                                               stderr_to_stdout]),
+    collect(Port, []).
+
+collect(Port, Acc) ->
+    receive
+        {Port, {data, D}} -> collect(Port, [Acc, D]);
+        {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
+    after 300000 -> error({no_exit, iolist_to_binary(Acc)})
+    end.

@@ -1,0 +1,360 @@
+%% Common Test suite of the WoT Avatar against a real peer: a node-wot
+%% 0.9.2 servient (HTTP binding; things.js in the data dir, packages from
+%% evatar_test_npm) exposing a lamp, a thermostat and a motion sensor, one
+%% WoT Avatar per Thing joined through a real agent_bridge listener to a
+%% real pairing, and a test VA (agent_bridge_client) that embodies them.
+%% Every wait is for an event: a signal, a Binding report, a line the
+%% servient prints; never for a time.
+-module(wot_avatar_SUITE).
+
+-include_lib("common_test/include/ct.hrl").
+
+-compile([export_all, nowarn_export_all]).
+
+-define(PAIRING, <<"wot-home">>).
+-define(LISTENER, wot_avatar_suite).
+-define(WAIT, 20000).
+
+suite() -> [{timetrap, {seconds, 120}}].
+
+all() ->
+    [lamp_action_and_brightness, thermostat_range_and_polling, motion_event, thing_away_and_back,
+     bad_options].
+
+init_per_suite(Config) ->
+    Npm = evatar_test_npm:install(),
+    ok = evatar_test_node:start([wot_avatar]),
+    Addr = evatar_test_node:listen(?LISTENER),
+    [{npm, Npm}, {addr, Addr} | Config].
+
+end_per_suite(_Config) ->
+    evatar_test_node:stop([?LISTENER], [wot_avatar]).
+
+init_per_testcase(_Case, Config) ->
+    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
+    Port = free_port(),
+    Servient = servient(Config, Port),
+    [{port, Port}, {servient, Servient} | Config].
+
+end_per_testcase(_Case, Config) ->
+    [catch wot_avatar:stop(A) || A <- forget(avatars)],
+    [catch agent_bridge_client:close(V) || V <- forget(vas)],
+    stop_servient(?config(servient, Config)),
+    _ = evatar:delete_pairing(?PAIRING),
+    ok.
+
+%% ---------------------------------------------------------------------------
+%% Cases
+%% ---------------------------------------------------------------------------
+
+%% The lamp's toggle action answers with the Thing's output; its brightness
+%% is written (the Thing sees the write), read back, and its observation
+%% (long-poll) pushes the new value as SensorData.
+lamp_action_and_brightness(Config) ->
+    A = avatar(Config, <<"lamp">>, #{}),
+    #{components := [#{id := <<"Lamp">>}]} = wot_avatar:description(A),
+    Va = va(Config),
+    <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+    <<"Lamp">> = consumer_of(Va, <<"LampVa">>, <<"Brightness">>),
+    {ok, F1} = request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    #{context := feedback, sender := <<"Lamp">>,
+      body := #{type := <<"ACTION FEEDBACK">>, parameters := P1}} = F1,
+    <<"true">> = param(<<"On">>, P1),
+    <<"done">> = param(<<"Result">>, P1),
+    {ok, #{context := feedback, body := #{parameters := P2}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    <<"false">> = param(<<"On">>, P2),
+    %% The observation is registered before the write: its push is certain.
+    ok = servient_line(Config, <<"OBSERVED lamp brightness">>),
+    {ok, #{context := feedback, body := #{parameters := P3}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"80">>}]),
+    <<"80">> = param(<<"Value">>, P3),
+    ok = servient_line(Config, <<"WRITE lamp brightness 80">>),
+    {ok, #{context := feedback, body := #{type := <<"ReadBrightness">>, parameters := P4}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"ReadBrightness">>, []),
+    <<"80">> = param(<<"Value">>, P4),
+    #{context := sensor_data, body := #{parameters := P5}} =
+        evatar_test_fixtures:wait_signal(Va, fun(#{body := #{type := T, parameters := Ps}}) ->
+                                                     T =:= <<"Brightness">> andalso
+                                                         lists:member({<<"Value">>, <<"80">>}, Ps)
+                                             end, ?WAIT),
+    <<"80">> = param(<<"Value">>, P5),
+    %% Out of range: refused before the Thing.
+    {error, #{context := error, body := #{type := <<"BadParameter">>}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"101">>}]),
+    [] = wot_avatar:problems(A).
+
+%% The thermostat's setpoint range (10..30) is checked by EVATAR's side: a
+%% value out of it is refused and never reaches the Thing; one inside is
+%% written. Its temperature, not observable, is polled and reaches the VA.
+thermostat_range_and_polling(Config) ->
+    _A = avatar(Config, <<"thermostat">>, #{poll_ms => 200}),
+    Va = va(Config),
+    <<"Thermostat">> = provider_of(Va, <<"ThermoVa">>, <<"SetSetpoint">>),
+    {error, #{context := error, body := #{type := <<"BadParameter">>, parameters := E1}}} =
+        request(Va, <<"ThermoVa">>, <<"Thermostat">>, <<"SetSetpoint">>, [{<<"Value">>, <<"45">>}]),
+    <<"parameter Value is above its maximum 30">> = param(<<"Message">>, E1),
+    {error, #{context := error, body := #{type := <<"BadParameter">>}}} =
+        request(Va, <<"ThermoVa">>, <<"Thermostat">>, <<"SetSetpoint">>, [{<<"Value">>, <<"warm">>}]),
+    {ok, #{body := #{parameters := R1}}} =
+        request(Va, <<"ThermoVa">>, <<"Thermostat">>, <<"ReadSetpoint">>, []),
+    <<"21">> = param(<<"Value">>, R1),
+    {ok, #{context := feedback}} =
+        request(Va, <<"ThermoVa">>, <<"Thermostat">>, <<"SetSetpoint">>, [{<<"Value">>, <<"22.5">>}]),
+    %% The first write the Thing sees is the one in range.
+    ok = servient_line(Config, <<"WRITE thermostat setpoint 22.5">>, fun(<<"WRITE", _/binary>>) -> true;
+                                                                        (_) -> false
+                                                                     end),
+    {ok, #{body := #{parameters := R2}}} =
+        request(Va, <<"ThermoVa">>, <<"Thermostat">>, <<"ReadSetpoint">>, []),
+    <<"22.5">> = param(<<"Value">>, R2),
+    #{context := sensor_data, body := #{parameters := T}} =
+        evatar_test_fixtures:wait_signal(Va, fun(#{body := #{type := Ty}}) -> Ty =:= <<"Temperature">> end,
+                                         ?WAIT),
+    <<"19.5">> = param(<<"Value">>, T).
+
+%% The motion sensor's event (a long-poll subscription) reaches the VA as
+%% an Event signal with the event's data.
+motion_event(Config) ->
+    A = avatar(Config, <<"motion-sensor">>, #{room => <<"hall">>}),
+    Va = va(Config),
+    <<"MotionSensor">> = consumer_of(Va, <<"MotionVa">>, <<"Motion">>),
+    wait_partner(A),
+    ok = servient_line(Config, <<"SUBSCRIBED motion-sensor motion">>),
+    ok = servient_input(Config, <<"motion\n">>),
+    #{context := event, sender := <<"MotionSensor">>, body := #{parameters := Ps}} =
+        evatar_test_fixtures:wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"Motion">> end, ?WAIT),
+    <<"true">> = param(<<"Detected">>, Ps),
+    <<"hall">> = param(<<"Zone">>, Ps),
+    <<"hall">> = param(<<"Room">>, Ps).
+
+%% The servient killed (kill -9): the lamp's Avatar leaves the pairing, its
+%% problem says why; the servient back on the same port: it joins again
+%% and the action works again. Kept (wot_avatar:keep/1), as the node
+%% configuration file keeps them.
+thing_away_and_back(Config) ->
+    Opts = opts(Config, <<"lamp">>, #{}),
+    {ok, _Keeper} = wot_avatar:keep(Opts),
+    {ok, A} = evatar_test_wait:value(kept, fun() -> wot_avatar:find(<<"wot-lamp">>) end,
+                                     fun({ok, _}) -> true; (_) -> false end),
+    ok = wot_avatar:await_ready(A, ?WAIT),
+    Va = va(Config),
+    <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+    {ok, #{context := feedback}} = request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    ok = servient_line(Config, <<"OBSERVED lamp brightness">>),
+    kill_servient(?config(servient, Config)),
+    %% Gone: the VA's registry loses the lamp.
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> not lists:any(fun is_lamp/1, B) end,
+                                          ?WAIT),
+    #{state := away, thing := down} = wot_avatar:status(A),
+    true = lists:any(fun(#{what := W}) -> W =:= thing_gone end, wot_avatar:problems(A)),
+    {error, #{context := error}} = request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    %% Back.
+    Servient2 = servient(Config, ?config(port, Config)),
+    put(servient2, Servient2),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(fun is_lamp/1, B) end, ?WAIT),
+    {ok, A} = wot_avatar:find(<<"wot-lamp">>),
+    {ok, #{context := feedback, body := #{parameters := P}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    %% a new servient: the lamp starts off again
+    <<"true">> = param(<<"On">>, P),
+    ok = wot_avatar:unkeep(<<"wot-lamp">>),
+    stop_servient(Servient2).
+
+%% Options with mistakes: every one named, nothing started.
+bad_options(_Config) ->
+    {error, Ps} = wot_avatar:start(#{entity_id => <<>>, td => <<"ftp://x">>, poll_ms => -1,
+                                     colour => blue}),
+    [colour, entity_id, evatar, poll_ms, td] =
+        lists:sort([maps:get(key, P, colour) || P <- Ps]).
+
+%% ---------------------------------------------------------------------------
+%% Helpers
+%% ---------------------------------------------------------------------------
+
+is_lamp(#{provider := #{entity := E}}) -> E =:= <<"wot-lamp">>;
+is_lamp(_) -> false.
+
+opts(Config, Thing, Extra) ->
+    Port = integer_to_binary(?config(port, Config)),
+    maps:merge(#{entity_id => <<"wot-", Thing/binary>>,
+                 td => <<"http://127.0.0.1:", Port/binary, "/", Thing/binary>>,
+                 evatar => #{endpoints => [?config(addr, Config)], pairing => ?PAIRING,
+                             credential => evatar_test_fixtures:avatar_credential()},
+                 retry_max_ms => 1000, restart => #{min_ms => 100, max_ms => 1000}},
+               Extra).
+
+avatar(Config, Thing, Extra) ->
+    {ok, A} = wot_avatar:start(opts(Config, Thing, Extra)),
+    remember(avatars, A),
+    ok = wot_avatar:await_ready(A, ?WAIT),
+    A.
+
+va(Config) ->
+    {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
+                                           #{pairing => ?PAIRING, role => agent, entity_id => <<"wot-va">>,
+                                             credential => evatar_test_fixtures:va_credential()}),
+    remember(vas, Va),
+    ok = agent_bridge_client:describe(Va, va_description()),
+    Va.
+
+va_description() ->
+    Fb = fun(Device) -> entry(<<"ACTUATOR">>, <<"ACTION FEEDBACK">>,
+                              [{<<"Feedback">>, <<"yes">>}, {<<"Device">>, Device}]) end,
+    #{entity_id => <<"wot-va">>, api_name => <<"TEST VA">>, entity_type => agent,
+      context => <<"WotTestVa">>,
+      components =>
+          [#{id => <<"LampVa">>,
+             services => [Fb(<<"Lamp">>), entry(<<"SENSOR">>, <<"Brightness">>, [])],
+             consumes => [entry(<<"ACTUATOR">>, <<"Toggle">>, []),
+                          entry(<<"ACTUATOR">>, <<"SetBrightness">>, []),
+                          entry(<<"SENSOR">>, <<"ReadBrightness">>, [])]},
+           #{id => <<"ThermoVa">>,
+             services => [Fb(<<"Thermostat">>), entry(<<"SENSOR">>, <<"Temperature">>, [])],
+             consumes => [entry(<<"ACTUATOR">>, <<"SetSetpoint">>, []),
+                          entry(<<"SENSOR">>, <<"ReadSetpoint">>, [])]},
+           #{id => <<"MotionVa">>,
+             services => [entry(<<"SENSOR">>, <<"Motion">>, [{<<"Room">>, <<"hall">>}])],
+             consumes => []}]}.
+
+entry(Cat, Type, Params) -> #{category => Cat, type => Type, parameters => Params}.
+
+request(Va, From, To, Type, Params) ->
+    Cat = case Type of
+              <<"Read", _/binary>> -> <<"SENSOR">>;
+              _ -> <<"ACTUATOR">>
+          end,
+    agent_bridge_client:request(Va, #{sender => From, receiver => To, body => entry(Cat, Type, Params)},
+                                ?WAIT).
+
+provider_of(Va, Consumer, Type) -> bound(Va, consumer, Consumer, Type, provider).
+
+consumer_of(Va, Provider, Type) -> bound(Va, provider, Provider, Type, consumer).
+
+bound(Va, Side, Id, Type, Other) ->
+    %% a report of now: the one that answered an earlier call was consumed
+    ok = agent_bridge_client:get_binding(Va),
+    Match = fun(#{type := T} = Row) -> T =:= Type andalso maps:get(component, maps:get(Side, Row)) =:= Id end,
+    Report = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end, ?WAIT),
+    [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
+    C.
+
+%% The Avatar's own Binding report may come after the VA's: wait until it
+%% knows its partner, so that the event goes to it.
+wait_partner(A) ->
+    ok = evatar_test_wait:until(fun() -> maps:get(partners, wot_avatar:status(A)) =/= [] end,
+                                #{timeout => ?WAIT}).
+
+param(Name, Ps) ->
+    case lists:keyfind(Name, 1, Ps) of
+        {_, V} -> V;
+        false -> ct:fail({missing_parameter, Name, Ps})
+    end.
+
+remember(Kind, Pid) ->
+    _ = put(Kind, [Pid | case get(Kind) of undefined -> []; L -> L end]),
+    ok.
+
+forget(Kind) ->
+    case erase(Kind) of
+        undefined -> [];
+        L -> L
+    end.
+
+free_port() ->
+    {ok, S} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
+    {ok, Port} = inet:port(S),
+    ok = gen_tcp:close(S),
+    Port.
+
+%% ---------------------------------------------------------------------------
+%% The servient: an OS process, its output lines kept by a reader process
+%% so that a case can wait for any line printed since it started.
+%% ---------------------------------------------------------------------------
+
+servient(Config, Port) ->
+    Script = filename:join(?config(data_dir, Config), "things.js"),
+    Log = filename:join(?config(priv_dir, Config), "servient.log"),
+    Node = os:find_executable("node"),
+    Node =/= false orelse ct:fail("node is not installed (Debian: nodejs, npm)"),
+    Self = self(),
+    Reader = spawn(fun() ->
+                           P = open_port({spawn_executable, "/bin/sh"},
+                                         [{args, ["-c", "exec \"$0\" \"$1\" \"$2\" 2>>\"$3\"",
+                                                  Node, Script, integer_to_list(Port), Log]},
+                                          {env, evatar_test_npm:node_env(?config(npm, Config))},
+                                          {line, 4096}, binary, exit_status]),
+                           reader(P, Self, [])
+                   end),
+    receive
+        {servient_ready, Reader, OsPid} -> #{reader => Reader, os_pid => OsPid};
+        {servient_exit, Reader, Status, Lines} -> ct:fail({servient_failed, Status, Lines})
+    after 60000 -> ct:fail(servient_not_ready)
+    end.
+
+reader(P, Owner, Lines) ->
+    receive
+        {P, {data, {eol, <<"READY ", Pid/binary>> = L}}} ->
+            Owner ! {servient_ready, self(), binary_to_list(Pid)},
+            reader(P, Owner, Lines ++ [L]);
+        {P, {data, {eol, L}}} ->
+            reader(P, Owner, Lines ++ [L]);
+        {P, {data, {noeol, _}}} ->
+            reader(P, Owner, Lines);
+        {P, {exit_status, S}} ->
+            Owner ! {servient_exit, self(), S, Lines},
+            reader_dead(Lines);
+        {lines, From} ->
+            From ! {lines, self(), Lines},
+            reader(P, Owner, Lines);
+        {input, From, Data} ->
+            true = port_command(P, Data),
+            From ! {input_sent, self()},
+            reader(P, Owner, Lines);
+        stop ->
+            catch port_close(P)
+    end.
+
+reader_dead(Lines) ->
+    receive
+        {lines, From} -> From ! {lines, self(), Lines}, reader_dead(Lines);
+        stop -> ok
+    end.
+
+current_servient(Config) ->
+    case get(servient2) of
+        undefined -> ?config(servient, Config);
+        S -> S
+    end.
+
+%% Waits until the servient has printed Line (or, with Pred, until the
+%% first line satisfying Pred, which must be Line).
+servient_line(Config, Line) ->
+    servient_line(Config, Line, fun(L) -> L =:= Line end).
+
+servient_line(Config, Line, Pred) ->
+    #{reader := R} = current_servient(Config),
+    {ok, Lines} = evatar_test_wait:value(
+                    {servient_line, Line},
+                    fun() -> R ! {lines, self()},
+                             receive {lines, R, Ls} -> {ok, Ls} after 5000 -> {ok, []} end
+                    end,
+                    fun({ok, Ls}) -> lists:any(Pred, Ls) end),
+    [Line | _] = lists:filter(Pred, Lines),
+    ok.
+
+servient_input(Config, Data) ->
+    #{reader := R} = current_servient(Config),
+    R ! {input, self(), Data},
+    receive {input_sent, R} -> ok after 5000 -> ct:fail(servient_input) end.
+
+kill_servient(#{os_pid := OsPid, reader := R}) ->
+    [] = os:cmd("kill -9 " ++ OsPid),
+    receive {servient_exit, R, _, _} -> ok after 30000 -> ct:fail(servient_not_killed) end.
+
+stop_servient(#{os_pid := OsPid, reader := R}) ->
+    _ = os:cmd("kill -9 " ++ OsPid ++ " 2>/dev/null"),
+    R ! stop,
+    ok;
+stop_servient(_) ->
+    ok.
