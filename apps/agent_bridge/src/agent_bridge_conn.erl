@@ -181,7 +181,7 @@ handle_event({timeout, resume}, _, State, D) when State =/= closing ->
 handle_event({timeout, resume}, _, closing, _D) ->
     keep_state_and_data;
 handle_event(info, {tcp_error, _, emsgsize}, State, D) when State =/= closing ->
-    refuse(agent_bridge_frame:refusal(emsgsize), D);
+    refuse(frame_refusal(State, D), D);
 
 %% Traffic from the pairing.
 handle_event(info, {evatar, P, {signal, Signal}}, State, #d{pairing = P} = D)
@@ -299,11 +299,46 @@ frame(Frame, State, D) ->
               _ -> opt(max_frame, D)
           end,
     case agent_bridge_frame:check(Frame, Max) of
-        ok -> document(bil_control:parse_frame(Frame, #{}), State, D);
+        ok -> document(parse(Frame), State, D);
         {error, Why} when State =:= handshaking -> refuse(agent_bridge_frame:refusal(Why), D);
         {error, Why} -> close(agent_bridge_frame:refusal(Why), D)
     end.
 
+%% A description over the bil application's max_description_size is
+%% refused as a description (DescriptionRefused naming the limit), not as
+%% a malformed document: the client can act on it.
+parse(Frame) ->
+    case bil_control:parse_frame(Frame, #{}) of
+        {error, #{code := too_large, message := M}} = Error ->
+            case bil_control:root_name(Frame) of
+                {ok, <<"description">>} ->
+                    {description_too_large,
+                     iolist_to_binary(["the description ", M, " (max_description_size of the "
+                                       "bil application)"])};
+                _ ->
+                    Error
+            end;
+        Parsed ->
+            Parsed
+    end.
+
+%% The Refused of a frame the socket found over its packet size: the limit
+%% and the listener option that sets it.
+frame_refusal(State, D) ->
+    Key = case State of
+              handshaking -> handshake_max_frame;
+              _ -> max_frame
+          end,
+    {refused, #{code => <<"FrameTooLarge">>,
+                message => iolist_to_binary(["frame length is over the limit of ",
+                                             integer_to_binary(opt(Key, D)), " bytes (the "
+                                             "listener's ", atom_to_binary(Key), ")"])}}.
+
+document({description_too_large, _}, handshaking, D) ->
+    refuse(refused(<<"BadHandshake">>, <<"the first frame must be a Hello">>), D);
+document({description_too_large, Message}, _State, D) ->
+    ?LOG_NOTICE(#{what => description_refused, reason => Message}),
+    send(bil:encode_signal(error_signal(<<"DescriptionRefused">>, Message, D)), D);
 document({ok, {control, {hello, Hello}}}, handshaking, D) ->
     hello(Hello, D);
 document({ok, {control, {resume, Resume}}}, handshaking, D) ->

@@ -43,7 +43,7 @@
 -module(agent_bridge_client).
 -behaviour(gen_statem).
 
--export([connect/2, start/2, connect/1, describe/2, send/2, request/3, get_binding/1,
+-export([connect/2, start/2, connect/1, describe/2, describe_document/2, send/2, request/3, get_binding/1,
          close/1, session/1, status/1, await_acks/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
@@ -163,6 +163,12 @@ connect(Client) ->
 -spec describe(pid(), bil:description()) -> ok | {error, closed}.
 describe(Client, Description) ->
     call(Client, {describe, bil:encode_description(Description)}).
+
+%% @doc describe/2 of a description already encoded (bil:encode_description/1),
+%% for a caller that measured the document first: one encoding, not two.
+-spec describe_document(pid(), iodata()) -> ok | {error, closed}.
+describe_document(Client, Document) ->
+    call(Client, {describe, Document}).
 
 %% @doc Sends a signal, filling in what the caller left out. With `ha' it
 %% returns once the signal is queued: it is kept, and sent again after a

@@ -12,6 +12,15 @@
 %%                                               |   v (retry, doubling)         |
 %%                                               +---+--------- closed ----------+
 %% '''
+%% The delay before joining again starts at `retry' and doubles (up to 5 s)
+%% with every join that ends before the pairing bound the Avatar: a
+%% connect that is then refused (a description over a limit, a join
+%% timeout) does not reset it; the first Binding report does. A
+%% description longer than the Welcome's MaxFrame is not sent: it is a
+%% `description_too_large' problem naming the limit, and the Avatar leaves
+%% (joining) or keeps its last accepted description (joined). A problem of
+%% joining is reported once, not at every attempt, until the Avatar is
+%% bound.
 %% MQTT messages are handled in every state; the MQTT client reconnects
 %% and resubscribes by itself, and reports `connected'/`disconnected'.
 -module(mqtt_avatar_fsm).
@@ -24,6 +33,10 @@
 
 -define(MAX_PROBLEMS, 100).
 -define(MAX_RETRY, 5000).
+%% What the Avatar's bridge client reads: the largest Binding report a
+%% pairing can be set to send (max_binding_report, docs/protocol.md
+%% section 7), so that no report the pairing allows closes the session.
+-define(READ_MAX_FRAME, 268435456).
 -define(BIRTH_TOPIC, <<"homeassistant/status">>).
 -define(BIRTH_PAYLOAD, <<"online">>).
 
@@ -39,6 +52,10 @@
             subscribed = [] :: [binary()],
             mqtt_up = false :: boolean(),
             retry :: pos_integer(),
+            %% joins attempted, and the last problem of joining (reported
+            %% once until bound)
+            joins = 0 :: non_neg_integer(),
+            join_problem :: map() | undefined,
             problems = [] :: [map()],
             %% the problems of the last generated description, reported once
             generated = [] :: [map()],
@@ -160,19 +177,24 @@ handle_event(internal, join, joining, #d{opts = Opts} = D) ->
             {next_state, joined, reply_waiters(D)};
         #{endpoints := Endpoints, pairing := Pairing} = E ->
             ClientOpts = #{pairing => Pairing, role => avatar, entity_id => D#d.entity,
-                           credential => maps:get(credential, E, <<>>), owner => self()},
+                           credential => maps:get(credential, E, <<>>), owner => self(),
+                           max_frame => ?READ_MAX_FRAME},
+            D0 = D#d{joins = D#d.joins + 1},
             case agent_bridge_client:connect(Endpoints, ClientOpts) of
                 {ok, Client} ->
                     monitor(process, Client),
-                    D1 = describe(D#d{bridge = Client, described = undefined,
-                                      retry = maps:get(retry, Opts, 200)}),
-                    ?LOG_INFO(#{what => joined, entity => D#d.entity, pairing => Pairing}),
-                    {next_state, joined, reply_waiters(D1)};
+                    case describe(D0#d{bridge = Client, described = undefined}) of
+                        #d{bridge = undefined} = D1 ->
+                            %% Not described: the description is over a limit.
+                            {keep_state, backoff(D1), [{state_timeout, D#d.retry, retry}]};
+                        D1 ->
+                            ?LOG_INFO(#{what => joined, entity => D#d.entity, pairing => Pairing}),
+                            {next_state, joined, reply_waiters(D1)}
+                    end;
                 {error, Reason} ->
-                    D1 = problem(#{what => join_failed, pairing => Pairing,
-                                   message => iolist_to_binary(io_lib:format("~0p", [Reason]))}, D),
-                    {keep_state, D1#d{retry = min(?MAX_RETRY, D1#d.retry * 2)},
-                     [{state_timeout, D#d.retry, retry}]}
+                    D1 = join_problem(#{what => join_failed, pairing => Pairing,
+                                        message => join_failure(Reason)}, D0),
+                    {keep_state, backoff(D1), [{state_timeout, D#d.retry, retry}]}
             end
     end;
 handle_event(state_timeout, retry, joining, _D) ->
@@ -180,11 +202,13 @@ handle_event(state_timeout, retry, joining, _D) ->
 handle_event(info, {agent_bridge, C, {signal, Signal}}, _State, #d{bridge = C} = D) ->
     keep(logic({signal, Signal}, D));
 handle_event(info, {agent_bridge, C, {binding, Report}}, _State, #d{bridge = C} = D) ->
-    keep(logic({binding, Report}, D));
+    %% Bound: the next loss starts the back-off over.
+    keep(logic({binding, Report}, D#d{retry = maps:get(retry, D#d.opts, 200),
+                                       join_problem = undefined}));
 handle_event(info, {agent_bridge, C, {closed, Reason}}, _State, #d{bridge = C} = D) ->
-    {next_state, joining, lost_bridge(Reason, D), [{state_timeout, D#d.retry, retry}]};
+    {next_state, joining, backoff(lost_bridge(Reason, D)), [{state_timeout, D#d.retry, retry}]};
 handle_event(info, {'DOWN', _, process, C, Reason}, _State, #d{bridge = C} = D) ->
-    {next_state, joining, lost_bridge(Reason, D), [{state_timeout, D#d.retry, retry}]};
+    {next_state, joining, backoff(lost_bridge(Reason, D)), [{state_timeout, D#d.retry, retry}]};
 handle_event(info, {agent_bridge, _, _}, _State, _D) ->
     keep_state_and_data;
 handle_event(info, {'DOWN', _, process, Pid, Reason}, _State, #d{mqtt = Pid} = D) ->
@@ -207,6 +231,8 @@ handle_event({call, From}, status, State, D) ->
     Status = #{state => State,
                mqtt => case D#d.mqtt_up of true -> up; false -> down end,
                evatar => case D#d.bridge of undefined -> down; _ -> up end,
+               joins => D#d.joins,
+               retry => D#d.retry,
                components => [Id || #{id := Id} <- maps:get(components, D#d.description)],
                availability => mqtt_avatar_logic:availability(L),
                last_values => mqtt_avatar_logic:last_values(L),
@@ -247,8 +273,46 @@ reply_waiters(#d{waiters = W} = D) ->
 
 lost_bridge(Reason, D) ->
     ?LOG_NOTICE(#{what => evatar_link_lost, entity => D#d.entity, reason => Reason}),
-    D#d{bridge = undefined, described = undefined,
-        logic = element(1, mqtt_avatar_logic:handle({binding, #{bound => []}}, now_ms(), D#d.logic))}.
+    D1 = case Reason of
+             {refused, <<"FrameTooLarge">>, Message} ->
+                 join_problem(#{what => description_too_large,
+                                message => <<"EVATAR closed the session: ", Message/binary,
+                                             (raise_frame())/binary>>}, D);
+             _ ->
+                 D
+         end,
+    D1#d{bridge = undefined, described = undefined,
+         logic = element(1, mqtt_avatar_logic:handle({binding, #{bound => []}}, now_ms(),
+                                                     D1#d.logic))}.
+
+%% The next delay before joining again: doubled, until bound.
+backoff(#d{retry = R} = D) ->
+    D#d{retry = min(?MAX_RETRY, R * 2)}.
+
+join_failure({refused, Code, Message}) ->
+    <<"EVATAR refused the join: ", Code/binary, " (", Message/binary, ")">>;
+join_failure(Reason) ->
+    iolist_to_binary(io_lib:format("~0p", [Reason])).
+
+%% A problem of joining, reported when it differs from the last one since
+%% the Avatar was last bound: a join refused for the same reason every few
+%% seconds is one problem, not one per attempt.
+join_problem(#{code := <<"JoinTimeout">>}, #d{join_problem = Last} = D)
+  when Last =/= undefined ->
+    %% The pairing's timeout that follows a description not sent or refused.
+    D;
+join_problem(Report, #d{join_problem = Last} = D) ->
+    Key = maps:with([what, code, message], Report),
+    case Key =:= Last of
+        true -> D;
+        false -> problem(Report, D#d{join_problem = Key})
+    end.
+
+raise_frame() ->
+    <<"; raise the listener's max_frame (conn => #{max_frame => Bytes} in the node "
+      "configuration file's listeners entry) and the bil application's max_description_size "
+      "(EVATAR_MAX_DESCRIPTION_SIZE), or make the description smaller (overrides with skip); "
+      "docs/mqtt.md section 6, Limits">>.
 
 discovery(_Topic, _Payload, #d{discovery = undefined}) ->
     ignore;
@@ -284,6 +348,10 @@ rebuild(#d{opts = Opts, entity = Entity, static = Static} = D) ->
     {D1#d{description = Full, generated = Problems,
           logic = mqtt_avatar_logic:set_spec(Spec, D1#d.logic)}, Changed}.
 
+%% Sends the description when it changed and fits the session's MaxFrame.
+%% One that does not is a problem: before the first description the
+%% Avatar leaves (the bridge is undefined on return), after it the pairing
+%% keeps the last one sent.
 describe(#d{bridge = undefined} = D) ->
     D;
 describe(#d{bridge = C, description = Full, described = Old} = D) ->
@@ -292,10 +360,37 @@ describe(#d{bridge = C, description = Full, described = Old} = D) ->
         true ->
             D;
         false ->
-            case agent_bridge_client:describe(C, Public) of
-                ok -> D#d{described = Public};
-                {error, closed} -> D
+            Doc = bil:encode_description(Public),
+            Size = iolist_size(Doc),
+            case agent_bridge_client:session(C) of
+                {ok, #{max_frame := Max}} when Size > Max ->
+                    too_large(Size, Max, D);
+                _ ->
+                    case agent_bridge_client:describe_document(C, Doc) of
+                        ok -> D#d{described = Public};
+                        {error, closed} -> D
+                    end
             end
+    end.
+
+too_large(Size, Max, #d{bridge = C, described = Old} = D) ->
+    N = length(maps:get(components, D#d.description)),
+    Kept = case Old of
+               undefined -> <<"not joined">>;
+               _ -> <<"the Avatar runs on its last accepted description">>
+           end,
+    Message = iolist_to_binary(
+                io_lib:format("the description (~b components) is ~b bytes, over the ~b bytes of "
+                              "EVATAR's max_frame: ~ts~ts",
+                              [N, Size, Max, Kept, raise_frame()])),
+    D1 = join_problem(#{what => description_too_large, size => Size, max_frame => Max,
+                        message => Message}, D),
+    case Old of
+        undefined ->
+            ok = agent_bridge_client:close(C),
+            D1#d{bridge = undefined};
+        _ ->
+            D1
     end.
 
 subscribe(#d{mqtt_up = false} = D) ->
@@ -359,6 +454,9 @@ effect({start_timer, Key, Ms}, {D, Actions}) ->
     {D, Actions ++ [{{timeout, {echo, Key}}, Ms, Key}]};
 effect({cancel_timer, Key}, {D, Actions}) ->
     {D, Actions ++ [{{timeout, {echo, Key}}, cancel}]};
+effect({problem, #{what := evatar_error, code := Code} = Report}, {D, Actions})
+  when Code =:= <<"DescriptionRefused">>; Code =:= <<"JoinTimeout">> ->
+    {join_problem(Report, D), Actions};
 effect({problem, Report}, {D, Actions}) ->
     {problem(Report, D), Actions}.
 

@@ -1037,8 +1037,15 @@ json_text(Payload, Path) ->
 %% A description refused for one of the pairing's limits: which option
 %% raises it, and how (docs/mqtt.md section 6, "Limits").
 with_advice(Message) ->
-    case [O || O <- [<<"max_consumes">>, <<"max_binding_report">>, <<"max_id_length">>],
-               binary:match(Message, <<"(", O/binary, ")">>) =/= nomatch] of
+    case [O || O <- [<<"max_consumes">>, <<"max_binding_report">>, <<"max_id_length">>,
+                     <<"max_description_size">>],
+               binary:match(Message, <<"(", O/binary>>) =/= nomatch] of
+        [<<"max_description_size">> | _] ->
+            <<Message/binary, ": the new description was not taken; raise the bil application's "
+              "max_description_size (a release: EVATAR_MAX_DESCRIPTION_SIZE) and the listener's "
+              "max_frame (conn => #{max_frame => Bytes} in the node configuration file's "
+              "listeners entry) above the description's size, or leave entities out with "
+              "overrides (skip); docs/mqtt.md section 6, Limits">>;
         [Option | _] ->
             <<Message/binary, ": the new description was not taken (the Avatar runs on its last "
               "accepted one); raise the pairing option ", Option/binary, " (PUT /api/pairings/ID "
