@@ -13,7 +13,7 @@
 %% node_config fills the other apps' environment before they start, so it
 %% cannot list the apps whose pure checks it calls: they would start first
 %% (node_config.app.src). No other app may call what it does not declare.
--define(UNDECLARED, #{node_config => [agent_bridge, evatar, evatar_web, mqtt_avatar]}).
+-define(UNDECLARED, #{node_config => [agent_bridge, evatar, evatar_web, mqtt_avatar, wot_avatar]}).
 
 %% OTP applications (and Debian's jiffy, and cowboy, ranch and cowlib from
 %% _deps/) the project's apps may call.
@@ -28,7 +28,7 @@ suite() -> [{timetrap, {minutes, 3}}].
 %% @doc Each app's `applications' names every app it calls (OTP's too), and
 %% each app of the release names only project apps it calls (the test kit,
 %% in no release, may name apps whose types it uses); node_config's
-%% exception is exactly the four apps it checks the configuration of.
+%% exception is exactly the five apps it checks the configuration of.
 declared_dependencies(_Config) ->
     Apps = project_apps(),
     Released = released_apps(),

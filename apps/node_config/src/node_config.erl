@@ -41,10 +41,10 @@ release_root() ->
 
 %% @doc Reads and checks a configuration file. The agent_bridge
 %% environment's listeners (loaded, not necessarily running) are the
-%% default an MQTT Avatar joins when the file declares no listeners.
+%% default an MQTT or WoT Avatar joins when the file declares no listeners.
 -spec load(file:filename()) -> {ok, config()} | {error, {bad_config, file:filename(), [binary()]}}.
 load(File) ->
-    Apps = [agent_bridge, evatar, mqtt_avatar, mqtt_client, ssl, evatar_web],
+    Apps = [agent_bridge, evatar, mqtt_avatar, wot_avatar, mqtt_client, ssl, evatar_web],
     _ = [application:load(A) || A <- Apps],
     %% Their checks run before they start; the words their options use
     %% exist as atoms once their code is loaded (a listener limit, a TLS
@@ -67,11 +67,12 @@ load(File) ->
 %% declares: agent_bridge's `listeners' (when the file has a listeners
 %% section: they replace the release's EVATAR_IP/EVATAR_PORT listener),
 %% evatar's `pairings' (added to any already there; the file's win on the
-%% same id), mqtt_avatar's `avatars', and evatar_web's options the http
+%% same id), mqtt_avatar's and wot_avatar's `avatars', and evatar_web's options the http
 %% section gives (they win over the EVATAR_HTTP* variables; an
 %% operator_token_hash there replaces EVATAR_HTTP_TOKEN_FILE).
 -spec apply_env(config()) -> ok.
-apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatars} = Config) ->
+apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatars,
+            wot_avatars := Things} = Config) ->
     Http = maps:get(http, Config, #{}),
     Http1 = case Http of
                 #{operator_token_hash := _} when not is_map_key(token_file, Http) ->
@@ -89,7 +90,8 @@ apply_env(#{listeners := Listeners, pairings := Pairings, mqtt_avatars := Avatar
     Kept = [P || P <- application:get_env(evatar, pairings, []),
                  not (is_map(P) andalso lists:member(maps:get(id, P, undefined), Ids))],
     ok = application:set_env(evatar, pairings, Kept ++ Pairings, [{persistent, true}]),
-    ok = application:set_env(mqtt_avatar, avatars, Avatars, [{persistent, true}]).
+    ok = application:set_env(mqtt_avatar, avatars, Avatars, [{persistent, true}]),
+    ok = application:set_env(wot_avatar, avatars, Things, [{persistent, true}]).
 
 %% @doc For `bin/evatar check_config' and the start script's pre-start
 %% hook: checks this node's file (file/0), prints the verdict, and returns
@@ -102,12 +104,18 @@ check_file() ->
             0;
         {_, File} ->
             case load(File) of
-                {ok, #{pairings := Ps, mqtt_avatars := As} = Config} ->
-                    io:format("~ts: ok (~ts, ~b pairing(s), ~b MQTT Avatar(s))~n",
+                {ok, #{pairings := Ps, mqtt_avatars := As, wot_avatars := Ws} = Config} ->
+                    %% The WoT count only when there are some: the line
+                    %% stays what scripts read from earlier releases.
+                    io:format("~ts: ok (~ts, ~b pairing(s), ~b MQTT Avatar(s)~ts)~n",
                               [File, case maps:get(listeners, Config) of
                                          undefined -> "the environment's listener";
                                          Ls -> io_lib:format("~b listener(s)", [length(Ls)])
-                                     end, length(Ps), length(As)]),
+                                     end, length(Ps), length(As),
+                               case Ws of
+                                   [] -> "";
+                                   _ -> io_lib:format(", ~b WoT Avatar(s)", [length(Ws)])
+                               end]),
                     0;
                 {error, Reason} ->
                     io:put_chars(standard_error, ["EVATAR will not start: the configuration file has "

@@ -27,7 +27,9 @@ start(_Type, _Args) ->
                                   listeners => listeners(Config),
                                   pairings => [Id || #{id := Id} <- maps:get(pairings, Config)],
                                   mqtt_avatars => [Id || #{entity_id := Id}
-                                                             <- maps:get(mqtt_avatars, Config)]}),
+                                                             <- maps:get(mqtt_avatars, Config)],
+                                  wot_avatars => [Id || #{entity_id := Id}
+                                                            <- maps:get(wot_avatars, Config)]}),
                     node_config_sup:start_link();
                 {error, Reason} ->
                     %% Said on the console too: a node started by

@@ -1,11 +1,13 @@
 %% @doc Internal. Pure: checks the sections of a node configuration file
 %% (node_config_file) and turns them into what the applications take:
-%% agent_bridge listeners, evatar pairings, mqtt_avatar options. Every
+%% agent_bridge listeners, evatar pairings, mqtt_avatar and wot_avatar
+%% options. Every
 %% problem names the section, the entry (its line, its number and its id)
 %% and what is wrong; text written as "..." becomes a binary, never an atom.
 %% An entry's independent mistakes are all reported, one line each (at
 %% most ?MAX_MISTAKES an entry); a check that needs others to pass first
-%% (an Avatar's pairing, its options as mqtt_avatar takes them) runs once
+%% (an Avatar's pairing, its options as mqtt_avatar or wot_avatar takes
+%% them) runs once
 %% they do.
 -module(node_config_check).
 
@@ -16,13 +18,14 @@
 -type config() :: #{listeners := [agent_bridge:listener_opts()] | undefined,
                     pairings := [#{id := binary(), atom() => term()}],
                     mqtt_avatars := [mqtt_avatar:opts()],
+                    wot_avatars := [wot_avatar:opts()],
                     http => evatar_web:opts()}.
 %% `listeners' is `undefined' when the file has no listeners section: the
 %% agent_bridge environment's listeners then stay. `http' is there only
 %% when the file has an http section (the HTTP API's listener and operator
 %% token, evatar_web).
 
--define(SECTIONS, [listeners, pairings, mqtt_avatars, http]).
+-define(SECTIONS, [listeners, pairings, mqtt_avatars, wot_avatars, http]).
 -define(HTTP_KEYS, [enabled, ip, port, operator_token_hash, token_file, max_body, max_clients,
                     header_timeout, things]).
 -define(PAIRING_KEYS, [id, agent_credential, avatar_credential, identities, unlisted_ids]).
@@ -32,6 +35,11 @@
 -define(AVATAR_KEYS, [entity_id, pairing, endpoints, credential, mqtt, discovery, description,
                       overrides, api_name, settle, discovery_wait, echo_timeout, retry,
                       timestamp_field, restart, birth]).
+-define(WOT_KEYS, [entity_id, pairing, endpoints, credential, td, component, room, api_name, poll_ms,
+                   allowed_hosts, max_size, max_affordances, thing_credentials, request_timeout,
+                   longpoll_ms, retry_max_ms, max_body, restart]).
+-define(WOT_POSITIVE, [max_size, max_affordances, request_timeout, longpoll_ms, retry_max_ms, max_body]).
+-define(THING_CREDENTIAL_KEYS, [username, password, token]).
 -define(MQTT_TEXT, [client_id, username, password]).
 -define(MQTT_OTHER, [host, port, protocol, clean_start, session_expiry, keepalive, tls, reconnect,
                      inflight_window, retry_interval, connect_timeout, max_packet_size]).
@@ -46,14 +54,15 @@
 -spec known_words() -> [atom()].
 known_words() ->
     ?SECTIONS ++ ?PAIRING_KEYS ++ ?IDENTITY_KEYS ++ ?PAIRING_INT ++ ?AVATAR_KEYS ++ ?MQTT_TEXT ++ ?MQTT_OTHER
-        ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS ++ ?HTTP_KEYS ++ [pbkdf2_sha256]
+        ++ ?OVERRIDE_KEYS ++ ?RESTART_KEYS ++ ?HTTP_KEYS ++ ?WOT_KEYS ++ ?THING_CREDENTIAL_KEYS
+        ++ [pbkdf2_sha256, file]
         ++ [name, ip, acceptors, backlog, conn, homeassistant, zigbee2mqtt, v311, v5, min_ms,
             max_ms, true, false, none, infinity].
 
 %% @doc Checks the sections; `Defaults' gives `listeners', the agent_bridge
-%% environment's listeners, which an MQTT Avatar without `endpoints' joins
+%% environment's listeners, which an MQTT or WoT Avatar without `endpoints' joins
 %% when the file declares none, and `dir', where relative description
-%% files are.
+%% and TD files are.
 -spec check([node_config_file:section()], #{listeners := list(), dir => file:filename()}) ->
           {ok, config()} | {error, [binary()]}.
 check(Sections, Defaults) ->
@@ -66,7 +75,7 @@ check(Sections, Defaults) ->
             [node_config_file:problem()]) -> {ok, config()} | {error, [binary()]}.
 check(Sections, Defaults, Earlier) ->
     Problems0 = Earlier ++ [msg(L, "~ts: unknown section (the sections are listeners, pairings, mqtt_avatars, "
-                        "http)",
+                        "wot_avatars, http)",
                      [Name])
                  || {Name, L, _} <- Sections, not lists:member(Name, ?SECTIONS)]
         ++ [msg(L, "~ts: the section appears a second time (write all its entries in one list)", [Name])
@@ -82,20 +91,27 @@ check(Sections, Defaults, Earlier) ->
                             fun(E) -> avatar(E, declared_ids(Sections), Pairings,
                                              Defaults#{listeners => ListenerList})
                             end),
+    {Things, P6} = section(wot_avatars, Sections,
+                           fun(E) -> wot_avatar(E, declared_ids(Sections), Pairings,
+                                                Defaults#{listeners => ListenerList})
+                           end),
     P4 = duplicates(listeners, Sections, Listeners, fun listener_key/1)
         ++ duplicates(listeners, Sections, Listeners, fun(#{name := N}) -> {name, N};
                                                          (_) -> none
                                                       end)
         ++ duplicates(pairings, Sections, Pairings, fun(#{id := Id}) -> {id, Id} end)
-        ++ duplicates(mqtt_avatars, Sections, Avatars, fun(#{entity_id := Id}) -> {entity_id, Id} end),
-    case Problems0 ++ P1 ++ P2 ++ P3 ++ P4 ++ P5 of
+        ++ duplicates(mqtt_avatars, Sections, Avatars, fun(#{entity_id := Id}) -> {entity_id, Id} end)
+        ++ duplicates(wot_avatars, Sections, Things, fun(#{entity_id := Id}) -> {entity_id, Id} end)
+        ++ shared_entity_ids(Sections, Avatars, Things),
+    case Problems0 ++ P1 ++ P2 ++ P3 ++ P4 ++ P5 ++ P6 of
         [] ->
             {ok, Http#{listeners => case lists:keymember(listeners, 1, Sections) of
                                         true -> Listeners;
                                         false -> undefined
                                     end,
                        pairings => Pairings,
-                       mqtt_avatars => Avatars}};
+                       mqtt_avatars => Avatars,
+                       wot_avatars => Things}};
         Problems ->
             {error, [M || {_, M} <- lists:keysort(1, Problems)]}
     end.
@@ -151,6 +167,18 @@ describe_key({id, Id}) -> io_lib:format("id \"~ts\"", [Id]);
 describe_key({entity_id, Id}) -> io_lib:format("entity_id \"~ts\"", [Id]);
 describe_key({name, N}) -> io_lib:format("name ~0tp", [N]);
 describe_key({address, Ip, Port}) -> io_lib:format("address ~ts port ~b", [inet:ntoa(Ip), Port]).
+
+%% An MQTT and a WoT Avatar of one entity id would take each other's place
+%% in their pairing (the second is refused, or resumes the first's
+%% session).
+shared_entity_ids(Sections, Avatars, Things) ->
+    Mqtt = [Id || #{entity_id := Id} <- Avatars],
+    L = case lists:keyfind(wot_avatars, 1, Sections) of
+            {_, Line, _} -> Line;
+            false -> 1
+        end,
+    [msg(L, "wot_avatars: entity_id \"~ts\" also names an MQTT Avatar (mqtt_avatars)", [Id])
+     || Id <- lists:usort([Id || #{entity_id := Id} <- Things]), lists:member(Id, Mqtt)].
 
 listener_key(#{port := Port} = L) when Port > 0 ->
     {address, maps:get(ip, L, {127, 0, 0, 1}), Port};
@@ -387,17 +415,89 @@ avatar(E, PairingIds, Pairings, #{listeners := Listeners} = Defaults) when is_ma
             fun(A) -> description(A, maps:get(dir, Defaults, ".")) end],
     %% Then, once the keys read: the options as mqtt_avatar takes them
     %% (the description file and its BIL), and the pairing it joins.
-    Whole = [fun(A) -> case mqtt_avatar:check_opts(A) of
-                           ok -> {ok, A};
-                           {error, Ps} -> {error, {mistakes, [M || #{message := M} <- Ps]}}
-                       end
-             end,
-             fun(A) -> chain([fun(A1) -> declared(A1, PairingIds) end,
-                              fun(A1) -> evatar_opts(A1, Pairings, Listeners) end], A)
-             end],
-    stages([Keys, Whole], E);
+    stages([Keys, joining(fun mqtt_avatar:check_opts/1, PairingIds, Pairings, Listeners)], E);
 avatar(_, _, _, _Defaults) ->
     {error, "an MQTT Avatar is a map #{entity_id => \"...\", pairing => \"...\", mqtt => #{...}}"}.
+
+%% ---------------------------------------------------------------------------
+%% WoT Avatars: a Thing (its TD at a URL or in a file) as an Avatar of a
+%% pairing; wot_avatar checks the options it takes.
+%% ---------------------------------------------------------------------------
+
+wot_avatar(E, PairingIds, Pairings, #{listeners := Listeners} = Defaults) when is_map(E) ->
+    Keys = [fun(A) -> unknown(A, ?WOT_KEYS) end,
+            fun(A) -> texts([entity_id, pairing, credential, component, room, api_name], A) end,
+            fun(A) -> required([entity_id, pairing, td], A) end,
+            fun(A) -> td(A, maps:get(dir, Defaults, ".")) end,
+            fun(A) -> integers([poll_ms], 0, A) end,
+            fun(A) -> integers(?WOT_POSITIVE, 1, A) end,
+            fun(A) -> allowed_hosts(A) end,
+            fun(A) -> submap(thing_credentials, fun thing_credentials/1, A) end,
+            fun(A) -> submap(restart, fun restart/1, A) end],
+    %% Then, once the keys read: the options as wot_avatar takes them (its
+    %% limits) and the pairing it joins; wot_avatar's check sees a stand-in
+    %% `evatar', which evatar_opts/3 judges.
+    Check = fun(A) ->
+                    wot_avatar:check_opts((maps:without([pairing, endpoints, credential], A))#{
+                                            evatar => #{endpoints => [{"localhost", 1}], pairing => <<"p">>}})
+            end,
+    stages([Keys, joining(Check, PairingIds, Pairings, Listeners)], E);
+wot_avatar(_, _, _, _Defaults) ->
+    {error, "a WoT Avatar is a map #{entity_id => \"...\", pairing => \"...\", "
+            "td => \"http://...\" or {file, \"...\"}}"}.
+
+%% The TD: an http(s) URL, or a file, relative paths from the
+%% configuration file's directory.
+td(#{td := {file, F}} = A, Dir) ->
+    case text(F) of
+        {ok, B} when B =/= <<>> ->
+            {ok, A#{td => {file, filename:absname(unicode:characters_to_list(B), Dir)}}};
+        _ ->
+            {error, "td: {file, \"...\"} must name a file (text in double quotes)"}
+    end;
+td(#{td := T} = A, _Dir) ->
+    case text(T) of
+        {ok, <<"http://", _/binary>> = B} -> {ok, A#{td => B}};
+        {ok, <<"https://", _/binary>> = B} -> {ok, A#{td => B}};
+        _ -> {error, "td must be the TD's http(s) URL in double quotes, or {file, \"lamp.td.json\"} "
+                     "(relative to this file's directory)"}
+    end;
+td(A, _Dir) ->
+    {ok, A}.
+
+allowed_hosts(#{allowed_hosts := Hs} = A) when is_list(Hs) ->
+    Texts = [text(H) || H <- Hs],
+    case [B || {ok, B} <- Texts, B =/= <<>>] of
+        Bs when length(Bs) =:= length(Hs) -> {ok, A#{allowed_hosts => Bs}};
+        _ -> {error, "allowed_hosts must be a list of \"host\" or \"host:port\""}
+    end;
+allowed_hosts(#{allowed_hosts := _}) ->
+    {error, "allowed_hosts must be a list of \"host\" or \"host:port\""};
+allowed_hosts(A) ->
+    {ok, A}.
+
+%% What the Thing's forms ask for: basic (username and password) or bearer
+%% (token). Never echoed in a message.
+thing_credentials(C) ->
+    chain([fun(X) -> unknown(X, ?THING_CREDENTIAL_KEYS) end,
+           fun(X) -> texts(?THING_CREDENTIAL_KEYS, X) end,
+           fun(#{token := _} = X) when map_size(X) =:= 1 -> {ok, X};
+              (#{username := _, password := _} = X) when map_size(X) =:= 2 -> {ok, X};
+              (_) -> {error, "give #{token => \"...\"} (bearer) or #{username => \"...\", "
+                             "password => \"...\"} (basic)"}
+           end], C).
+
+%% The checks of an Avatar whose keys read: the options as its app takes
+%% them (`Check', every mistake), and the pairing it joins.
+joining(Check, PairingIds, Pairings, Listeners) ->
+    [fun(A) -> case Check(A) of
+                   ok -> {ok, A};
+                   {error, Ps} -> {error, {mistakes, [M || #{message := M} <- Ps]}}
+               end
+     end,
+     fun(A) -> chain([fun(A1) -> declared(A1, PairingIds) end,
+                      fun(A1) -> evatar_opts(A1, Pairings, Listeners) end], A)
+     end].
 
 declared(#{pairing := P} = A, Ids) ->
     case lists:member(P, Ids) of

@@ -83,8 +83,8 @@ shipped_example_is_inert_and_valid_when_uncommented_test() ->
     Example = filename:join([code:lib_dir(node_config), "..", "..", "..", "..", "config",
                              "evatar.config"]),
     {ok, Bin} = file:read_file(Example),
-    {ok, #{listeners := undefined, pairings := [], mqtt_avatars := []}} = load(Bin),
-    {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_],
+    {ok, #{listeners := undefined, pairings := [], mqtt_avatars := [], wot_avatars := []}} = load(Bin),
+    {ok, #{listeners := [_], pairings := [_], mqtt_avatars := [_], wot_avatars := [_],
            http := #{ip := {127, 0, 0, 1}, port := 7480}}} = load(uncomment(Bin)).
 
 %% The http section: the address becomes a tuple, a hashed operator token
@@ -118,6 +118,74 @@ http_things_test() ->
         "#{pairing => \"p\", credential => \"d\"}]}}.\n",
         "http: things: names a pairing more than once"),
     has("{http, #{things => [#{pairing => \"p\"}]}}.\n", "http: things: must be a list of").
+
+%% A WoT Avatar: text becomes binaries, a TD file is found from the
+%% file's directory, and the Avatar joins its pairing with the pairing's
+%% avatar credential at this node's listener, as an MQTT Avatar does.
+wot_avatars_are_translated_test() ->
+    {ok, #{wot_avatars := [Url, File]}} =
+        load("{listeners, [#{name => \"main\", ip => \"0.0.0.0\", port => 7411}]}.\n" ?PAIRING
+             "{wot_avatars, [#{entity_id => \"wot-lamp\", pairing => \"home\",\n"
+             "                 td => \"http://192.168.1.20:8080/lamp\", room => \"bedroom\",\n"
+             "                 poll_ms => 0, thing_credentials => #{token => \"t\"},\n"
+             "                 restart => #{min_ms => 10}},\n"
+             "               #{entity_id => \"wot-plug\", pairing => \"home\", credential => \"own\",\n"
+             "                 td => {file, \"things/plug.td.json\"}, allowed_hosts => [\"plug.local:80\"],\n"
+             "                 endpoints => [{\"evatar2.local\", 7400}]}]}.\n"),
+    #{entity_id := <<"wot-lamp">>, td := <<"http://192.168.1.20:8080/lamp">>, room := <<"bedroom">>,
+      poll_ms := 0, thing_credentials := #{token := <<"t">>}, restart := #{min_ms := 10},
+      evatar := #{pairing := <<"home">>, credential := <<"av-secret">>,
+                  endpoints := [{{127, 0, 0, 1}, 7411}]}} = Url,
+    false = maps:is_key(pairing, Url),
+    PlugFile = filename:join([dir(), "things", "plug.td.json"]),
+    #{td := {file, PlugFile}, allowed_hosts := [<<"plug.local:80">>],
+      evatar := #{credential := <<"own">>, endpoints := [{"evatar2.local", 7400}]}} = File,
+    %% wot_avatar takes them as they are.
+    ok = wot_avatar:check_opts(Url),
+    ok = wot_avatar:check_opts(File).
+
+%% Every independent mistake of a WoT Avatar at once; what needs the keys
+%% right (the pairing, wot_avatar's own limits) once they are.
+every_mistake_of_a_wot_avatar_test() ->
+    Ps = problems(?PAIRING "{wot_avatars, [#{entity_id => \"lamp\", pairing => \"home\",\n"
+                  "  td => \"ftp://lamp\", poll_ms => -1, timeout => 5, allowed_hosts => \"lamp.local\",\n"
+                  "  thing_credentials => #{token => \"t\", user => \"me\"}, max_body => 0}]}.\n"),
+    ?assertEqual([<<"line 2: wot_avatars entry 1 (lamp): unknown key timeout (known: entity_id, "
+                    "pairing, endpoints, credential, td, component, room, api_name, poll_ms, "
+                    "allowed_hosts, max_size, max_affordances, thing_credentials, request_timeout, "
+                    "longpoll_ms, retry_max_ms, max_body, restart)">>,
+                  <<"line 2: wot_avatars entry 1 (lamp): td must be the TD's http(s) URL in double "
+                    "quotes, or {file, \"lamp.td.json\"} (relative to this file's directory)">>,
+                  <<"line 2: wot_avatars entry 1 (lamp): poll_ms must be an integer of at least 0">>,
+                  <<"line 2: wot_avatars entry 1 (lamp): max_body must be an integer of at least 1">>,
+                  <<"line 2: wot_avatars entry 1 (lamp): allowed_hosts must be a list of \"host\" or "
+                    "\"host:port\"">>,
+                  <<"line 2: wot_avatars entry 1 (lamp): thing_credentials: unknown key user (known: "
+                    "username, password, token)">>],
+                 Ps),
+    %% Required keys; the credentials never echoed.
+    [<<"line 2: wot_avatars entry 1: entity_id, td required">>,
+     <<"line 2: wot_avatars entry 1: thing_credentials: give #{token => ", Rest/binary>>] =
+        problems(?PAIRING "{wot_avatars, [#{pairing => \"home\",\n"
+                 "  thing_credentials => #{username => \"me\", token => \"hidden-secret\"}}]}.\n"),
+    nomatch = binary:match(Rest, <<"hidden-secret">>),
+    %% Once the keys read: an undeclared pairing and wot_avatar's limit,
+    %% together.
+    [<<"line 2: wot_avatars entry 1 (lamp): max_size must be a positive integer, at most 1048576">>,
+     <<"line 2: wot_avatars entry 1 (lamp): pairing \"flat\" is not declared", _/binary>>] =
+        problems(?PAIRING "{wot_avatars, [#{entity_id => \"lamp\", pairing => \"flat\",\n"
+                 "  td => {file, \"lamp.json\"}, max_size => 2000000}]}.\n"),
+    has("{wot_avatars, #{entity_id => \"lamp\"}}.\n", "wot_avatars: the value must be a list"),
+    has("{wot_avatars, [lamp]}.\n", "wot_avatars entry 1: a WoT Avatar is a map").
+
+%% An entity id twice among the WoT Avatars, or shared with an MQTT
+%% Avatar, is a mistake of the file.
+wot_avatar_entity_ids_are_unique_test() ->
+    Wot = fun(Id) -> "#{entity_id => \"" ++ Id ++ "\", pairing => \"home\", td => \"http://h/t\"}" end,
+    has(?PAIRING "{wot_avatars, [" ++ Wot("lamp") ++ ", " ++ Wot("lamp") ++ "]}.\n",
+        "wot_avatars: entity_id \"lamp\" appears more than once"),
+    has(?PAIRING ?AVATAR("") "{wot_avatars, [" ++ Wot("house") ++ "]}.\n",
+        "wot_avatars: entity_id \"house\" also names an MQTT Avatar (mqtt_avatars)").
 
 %% Per-device identities: text becomes binaries, roles stay the two
 %% words, fingerprints and hashed credentials pass to evatar, which accepts

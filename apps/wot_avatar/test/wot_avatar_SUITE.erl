@@ -19,7 +19,7 @@ suite() -> [{timetrap, {seconds, 120}}].
 
 all() ->
     [lamp_action_and_brightness, thermostat_range_and_polling, motion_event, thing_away_and_back,
-     bad_options].
+     killed_avatar_restarts_with_backoff, node_config_embodies_a_thing, bad_options].
 
 init_per_suite(Config) ->
     Npm = evatar_test_npm:install(),
@@ -39,6 +39,8 @@ init_per_testcase(_Case, Config) ->
 end_per_testcase(_Case, Config) ->
     [catch wot_avatar:stop(A) || A <- forget(avatars)],
     [catch agent_bridge_client:close(V) || V <- forget(vas)],
+    [catch wot_avatar:unkeep(E) || E <- forget(kept)],
+    [catch peer:stop(P) || P <- forget(peers)],
     stop_servient(?config(servient, Config)),
     _ = evatar:delete_pairing(?PAIRING),
     ok.
@@ -161,6 +163,59 @@ thing_away_and_back(Config) ->
     ok = wot_avatar:unkeep(<<"wot-lamp">>),
     stop_servient(Servient2).
 
+%% A kept Avatar killed (exit(Pid, kill): a crash, no Bye) is started
+%% again by its keeper after min_ms, then after twice that (the runs are
+%% short), and each new process joins and is bound again: the VA's request
+%% reaches the Thing through it.
+killed_avatar_restarts_with_backoff(Config) ->
+    Opts = opts(Config, <<"lamp">>, #{restart => #{min_ms => 100, max_ms => 1000,
+                                                   stable_after_ms => 600000}}),
+    {ok, _Keeper} = wot_avatar:keep(Opts),
+    remember(kept, <<"wot-lamp">>),
+    A1 = await_kept_start(1),
+    Va = va(Config),
+    <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+    Delays = [kill_and_rebind(Va, N) || N <- [2, 3]],
+    %% The delay each restart waited: the next delay read before the kill.
+    [100, 200] = Delays,
+    [#{crashes := 2, next_delay_ms := 400, state := running, avatar := A3}] = wot_avatar:kept(),
+    true = A3 =/= A1,
+    {ok, #{context := feedback, sender := <<"Lamp">>}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []).
+
+%% A node started from a configuration file whose wot_avatars section names
+%% the lamp's TD (a peer node, its applications started in the release's
+%% order, node_config first): its keeper runs the WoT Avatar, which joins
+%% the file's pairing on the file's listener; a VA there invokes the lamp.
+node_config_embodies_a_thing(Config) ->
+    Listener = free_port(),
+    Td = ["http://127.0.0.1:", integer_to_list(?config(port, Config)), "/lamp"],
+    Text = io_lib:format(
+             "%% written by wot_avatar_SUITE\n"
+             "{listeners, [#{name => \"main\", ip => \"127.0.0.1\", port => ~b}]}.\n"
+             "{pairings, [#{id => \"~ts\", agent_credential => \"~ts\",\n"
+             "              avatar_credential => \"~ts\", feedback_timeout => 10000}]}.\n"
+             "{wot_avatars, [#{entity_id => \"wot-lamp\", pairing => \"~ts\",\n"
+             "                 td => \"~ts\", poll_ms => 0, retry_max_ms => 1000}]}.\n",
+             [Listener, ?PAIRING, evatar_test_fixtures:va_credential(),
+              evatar_test_fixtures:avatar_credential(), ?PAIRING, Td]),
+    File = filename:join(?config(priv_dir, Config), "wot_avatars.config"),
+    ok = file:write_file(File, Text),
+    {ok, Peer, _} = peer:start_link(#{name => peer:random_name(?MODULE), host => "127.0.0.1",
+                                      longnames => true, connection => standard_io,
+                                      args => code_path(), env => [{"EVATAR_CONFIG", File}]}),
+    remember(peers, Peer),
+    [{ok, _} = peer:call(Peer, application, ensure_all_started, [App], 30000)
+     || App <- [node_config, evatar, agent_bridge, wot_avatar]],
+    [#{entity_id := <<"wot-lamp">>}] = peer:call(Peer, wot_avatar, kept, []),
+    Va = va([{addr, {{127, 0, 0, 1}, Listener}} | Config]),
+    <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+    {ok, #{context := feedback, body := #{parameters := P}}} =
+        request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    <<"true">> = param(<<"On">>, P),
+    {ok, A} = peer:call(Peer, wot_avatar, find, [<<"wot-lamp">>]),
+    [] = peer:call(Peer, wot_avatar, problems, [A]).
+
 %% Options with mistakes: every one named, nothing started.
 bad_options(_Config) ->
     {error, Ps} = wot_avatar:start(#{entity_id => <<>>, td => <<"ftp://x">>, poll_ms => -1,
@@ -238,6 +293,44 @@ bound(Va, Side, Id, Type, Other) ->
     Report = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end, ?WAIT),
     [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
     C.
+
+%% The kept lamp's Nth start, running and joined; its pid.
+await_kept_start(N) ->
+    {ok, [#{avatar := A}]} =
+        evatar_test_wait:value({kept_start, N}, fun() -> {ok, wot_avatar:kept()} end,
+                               fun({ok, [#{state := running, starts := S}]}) -> S =:= N;
+                                  (_) -> false
+                               end),
+    ok = wot_avatar:await_ready(A, ?WAIT),
+    A.
+
+%% Kills the kept lamp's Avatar and waits for start N to join and be bound
+%% to the VA again, and the VA's request to go through it; returns the
+%% delay the keeper waited (its next delay before the kill).
+kill_and_rebind(Va, N) ->
+    [#{avatar := Old, next_delay_ms := Delay}] = wot_avatar:kept(),
+    ok = flush_bindings(Va),
+    true = exit(Old, kill),
+    %% The old entity leaves (replaced by the new join, once its
+    %% connection is seen gone): the VA's registry loses the lamp, then
+    %% gets the new process's.
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> not lists:any(fun is_lamp/1, B) end,
+                                          ?WAIT),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(fun is_lamp/1, B) end, ?WAIT),
+    New = await_kept_start(N),
+    true = New =/= Old,
+    {ok, #{context := feedback}} = request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+    Delay.
+
+%% The Binding reports the VA has received so far (a report waited for
+%% must come after this).
+flush_bindings(Va) ->
+    receive {agent_bridge, Va, {binding, _}} -> flush_bindings(Va)
+    after 0 -> ok
+    end.
+
+code_path() ->
+    lists:append([["-pa", D] || D <- code:get_path(), string:find(D, "_build") =/= nomatch]).
 
 %% The Avatar's own Binding report may come after the VA's: wait until it
 %% knows its partner, so that the event goes to it.
