@@ -4,8 +4,8 @@
 # (`rebar3 compile`; REBAR_BASE_DIR is honoured, default _build).
 #
 # Creates (or reuses) a virtual environment, EVATAR_PY_VENV or
-# clients/python/.venv, installs this package and pytest and agentspeak from
-# PyPI into it, runs pytest, and prints as its last line
+# clients/python/.venv, installs this package, pytest, agentspeak and SPADE
+# from PyPI into it, runs pytest, and prints as its last line
 #   N passed, N failed
 # exiting non-zero when a test failed or could not run.
 # Needs python3 (3.8 or later) with the venv module (Debian: python3-venv).
@@ -25,6 +25,12 @@ fi
 PY="$VENV/bin/python"
 "$PY" -m pip install --quiet --disable-pip-version-check pytest agentspeak >&2 \
   || fail "cannot install pytest and agentspeak from PyPI"
+# SPADE for tests/test_spade.py (evatar.spade), pinned to versions known to
+# work; SQLAlchemy 2.1, which SPADE's XMPP server uses, no longer brings the
+# greenlet its asyncio mode needs.
+"$PY" -m pip install --quiet --disable-pip-version-check \
+  spade==4.1.4 spade-bdi==0.3.3 greenlet==3.5.6 >&2 \
+  || fail "cannot install SPADE (spade==4.1.4 spade-bdi==0.3.3 greenlet==3.5.6) from PyPI"
 "$PY" -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps "$HERE" >&2 \
   || fail "cannot install the evatar package"
 ls "$REBAR_BASE_DIR"/default/lib/agent_bridge/ebin/*.beam >/dev/null 2>&1 \

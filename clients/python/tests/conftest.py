@@ -98,3 +98,37 @@ def endpoint(node: Node) -> tuple:
 def run(coro):  # type: ignore[no-untyped-def]
     """Runs a coroutine to completion on a new event loop."""
     return asyncio.run(coro)
+
+
+class XmppServer:
+    """SPADE's embedded XMPP server (examples/spade/xmpp_server.py) on
+    127.0.0.1; stops when its stdin closes."""
+
+    def __init__(self) -> None:
+        script = REPO / "clients" / "python" / "examples" / "spade" / "xmpp_server.py"
+        self.proc = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=sys.stderr, text=True)
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline().strip()
+        if not line.startswith("XMPP_PORT="):
+            self.stop()
+            raise RuntimeError("the XMPP server did not start: %r" % line)
+        self.port = int(line.split("=", 1)[1])
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+@pytest.fixture(scope="session")
+def xmpp() -> Iterator[XmppServer]:
+    pytest.importorskip("spade")
+    s = XmppServer()
+    yield s
+    s.stop()

@@ -10,7 +10,7 @@ import asyncio
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Awaitable, Callable, Dict, List, Optional, Sequence, Tuple
 
 import pytest
 
@@ -33,25 +33,42 @@ def complete(lines: List[str]) -> bool:
             and any(l.startswith("EMAIL ") for l in lines) and len(loud) >= 2)
 
 
+#: Starts a holiday VA bound to the node's port; returns its log (a list the
+#: agent appends to) and a coroutine function that stops it.
+Embody = Callable[[Node], Awaitable[Tuple[List[str], Callable[[], Awaitable[None]]]]]
+
+
+async def agentspeak_va(node: Node) -> Tuple[List[str], Callable[[], Awaitable[None]]]:
+    va = await holiday_va.embody("127.0.0.1", node.port, "home", "home-va-secret", BODY)
+    stop = asyncio.Event()
+    runner = asyncio.ensure_future(va.run(stop))
+    await va.client.wait_binding(lambda b: holiday_va.all_bound(va), timeout=30)
+
+    async def stopped() -> None:
+        stop.set()
+        await runner
+        await va.client.close()
+    return va.log, stopped
+
+
 def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
-            done: Optional[Callable[[List[str]], bool]] = None) -> Dict[str, object]:
-    """Runs the house and the AgentSpeak VA from 17:55 (or ``start``) until
-    ``until`` on the simulated clock; returns the house's outcome lines and
-    the agent's log. With ``done``, the outcome is read again until done
-    says it is all there (at most 30 s): the agent acts in real time on a
-    clock a thousand times faster, so on a loaded machine it may act on the
-    last reading after the clock has stopped."""
+            done: Optional[Callable[[List[str]], bool]] = None,
+            embody: Embody = agentspeak_va, node_args: Sequence[str] = ()) -> Dict[str, object]:
+    """Runs the house and the VA ``embody`` starts (by default the
+    AgentSpeak one) from 17:55 (or ``start``) until ``until`` on the
+    simulated clock; returns the house's outcome lines and the agent's log.
+    With ``done``, the outcome is read again until done says it is all
+    there (at most 30 s): the agent acts in real time on a clock a thousand
+    times faster, so on a loaded machine it may act on the last reading
+    after the clock has stopped."""
     extra = ["--home-start", start] if start else []
     node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
-                                     "--home", "home:home-gateway-secret:%s" % spool] + extra)
-
+                                     "--home", "home:home-gateway-secret:%s" % spool]
+                + extra + list(node_args))
 
     async def main() -> Tuple[List[str], List[str]]:
         loop = asyncio.get_running_loop()
-        va = await holiday_va.embody("127.0.0.1", node.port, "home", "home-va-secret", BODY)
-        stop = asyncio.Event()
-        runner = asyncio.ensure_future(va.run(stop))
-        await va.client.wait_binding(lambda b: holiday_va.all_bound(va), timeout=30)
+        log, stop = await embody(node)
         await loop.run_in_executor(None, node.ask, "speed %d" % SPEED)
         await loop.run_in_executor(None, node.ask, "run_until " + until)
         await asyncio.sleep(0.2)  # the last answers reach the house
@@ -60,10 +77,8 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
         while done is not None and not done(lines) and loop.time() < deadline:
             await asyncio.sleep(0.2)
             lines = await loop.run_in_executor(None, node.ask, "outcome")
-        stop.set()
-        await runner
-        await va.client.close()
-        return lines, va.log
+        await stop()
+        return lines, log
 
     try:
         lines, log = run(main())

@@ -47,7 +47,7 @@ from typing import Any, Iterator, List, Optional, Set, Tuple
 from .bil import Binding, Description, Signal
 from .client import Client, ClosedError, FeedbackTimeout, SignalError
 
-__all__ = ["AgentSpeakVA"]
+__all__ = ["AgentSpeakVA", "params_of", "plist", "perceive", "minute_of"]
 
 LOG = logging.getLogger("evatar.bdi")
 
@@ -68,6 +68,46 @@ def _text(value: Any) -> str:
     if isinstance(value, bool):
         return "yes" if value else "no"
     return str(value)
+
+
+def params_of(as_: Any, term: Any) -> List[Tuple[str, str]]:
+    """BIL parameters from an AgentSpeak list of ``p(Name, Value)``."""
+    out = []
+    for p in term or ():
+        if isinstance(p, as_.Literal) and len(p.args) == 2:
+            out.append((_text(p.args[0]), _text(p.args[1])))
+        elif isinstance(p, tuple) and len(p) == 2:
+            out.append((_text(p[0]), _text(p[1])))
+        else:
+            raise ValueError("a parameter is p(Name, Value), not %s" % (p,))
+    return out
+
+
+def plist(as_: Any, params: List[Tuple[str, str]]) -> Tuple[Any, ...]:
+    """BIL parameters as an AgentSpeak list of ``p(Name, Value)`` (strings)."""
+    return tuple(as_.Literal("p", (n, v)) for n, v in params)
+
+
+def perceive(as_: Any, agent: Any, functor: str, args: Tuple[Any, ...], replace: int = 0,
+             annots: Any = None) -> None:
+    """Adds the belief ``functor(args)`` to a python-agentspeak agent, with
+    its ``+`` event; with ``replace`` = N it first drops (without an event)
+    the beliefs of the same functor whose first N arguments match."""
+    if replace:
+        group = agent.beliefs[(functor, len(args))]
+        for b in [b for b in group if tuple(b.args[:replace]) == args[:replace]]:
+            group.discard(b)
+    term = as_.Literal(functor, args) if annots is None else as_.Literal(functor, args, annots)
+    agent.call(as_.Trigger.addition, as_.GoalType.belief, term, as_.runtime.Intention())
+
+
+def minute_of(text: str) -> Optional[int]:
+    """The minute of the day (0..1439) of ``"HH:MM"``, or None."""
+    try:
+        h, m = text.split(":")[:2]
+        return int(h) * 60 + int(m)
+    except ValueError:
+        return None
 
 
 class AgentSpeakVA:
@@ -116,11 +156,8 @@ class AgentSpeakVA:
             yield
 
         def _minute(agent: Any, term: Any, intention: Any) -> Iterator[None]:
-            text = str(as_.grounded(term.args[0], intention.scope))
-            try:
-                h, m = text.split(":")[:2]
-                minute = int(h) * 60 + int(m)
-            except ValueError:
+            minute = minute_of(str(as_.grounded(term.args[0], intention.scope)))
+            if minute is None:
                 return
             if as_.unify(term.args[1], minute, intention.scope, intention.stack):
                 yield
@@ -139,31 +176,17 @@ class AgentSpeakVA:
         return actions
 
     def _params(self, term: Any) -> List[Tuple[str, str]]:
-        out = []
-        for p in term or ():
-            if isinstance(p, self.as_.Literal) and len(p.args) == 2:
-                out.append((_text(p.args[0]), _text(p.args[1])))
-            elif isinstance(p, tuple) and len(p) == 2:
-                out.append((_text(p[0]), _text(p[1])))
-            else:
-                raise ValueError("a parameter is p(Name, Value), not %s" % (p,))
-        return out
+        return params_of(self.as_, term)
 
     def _plist(self, params: List[Tuple[str, str]]) -> Tuple[Any, ...]:
-        return tuple(self.as_.Literal("p", (n, v)) for n, v in params)
+        return plist(self.as_, params)
 
     # -------------------------------------------------------------- percepts
 
     def _perceive(self, functor: str, args: Tuple[Any, ...], replace: int = 0) -> None:
         """Adds a belief; with ``replace`` = N, first drops (without an
         event) the belief of the same functor whose first N arguments match."""
-        as_ = self.as_
-        if replace:
-            group = self.agent.beliefs[(functor, len(args))]
-            for b in [b for b in group if tuple(b.args[:replace]) == args[:replace]]:
-                group.discard(b)
-        self.agent.call(as_.Trigger.addition, as_.GoalType.belief,
-                        as_.Literal(functor, args), as_.runtime.Intention())
+        perceive(self.as_, self.agent, functor, args, replace)
         self._wake.set()
 
     def _on_signal(self, s: Signal) -> None:

@@ -1,0 +1,130 @@
+"""SPADE agents embodied through EVATAR (evatar.spade), on SPADE's embedded
+XMPP server (conftest's ``xmpp``, loopback): the holiday policy as a
+spade-bdi agent (examples/holiday/holiday_spade.asl) against the simulated
+home, judged by the house's outcome as test_holiday judges the
+python-agentspeak agent; a wrong credential and an unbound action give the
+agent errors, never a hang."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+from pathlib import Path
+from typing import Awaitable, Callable, Dict, List, Tuple
+
+import pytest
+
+pytest.importorskip("spade")
+pytest.importorskip("spade_bdi")
+
+from evatar import (Binding, Component, Description, Entry, NotBoundError,  # noqa: E402
+                    RefusedError)
+from evatar.spade import Body, EmbodiedAgent, EmbodiedBDIAgent  # noqa: E402
+
+from conftest import Node, XmppServer, run  # noqa: E402
+from test_holiday import (BODY, complete, evening, test_alarm_then_warning,  # noqa: E402,F401
+                          test_evening_light_schedule, test_intrusion_email_with_photos,
+                          test_the_agent_recognised_the_intruder)
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "holiday"))
+import holiday_spade  # noqa: E402
+
+
+def spade_va(xmpp: XmppServer) -> Callable[[Node], Awaitable[Tuple[List[str], Callable[[], Awaitable[None]]]]]:
+    async def embody(node: Node) -> Tuple[List[str], Callable[[], Awaitable[None]]]:
+        agent = await holiday_spade.embody(xmpp.port, [("127.0.0.1", node.port)], "home",
+                                           "home-va-secret", BODY)
+        await agent.body.wait_bound(timeout=30)
+        return agent.log, agent.stop
+    return embody
+
+
+@pytest.fixture(scope="module")
+def outcome(tmp_path_factory: pytest.TempPathFactory, xmpp: XmppServer) -> Dict[str, object]:
+    return evening(tmp_path_factory.mktemp("spade-holiday-spool"), done=complete,
+                   embody=spade_va(xmpp))
+
+
+LIGHT = Description(entity_id="spade-va", entity_type="Agent", components=[
+    Component("LightEmulator01", [Entry("ACTUATOR", "ACTION FEEDBACK", {"Feedback": "yes"})],
+              [Entry("ACTUATOR", "TurnLightOn", {"Light": "yes"})])])
+#: A hang guard: none of these waits should come near it.
+GUARD = 20
+
+
+class Plain(EmbodiedAgent):
+    """A plain SPADE agent: keeps its percepts."""
+
+    async def setup(self) -> None:
+        self.percepts: "asyncio.Queue[object]" = asyncio.Queue()
+
+    async def on_percept(self, event: object) -> None:
+        self.percepts.put_nowait(event)
+
+
+def test_wrong_credential(xmpp: XmppServer, node: Node) -> None:
+    """start() raises EVATAR's refusal and leaves the agent stopped."""
+    async def main() -> None:
+        agent = Plain("wrong@127.0.0.1", "xmpp-secret", port=xmpp.port)
+        agent.embody(Body(LIGHT, [("127.0.0.1", node.port)], pairing="kitchen",
+                          credential="not-the-secret"))
+        with pytest.raises(RefusedError) as refused:
+            await asyncio.wait_for(agent.start(), GUARD)
+        assert refused.value.code in ("BadCredential", "Unauthorized", "AuthFailed"), refused.value
+        assert not agent.is_alive()
+        with pytest.raises(RefusedError):
+            await asyncio.wait_for(agent.body.act("LightEmulator01", "TurnLightOn"), GUARD)
+    run(main())
+
+
+def test_unbound_action_plain(xmpp: XmppServer, node: Node) -> None:
+    """Nothing provides the light: act raises NotBoundError at once; the
+    Binding report that says so is a percept; stop() leaves the pairing."""
+    async def main() -> None:
+        agent = Plain("plain@127.0.0.1", "xmpp-secret", port=xmpp.port)
+        body = agent.embody(Body(LIGHT, [("127.0.0.1", node.port)], pairing="kitchen",
+                                 credential="va-secret"))
+        await asyncio.wait_for(agent.start(), GUARD)
+        report = await asyncio.wait_for(agent.percepts.get(), GUARD)
+        assert isinstance(report, Binding)
+        assert [u.reason for u in report.unbound_for("spade-va")] == ["NoProvider"]
+        with pytest.raises(NotBoundError) as e:
+            await asyncio.wait_for(body.act("LightEmulator01", "TurnLightOn"), GUARD)
+        assert e.value.reason == "NoProvider"
+        await agent.stop()
+        assert body.client is not None and body.client.closed is not None
+        assert body.client.closed.confirmed
+    run(main())
+
+
+UNBOUND_ASL = """
+!go.
++!go <- .act("LightEmulator01", "TurnLightOn", [p("Light", "yes")], F); .log("feedback ", F).
++failed(C, S, R) <- .log("failed ", C, " ", S, " ", R).
++unbound(C, S, R) <- .log("unbound ", C, " ", S, " ", R).
+"""
+
+
+def test_unbound_action_bdi(xmpp: XmppServer, node: Node, tmp_path: Path) -> None:
+    """A spade-bdi agent's .act with nothing bound fails: the plan stops
+    and the agent perceives failed(Component, Service, "NotBound"); the
+    Binding report is the belief unbound(Component, Service, Reason)."""
+    asl = tmp_path / "unbound.asl"
+    asl.write_text(UNBOUND_ASL)
+
+    async def main() -> None:
+        agent = EmbodiedBDIAgent("bdi@127.0.0.1", "xmpp-secret", str(asl), port=xmpp.port)
+        agent.embody(Body(LIGHT, [("127.0.0.1", node.port)], pairing="kitchen",
+                          credential="va-secret"))
+        await asyncio.wait_for(agent.start(), GUARD)
+        await asyncio.wait_for(agent.body.wait_bound([], timeout=GUARD), GUARD)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + GUARD
+        want = {"failed LightEmulator01 TurnLightOn NotBound",
+                "unbound LightEmulator01 TurnLightOn NoProvider"}
+        while not want <= set(agent.log) and loop.time() < deadline:
+            await asyncio.sleep(0.05)  # polls the agent's log; the guard bounds it
+        await agent.stop()
+        assert want <= set(agent.log), agent.log
+        assert not [l for l in agent.log if l.startswith("feedback")]
+    run(main())
