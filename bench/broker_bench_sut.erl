@@ -56,7 +56,9 @@ start(evatar, RunDir, Cfg) ->
                                          acceptors => 8, backlog => 4096,
                                          %% mosquitto runs with max_connections -1
                                          max_connections => infinity,
-                                         handshake => #{rate => infinity}}]),
+                                         handshake => #{rate => infinity},
+                                         %% and has no per-client rate
+                                         conn => #{max_read_rate => infinity}}]),
     {ok, {Ip, Port}} = erpc:call(Node, agent_bridge, address, [broker_bench]),
     #{system => evatar, os_pid => OsPid, host => Ip, port => Port, dir => RunDir,
       node => Node, peer => Peer};

@@ -131,7 +131,7 @@ config(Options) ->
 %% ---------------------------------------------------------------------------
 
 %% @doc Starts EVATAR in this node with the benchmark's listener (no
-%% connection limits; `conn' of Cfg: its connection options); returns its
+%% connection limits, no read rate; `conn' of Cfg: its connection options); returns its
 %% address and connection supervisor.
 -spec start(map()) -> #{addr := {inet:ip_address(), inet:port_number()}, conn_sup := pid(),
                         floor := term()}.
@@ -148,7 +148,11 @@ start(Cfg) ->
                                                %% address: no guard limits
                                                max_connections => infinity,
                                                handshake => #{rate => infinity},
-                                               conn => maps:get(conn, Cfg, #{})}),
+                                               %% one client per pairing end, as fast
+                                               %% as it goes: no read rate (docs/
+                                               %% protocol.md section 8)
+                                               conn => maps:merge(#{max_read_rate => infinity},
+                                                                  maps:get(conn, Cfg, #{}))}),
     {ok, Addr} = agent_bridge:address(evatar_bench),
     _ = erlang:system_flag(scheduler_wall_time, true),
     LSup = agent_bridge_listener_keeper:listener_sup(Keeper),

@@ -109,8 +109,11 @@ check_listener_opt(conn, _) ->
 check_listener_opt(Key, _) ->
     {error, iolist_to_binary(io_lib:format("unknown listener option ~0tp", [Key]))}.
 
-check_conn_opt(Key, infinity, _Defaults) when Key =:= hibernate_after; Key =:= idle_timeout ->
+check_conn_opt(Key, infinity, _Defaults)
+  when Key =:= hibernate_after; Key =:= idle_timeout; Key =:= max_read_rate ->
     ok;
+check_conn_opt(max_read_rate, Value, _Defaults) ->
+    expect(max_read_rate, is_integer(Value) andalso Value > 0, "a positive integer or infinity");
 check_conn_opt(Key, Value, Defaults) when is_map_key(Key, Defaults) ->
     expect(Key, is_integer(Value) andalso Value >= 0, "a non-negative integer");
 check_conn_opt(Key, _Value, _Defaults) ->

@@ -44,6 +44,7 @@
                   max_out_frames => pos_integer(),
                   pairing_watermark => pos_integer(),
                   active_n => pos_integer(),
+                  max_read_rate => pos_integer() | infinity,
                   linger => non_neg_integer(),
                   retry_interval => pos_integer(),
                   heartbeat => pos_integer(),
@@ -74,7 +75,13 @@
             ip :: inet:ip_address() | undefined,
             %% Frames to read before the next top-up (0: not reading
             %% in `{active, N}' mode).
-            credit = 0 :: non_neg_integer()}).
+            credit = 0 :: non_neg_integer(),
+            %% The read rate's token bucket (`max_read_rate'): when it
+            %% was last charged (monotonic ms) and the frames it then
+            %% allowed; the frames read since.
+            bucket = {0, 0} :: {integer(), number()},
+            unpaced = 0 :: non_neg_integer(),
+            paced_logged = false :: boolean()}).
 
 %% @doc Defaults of every connection option (docs/protocol.md, "Limits").
 -spec default_opts() -> opts().
@@ -86,6 +93,7 @@ default_opts() ->
       max_out_frames => 8192,
       pairing_watermark => 5000,
       active_n => 32,
+      max_read_rate => 1000,
       linger => 1000,
       retry_interval => 10,
       heartbeat => 150,
@@ -425,7 +433,8 @@ join(#{pairing := P, role := Role, entity_id := E, credential := C,
                       end,
             ok = agent_bridge_transport:set_max_frame(D1#d.transport, opt(max_frame, D)),
             ok = agent_bridge_transport:activate(D1#d.transport, opt(active_n, D)),
-            D1a = D1#d{credit = sock_flow:credit(opt(active_n, D))},
+            D1a = D1#d{credit = sock_flow:credit(opt(active_n, D)),
+                       bucket = full_bucket(D)},
             Beat = case V of
                        2 -> [heartbeat_check(D)];
                        %% A port's program is the operator's, and its exit is seen.
@@ -549,14 +558,15 @@ session_id() ->
 read_on(#d{credit = 0} = D) ->
     %% Handshaking ({active, once}) or passive.
     D;
-read_on(#d{credit = C} = D) when C > 1 ->
-    D#d{credit = C - 1};
-read_on(#d{pairing_pid = Pid, transport = T} = D) ->
+read_on(#d{credit = C, unpaced = U} = D) when C > 1 ->
+    D#d{credit = C - 1, unpaced = U + 1};
+read_on(#d{pairing_pid = Pid, transport = T, unpaced = U} = D0) ->
+    {Pace, D} = pace(D0#d{unpaced = U + 1}),
     N = opt(active_n, D),
-    case pairing_backlog(Pid) > opt(pairing_watermark, D) of
-        true ->
-            ok;
+    case Pace =:= ok andalso pairing_backlog(Pid) =< opt(pairing_watermark, D) of
         false ->
+            ok;
+        true ->
             {message_queue_len, Waiting} = process_info(self(), message_queue_len),
             ok = agent_bridge_transport:top_up(T, N - Waiting)
     end,
@@ -568,13 +578,57 @@ with_data(_D, Result) -> Result.
 
 %% Stops reading while the pairing has more than the watermark waiting, so
 %% a flooding client cannot grow the pairing's mailbox without bound.
-resume_reading(#d{pairing_pid = Pid, transport = T} = D) ->
+resume_reading(D0) ->
+    case pace(D0) of
+        {{wait, Ms}, D} -> {keep_state, D, [{{timeout, resume}, Ms, resume}]};
+        {ok, D} -> resume_below_watermark(D)
+    end.
+
+resume_below_watermark(#d{pairing_pid = Pid, transport = T} = D) ->
     case pairing_backlog(Pid) > opt(pairing_watermark, D) of
         true ->
-            {keep_state_and_data, [{{timeout, resume}, opt(retry_interval, D), resume}]};
+            {keep_state, D, [{{timeout, resume}, opt(retry_interval, D), resume}]};
         false ->
             ok = agent_bridge_transport:activate(T, opt(active_n, D)),
             {keep_state, D#d{credit = sock_flow:credit(opt(active_n, D))}}
+    end.
+
+%% The read rate: a token bucket of `max_read_rate' frames a second,
+%% holding at most one second's worth, charged with the frames read since
+%% its last charge at every top-up and before every resumption. Once it
+%% is empty the connection lets its socket's count run out and reads again
+%% when the bucket has refilled to zero, so that a client sending faster
+%% than the rate is slowed by TCP flow control, as for the watermark, and
+%% cannot take more than its share of the node's CPU (docs/protocol.md
+%% section 8). Nothing is refused or dropped.
+pace(D) ->
+    case opt(max_read_rate, D) of
+        infinity -> {ok, D};
+        Rate -> charge(Rate, D)
+    end.
+
+charge(Rate, #d{bucket = {T0, Tokens0}, unpaced = U} = D) ->
+    Now = erlang:monotonic_time(millisecond),
+    Tokens = min(Rate, Tokens0 + (Now - T0) * Rate / 1000) - U,
+    D1 = D#d{bucket = {Now, Tokens}, unpaced = 0},
+    case Tokens >= 0 of
+        true ->
+            {ok, D1};
+        false ->
+            {{wait, max(1, ceil(-Tokens * 1000 / Rate))}, paced_log(Rate, D1)}
+    end.
+
+paced_log(_Rate, #d{paced_logged = true} = D) ->
+    D;
+paced_log(Rate, D) ->
+    ?LOG_INFO(#{what => read_rate_reached, max_read_rate => Rate,
+                text => "the client sends faster than max_read_rate; reading is paced"}),
+    D#d{paced_logged = true}.
+
+full_bucket(D) ->
+    case opt(max_read_rate, D) of
+        infinity -> {0, 0};
+        Rate -> {erlang:monotonic_time(millisecond), Rate}
     end.
 
 pairing_backlog(Pid) when is_pid(Pid), node(Pid) =:= node() ->

@@ -13,6 +13,8 @@
 -define(VA_CRED, evatar_test_fixtures:va_credential()).
 -define(AV_CRED, evatar_test_fixtures:avatar_credential()).
 
+-define(PACED_RATE, 100).
+
 suite() -> [{timetrap, {seconds, 60}}].
 
 all() ->
@@ -32,7 +34,8 @@ groups() ->
                     new_session_waits_for_peer]},
      {decisions, [], [get_binding, resume_sends_binding, request_closed_to_provider,
                       client_get_binding]},
-     {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive]},
+     {backpressure, [], [never_reading_client, flooding_client, keeping_up_never_passive,
+                       paced_client_read_at_its_rate]},
      {busy, [], [busy_pairing_refuses_hello, busy_pairing_description,
                   busy_pairing_bye, busy_pairing_operator]},
      {port, [], [port_round_trip]},
@@ -56,8 +59,9 @@ init_per_suite(Config) ->
                                                              max_out_bytes => 65536,
                                                              pairing_watermark => 20,
                                                              active_n => 4}}),
+    Paced = evatar_test_node:listen(paced, #{conn => #{max_read_rate => ?PACED_RATE}}),
     Bystander = start_bystander(Addr),
-    [{addr, Addr}, {small, Small}, {silent, Silent}, {bystander, Bystander} | Config].
+    [{addr, Addr}, {small, Small}, {paced, Paced}, {silent, Silent}, {bystander, Bystander} | Config].
 
 end_per_suite(Config) ->
     {Va, Av, _} = ?config(bystander, Config),
@@ -65,7 +69,7 @@ end_per_suite(Config) ->
     exit(Av, shutdown),
     %% The suites that run next may count the node's pairings.
     ok = evatar:delete_pairing(<<"bystander">>),
-    evatar_test_node:stop([test, small, silent], [agent_bridge]).
+    evatar_test_node:stop([test, small, silent, paced], [agent_bridge]).
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
@@ -563,12 +567,7 @@ keeping_up_never_passive(Config) ->
                        {connected, Owner} <- [erlang:port_info(P, connected)]],
     N = 300,
     1 = erlang:trace(Conn, true, ['receive']),
-    Frame = fun(I) ->
-                    bil:encode_signal((sensor(I, <<"20">>))#{id => integer_to_binary(I),
-                                                             in_reply_to => undefined,
-                                                             timestamp => 0, seq => undefined,
-                                                             epoch => undefined})
-            end,
+    Frame = fun raw_sensor_frame/1,
     %% One frame at a time, each delivered before the next is sent.
     _ = [begin
              ok = gen_tcp:send(S, Frame(I)),
@@ -578,6 +577,37 @@ keeping_up_never_passive(Config) ->
     Passive = count_passive(0),
     ct:log("passive notices while ~b frames were read: ~b", [N, Passive]),
     0 = Passive,
+    ok = agent_bridge_client:close(Va),
+    ok = gen_tcp:close(S).
+
+%% A client that sends faster than `max_read_rate' is read at that rate
+%% (with a burst of one second's worth): its frames wait in TCP's buffers,
+%% and every one of them is delivered, in order, none refused
+%% (docs/protocol.md section 8). The bucket bounds what can have been read
+%% by time t to Rate * t + Rate, plus what the socket had let in before it
+%% went passive (active_n) and one top-up's count: a lower bound on the
+%% time N frames take, which a loaded machine can only lengthen.
+paced_client_read_at_its_rate(Config) ->
+    C2 = [{addr, ?config(paced, Config)} | Config],
+    S = joined_raw(C2, avatar, <<"av">>, ?AV_CRED),
+    ok = gen_tcp:send(S, bil:encode_description(avatar_description(<<"av">>, false))),
+    {ok, Va} = client(C2, agent, <<"va">>),
+    ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
+    _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
+    Frame = fun raw_sensor_frame/1,
+    N = 400,
+    Rate = ?PACED_RATE,
+    T0 = erlang:monotonic_time(millisecond),
+    Sender = spawn_link(fun() -> [ok = gen_tcp:send(S, Frame(I)) || I <- lists:seq(1, N)] end),
+    Got = collect_sensor(Va, N, []),
+    Took = erlang:monotonic_time(millisecond) - T0,
+    Bound = (N - Rate - 32 - 16) * 1000 div Rate,
+    ct:log("~b frames at max_read_rate ~b: delivered in ~b ms (at least ~b ms)",
+           [N, Rate, Took, Bound]),
+    Expected = [integer_to_binary(I) || I <- lists:seq(1, N)],
+    Expected = [I || {_, I} <- Got],
+    true = Took >= Bound,
+    unlink(Sender),
     ok = agent_bridge_client:close(Va),
     ok = gen_tcp:close(S).
 
@@ -921,6 +951,11 @@ light_request() ->
 door_request() ->
     #{sender => <<"DoorEmulator01">>, receiver => <<"Door01">>,
       body => #{category => <<"ACTUATOR">>, type => <<"OpenDoor">>, parameters => []}}.
+
+%% Sensor frame I as a raw client sends it, its SignalID I.
+raw_sensor_frame(I) ->
+    bil:encode_signal((sensor(I, <<"20">>))#{id => integer_to_binary(I), in_reply_to => undefined,
+                                             timestamp => 0, seq => undefined, epoch => undefined}).
 
 sensor(I, Value) ->
     #{context => sensor_data, sender => <<"Thermo01">>, receiver => <<"ThermoEmulator01">>,
