@@ -56,6 +56,9 @@
 -type start_arg() :: {tcp, opts()}
                    | {port, {file:filename_all(), [string()], [{string(), string()}]}, opts()}.
 
+%% The states of the machine (the diagram above).
+-type state() :: handshaking | penalty | joined | active | closing.
+
 -record(d, {transport :: agent_bridge_transport:t() | undefined,
             opts :: map(),
             outq :: agent_bridge_outq:outq(),
@@ -129,8 +132,8 @@ init(Arg) ->
 %% Events
 %% ---------------------------------------------------------------------------
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(info, {agent_bridge_shoot, Sock}, handshaking, #d{transport = undefined} = D) ->
     Ip = case inet:peername(Sock) of
              {ok, {Addr, _}} -> Addr;
@@ -287,7 +290,7 @@ handle_event(info, Other, _State, _D) ->
     ?LOG_DEBUG(#{what => unexpected_message, message => Other}),
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{transport = T, outq = Q}) ->
     %% Output still queued here or in the socket belongs to a peer that did
     %% not read it within the linger: a plain close would keep the socket

@@ -103,6 +103,9 @@
                        | {unreachable, [{endpoint(), term()}]}
                        | closed | already_connected | connecting.
 
+%% The states of the machine (the diagram above).
+-type state() :: idle | connecting | handshaking | connected | closing.
+
 -record(d, {opts :: opts(),
             owner :: pid(),
             %% The protocol's decisions: agent_bridge_client_session.
@@ -257,8 +260,8 @@ init({Endpoints, Opts, Owner}) ->
     {ok, idle, #d{opts = Opts, owner = Owner,
                   session = agent_bridge_client_session:new(Endpoints, Opts, Nonce)}}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event({call, From}, connect, idle, D) ->
     %% Connecting starts only now, so the outcome always has a caller to go to.
     {next_state, connecting, D#d{waiter = From}, [{next_event, internal, connect}]};
@@ -428,7 +431,7 @@ handle_event(info, {'DOWN', _, process, Owner, _}, _State, #d{owner = Owner} = D
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{sock = Sock, connector = Connector}) ->
     _ = [agent_bridge_client_sock:close(Sock) || Sock =/= undefined],
     case Connector of

@@ -24,6 +24,9 @@
 
 -export_type([clock/0, opts/0, speed/0, seen/0]).
 
+%% The states of the machine (the diagram above).
+-type state() :: stopped | running | ticking.
+
 -record(clock, {pid :: pid(), cell :: atomics:atomics_ref(), tick :: pos_integer()}).
 -opaque clock() :: #clock{}.
 -type speed() :: number() | manual.
@@ -125,7 +128,7 @@ stop(#clock{pid = Pid}) -> gen_statem:stop(Pid).
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
--spec init({opts(), atomics:atomics_ref()}) -> gen_statem:init_result(atom()).
+-spec init({opts(), atomics:atomics_ref()}) -> gen_statem:init_result(state()).
 init({Opts, Cell}) ->
     Start = case Opts of
                 #{start_ms := Ms} -> Ms;
@@ -141,8 +144,8 @@ init({Opts, Cell}) ->
         false -> {ok, stopped, D}
     end.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(state_timeout, tick, running, D) ->
     case held(D) of
         %% Re-anchored while held, so time does not rush to catch up after.

@@ -28,6 +28,9 @@
                   endpoints => [agent_bridge_client:endpoint()],
                   retry => pos_integer()}.
 
+%% The states of the machine (the diagram above).
+-type state() :: connecting | connected | retrying | away.
+
 -define(MAX_RETRY, 5000).
 %% A link may be busy for a connect and handshake timeout (5 s each).
 -define(CALL, 20000).
@@ -83,7 +86,7 @@ info(Link) -> gen_statem:call(Link, info, ?CALL).
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
--spec init({pid(), opts()}) -> gen_statem:init_result(atom()).
+-spec init({pid(), opts()}) -> gen_statem:init_result(state()).
 init({World, #{entity := Entity} = Opts}) ->
     %% So that terminate/3 says Bye when the Avatar is stopped.
     process_flag(trap_exit, true),
@@ -95,8 +98,8 @@ init({World, #{entity := Entity} = Opts}) ->
         false -> {ok, away, D}
     end.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, connect, connecting, #d{opts = Opts, entity = Entity} = D) ->
     ClientOpts = #{pairing => maps:get(pairing, Opts), role => avatar, entity_id => Entity,
                    credential => maps:get(credential, Opts, <<>>), owner => self()},
@@ -184,7 +187,7 @@ handle_event({call, From}, info, State, D) ->
              routes => maps:size(D#d.routes)},
     {keep_state_and_data, [{reply, From, Info}]}.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{client = undefined}) -> ok;
 terminate(_Why, _State, #d{client = Client}) -> agent_bridge_client:close(Client).
 

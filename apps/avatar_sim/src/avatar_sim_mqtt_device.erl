@@ -20,6 +20,9 @@
 -export([start_link/4, power/2, hardware_answer/5, hardware_push/4, info/1]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
+%% The states of the machine (the diagram above).
+-type state() :: connecting | online | off.
+
 -record(d, {home :: pid(),
             device :: avatar_sim_mqtt_kind:device(),
             ctx :: avatar_sim_mqtt_kind:ctx(),
@@ -75,8 +78,8 @@ init({Home, #{id := Id} = Device, Ctx, Mqtt}) ->
     {ok, connecting, #d{home = Home, device = Device, ctx = Ctx, mqtt = Mqtt},
      [{next_event, internal, connect}]}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, connect, connecting, #d{device = Dev, mqtt = Mqtt} = D) ->
     #{id := Id, availability := #{topic := A, offline := Off}} = Dev,
     Opts = Mqtt#{owner => self(),
@@ -169,7 +172,7 @@ handle_event(info, {'DOWN', _, process, C, Why}, _State, #d{client = C} = D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{client = undefined}) -> ok;
 terminate(_Why, _State, #d{client = C, device = Dev} = D) ->
     %% A clean stop sends DISCONNECT, so the broker drops the will: say

@@ -58,6 +58,9 @@
                   avatar_opts => map(),
                   atom() => term()}.
 
+%% The states of the machine (the diagram above).
+-type state() :: starting | waiting_devices | running | failed.
+
 -define(HOUSE_OPTS, [clock, seed, spool, password, email_to, email_from, script, script_file,
                      people, location, time_period, motion_repeat, motion_quiet, retry]).
 -define(READY_TIMEOUT, 30000).
@@ -195,8 +198,8 @@ init(Opts) ->
            fw_entity = <<Entity/binary, "-firmware">>},
     {ok, starting, D, [{next_event, internal, setup}]}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, setup, starting, D) ->
     case setup(D) of
         {ok, D1} ->
@@ -262,7 +265,7 @@ handle_event(info, {'EXIT', Pid, Why}, _State, D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, D) ->
     _ = [catch mqtt_avatar:stop(A) || A <- [D#d.avatar], A =/= undefined],
     _ = [catch gen_statem:stop(P) || P <- maps:values(D#d.devices)],

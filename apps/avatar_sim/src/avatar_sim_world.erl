@@ -34,6 +34,9 @@
     {Reply :: term(), term(), [effect()]}.
 -callback state(Now :: integer(), Model :: term()) -> map().
 
+%% The states of the machine (the diagram above).
+-type state() :: subscribing | running.
+
 -define(MAX_LOG, 200000).
 
 -record(d, {model :: module(),
@@ -74,7 +77,7 @@ link_bound(World, Entity, Entries) -> gen_statem:cast(World, {link_bound, Entity
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
--spec init(args()) -> gen_statem:init_result(atom()).
+-spec init(args()) -> gen_statem:init_result(state()).
 init(#{model := Model, model_opts := Opts, clock := Clock, links := Links}) ->
     Owner = maps:from_list([{C, E} || #{entity := E, description := Desc} <- Links,
                                       C <- avatar_sim_desc:component_ids(Desc)]),
@@ -83,8 +86,8 @@ init(#{model := Model, model_opts := Opts, clock := Clock, links := Links}) ->
     {ok, subscribing, #d{model = Model, state = State, clock = Clock, owner = Owner},
      [{next_event, internal, subscribe}]}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, subscribe, subscribing, #d{clock = Clock} = D) ->
     monitor(process, avatar_sim_clock:pid(Clock)),
     ok = avatar_sim_clock:subscribe(Clock, self()),

@@ -62,6 +62,9 @@
                | {puback, term()}
                | {puback_error, term(), term()}.
 
+%% The states of the machine (the diagram above).
+-type state() :: connecting | connected | backoff.
+
 -define(CALL_TIMEOUT, 30000).
 -define(BATCH, 64).
 -define(ACTIVE_N, 100).
@@ -348,8 +351,8 @@ generate_client_id() ->
     <<"mqttc-", (integer_to_binary(rand:uniform(1 bsl 48), 36))/binary>>.
 
 %% @private
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 %% Connecting: open the socket, send CONNECT, wait for CONNACK.
 handle_event(internal, connect, connecting, D) ->
     case D#d.tls of
@@ -484,7 +487,7 @@ handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
 %% @private
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Reason, _State, D) ->
     mqtt_client_sock:close(D#d.sock).
 

@@ -22,6 +22,9 @@
 %% `false' says it is not installed).
 -type opts() :: #{executable => file:filename() | false}.
 
+%% The states of the machine (the diagram above).
+-type state() :: launching | running | failed.
+
 -define(READY_MS, 10000).
 -define(POLL_MS, 50).
 -define(TRIES, 3).
@@ -98,8 +101,8 @@ init(Exe) ->
            deadline = erlang:monotonic_time(millisecond) + ?READY_MS},
     {ok, launching, D, [{next_event, internal, launch}]}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, launch, launching, D) ->
     case launch(D) of
         {ok, D1} -> {keep_state, D1, [{state_timeout, ?POLL_MS, poll}]};
@@ -144,7 +147,7 @@ handle_event(info, {'EXIT', _Parent, Why}, _State, _D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, D) ->
     _ = close_shell(D),
     _ = file:del_dir_r(D#d.dir),

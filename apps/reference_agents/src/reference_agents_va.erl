@@ -49,6 +49,9 @@
                   test_timeout => pos_integer(),
                   retry => pos_integer()}.
 
+%% The states of the machine (the diagram above).
+-type state() :: connecting | unembodied | testing | embodied | observing.
+
 -record(d, {opts :: opts(),
             name :: binary(),
             mind :: module(),
@@ -65,7 +68,7 @@
             %% The Timestamp of the last signal from the Avatar: the VA's idea
             %% of physical time (simulated time with avatar_sim).
             last_time :: integer() | undefined,
-            history = [] :: [{atom(), integer()}]}).
+            history = [] :: [{state(), integer()}]}).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -81,9 +84,9 @@ stop(Va) -> gen_statem:stop(Va).
 
 %% @doc The VA's state, its embodiment report, what its mind shows and
 %% how many of its requests await their answer.
--spec inspect(pid()) -> #{name := binary(), state := atom(),
+-spec inspect(pid()) -> #{name := binary(), state := state(),
                           embodiment := reference_agents_embodiment:report() | undefined,
-                          mind := map(), states := [{atom(), integer()}],
+                          mind := map(), states := [{state(), integer()}],
                           pending := non_neg_integer()}.
 inspect(Va) -> gen_statem:call(Va, inspect).
 
@@ -104,7 +107,7 @@ introduce(Va, Peers) -> gen_statem:cast(Va, {peers, Peers}).
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> [handle_event_function, state_enter].
 
--spec init(opts()) -> gen_statem:init_result(atom()).
+-spec init(opts()) -> gen_statem:init_result(state()).
 init(#{name := Name, mind := Mind} = Opts) ->
     logger:update_process_metadata(#{va => Name}),
     {ok, MindState} = Mind:init(maps:get(mind_args, Opts, [])),
@@ -115,8 +118,8 @@ init(#{name := Name, mind := Mind} = Opts) ->
         _Body -> {ok, connecting, D}
     end.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 %% Entering a state: remember it (tests read the history) and start work.
 handle_event(enter, _Old, State, D) ->
     D1 = D#d{history = [{State, now(D)} | D#d.history]},
@@ -210,7 +213,7 @@ handle_event({call, From}, inspect, State, #d{mind = Mind} = D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{client = undefined}) -> ok;
 terminate(_Why, _State, #d{client = C}) -> agent_bridge_client:close(C).
 
