@@ -2,7 +2,7 @@
 %% goes without a round trip, for three kinds of partition of a real network
 %% (each node an OS process in a network namespace of its own:
 %% evatar_test_cluster's netns backend, evatar_test_net_netns), after a first partition left a stale promise behind
-%% (evatar_test_partition, docs/architecture.md section 8.5). It runs the
+%% (evatar_test_partition, docs/ha-design.md section 5). It runs the
 %% same scenario on this build and, when given one, on an earlier build
 %% (`{before, Dir}': a source tree compiled with `rebar3 compile'), and
 %% prints both side by side. Needs root and `ip'. Run through

@@ -2,8 +2,8 @@
 # Runs the partition benchmark (bench/partition_bench.erl): the longest time
 # a majority-side pairing goes without a round trip, for a node cut from the
 # other nodes, a node cut from everything and one link cut, each after a
-# first partition that left a stale promise behind (docs/architecture.md
-# section 8.5), on this build and on the build before the fix of that
+# first partition that left a stale promise behind (docs/ha-design.md
+# section 5), on this build and on the build before the fix of that
 # freeze, side by side. Every node is an OS process in a network namespace
 # of its own (test/evatar_test_netns.erl): needs root and iproute2's `ip'.
 # Usage: scripts/bench-partition.sh [ERLANG_OPTION_LIST]

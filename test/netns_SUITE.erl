@@ -6,7 +6,7 @@
 %% epoch), then cuts the active of that pairing from its current standby
 %% (evatar_test_partition): the side with a majority must keep serving every
 %% pairing through the partition, with nothing lost or duplicated
-%% (docs/ha.md section 6, docs/architecture.md section 8.5). A last case cuts
+%% (docs/ha.md section 6, docs/ha-design.md section 5). A last case cuts
 %% a node off until its pairings failed over and checks that the
 %% rebalancer gives it its share back when it returns (section 8.2).
 %% Skipped, saying why, when not run as root or without `ip'.

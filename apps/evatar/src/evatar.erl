@@ -55,7 +55,7 @@
 %% to 5000, `max_avatars' to 64. Limits (docs/protocol.md section 7):
 %% `max_id_length' 128 bytes, `max_open_requests' 1024 per requester,
 %% `max_consumes' 256 per description, `max_binding_report' 1048576 bytes.
-%% High availability (docs/architecture.md, section 8): `resume_timeout',
+%% High availability (docs/ha-design.md): `resume_timeout',
 %% `dedup_window' and `max_unacked_out' default to the application
 %% environment's; `standby_node' asks for the standby on that node.
 -type pairing_opts() :: #{agent_credential => binary() | evatar_auth:hashed(),

@@ -12,7 +12,7 @@
 %% whenever a peer becomes alive, and every `catalogue_sync_ms'. So nodes
 %% that first started apart, a node off for a week, or two sides of a
 %% healed partition converge with no operator action
-%% (docs/architecture.md, section 8.11).
+%% (docs/ha-design.md, section 11).
 %%
 %% Once this node has exchanged catalogues with every alive peer and hears
 %% a majority (in a cluster of two, also after `catalogue_alone_ms' alone),
@@ -546,7 +546,7 @@ count_live() ->
 
 now_ms() -> erlang:monotonic_time(millisecond).
 
-%% docs/architecture.md, section 8.11.
+%% docs/ha-design.md, section 11.
 opt(catalogue_sync_ms) -> application:get_env(evatar, catalogue_sync_ms, 10000);
 opt(catalogue_alone_ms) -> application:get_env(evatar, catalogue_alone_ms, 30000);
 opt(disk_check_ms) -> application:get_env(evatar, disk_check_ms, 5000).

@@ -2,7 +2,7 @@
 %% (`evatar_catalogue'): which of two versions of an entry wins when two
 %% nodes' catalogues meet, which entries a node must start or stop, and
 %% which node holds a pairing's active after a restart. No processes, no
-%% clock, no storage (docs/architecture.md, section 8.11).
+%% clock, no storage (docs/ha-design.md, section 11).
 %%
 %% An entry is a last-writer-wins register per pairing id: a live entry
 %% (the pairing's configuration and its home node) or a tombstone (it was

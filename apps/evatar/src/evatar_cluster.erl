@@ -43,7 +43,7 @@ start_link() ->
     gen_server:start_link({local, ?MODULE}, ?MODULE, [], []).
 
 %% @doc A high-availability setting from the `evatar' application
-%% environment, with its default (docs/architecture.md, section 8).
+%% environment, with its default (docs/ha-design.md).
 -spec opt(atom()) -> term().
 opt(Key) ->
     application:get_env(evatar, Key, default(Key)).

@@ -233,8 +233,8 @@ handle({register_reply, Claim, _Node, {refused, {promised, P}}}, #{role := activ
     %% with it in an earlier partition, whose promise outlived the heal, or
     %% one that won since. Raft's answer, without dropping the clients:
     %% this active, which holds the newest claim, stands for an epoch above
-    %% that promise under the rules of every election (docs/architecture.md
-    %% section 8.5): a winner still heard, or its newer claim, makes the
+    %% that promise under the rules of every election (docs/ha-design.md
+    %% section 5): a winner still heard, or its newer claim, makes the
     %% voters refuse it; else it wins and the stale promise is gone. The
     %% registration stays (effects held, no standby taken) until then.
     handle({elect, reelect, false}, Ctx, C#core{promised = max(P, C#core.promised)});
@@ -351,7 +351,7 @@ won(#{epoch := Ec, why := fenced}, #{keep_standby := true} = Ctx, C) ->
     %% was released): it keeps that standby, which gets the claim {Ec, 1}
     %% with a snapshot first; the registration waits for its confirmation
     %% (`standby_claimed'), so no majority records a configuration the
-    %% standby lacks (docs/architecture.md 8.5). Held until registered, or
+    %% standby lacks (docs/ha-design.md section 5). Held until registered, or
     %% fenced at the deadline.
     {C#core{election = undefined, conf = {Ec, 1}, reg = undefined, hold = true},
      [deadline(Ctx), {won, keep_standby, Ec}]};
@@ -383,7 +383,8 @@ quorum(#{nodes := Nodes}) -> quorum_size(length(Nodes)).
 
 %% @doc How many nodes must grant a vote or accept a registration: a strict
 %% majority of the configured nodes; 1 in a cluster of 2 or 1, where the
-%% availability rule holds (a node decides alone, docs/architecture.md).
+%% availability rule holds (a node decides alone, docs/ha-design.md
+%% section 8).
 -spec quorum_size(pos_integer()) -> pos_integer().
 quorum_size(Size) when Size =< 2 -> 1;
 quorum_size(Size) -> Size div 2 + 1.

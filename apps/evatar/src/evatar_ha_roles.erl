@@ -7,7 +7,7 @@
 %% process, timer or clock. `evatar_ha_instance' calls start/4, starting/3
 %% and meet/2 and turns their results into its effects; `evatar_pairing'
 %% calls held_due/3; `evatar_pairing_effects' and `evatar_ha_sim' apply
-%% events with apply_events/4 (docs/architecture.md, sections 5 and 8.7).
+%% events with apply_events/4 (docs/ha-design.md, sections 7 and 12).
 %%
 %% ```
 %%  start/4 --> become_active

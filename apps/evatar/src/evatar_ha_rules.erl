@@ -4,7 +4,7 @@
 %% whether the timings hang together. No processes, no clock:
 %% `evatar_cluster' calls these with what it observed. The decisions about
 %% one pairing's instances (votes, registrations, fencing, reconciling two
-%% instances) are in `evatar_ha_core' (docs/architecture.md, section 8).
+%% instances) are in `evatar_ha_core' (docs/ha-design.md).
 -module(evatar_ha_rules).
 
 -export([standby_node/4, majority/2, stalled/3, own_pause/3, discount/3, check_timings/1]).
@@ -64,7 +64,7 @@ discount(HeardAt, PausedMs, Now) ->
 %% @doc Whether the high-availability timings hang together: positive
 %% integers with `lease_ms + heartbeat_ms =< suspect_ms', so an active cut
 %% off from the majority has fenced before any node stops hearing it for
-%% `suspect_ms' and votes it away (docs/architecture.md section 8). The
+%% `suspect_ms' and votes it away (docs/ha-design.md). The
 %% error names the setting and says what is wrong.
 -spec check_timings(#{heartbeat_ms := term(), suspect_ms := term(), lease_ms := term()}) ->
           ok | {error, {bad_ha_timing, atom(), term(), string()}}.

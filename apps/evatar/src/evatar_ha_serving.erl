@@ -4,7 +4,7 @@
 %% only a serving active does (place its standby, fence without a majority,
 %% drop silent client links and hand the pairing over, carry out the
 %% rebalancer's moves). Called by `evatar_ha_instance' only, with the same
-%% view and effects (docs/architecture.md, sections 5 and 8).
+%% view and effects (docs/ha-design.md, section 12).
 -module(evatar_ha_serving).
 
 -export([core/3, core_ctx/2, step_down/3, stop/3, forget_standby/1, place/2, place_soon/2,

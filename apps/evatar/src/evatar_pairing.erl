@@ -5,7 +5,7 @@
 %% the instance's role (with `evatar_ha_serving' for what a serving active
 %% does, `evatar_ha_core' for elections and registrations and
 %% `evatar_ha_roles' for starting and the standby's apply;
-%% docs/architecture.md, sections 5 and 8). Start reading at
+%% docs/ha-design.md, section 12). Start reading at
 %% handle_event/4 here, then `evatar_ha_instance:handle/3' and
 %% `evatar_pairing_effects:effect/2'. This process owns what
 %% cannot be replicated: the pids of the entities' processes and of the

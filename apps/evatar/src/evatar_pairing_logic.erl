@@ -12,7 +12,7 @@
 %% timers from {@link timers/2}. Entities are known by their entity ids; the
 %% process maps them to pids.
 %%
-%% High availability (docs/architecture.md, section 8) adds, for entities
+%% High availability (docs/ha-design.md) adds, for entities
 %% joined with a session id (protocol version 2): a bounded window of the
 %% SignalIDs already accepted from them (a resent signal is acknowledged,
 %% not routed again), the signals delivered to them and not yet acknowledged
@@ -243,8 +243,8 @@ handle1({report_binding, EntityId}, _Now, St) ->
 handle1({takeover, Epoch}, Now, St) ->
     takeover(Epoch, Now, St);
 handle1({reelected, Epoch}, _Now, #st{epoch = Old} = St) when Epoch > Old ->
-    %% The active itself won a new epoch while serving (docs/architecture.md
-    %% section 8.5): its clients' connections are its own, so nobody is
+    %% The active itself won a new epoch while serving (docs/ha-design.md
+    %% section 5): its clients' connections are its own, so nobody is
     %% detached; only the epoch stamped from now on moves.
     {St#st{epoch = Epoch}, [{log, notice, #{what => reelected, epoch => Epoch}}]};
 handle1({timeout, {join, EntityId}}, Now, St) ->
@@ -943,7 +943,7 @@ resume(Role, EntityId, Credential, SessionId, Received, ClientEpoch, Now,
                 #{EntityId := #entity{session = SessionId, role = Role} = Entity}
                   when is_binary(SessionId) ->
                     %% A client that saw more than this history holds
-                    %% (two-node partition, docs/architecture.md) must not
+                    %% (two-node partition, docs/ha-design.md section 8) must not
                     %% see those Sequence numbers again for other signals.
                     Entity1 = trim(Entity#entity{attached = true, resume_deadline = undefined,
                                                  seq = max(Entity#entity.seq, Received)},

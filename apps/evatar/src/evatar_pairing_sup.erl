@@ -12,7 +12,7 @@
 %% (its parent's children are temporary), logged by the supervisor's
 %% `reached_max_restart_intensity' report. With a cluster, a restarted
 %% instance first asks the other nodes: if its standby took over, it becomes
-%% that one's standby (docs/architecture.md, section 8).
+%% that one's standby (docs/ha-design.md).
 -module(evatar_pairing_sup).
 -behaviour(supervisor).
 

@@ -1,6 +1,6 @@
 %% @doc Internal. Where pairings' instances should be: a pure plan of moves
 %% that spreads actives, then standbys, evenly over the live nodes
-%% (docs/architecture.md section 8.2, "Rebalancing"). No processes, no
+%% (docs/ha-design.md section 2, "Rebalancing"). No processes, no
 %% clock: `evatar_rebalancer' gathers the placement and executes the moves.
 %%
 %% Two moves exist, both paths the pairing already has: `{handover, Id}' (a

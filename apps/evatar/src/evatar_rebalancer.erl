@@ -1,5 +1,5 @@
 %% @doc Internal. Spreads the pairings' actives and standbys over the live
-%% nodes again after a node joins (docs/architecture.md section 8.2,
+%% nodes again after a node joins (docs/ha-design.md section 2,
 %% "Rebalancing"): after faults every active may sit on one node and every
 %% standby on another while a returning node idles.
 %%

@@ -1,6 +1,6 @@
-%% @doc Common Test suite of high availability (docs/architecture.md section
-%% 8, docs/protocol.md section 11) with real nodes started by OTP `peer' on
-%% this machine (the cluster harness, evatar_test_cluster), each running
+%% @doc Common Test suite of high availability (docs/ha-design.md,
+%% docs/protocol.md section 11) with real nodes started by OTP `peer' on this
+%% machine (the cluster harness, evatar_test_cluster), each running
 %% evatar and agent_bridge with a listener on 127.0.0.1, and real TCP
 %% clients (`agent_bridge_client' with `ha => true' and every node's
 %% endpoint) in the test node, which is not part of the cluster (peers are

@@ -138,7 +138,7 @@ paused_active_stale_claim(_Config) ->
                           [] = [V || V <- maps:get(violations, W1), element(1, V) =/= not_serving]
                   end, [false, true]).
 
-%% @doc Found by the model (docs/architecture.md 8.5): n3 is down, so the
+%% @doc Found by the model (docs/ha-design.md section 5): n3 is down, so the
 %% standby is on n2; n1's node is paused past suspect_ms, its standby
 %% resyncs after the pause, the reconfirmation is refused for the standby's
 %% stale promise and times out, and the fenced n1 wins epoch 2. It used to
@@ -170,7 +170,7 @@ reelected_after_pause_keeps_standby(_Config) ->
     [] = maps:get(violations, W1).
 
 %% @doc A false alarm of the check, found by the safety property (three
-%% faults, outside docs/architecture.md 8.9): n1 is isolated with signal 1
+%% faults, outside docs/ha-design.md section 9): n1 is isolated with signal 1
 %% applied and held; n2 takes over at epoch 2 with n3's vote, routes the
 %% resent signal 1 again and acknowledges it with no standby (degraded);
 %% n3 crashes, erasing its promise of epoch 2, and boots blank; n2 is
@@ -197,7 +197,7 @@ epoch_won_twice_after_vote_loss(_Config) ->
 %% grants it), registers {2, 1} as n2 had, and takes signal 1 with a new
 %% standby; n3, woken, installs the dead n2's snapshot, and once n1 is
 %% paused takes over at epoch 3 from n2's {2, 1}, without signal 1. Outside
-%% docs/architecture.md 8.9 (the votes of a majority lost at once): the
+%% docs/ha-design.md section 9 (the votes of a majority lost at once): the
 %% model covers nothing accepted after an epoch is won twice with a promise
 %% of it erased, and reports two winners of an epoch without one.
 epoch_won_twice_then_old_standby_serves(_Config) ->
@@ -219,7 +219,7 @@ epoch_won_twice_then_old_standby_serves(_Config) ->
 %% n2 is cut off; n1 wakes, and its own voter and n3's blank one confirm it
 %% at epoch 1, so it serves there and takes signal 1 with a standby on n3.
 %% After the heal n2 wins epoch 3 from its epoch 2 and serves without
-%% signal 1. Outside docs/architecture.md 8.9 (the votes of a majority lost
+%% signal 1. Outside docs/ha-design.md section 9 (the votes of a majority lost
 %% at once), as in the case above.
 old_epoch_served_after_vote_loss(_Config) ->
     Cmds = [{tick, 153}, {isolate, n1}, {pause, n1}, {tick, 353}, {crash, n3}, heal, {tick, 10},

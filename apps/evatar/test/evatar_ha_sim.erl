@@ -20,7 +20,7 @@
 %% <li>at most one instance serves at the highest epoch (role active, not
 %% holding its effects);</li>
 %% <li>no accepted signal is lost: one the sender was told was accepted
-%% (docs/architecture.md 8.9: applied and in the standby's history, then
+%% (docs/ha-design.md section 9: applied and in the standby's history, then
 %% acknowledged) is held by a live instance, and by the serving instance
 %% of the highest epoch;</li>
 %% <li>no accepted signal is delivered twice: the receiver never gets one
@@ -29,7 +29,7 @@
 %% later gets no routing but those it had when it was covered again;</li>
 %% <li>once an instance serves at or below an epoch another won, after a
 %% crash erased a node's promise of that epoch (the votes of a majority
-%% lost at once, outside docs/architecture.md 8.9), nothing accepted from
+%% lost at once, outside docs/ha-design.md section 9), nothing accepted from
 %% there on is covered in that run.</li>
 %% </ul>
 %% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
@@ -79,7 +79,7 @@ step({delay, _, _} = C, W) -> fault(C, W);
 step(C, #{now := Now} = W) -> count_fault(C, W, fault(C, W#{last_change := Now})).
 
 %% The guarantee holds while no more than one of the two instances fails
-%% before a new standby is synced (docs/architecture.md 8.9): a second
+%% before a new standby is synced (docs/ha-design.md section 9): a second
 %% failure (a crash, a pause, a cut between the instances' nodes) leaves
 %% what was accepted until then outside it. The crash of a node without an
 %% instance is not one: it erases that node's promises, which matters only
@@ -671,8 +671,8 @@ release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender 
     effects(Out, I#{commit := C1}, W1#{sender := Snd#{degraded := Degraded}, faults => Faults}).
 
 %% Covered again protects a signal from now on, not backwards: the
-%% routings it got while degraded (outside the guarantee, docs/architecture.md
-%% 8.9: with an epoch won twice after a majority's promises were lost, two
+%% routings it got while degraded (outside the guarantee, docs/ha-design.md
+%% section 9: with an epoch won twice after a majority's promises were lost, two
 %% histories may each route it) and the one in the history now covered are
 %% excused; any other routing it gets from now on is routed twice.
 excuse(Sids, Applied, #{receiver := #{got := Got, excused := Ex} = R} = W) ->
@@ -745,7 +745,7 @@ won(_Event, _Ref, W) ->
 
 %% An instance serves at an epoch that another instance won, or below it,
 %% after a crash erased a node's promise of that epoch: the votes of a
-%% majority were lost at once (docs/architecture.md 8.9, "Not covered").
+%% majority were lost at once (docs/ha-design.md section 9, "Not covered").
 %% Two histories may now share claims, and an instance of one may take
 %% over from the other without what it accepted, whatever is synced since:
 %% nothing accepted is covered from then on in this run (a real cluster
