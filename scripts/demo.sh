@@ -10,11 +10,18 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 case "${1:-}" in
+  spade)
+    # The SPADE agent's holiday runs in Python, on a node of its own.
+    [ "$#" -eq 1 ] || { echo "demo.sh: spade takes no other option" >&2; exit 2; }
+    exec bash scripts/demo-spade.sh;;
   -h|--help)
     cat <<'USAGE'
-usage: make demo [DEMO_ARGS="[home|mqtt|robots|rooms|bil] [--keep]"]
-       scripts/demo.sh [home|mqtt|robots|rooms|bil] [--keep]
-  --keep   keep the node running afterwards, for a remote shell
+usage: make demo [DEMO_ARGS="[home|mqtt|robots|rooms|bil] [--keep]" | DEMO_ARGS=spade]
+       scripts/demo.sh [home|mqtt|robots|rooms|bil] [--keep] | spade
+  --keep   keep the node running afterwards, for a remote shell; the home's
+           house VA then leaves its pairing to a VA of your own (docs/clients.md)
+  spade    the holiday told with a SPADE agent (Python; installs SPADE in
+           clients/python/.venv from PyPI; scripts/demo-spade.sh)
 Stop it (kept or not) with Ctrl-C, with `kill PID' (SIGTERM) of this script or
 of `make demo', or with reference_agents_demo:stop(). from a remote shell: the
 node gets 10 s to stop cleanly, then it is killed.

@@ -19,7 +19,8 @@
 %% are created on node 1 (active) with their standby on node 2, and the
 %% script waits until the standby is synced. It prints
 %%   EVATAR_PORTS=<port1>,<port2>,...
-%% before EVATAR_PORT=<port1>.
+%% before EVATAR_PORT=<port1>. With --home or --robots the simulated Avatar
+%% runs in this script's own VM, given every node's endpoint.
 %% --home starts the easy smart home (one gateway with every device) joined
 %% to PAIRING, on a clock at 17:55 on 2024-11-15 running at speed 2, with the
 %% holiday evening's script (an intruder at 21:40), as
@@ -103,7 +104,7 @@ single(Args) ->
             halt(2)
     end,
     {ok, {_, Bound}} = agent_bridge:address(test_node),
-    State = start_sim(Opts, Bound),
+    State = start_sim(Opts, [{{127, 0, 0, 1}, Bound}]),
     Main = self(),
     _ = [spawn_link(fun() -> control(Path, Main) end) || #{control := Path} <- [Opts]],
     _ = [receive {control, listening, Path} -> put(control, Path) after 5000 -> error(no_control) end
@@ -140,7 +141,7 @@ pairing(Spec) ->
             halt(2)
     end.
 
-start_sim(#{home := Spec} = Opts, Port) ->
+start_sim(#{home := Spec} = Opts, Endpoints) ->
     [Pairing, Cred | SpoolParts] = string:split(Spec, ":", all),
     {ok, _} = application:ensure_all_started(avatar_sim),
     Clock = start_clock(Opts),
@@ -150,7 +151,7 @@ start_sim(#{home := Spec} = Opts, Port) ->
                  File -> #{script_file => File}
              end,
     Home = case avatar_sim:start_home(Script#{clock => Clock, seed => 1,
-                                             endpoints => [{{127, 0, 0, 1}, Port}],
+                                             endpoints => Endpoints,
                                              spool => lists:join(":", SpoolParts),
                                              gateways => [#{pairing => list_to_binary(Pairing),
                                                             credential => list_to_binary(Cred)}]}) of
@@ -160,7 +161,7 @@ start_sim(#{home := Spec} = Opts, Port) ->
                    halt(2)
            end,
     #{clock => Clock, home => Home, avatar => Home};
-start_sim(#{robots := Spec} = Opts, Port) ->
+start_sim(#{robots := Spec} = Opts, Endpoints) ->
     Robots = [case string:split(R, ":") of
                   [P, C] when P =/= "" -> #{pairing => list_to_binary(P),
                                             credential => list_to_binary(C)};
@@ -169,9 +170,9 @@ start_sim(#{robots := Spec} = Opts, Port) ->
     {ok, _} = application:ensure_all_started(avatar_sim),
     Clock = start_clock(Opts),
     {ok, Arena} = avatar_sim:start_arena(#{clock => Clock, seed => 1, robots => Robots,
-                                           endpoints => [{{127, 0, 0, 1}, Port}]}),
+                                           endpoints => Endpoints}),
     #{clock => Clock, arena => Arena, avatar => Arena};
-start_sim(_, _Port) ->
+start_sim(_, _Endpoints) ->
     #{}.
 
 start_clock(Opts) ->
@@ -395,7 +396,8 @@ stop() ->
 
 %% A cluster of N peer nodes, set up as apps/evatar/test/evatar_ha_SUITE does.
 cluster(N, Args) ->
-    Pairings = [pairing(Spec) || Spec <- Args],
+    {Opts, Specs} = options(Args, #{}, []),
+    Pairings = [pairing(Spec) || Spec <- Specs],
     Unique = os:getpid(),
     Names = [list_to_atom("evatar_ctl" ++ integer_to_list(I) ++ "_" ++ Unique)
              || I <- lists:seq(1, N)],
@@ -429,12 +431,15 @@ cluster(N, Args) ->
                                     end
                             end, Pairings)
          end),
+    %% The simulated Avatar runs here, outside the cluster, with every
+    %% node's endpoint: killing a node leaves it to join another.
+    Sim = start_sim(Opts, [{{127, 0, 0, 1}, Pt} || Pt <- Ports]),
     io:format("EVATAR_PORTS=~s~n", [lists:join(",", [integer_to_list(Pt) || Pt <- Ports])]),
     io:format("EVATAR_PORT=~b~n", [hd(Ports)]),
     OsPids = [peer:call(P, os, getpid, []) || {P, _} <- Started],
     Main = self(),
     _ = spawn_link(fun() -> read_stdin(Main) end),
-    loop(#{nodes => Started, ospids => OsPids}).
+    loop(Sim#{nodes => Started, ospids => OsPids}).
 
 setup_peer(P, Nodes) ->
     ok = peer:call(P, application, load, [evatar]),

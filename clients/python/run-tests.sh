@@ -25,12 +25,9 @@ fi
 PY="$VENV/bin/python"
 "$PY" -m pip install --quiet --disable-pip-version-check pytest agentspeak >&2 \
   || fail "cannot install pytest and agentspeak from PyPI"
-# SPADE for tests/test_spade.py (evatar.spade), pinned to versions known to
-# work; SQLAlchemy 2.1, which SPADE's XMPP server uses, no longer brings the
-# greenlet its asyncio mode needs.
-"$PY" -m pip install --quiet --disable-pip-version-check \
-  spade==4.1.4 spade-bdi==0.3.3 greenlet==3.5.6 >&2 \
-  || fail "cannot install SPADE (spade==4.1.4 spade-bdi==0.3.3 greenlet==3.5.6) from PyPI"
+# SPADE for tests/test_spade.py (evatar.spade), pinned to versions known to work.
+"$PY" -m pip install --quiet --disable-pip-version-check -r "$HERE/spade-requirements.txt" >&2 \
+  || fail "cannot install SPADE ($HERE/spade-requirements.txt) from PyPI"
 "$PY" -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps "$HERE" >&2 \
   || fail "cannot install the evatar package"
 ls "$REBAR_BASE_DIR"/default/lib/agent_bridge/ebin/*.beam >/dev/null 2>&1 \

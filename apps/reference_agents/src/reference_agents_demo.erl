@@ -85,6 +85,7 @@ run(mqtt, Keep) ->
             #{home := Home, va := Va} = Outcome = reference_agents_holiday:outcome(S),
             mqtt_summary(Outcome, Keep),
             home_summary(Home, Va),
+            ok = login_note(Keep, S),
             finish(Keep, S, fun reference_agents_holiday:stop/1);
         {error, {broker, Message}} ->
             {error, Message};
@@ -104,6 +105,7 @@ run(home, Keep) ->
     ok = reference_agents_holiday:run_until(S, "22:05"),
     #{home := Home, va := Va} = reference_agents_holiday:outcome(S),
     home_summary(Home, Va),
+    ok = login_note(Keep, S),
     finish(Keep, S, fun reference_agents_holiday:stop/1);
 run(rooms, Keep) ->
     header("Light control, one VA per room (paper, section 3.2)",
@@ -130,6 +132,19 @@ run(robots, Keep) ->
     Outcome = reference_agents_robots:outcome(S),
     robots_summary(Result, Outcome),
     finish(Keep, S, fun reference_agents_robots:stop/1).
+
+%% A kept house is for a VA of one's own (docs/clients.md): a pairing has
+%% one agent, so the house VA, its story told, leaves it.
+login_note(false, _S) ->
+    ok;
+login_note(true, S) ->
+    ok = reference_agents_va:stop(reference_agents_scenario:get(va, S)),
+    #{endpoint := {Ip, Port}, pairing := Pairing, credential := Credential} =
+        reference_agents_holiday:login(S),
+    section("Your own VA"),
+    io:format("  The house VA has left the pairing: a VA of your own can take its place.~n"
+              "  EVATAR listens on ~s:~b, pairing ~s, credential ~s (docs/clients.md).~n",
+              [inet:ntoa(Ip), Port, Pairing, Credential]).
 
 finish(false, S, Stop) ->
     ok = Stop(S),

@@ -10,7 +10,7 @@
 -module(reference_agents_holiday).
 
 -export([start/1, run_until/2, outcome/1, stop/1, run/1, default_script/0,
-         start_datetime/0]).
+         start_datetime/0, login/1]).
 
 -export_type([opts/0]).
 
@@ -37,6 +37,16 @@
 
 -spec start_datetime() -> calendar:datetime().
 start_datetime() -> {{2024, 11, 15}, {17, 55, 0}}.
+
+%% @doc Where a VA of one's own joins the house of a running scenario: the
+%% scenario's listener, the pairing and the VAs' credential (a kept demo
+%% prints them; docs/clients.md).
+-spec login(reference_agents_scenario:scenario()) ->
+          #{endpoint := {inet:ip_address(), inet:port_number()}, pairing := binary(),
+            credential := binary()}.
+login(S) ->
+    #{endpoint => reference_agents_scenario:endpoint(S), pairing => ?PAIRING,
+      credential => ?VA_CRED}.
 
 %% @doc The holiday evening: nobody home; at 21:40 an intruder types a
 %% wrong code at the door, comes into the hall, looks around, goes into the

@@ -53,14 +53,17 @@ async def agentspeak_va(node: Node) -> Tuple[List[str], Callable[[], Awaitable[N
 
 def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
             done: Optional[Callable[[List[str]], bool]] = None,
-            embody: Embody = agentspeak_va, node_args: Sequence[str] = ()) -> Dict[str, object]:
+            embody: Embody = agentspeak_va, node_args: Sequence[str] = (),
+            fault: Optional[Tuple[str, Callable[[Node], Awaitable[None]]]] = None
+            ) -> Dict[str, object]:
     """Runs the house and the VA ``embody`` starts (by default the
     AgentSpeak one) from 17:55 (or ``start``) until ``until`` on the
     simulated clock; returns the house's outcome lines and the agent's log.
     With ``done``, the outcome is read again until done says it is all
     there (at most 30 s): the agent acts in real time on a clock a thousand
     times faster, so on a loaded machine it may act on the last reading
-    after the clock has stopped."""
+    after the clock has stopped. With ``fault`` = (HH:MM, f), the clock
+    stops at HH:MM for ``await f(node)``, then goes on."""
     extra = ["--home-start", start] if start else []
     node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
                                      "--home", "home:home-gateway-secret:%s" % spool]
@@ -70,6 +73,9 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
         loop = asyncio.get_running_loop()
         log, stop = await embody(node)
         await loop.run_in_executor(None, node.ask, "speed %d" % SPEED)
+        if fault is not None:
+            await loop.run_in_executor(None, node.ask, "run_until " + fault[0])
+            await fault[1](node)
         await loop.run_in_executor(None, node.ask, "run_until " + until)
         await asyncio.sleep(0.2)  # the last answers reach the house
         lines = await loop.run_in_executor(None, node.ask, "outcome")

@@ -1,16 +1,17 @@
 """SPADE agents embodied through EVATAR (evatar.spade), on SPADE's embedded
 XMPP server (conftest's ``xmpp``, loopback): the holiday policy as a
 spade-bdi agent (examples/holiday/holiday_spade.asl) against the simulated
-home, judged by the house's outcome as test_holiday judges the
-python-agentspeak agent; a wrong credential and an unbound action give the
-agent errors, never a hang."""
+home on a two-node cluster whose node 1 is killed under it, judged by the
+house's outcome as test_holiday judges the python-agentspeak agent; a
+wrong credential and an unbound action give the agent errors, never a
+hang; docs/clients.md's SPADE agent runs."""
 
 from __future__ import annotations
 
 import asyncio
 import sys
 from pathlib import Path
-from typing import Awaitable, Callable, Dict, List, Tuple
+from typing import Awaitable, Callable, Dict, List, Optional, Tuple
 
 import pytest
 
@@ -30,19 +31,65 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "holid
 import holiday_spade  # noqa: E402
 
 
-def spade_va(xmpp: XmppServer) -> Callable[[Node], Awaitable[Tuple[List[str], Callable[[], Awaitable[None]]]]]:
+def endpoints(node: Node) -> List[Tuple[str, int]]:
+    """Every node's endpoint (a cluster's EVATAR_PORTS), else the one."""
+    ports = [l.split("=", 1)[1] for l in node.lines if l.startswith("EVATAR_PORTS=")]
+    return [("127.0.0.1", int(p)) for p in (ports[0].split(",") if ports else [node.port])]
+
+
+def spade_va(xmpp: XmppServer, agents: Optional[List[EmbodiedBDIAgent]] = None
+             ) -> Callable[[Node], Awaitable[Tuple[List[str], Callable[[], Awaitable[None]]]]]:
     async def embody(node: Node) -> Tuple[List[str], Callable[[], Awaitable[None]]]:
-        agent = await holiday_spade.embody(xmpp.port, [("127.0.0.1", node.port)], "home",
-                                           "home-va-secret", BODY)
+        agent = await holiday_spade.embody(xmpp.port, endpoints(node), "home",
+                                           "home-va-secret", BODY,
+                                           handshake_timeout=1.0, reconnect_backoff=(0.02, 0.3))
         await agent.body.wait_bound(timeout=30)
+        if agents is not None:
+            agents.append(agent)
         return agent.log, agent.stop
     return embody
 
 
 @pytest.fixture(scope="module")
 def outcome(tmp_path_factory: pytest.TempPathFactory, xmpp: XmppServer) -> Dict[str, object]:
-    return evening(tmp_path_factory.mktemp("spade-holiday-spool"), done=complete,
-                   embody=spade_va(xmpp))
+    """The evening on two nodes, the agent's body and the house knowing
+    both. At 19:00 (the clock stopped) node 1 is killed: the body resumes
+    its session on node 2 and the house joins it again; test_holiday's
+    checks, imported above, then judge the evening as they judge one
+    without the failure."""
+    agents: List[EmbodiedBDIAgent] = []
+    resumed: List[object] = []
+
+    async def kill_node_1(node: Node) -> None:
+        body = agents[0].body
+        client = body.client
+        assert client is not None
+        want = {c.id for c in body.description.components if c.consumes}
+        await asyncio.get_running_loop().run_in_executor(None, node.ask, "kill 1")
+        await client.wait_binding(lambda b: client.epoch >= 2 and set(body.bound()) >= want,
+                                  timeout=60)
+        resumed.extend([client.epoch, client.endpoint == endpoints(node)[1],
+                        client.session_id == session[0]])
+
+    session: List[Optional[str]] = []
+
+    def embody(node: Node) -> Awaitable[Tuple[List[str], Callable[[], Awaitable[None]]]]:
+        async def started() -> Tuple[List[str], Callable[[], Awaitable[None]]]:
+            r = await spade_va(xmpp, agents)(node)
+            session.append(agents[0].body.client.session_id if agents[0].body.client else None)
+            return r
+        return started()
+
+    result = evening(tmp_path_factory.mktemp("spade-holiday-spool"), done=complete,
+                     embody=embody, node_args=["--cluster", "2"], fault=("19:00", kill_node_1))
+    result["resumed"] = resumed
+    return result
+
+
+def test_the_body_resumed_on_node_2(outcome) -> None:  # type: ignore[no-untyped-def]
+    """The failover was a resume: node 2, epoch 2 or later, the same session."""
+    epoch, on_node_2, same_session = outcome["resumed"]
+    assert epoch >= 2 and on_node_2 and same_session, outcome["resumed"]
 
 
 LIGHT = Description(entity_id="spade-va", entity_type="Agent", components=[
@@ -128,3 +175,28 @@ def test_unbound_action_bdi(xmpp: XmppServer, node: Node, tmp_path: Path) -> Non
         assert want <= set(agent.log), agent.log
         assert not [l for l in agent.log if l.startswith("feedback")]
     run(main())
+
+
+def test_clients_md_spade_agent_runs(xmpp: XmppServer, tmp_path: Path) -> None:
+    """docs/clients.md's SPADE agent is examples/spade/light_agent.py, and
+    it turns the simulated home's living-room light on."""
+    import re
+    import subprocess
+    from conftest import REPO
+    example = REPO / "clients" / "python" / "examples" / "spade" / "light_agent.py"
+    text = (REPO / "docs" / "clients.md").read_text()
+    section = text[text.index("### SPADE agents"):]
+    block = re.search(r"```python\n(.*?)```", section, re.S)
+    assert block is not None and block.group(1) == example.read_text()
+    node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
+                                     "--home", "home:home-gateway-secret:%s" % tmp_path,
+                                     "--script", "none"])
+    try:
+        out = subprocess.run([sys.executable, str(example), str(node.port), str(xmpp.port)],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert "the living-room light is on" in out.stdout, out.stdout
+        assert [l for l in node.ask("outcome") if l.startswith("LIGHT ")][-1].split()[2:] == \
+            ["living", "on"]
+    finally:
+        node.stop()

@@ -97,11 +97,13 @@ window(120000).
 
 +!alarm <-
     .act("SpeakerEmulator01", "PlaySound", [p("Sound", "alarm"), p("Volume", 100)]);
+    .log("alarm sounded");
     !say.
 +!say <-
     .act("SpeakerEmulator01", "PlayVoiceMessage",
          [p("Message", "You are being recorded. The police have been called."),
-          p("Volume", 100)]).
+          p("Volume", 100)]);
+    .log("warning spoken").
 
 // A failed action ends its plan; these go on from where it stopped.
 +failed(Component, Service, Reason) <- .log("failed ", Component, " ", Service, ": ", Reason); !recover(Service).

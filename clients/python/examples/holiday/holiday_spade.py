@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 import os
 import sys
-from typing import List, Sequence, Tuple
+from typing import List, Sequence, Tuple, Type
 
 from evatar.spade import Body, EmbodiedBDIAgent
 
@@ -32,9 +32,11 @@ def endpoints(text: str) -> List[Tuple[str, int]]:
 
 async def embody(xmpp_port: int, evatar: Sequence[Tuple[str, int]], pairing: str,
                  credential: str, body_file: str, entity_id: str = "house-va",
-                 jid: str = "holiday@127.0.0.1", **options: object) -> EmbodiedBDIAgent:
-    """Starts the agent; returns once its body has joined (not yet bound)."""
-    agent = EmbodiedBDIAgent(jid, "holiday-xmpp", ASL, port=xmpp_port)
+                 jid: str = "holiday@127.0.0.1", cls: Type[EmbodiedBDIAgent] = EmbodiedBDIAgent,
+                 **options: object) -> EmbodiedBDIAgent:
+    """Starts the agent (of class ``cls``); returns once its body has
+    joined (not yet bound)."""
+    agent = cls(jid, "holiday-xmpp", ASL, port=xmpp_port)
     agent.embody(Body(body_file, evatar, pairing=pairing, credential=credential,
                       entity_id=entity_id, **options))
     await agent.start()
