@@ -1,12 +1,13 @@
-%% @doc EVATAR against MQTT brokers, side by side in one run (issue 7):
-%% EVATAR, mosquitto and RabbitMQ's MQTT plugin, each its own OS process on
-%% loopback, driven by the same load generator (broker_bench_gen) in this
-%% VM. For each N (pairs of agent and device): the closed-loop maximum
+%% @doc EVATAR against the brokers users would pick instead, side by side
+%% in one run: EVATAR, mosquitto, RabbitMQ's MQTT plugin and nats-server
+%% (request-reply), each its own OS process on loopback, driven by the same
+%% load generator (broker_bench_gen) in this VM. `{transport, tls}' runs
+%% EVATAR's TLS listener against mosquitto's, with the same certificate. For each N (pairs of agent and device): the closed-loop maximum
 %% round trips/s; p50, p99, p99.9 latency in an open loop at 25 %, 50 % and
 %% 75 % of each system's own maximum; the system's CPU seconds per 100,000
 %% round trips and its peak resident memory. Writes a markdown table and a
 %% JSON file under bench/results/ with the machine, the versions and the
-%% ratios EVATAR/mosquitto and EVATAR/RabbitMQ. How to run and read it:
+%% ratios EVATAR/mosquitto, EVATAR/RabbitMQ and EVATAR/NATS. How to run and read it:
 %% bench/README.md, section d. Not part of the product.
 -module(broker_bench).
 
@@ -18,6 +19,7 @@
 
 -type option() :: quick | profile | no_profile
                 | {systems, [broker_bench_sut:system()]}
+                | {transport, tcp | tls}        % tls: EVATAR and mosquitto only
                 | {sizes, [pos_integer()]}
                 | {loads, [float()]}            % open-loop rates, shares of the maximum
                 | {seconds, number()}           % each measuring window
@@ -28,7 +30,12 @@
                 | {out, file:filename()}
                 | {run_dir, file:filename()}.
 
--define(SYSTEMS, [evatar, mosquitto, rabbitmq]).
+-define(SYSTEMS, [evatar, mosquitto, rabbitmq, nats]).
+%% The systems with a TLS listener in this benchmark.
+-define(TLS_SYSTEMS, [evatar, mosquitto]).
+%% The systems EVATAR's figures are divided by, with their ratio's key.
+-define(PEERS, [{mosquitto, evatar_over_mosquitto}, {rabbitmq, evatar_over_rabbitmq},
+                {nats, evatar_over_nats}]).
 
 %% ---------------------------------------------------------------------------
 %% Entry points
@@ -46,11 +53,14 @@ main(Options) ->
     Cfg = config(Options),
     ok = filelib:ensure_dir(filename:join(maps:get(run_dir, Cfg), "x")),
     ok = ensure_distribution(Cfg),
+    %% The clients' TLS (agent_bridge_client expects ssl to be running).
+    {ok, _} = application:ensure_all_started(ssl),
     Machine0 = machine(),
     Versions = broker_bench_sut:versions(),
-    io:format("Broker comparison: systems ~w, N ~w, ~p s windows (closed loop in ~b rounds) "
+    io:format("Broker comparison (~s): systems ~w, N ~w, ~p s windows (closed loop in ~b rounds) "
               "after ~p s warm-up, open loop at ~w of each maximum~s~nload average at start: ~w~n",
-              [maps:get(systems, Cfg), maps:get(sizes, Cfg), maps:get(seconds, Cfg),
+              [maps:get(transport, Cfg), maps:get(systems, Cfg), maps:get(sizes, Cfg),
+               maps:get(seconds, Cfg),
                maps:get(rounds, Cfg), maps:get(warmup, Cfg), maps:get(loads, Cfg),
                case maps:get(quick, Cfg) of
                    true -> " (QUICK: a smoke run, figures not meant to be read)";
@@ -70,10 +80,11 @@ main(Options) ->
     Md = markdown(Date, Machine, Versions, Cfg, Runs, Ratios, Goals, Profile),
     io:put_chars(["\n", Md]),
     Results = #{date => Date, machine => Machine, versions => Versions,
-                config => Cfg#{out := unicode:characters_to_binary(maps:get(out, Cfg)),
-                               run_dir := unicode:characters_to_binary(maps:get(run_dir, Cfg))},
+                config => maps:remove(tls_dir, Cfg#{out := unicode:characters_to_binary(maps:get(out, Cfg)),
+                               run_dir := unicode:characters_to_binary(maps:get(run_dir, Cfg))}),
                 runs => Runs, ratios => Ratios, goals => Goals, profile => Profile},
-    {Json, MdFile} = evatar_bench_report:write(maps:get(out, Cfg), "brokers", Results, Md),
+    Prefix = case maps:get(transport, Cfg) of tcp -> "brokers"; tls -> "brokers-tls" end,
+    {Json, MdFile} = evatar_bench_report:write(maps:get(out, Cfg), Prefix, Results, Md),
     io:format("~nResults written to ~s and ~s~n", [Json, MdFile]),
     ok.
 
@@ -85,18 +96,40 @@ config(Options) ->
                   false -> #{sizes => [1, 100, 1000], seconds => 6, warmup => 2, rounds => 3,
                              profile_seconds => 5}
               end,
+    Transport = proplists:get_value(transport, Options, tcp),
+    lists:member(Transport, [tcp, tls]) orelse error({unknown_transport, Transport}),
+    Known = case Transport of tcp -> ?SYSTEMS; tls -> ?TLS_SYSTEMS end,
     Cfg = lists:foldl(fun({K, V}, Acc) -> Acc#{K => V};
                          (_, Acc) -> Acc
                       end,
-                      Default#{systems => ?SYSTEMS, loads => [0.25, 0.5, 0.75],
+                      Default#{systems => Known, loads => [0.25, 0.5, 0.75],
                                profile_n => 100, out => "bench/results",
                                run_dir => default_run_dir()},
                       Options),
-    Bad = [S || S <- maps:get(systems, Cfg), not lists:member(S, ?SYSTEMS)],
-    Bad =:= [] orelse error({unknown_systems, Bad, {known, ?SYSTEMS}}),
-    Cfg#{quick => Quick,
+    Bad = [S || S <- maps:get(systems, Cfg), not lists:member(S, Known)],
+    Bad =:= [] orelse error({unknown_systems, Bad, {known, Transport, Known}}),
+    Tls = case Transport of
+              tcp -> #{};
+              tls -> #{tls_dir => certs(maps:get(run_dir, Cfg))}
+          end,
+    (maps:merge(Cfg, Tls))#{quick => Quick, transport => Transport,
          profile => lists:member(profile, Options)
              orelse not (Quick orelse lists:member(no_profile, Options))}.
+
+%% The CA, server certificate and key of both TLS listeners, made by
+%% scripts/gen-bridge-certs.sh (found from the source of the evatar app,
+%% apps/evatar/src/evatar.erl, as tls_bench does).
+certs(RunDir) ->
+    Dir = filename:join(RunDir, "certs"),
+    Src = proplists:get_value(source, evatar:module_info(compile)),
+    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Script = filename:join([Root, "scripts", "gen-bridge-certs.sh"]),
+    Out = os:cmd("EVATAR_SERVER_HOSTS='localhost 127.0.0.1' bash " ++ Script ++ " " ++ Dir
+                 ++ " bench 2>&1; echo rc=$?"),
+    case string:find(Out, "rc=0\n") of
+        nomatch -> error({gen_bridge_certs, Out});
+        _ -> Dir
+    end.
 
 default_run_dir() ->
     case os:getenv("BROKER_BENCH_RUN_DIR") of
@@ -386,11 +419,10 @@ find(Runs, Sys, N) ->
 ratio(A, B) when is_number(A), is_number(B), B > 0 -> A / B;
 ratio(_, _) -> undefined.
 
-%% For each N and each figure: EVATAR/mosquitto and EVATAR/RabbitMQ.
+%% For each N and each figure: EVATAR's divided by each peer's.
 ratios(Runs, #{sizes := Sizes}) ->
-    [#{n => N,
-       evatar_over_mosquitto => ratio_map(find(Runs, evatar, N), find(Runs, mosquitto, N)),
-       evatar_over_rabbitmq => ratio_map(find(Runs, evatar, N), find(Runs, rabbitmq, N))}
+    [maps:from_list([{n, N} | [{Key, ratio_map(find(Runs, evatar, N), find(Runs, Peer, N))}
+                               || {Peer, Key} <- ?PEERS]])
      || N <- Sizes].
 
 ratio_map(undefined, _) -> undefined;
@@ -400,31 +432,44 @@ ratio_map(E, B) ->
     FB = figures(B),
     maps:map(fun(K, V) -> ratio(V, maps:get(K, FB, undefined)) end, FE).
 
-%% Issue 7's goals at every N: EVATAR at least 1.0x mosquitto's maximum
-%% and at most its p99 at 50 % load; at least 2x RabbitMQ's maximum.
+%% The goals at every N: EVATAR at least 1.0x mosquitto's maximum, at most
+%% its p99 at 50 % load and its CPU per round trip; at least 2x RabbitMQ's
+%% maximum; CPU per round trip at most 1.0x NATS's at the smallest N and
+%% within 1.3x of it at the larger ones.
 goals(Runs, #{sizes := Sizes}) ->
+    Smallest = lists:min(Sizes),
+    Cpu = fun(FE, FB) -> ratio(maps:get(cpu_s_per_100k, FE), maps:get(cpu_s_per_100k, FB)) end,
+    %% A goal against a system this run did not measure is left out.
+    [G || G <- goals(Runs, Sizes, Smallest, Cpu), G =/= not_measured].
+
+goals(Runs, Sizes, Smallest, Cpu) ->
     lists:append(
       [[goal(N, <<"max rt/s >= 1.0x mosquitto">>, E, M,
              fun(FE, FM) -> ratio(maps:get(max_rate, FE), maps:get(max_rate, FM)) end,
              fun(R) -> R >= 1.0 end),
+        goal(N, <<"CPU per rt <= 1.0x mosquitto">>, E, M, Cpu, fun(R) -> R =< 1.0 end),
         goal(N, <<"p99 at 50% load <= mosquitto's">>, E, M,
              fun(FE, FM) -> ratio(maps:get(open50_p99_ms, FE, undefined),
                                   maps:get(open50_p99_ms, FM, undefined)) end,
              fun(R) -> R =< 1.0 end),
         goal(N, <<"max rt/s >= 2x RabbitMQ">>, E, Rb,
              fun(FE, FR) -> ratio(maps:get(max_rate, FE), maps:get(max_rate, FR)) end,
-             fun(X) -> X >= 2.0 end)]
+             fun(X) -> X >= 2.0 end),
+        case N of
+            Smallest -> goal(N, <<"CPU per rt <= 1.0x NATS">>, E, Na, Cpu, fun(R) -> R =< 1.0 end);
+            _ -> goal(N, <<"CPU per rt <= 1.3x NATS">>, E, Na, Cpu, fun(R) -> R =< 1.3 end)
+        end]
        || N <- Sizes,
           E <- [find(Runs, evatar, N)], M <- [find(Runs, mosquitto, N)],
-          Rb <- [find(Runs, rabbitmq, N)]]).
+          Rb <- [find(Runs, rabbitmq, N)], Na <- [find(Runs, nats, N)]]).
 
 goal(N, What, E, B, Ratio, Ok) when E =/= undefined, B =/= undefined ->
     case Ratio(figures(E), figures(B)) of
         undefined -> #{n => N, goal => What, ratio => undefined, met => undefined};
         X -> #{n => N, goal => What, ratio => X, met => Ok(X)}
     end;
-goal(N, What, _, _, _, _) ->
-    #{n => N, goal => What, ratio => undefined, met => undefined}.
+goal(_N, _What, _, _, _, _) ->
+    not_measured.
 
 %% ---------------------------------------------------------------------------
 %% Markdown
@@ -432,7 +477,8 @@ goal(N, What, _, _, _, _) ->
 
 markdown(Date, Machine, Versions, Cfg, Runs, Ratios, Goals, Profile) ->
     Systems = maps:get(systems, Cfg),
-    [io_lib:format("# EVATAR against MQTT brokers, ~s~n~n", [Date]),
+    [io_lib:format("# EVATAR against brokers~s, ~s~n~n",
+                   [case maps:get(transport, Cfg) of tcp -> ""; tls -> " over TLS" end, Date]),
      "Produced by `make bench-brokers` (scripts/bench-brokers.sh, bench/broker_bench.erl); how to\n"
      "read it: bench/README.md, section d.",
      case maps:get(quick, Cfg) of
@@ -445,10 +491,11 @@ markdown(Date, Machine, Versions, Cfg, Runs, Ratios, Goals, Profile) ->
      io_lib:format("- load average (1, 5, 15 min) at start ~s, at end ~s~n",
                    [loads(maps:get(load_average_start, Machine)),
                     loads(maps:get(load_average_end, Machine))]),
-     io_lib:format("- versions: OTP ~s (erts ~s), mosquitto ~s, RabbitMQ ~s, EVATAR ~s~n",
+     io_lib:format("- versions: OTP ~s (erts ~s), mosquitto ~s, RabbitMQ ~s, nats-server ~s, "
+                   "EVATAR ~s~n",
                    [maps:get(otp, Versions), maps:get(erts, Versions),
                     maps:get(mosquitto, Versions), maps:get(rabbitmq, Versions),
-                    maps:get(evatar, Versions)]),
+                    maps:get(nats, Versions), maps:get(evatar, Versions)]),
      io_lib:format("- closed loop: ~p s per system in ~b rounds, the systems taking turns, each "
                    "round after ~p s warm-up; open loop: ~p s windows after ~p s warm-up, at ~s "
                    "of each system's own maximum, the systems taking turns; systems ~w; N ~w~n",
@@ -458,8 +505,16 @@ markdown(Date, Machine, Versions, Cfg, Runs, Ratios, Goals, Profile) ->
                     Systems, maps:get(sizes, Cfg)]),
      "- a round trip: the agent sends a BIL RequestAwaitingFeedback signal (~530 bytes) to its\n"
      "  device and counts the round trip when the device's Feedback (~500 bytes) comes back;\n"
-     "  EVATAR through the bridge protocol (agent_bridge_client, a pairing per pair), the brokers\n"
-     "  with MQTT 3.1.1 QoS 1 on a request topic and a response topic (mqtt_client)\n",
+     "  EVATAR through the bridge protocol (agent_bridge_client, a pairing per pair), the MQTT\n"
+     "  brokers with MQTT 3.1.1 QoS 1 on a request topic and a response topic (mqtt_client),\n"
+     "  nats-server with core NATS request-reply (a reply inbox, no acknowledgements;\n"
+     "  broker_bench_nats)\n",
+     case maps:get(transport, Cfg) of
+         tcp -> "";
+         tls -> "- transport: TLS (1.3 or 1.2, the clients check the server certificate against the\n"
+                "  CA) to EVATAR's TLS bridge listener and mosquitto's TLS listener, both with the\n"
+                "  same ECDSA P-256 certificate from scripts/gen-bridge-certs.sh\n"
+     end,
      "- ratios are EVATAR's figure divided by the broker's: above 1 is better for EVATAR for\n"
      "  round trips/s, below 1 is better for latency, CPU and memory\n",
      [size_table(N, Systems, Runs, Ratios) || N <- maps:get(sizes, Cfg)],
@@ -470,11 +525,10 @@ loads(L) -> string:join([fmt("~.2f", [X]) || X <- L], ", ").
 
 size_table(N, Systems, Runs, Ratios) ->
     Rs = [find(Runs, S, N) || S <- Systems],
-    #{evatar_over_mosquitto := EM, evatar_over_rabbitmq := ER} =
-        hd([R || #{n := M} = R <- Ratios, M =:= N]),
+    RatioMap = hd([R || #{n := M} = R <- Ratios, M =:= N]),
+    Peers = [{Peer, maps:get(Key, RatioMap)} || {Peer, Key} <- ?PEERS, has_both(Systems, Peer)],
     Header = ["figure (N = " ++ int(N) ++ ")" | [name(S) || S <- Systems]]
-        ++ ["EVATAR/mosquitto" || has_both(Systems, mosquitto)]
-        ++ ["EVATAR/RabbitMQ" || has_both(Systems, rabbitmq)],
+        ++ ["EVATAR/" ++ name(Peer) || {Peer, _} <- Peers],
     Keys = [{max_rate, "max round trips/s (closed loop)", fun evatar_bench_report:int/1},
             {cpu_s_per_100k, "CPU s per 100k round trips (closed loop)", fun f2/1},
             {gen_cpu_s_per_100k, "generator VM's CPU s per 100k round trips (closed loop)",
@@ -502,8 +556,7 @@ size_table(N, Systems, Runs, Ratios) ->
                  #{load := L} <- Open, P <- [round(L * 100)]]),
     Fig = [case R of undefined -> #{}; _ -> figures(R) end || R <- Rs],
     Rows = [[Label | [Fmt(maps:get(K, F, undefined)) || F <- Fig]]
-            ++ [ratio(Kind, EM, K) || has_both(Systems, mosquitto)]
-            ++ [ratio(Kind, ER, K) || has_both(Systems, rabbitmq)]
+            ++ [ratio(Kind, PM, K) || {_, PM} <- Peers]
             || Key <- Keys, {K, Label, Fmt, Kind} <- [with_ratio(Key)]],
     Blank = blank(Systems),
     Context = [[["closed loop: round trips/s in each round" | [case R of
@@ -528,7 +581,7 @@ ratio(no_ratio, _M, _K) -> "".
 
 %% The empty ratio cells of a context row.
 blank(Systems) ->
-    ["" || has_both(Systems, mosquitto)] ++ ["" || has_both(Systems, rabbitmq)].
+    ["" || {Peer, _} <- ?PEERS, has_both(Systems, Peer)].
 
 context_row(Label, Rs, Key, Systems) ->
     [[Label | [case R of
@@ -549,11 +602,12 @@ rget(M, K) -> maps:get(K, M, undefined).
 
 name(evatar) -> "EVATAR";
 name(mosquitto) -> "mosquitto";
-name(rabbitmq) -> "RabbitMQ".
+name(rabbitmq) -> "RabbitMQ";
+name(nats) -> "NATS".
 
 goals_table([]) -> [];
 goals_table(Goals) ->
-    ["\n## Goals of issue 7\n\n",
+    ["\n## Goals\n\n",
      evatar_bench_report:md_table(
        ["N", "goal", "EVATAR/broker", "result"],
        [[int(N), binary_to_list(G), f2(R),

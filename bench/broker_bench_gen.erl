@@ -1,5 +1,5 @@
 %% @doc Internal to the broker comparison (broker_bench): the load
-%% generator, the same design for the three systems. N pairs of (agent,
+%% generator, the same design for every system. N pairs of (agent,
 %% device), each end one Erlang process in the generator's VM:
 %%
 %% - through EVATAR, a pairing per pair: the VA and the Avatar each connect
@@ -12,7 +12,17 @@
 %%   parses it with bil:parse_signal/1 and publishes the encoded Feedback
 %%   on `bench/I/resp', to which the agent is subscribed; the agent parses
 %%   it to match the request. Each end thus encodes and parses what the
-%%   client library would through EVATAR.
+%%   client library would through EVATAR;
+%% - through nats-server, with NATS request-reply (broker_bench_nats): the
+%%   device subscribes to `bench.I.req'; the agent subscribes to its inbox
+%%   `_INBOX.bench.I' and publishes the same encoded request on
+%%   `bench.I.req' with the inbox as reply subject; the device publishes
+%%   the encoded Feedback to the reply subject. Core NATS acknowledges
+%%   nothing (at most once), where MQTT QoS 1 acknowledges every publish
+%%   and EVATAR's bridge protocol acknowledges every signal.
+%%
+%% Over TLS (the sut's `tls' is not false) both clients check the server's
+%% certificate against the sut's CA, with TLS 1.3 or 1.2.
 %%
 %% The agent counts a round trip when the answer to its request arrives;
 %% its closed and open loops are bench_requester's, as in evatar_bench_gen.
@@ -87,9 +97,10 @@ teardown(Pairs) ->
 %% ---------------------------------------------------------------------------
 
 %% A connected end: the client process, and for MQTT the topic it sends on.
--type conn() :: {evatar, pid()} | {mqtt, pid(), binary()}.
+-type conn() :: {evatar, pid()} | {mqtt, pid(), binary()}
+              | {nats, broker_bench_nats:conn(), binary(), binary()}.
 
-connect(#{system := evatar, host := Ip, port := Port}, I, Role) ->
+connect(#{system := evatar, host := Ip, port := Port, tls := Tls}, I, Role) ->
     {VaDesc, AvDesc} = evatar_bench_gen:descriptions(I, <<"bench">>),
     Desc = case Role of agent -> VaDesc; avatar -> AvDesc end,
     #{entity_id := Entity} = Desc,
@@ -97,10 +108,17 @@ connect(#{system := evatar, host := Ip, port := Port}, I, Role) ->
     Cred = case Role of agent -> AgCred; avatar -> AvCred end,
     {ok, C} = agent_bridge_client:connect(
                 [{Ip, Port}], #{pairing => <<"bench-", (integer_to_binary(I))/binary>>,
-                                role => Role, entity_id => Entity, credential => Cred}),
+                                role => Role, entity_id => Entity, credential => Cred,
+                                tls => Tls}),
     ok = agent_bridge_client:describe(C, Desc),
     {evatar, C};
-connect(#{host := Ip, port := Port}, I, Role) ->
+connect(#{system := nats, host := Ip, port := Port}, I, Role) ->
+    Req = <<"bench.", (integer_to_binary(I))/binary, ".req">>,
+    Inbox = <<"_INBOX.bench.", (integer_to_binary(I))/binary>>,
+    {ok, C} = broker_bench_nats:connect(Ip, Port, ?SETUP_TIMEOUT),
+    ok = broker_bench_nats:subscribe(C, case Role of agent -> Inbox; avatar -> Req end, 1),
+    {nats, C, Req, Inbox};
+connect(#{host := Ip, port := Port, tls := Tls}, I, Role) ->
     Prefix = <<"bench/", (integer_to_binary(I))/binary, "/">>,
     {Name, Sub, Pub} = case Role of
                            agent -> {<<"agent-">>, <<"resp">>, <<"req">>};
@@ -109,10 +127,16 @@ connect(#{host := Ip, port := Port}, I, Role) ->
     {ok, C} = mqtt_client:start_link(#{host => Ip, port => Port, protocol => v311,
                                        client_id => <<Name/binary, (integer_to_binary(I))/binary>>,
                                        clean_start => true, keepalive => 300,
-                                       reconnect => false}),
+                                       reconnect => false, tls => mqtt_tls(Tls)}),
     ok = mqtt_client:await_connected(C, ?SETUP_TIMEOUT),
     {ok, [1]} = mqtt_client:subscribe(C, [{<<Prefix/binary, Sub/binary>>, 1}], ?SETUP_TIMEOUT),
     {mqtt, C, <<Prefix/binary, Pub/binary>>}.
+
+%% The same checks as agent_bridge_client's over TLS.
+mqtt_tls(false) ->
+    false;
+mqtt_tls(#{cacertfile := Ca}) ->
+    [{verify, verify_peer}, {cacertfile, Ca}, {versions, ['tlsv1.3', 'tlsv1.2']}].
 
 %% Through EVATAR, waits for the Binding report that binds the VA's
 %% emulator to the actuator (the Avatar may see an earlier one).
@@ -127,7 +151,7 @@ await_bound({evatar, C} = Conn) ->
             error({closed_while_binding, Why})
     after ?SETUP_TIMEOUT -> error(binding_timeout)
     end;
-await_bound({mqtt, _, _}) ->
+await_bound(_) ->
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -159,19 +183,39 @@ device_loop({evatar, C} = Conn) ->
 device_loop({mqtt, C, Topic} = Conn) ->
     receive
         {mqtt_client, C, {publish, #{payload := Payload}}} ->
-            case bil:parse_signal(Payload) of
-                {ok, #{context := request} = Req} ->
-                    Fb = (feedback(Req))#{timestamp => os:system_time(millisecond),
-                                          seq => undefined, epoch => undefined},
-                    ok = mqtt_client:publish_async(C, Topic, bil:encode_signal(Fb), #{qos => 1});
-                _ ->
-                    ok
-            end,
+            ok = answer_encoded(Payload, fun(Fb) ->
+                                                 mqtt_client:publish_async(C, Topic, Fb, #{qos => 1})
+                                         end),
             device_loop(Conn);
         {'DOWN', _, process, _, _} ->
             exit(normal);
         _Other ->
             device_loop(Conn)
+    end;
+device_loop({nats, C, _, _} = Conn) ->
+    receive
+        {nats, C, {msg, _, Reply, Payload}} when is_binary(Reply) ->
+            ok = answer_encoded(Payload, fun(Fb) ->
+                                                 broker_bench_nats:publish(C, Reply, undefined, Fb)
+                                         end),
+            device_loop(Conn);
+        {nats, C, {closed, _}} ->
+            exit(normal);
+        {'DOWN', _, process, _, _} ->
+            exit(normal);
+        _Other ->
+            device_loop(Conn)
+    end.
+
+%% A broker's device: parses the request and publishes the encoded Feedback.
+answer_encoded(Payload, Publish) ->
+    case bil:parse_signal(Payload) of
+        {ok, #{context := request} = Req} ->
+            Fb = (feedback(Req))#{timestamp => os:system_time(millisecond),
+                                  seq => undefined, epoch => undefined},
+            ok = Publish(bil:encode_signal(Fb));
+        _ ->
+            ok
     end.
 
 feedback(#{id := Id, sender := S, receiver := R}) ->
@@ -202,13 +246,16 @@ send(Conn, K) ->
     Req = #{context => request, id => <<"q", (integer_to_binary(K))/binary>>,
             sender => ?VA_COMPONENT, receiver => ?AV_COMPONENT,
             body => evatar_bench_gen:request_body()},
+    Signal = fun() -> Req#{in_reply_to => undefined, timestamp => os:system_time(millisecond),
+                           seq => undefined, epoch => undefined}
+             end,
     case Conn of
         {evatar, C} ->
             agent_bridge_client:send(C, Req);
         {mqtt, C, Topic} ->
-            Signal = Req#{in_reply_to => undefined, timestamp => os:system_time(millisecond),
-                          seq => undefined, epoch => undefined},
-            mqtt_client:publish_async(C, Topic, bil:encode_signal(Signal), #{qos => 1})
+            mqtt_client:publish_async(C, Topic, bil:encode_signal(Signal()), #{qos => 1});
+        {nats, C, Subject, Inbox} ->
+            broker_bench_nats:publish(C, Subject, Inbox, bil:encode_signal(Signal()))
     end.
 
 %% Which request a message answers, and how (see bench_requester).
@@ -224,5 +271,12 @@ answer({mqtt_client, C, {publish, #{payload := Payload}}}, {mqtt, C, _}) ->
     end;
 answer({mqtt_client, C, {disconnected, Why}}, {mqtt, C, _}) ->
     exit({agent_disconnected, Why});
+answer({nats, C, {msg, _, _, Payload}}, {nats, C, _, _}) ->
+    case bil:parse_signal(Payload) of
+        {ok, Signal} -> evatar_bench_gen:answer_kind(Signal);
+        {error, _} -> ignore
+    end;
+answer({nats, C, {closed, Why}}, {nats, C, _, _}) ->
+    exit({agent_closed, Why});
 answer(_, _Conn) ->
     ignore.

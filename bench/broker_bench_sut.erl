@@ -1,5 +1,5 @@
 %% @doc Internal to the broker comparison (broker_bench): starts and stops
-%% the three systems under test as OS processes of their own, listening on
+%% the systems under test as OS processes of their own, listening on
 %% 127.0.0.1 on free ports, and reads their CPU time and memory from /proc.
 %%
 %% - `evatar': a separate `erl' node (a peer, started with the emulator
@@ -10,7 +10,15 @@
 %% - `rabbitmq': the Debian package's rabbitmq-server as its own instance
 %%   (own base, Mnesia, log directories, node name, AMQP and distribution
 %%   ports, enabled-plugins file with rabbitmq_mqtt only), run as the
-%%   current user with HOME in its directory so its cookie is its own.
+%%   current user with HOME in its directory so its cookie is its own;
+%% - `nats': /usr/sbin/nats-server (core NATS, no JetStream, no
+%%   authentication), its log file in its directory.
+%%
+%% With `{transport, tls}' in the configuration, EVATAR's bridge listener
+%% and mosquitto's listener are TLS listeners with the same server
+%% certificate and key (`tls_dir' in the configuration, made by
+%% scripts/gen-bridge-certs.sh); the sut's `tls' says what a client needs
+%% (the CA file), false over TCP.
 %%
 %% Every started OS pid is written to RunDir/NAME.pid, so that
 %% scripts/bench-brokers.sh can kill what a crashed run left behind.
@@ -21,14 +29,16 @@
 
 -export_type([sut/0, system/0]).
 
--type system() :: evatar | mosquitto | rabbitmq.
+-type system() :: evatar | mosquitto | rabbitmq | nats.
 -type sut() :: #{system := system(), os_pid := string(), host := inet:ip_address(),
                  port := inet:port_number(), dir := file:filename(),
+                 tls := false | #{cacertfile := file:filename()},
                  node => node(), peer => pid(), port_ref => port(),
                  rabbit_env => [{string(), string()}], rabbit_node => string()}.
 
 -define(MOSQUITTO, "/usr/sbin/mosquitto").
 -define(RABBIT_BIN, "/usr/lib/rabbitmq/bin/").
+-define(NATS, "/usr/sbin/nats-server").
 -define(READY_TIMEOUT_MS, 180000).
 
 %% @doc Starts System with its files under RunDir. Crashes when the system
@@ -51,8 +61,12 @@ start(evatar, RunDir, Cfg) ->
     ok = write_pid(RunDir, evatar, OsPid),
     {ok, _} = erpc:call(Node, application, ensure_all_started, [evatar]),
     {ok, _} = erpc:call(Node, application, ensure_all_started, [agent_bridge]),
+    Tls = case tls_files(Cfg) of
+              {tls, F} -> #{tls => #{certfile => F("server.pem"), keyfile => F("server.key")}};
+              tcp -> #{}
+          end,
     {ok, _} = erpc:call(Node, agent_bridge, start_listener,
-                        [broker_bench, #{ip => {127, 0, 0, 1}, port => 0,
+                        [broker_bench, Tls#{ip => {127, 0, 0, 1}, port => 0,
                                          acceptors => 8, backlog => 4096,
                                          %% mosquitto runs with max_connections -1
                                          max_connections => infinity,
@@ -61,8 +75,8 @@ start(evatar, RunDir, Cfg) ->
                                          conn => #{max_read_rate => infinity}}]),
     {ok, {Ip, Port}} = erpc:call(Node, agent_bridge, address, [broker_bench]),
     #{system => evatar, os_pid => OsPid, host => Ip, port => Port, dir => RunDir,
-      node => Node, peer => Peer};
-start(mosquitto, RunDir, _Cfg) ->
+      tls => client_tls(Cfg), node => Node, peer => Peer};
+start(mosquitto, RunDir, Cfg) ->
     Dir = filename:join(RunDir, "mosquitto"),
     ok = filelib:ensure_dir(filename:join(Dir, "x")),
     Port = free_port(),
@@ -73,14 +87,35 @@ start(mosquitto, RunDir, _Cfg) ->
                                 "persistence false\n"
                                 "max_connections -1\n"
                                 "log_dest file ", filename:join(Dir, "mosquitto.log"), "\n"
-                                "log_type error\nlog_type warning\n"]),
+                                "log_type error\nlog_type warning\n",
+                                [["certfile ", F("server.pem"), "\n"
+                                  "keyfile ", F("server.key"), "\n"
+                                  %% Started by root, mosquitto becomes user
+                                  %% mosquitto before it reads the key, which
+                                  %% is the run's own, mode 0600, in a 0700
+                                  %% directory: it stays who started it.
+                                  "user ", string:trim(os:cmd("id -un")), "\n"]
+                                 || {tls, F} <- [tls_files(Cfg)]]]),
     P = open_port({spawn_executable, ?MOSQUITTO},
                   [{args, ["-c", Conf]}, exit_status, stderr_to_stdout, binary]),
     {os_pid, OsPid} = erlang:port_info(P, os_pid),
     ok = write_pid(RunDir, mosquitto, integer_to_list(OsPid)),
     ok = await_listening(Port, ?READY_TIMEOUT_MS div 10),
     #{system => mosquitto, os_pid => integer_to_list(OsPid), host => {127, 0, 0, 1},
-      port => Port, dir => Dir, port_ref => P};
+      port => Port, dir => Dir, tls => client_tls(Cfg), port_ref => P};
+start(nats, RunDir, _Cfg) ->
+    Dir = filename:join(RunDir, "nats"),
+    ok = filelib:ensure_dir(filename:join(Dir, "x")),
+    Port = free_port(),
+    P = open_port({spawn_executable, ?NATS},
+                  [{args, ["-a", "127.0.0.1", "-p", integer_to_list(Port),
+                           "-l", filename:join(Dir, "nats.log")]},
+                   exit_status, stderr_to_stdout, binary]),
+    {os_pid, OsPid} = erlang:port_info(P, os_pid),
+    ok = write_pid(RunDir, nats, integer_to_list(OsPid)),
+    ok = await_listening(Port, ?READY_TIMEOUT_MS div 10),
+    #{system => nats, os_pid => integer_to_list(OsPid), host => {127, 0, 0, 1},
+      port => Port, dir => Dir, tls => false, port_ref => P};
 start(rabbitmq, RunDir, _Cfg) ->
     Dir = filename:join(RunDir, "rabbitmq-" ++ integer_to_list(erlang:unique_integer([positive]))),
     Home = filename:join(Dir, "home"),
@@ -125,7 +160,7 @@ start(rabbitmq, RunDir, _Cfg) ->
         {error, _} = E -> error({rabbitmq_mqtt_not_listening, E, Wait})
     end,
     #{system => rabbitmq, os_pid => OsPid, host => {127, 0, 0, 1}, port => Mqtt, dir => Dir,
-      port_ref => P, rabbit_env => Env, rabbit_node => Node}.
+      tls => false, port_ref => P, rabbit_env => Env, rabbit_node => Node}.
 
 %% @doc Stops the system and waits for its OS process to be gone.
 -spec stop(sut()) -> ok.
@@ -134,11 +169,12 @@ stop(#{system := evatar, peer := Peer, os_pid := OsPid, dir := RunDir}) ->
     ok = await_gone(OsPid),
     _ = file:delete(pid_file(RunDir, evatar)),
     ok;
-stop(#{system := mosquitto, os_pid := OsPid, port_ref := P, dir := Dir}) ->
+stop(#{system := Sys, os_pid := OsPid, port_ref := P, dir := Dir})
+  when Sys =:= mosquitto; Sys =:= nats ->
     _ = os:cmd("kill -TERM " ++ OsPid),
     ok = await_gone(OsPid),
     _ = catch port_close(P),
-    _ = file:delete(pid_file(filename:dirname(Dir), mosquitto)),
+    _ = file:delete(pid_file(filename:dirname(Dir), Sys)),
     ok;
 stop(#{system := rabbitmq, os_pid := OsPid, port_ref := P, dir := Dir, rabbit_env := Env,
        rabbit_node := Node}) ->
@@ -152,6 +188,18 @@ stop(#{system := rabbitmq, os_pid := OsPid, port_ref := P, dir := Dir, rabbit_en
     _ = catch port_close(P),
     _ = file:delete(pid_file(filename:dirname(Dir), rabbitmq)),
     ok.
+
+%% Over TLS, a fun from a file name in the certificate directory to its
+%% path.
+tls_files(#{transport := tls, tls_dir := Dir}) ->
+    {tls, fun(Name) -> filename:join(Dir, Name) end};
+tls_files(_) ->
+    tcp.
+
+client_tls(#{transport := tls, tls_dir := Dir}) ->
+    #{cacertfile => filename:join(Dir, "ca.pem")};
+client_tls(_) ->
+    false.
 
 rabbitmqctl(Env, Node, Args) ->
     Cmd = lists:flatten(
@@ -254,10 +302,15 @@ versions() ->
                  "" -> "unknown";
                  V -> lists:last(string:lexemes(V, "\n"))
              end,
+    Nats = case os:cmd(?NATS ++ " --version 2>&1") of
+               "nats-server: v" ++ NRest -> string:trim(NRest);
+               _ -> "unknown"
+           end,
     #{otp => list_to_binary(erlang:system_info(otp_release)),
       erts => list_to_binary(erlang:system_info(version)),
       mosquitto => list_to_binary(Mosq),
       rabbitmq => list_to_binary(Rabbit),
+      nats => list_to_binary(Nats),
       evatar => evatar_rev()}.
 
 %% @doc The git revision of the EVATAR tree being measured, `-dirty' when

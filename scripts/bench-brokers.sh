@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
-# EVATAR against mosquitto and RabbitMQ's MQTT plugin, side by side in one
-# run (bench/broker_bench.erl; how to read it: bench/README.md, section d).
-# Installs the two brokers (Debian packages) when missing; the benchmark
+# EVATAR against mosquitto, RabbitMQ's MQTT plugin and nats-server, side by
+# side in one run (bench/broker_bench.erl; how to read it: bench/README.md,
+# section d). Installs the brokers (Debian packages) when missing, only
+# those the run names when the options say `{systems, [...]}'; the benchmark
 # starts each system as its own OS process on 127.0.0.1 (a fresh one per N)
 # and stops it; this script kills whatever a crashed run left behind.
 # Usage: scripts/bench-brokers.sh [ERLANG_OPTION_LIST | quick]
 #   scripts/bench-brokers.sh                           # the full run (about 15 minutes)
 #   scripts/bench-brokers.sh quick                     # smoke run (N = 1, 100; 2 s windows)
 #   scripts/bench-brokers.sh '[{sizes, [1000]}, {systems, [evatar, mosquitto]}]'
+#   scripts/bench-brokers.sh '[{transport, tls}]'      # EVATAR and mosquitto over TLS
 # Honours REBAR (default rebar3) and REBAR_BASE_DIR (default _build).
 set -euo pipefail
 # shellcheck source=scripts/bench-lib.sh
@@ -16,9 +18,19 @@ OPTS=${1:-[]}
 [ "$OPTS" = quick ] && OPTS='[quick]'
 
 # --- the brokers ------------------------------------------------------------
+# The systems the run measures: every broker unless the options name them
+# ({transport, tls} measures EVATAR and mosquitto only).
+wants() {
+  case "$OPTS" in
+    *'{systems,'*) [[ "$OPTS" =~ \{systems,[^]]*$1 ]] ;;
+    *'{transport, tls}'*|*'{transport,tls}'*) [ "$1" = mosquitto ] ;;
+    *) true ;;
+  esac
+}
 missing=()
-[ -x /usr/sbin/mosquitto ] || missing+=(mosquitto)
-[ -x /usr/lib/rabbitmq/bin/rabbitmq-server ] || missing+=(rabbitmq-server)
+if wants mosquitto && [ ! -x /usr/sbin/mosquitto ]; then missing+=(mosquitto); fi
+if wants rabbitmq && [ ! -x /usr/lib/rabbitmq/bin/rabbitmq-server ]; then missing+=(rabbitmq-server); fi
+if wants nats && [ ! -x /usr/sbin/nats-server ]; then missing+=(nats-server); fi
 if [ ${#missing[@]} -gt 0 ]; then
   SUDO=""
   if [ "$(id -u)" -ne 0 ]; then
@@ -38,7 +50,7 @@ if [ ${#missing[@]} -gt 0 ]; then
     done
   fi
 fi
-for svc in rabbitmq-server mosquitto; do
+for svc in rabbitmq-server mosquitto nats-server; do
   if pgrep -x -f ".*/usr/sbin/$svc.*" >/dev/null 2>&1 || \
      { [ "$svc" = rabbitmq-server ] && pgrep -f 'beam.*-s rabbit boot' -u rabbitmq >/dev/null 2>&1; }; then
     echo "bench-brokers: NOTE: a system $svc is running; it does not collide (other ports," \
