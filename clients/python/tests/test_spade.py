@@ -200,3 +200,26 @@ def test_clients_md_spade_agent_runs(xmpp: XmppServer, tmp_path: Path) -> None:
             ["living", "on"]
     finally:
         node.stop()
+
+
+def test_bdi_agents_still_talk(xmpp: XmppServer, tmp_path: Path) -> None:
+    """spade-bdi's .send reaches an EmbodiedBDIAgent whose reasoning
+    cycle sleeps while idle: a message wakes it."""
+    (tmp_path / "teller.asl").write_text('!go.\n+!go <- .send("listener@127.0.0.1", tell, hello(1)).\n')
+    (tmp_path / "listener.asl").write_text('+hello(N)[source(S)] <- .log("hello ", N).\n')
+
+    async def main() -> None:
+        listener = EmbodiedBDIAgent("listener@127.0.0.1", "xmpp-secret",
+                                    str(tmp_path / "listener.asl"), port=xmpp.port)
+        await asyncio.wait_for(listener.start(), GUARD)
+        teller = EmbodiedBDIAgent("teller@127.0.0.1", "xmpp-secret",
+                                  str(tmp_path / "teller.asl"), port=xmpp.port)
+        await asyncio.wait_for(teller.start(), GUARD)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + GUARD
+        while not listener.log and loop.time() < deadline:
+            await asyncio.sleep(0.05)  # polls the agent's log; the guard bounds it
+        await teller.stop()
+        await listener.stop()
+        assert listener.log == ["hello 1"]
+    run(main())

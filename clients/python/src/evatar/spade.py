@@ -56,6 +56,8 @@ has nothing to do (spade-bdi's own polls without pause).
 
 Not covered: spade-artifact (an emulator as an artifact), SPADE's
 presence and web interface, an agent with several bodies in one pairing.
+With ``ha`` and no node reachable, ``start()`` goes on trying for the
+client's ``reconnect_limit`` (600 s unless given).
 """
 
 from __future__ import annotations
@@ -161,6 +163,7 @@ class Body(CyclicBehaviour):  # type: ignore[misc]
             LOG.warning("%s could not join %s: %s", d.entity_id, self.pairing, e)
             if not joined.done():
                 joined.set_exception(e)
+                joined.exception()  # retrieved: a plain agent may never ask
             self.kill(exit_code=e)
             return
         if not joined.done():
