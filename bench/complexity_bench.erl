@@ -317,7 +317,7 @@ pairing(Mod, Extra) ->
     pairing(Mod, Extra, {join, agent, ?VA, ?CRED_VA}).
 
 %% The pairing limits (max_open_requests, max_consumes, max_binding_report, documented in
-%% docs/architecture.md) are raised to the sizes measured; the old logic
+%% docs/protocol.md section 7) are raised to the sizes measured; the old logic
 %% had none.
 limits(evatar_pairing_logic) -> ?BIG_LIMITS;
 limits(_Old) -> #{}.

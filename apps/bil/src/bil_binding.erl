@@ -13,7 +13,10 @@
 %% a set shared by the consumers requiring those names (choose/4). Binding
 %% P services against C consumers costs O((P + C) log P) plus the
 %% candidates examined, which the tests and bench/COMPLEXITY.md bound
-%% (the old nested loops were P x C).
+%% (the old nested loops were P x C). What still costs in proportion to
+%% the providers is an entry whose every value is offered by many
+%% providers and whose parameters differ from every other entry's (a room
+%% shared by a twentieth of the devices costs P/20 per entry).
 -module(bil_binding).
 
 -export([bind/1, keyword/1, explain/2]).

@@ -7,6 +7,29 @@
 %% high-availability view (`ha_status/1', `ha_locate/1', `cluster_status/0').
 %% docs/architecture.md describes the processes; every other evatar_* module
 %% is internal.
+%%
+%% The process that joins receives the entity's traffic, exactly:
+%% `{evatar, PairingId, {signal, bil:signal()}}',
+%% `{evatar, PairingId, {bound, binding_report()}}',
+%% `{evatar, PairingId, {dropped, drop_code(), Reason}}' and, for a session
+%% of protocol version 2, `{evatar, PairingId, {ack, SignalId}}'. A pairing
+%% that crashes sends nothing: its monitor goes `DOWN' (the bridge sends
+%% `Refused PairingDown'). A new drop code is an API change: drop_code()
+%% and the bridge's mapping to Refused codes (agent_bridge_conn, checked by
+%% dialyzer) change together.
+%%
+%% Calls never hold a caller past its timeout: a pairing is called with
+%% `call_timeout' (application env, default 15000 ms), and one that does not
+%% answer in time (busy with a large operation, or its node stalled) gives
+%% `{error, busy}'. A join is refused `busy' (the bridge sends `Refused
+%% Busy', and a join the pairing gets to later ends with that caller's
+%% process); a description is refused with a reason saying it stays queued
+%% (the Binding report follows when it is applied); inspections return
+%% `{error, busy}' (`pairings/0' shows the pairing `unavailable');
+%% `delete_pairing/1' returns `{error, busy}' and the deletion happens when
+%% the pairing gets to it; `leave_async/1' leaves without waiting (a
+%% connection closing on a Bye). agent_bridge_SUITE's group `busy' suspends
+%% a real pairing.
 -module(evatar).
 
 -export([check_data_dir/0, check_pairing_opts/1, pairing_option_ranges/0, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
@@ -44,7 +67,7 @@
 -type peer_cert() :: #{sha256 := binary(), cn := binary() | undefined}.
 -type auth() :: binary() | #{credential := binary(), peer_cert := peer_cert() | undefined}.
 -opaque session() :: #session{}.
-%% Who may join (docs/architecture.md, "Identity"): the shared role
+%% Who may join (docs/protocol.md section 7.3): the shared role
 %% credentials, a list of `identities' (one per device: its EntityID, role,
 %% and its own credential, its client certificate's SHA-256 fingerprint, or
 %% both), or both kinds. A listed EntityID joins only with its own

@@ -3,6 +3,9 @@
 %% environment (created when absent: `evatar:ensure_pairing/2')
 %% (`{evatar, [{pairings, [#{id => <<"home">>, agent_credential => ...,
 %% avatar_credential => ...}]}]}').
+%% An existing pairing is left as it is; a malformed entry stops the
+%% application's start (`{bad_pairing_config, Id, Reason}'), so mistakes
+%% show at boot. The node configuration file (node_config) fills this list.
 -module(evatar_app).
 -behaviour(application).
 

@@ -8,7 +8,7 @@
 %% both. When an EntityID is listed, only its own identity joins or resumes
 %% it; an unlisted EntityID joins with the role credential only when the
 %% pairing says `unlisted_ids => role_credential' (or has no identities at
-%% all). docs/architecture.md, "Identity", is the full rule.
+%% all). docs/protocol.md section 7.3 is the full rule.
 %%
 %% The hash runs in the joining client's process ({@link verify/2}), never
 %% in the pairing's: a pairing only hands out the stored hash

@@ -3,7 +3,7 @@
 %% output commit (`evatar_ha_commit'), and carries out what they and the
 %% role machine (`evatar_ha_instance') decided, on the entities' processes,
 %% the other instance, the monitors and the one map of timers held in the
-%% process's state (docs/architecture.md, section 5). It decides nothing.
+%% process's state (docs/ha-design.md, section 12). It decides nothing.
 -module(evatar_pairing_effects).
 
 -export([step/2, run/2, effect/2, inspect/3, next/2, phase/2, mode/1, report_binding/2, reply/3,

@@ -19,6 +19,26 @@
 %% (re-delivered on resume, bounded: SlowConsumer beyond), and detachment: an
 %% entity whose connection went, or every entity after a takeover, is kept
 %% for `resume_timeout' ms for a Resume.
+%%
+%% Registration: a description is refused (with a reason) when its
+%% EntityID is not the joined one, its EntityType does not match the role,
+%% or a ComponentID is another entity's; else it replaces the entity's
+%% registration and the pairing binds again (`bil:bind/1') over the
+%% registered descriptions in registration order, the order of each
+%% entity's first description (re-describing keeps an entity's place, so a
+%% replaced device does not reshuffle ties), and every registered entity
+%% gets a Binding report. The phase is `bound' once an agent and an Avatar
+%% have registered, `waiting' otherwise; the agent leaving keeps the
+%% pairing, waiting for a new agent. Delivered signals get a Sequence per
+%% receiving entity (EVATAR's own signals counted) and the epoch.
+%% `request_no_feedback', `sensor_data' and `event' open no pending entry
+%% and no timer: a sensor stream costs two map lookups, a counter and the
+%% stamp per signal. Every event costs at most n log n in the pairing's
+%% open requests, entities and components (bench/COMPLEXITY.md); voiding
+%% the open requests of a provider that went gathers their effects in one
+%% pass (appending per request, 15,000 requests once stalled a pairing for
+%% 14 to 27 s). What a client sees of these rules is docs/protocol.md sections 4
+%% to 6.
 -module(evatar_pairing_logic).
 
 -export([config/1, option_ranges/0, new/2, handle/3]).

@@ -3,6 +3,9 @@
 %% `{via, evatar_registry, PairingId}' name. Writes go through this server,
 %% which monitors every registered pid; reads go straight to a protected ETS
 %% table, so the hot path (`evatar:join/4', inspection) never waits on it.
+%% A dead holder's entry is replaced at once, so a pairing restarted by its
+%% supervisor can register before this server has handled the old pid's
+%% `DOWN'.
 %%
 %% It is node-local on purpose: with a standby on another node (issue 5) each
 %% node maps a pairing id to its own instance, and which instance is active is

@@ -1,6 +1,6 @@
 %% @doc Test support: waiting for what the product reports, not for time.
 %% EVATAR's processes log structured reports (`#{what => taken_over,
-%% pairing => P, ...}', docs/architecture.md "Logging"); a trace collects
+%% pairing => P, ...}', docs/architecture.md section 7); a trace collects
 %% those of the nodes it is attached to, in the order they reach it, and a
 %% test waits for the report it expects:
 %%

@@ -5,7 +5,12 @@
 %% docs/api.md gives every shape. A refusal is `{error, error()}': a code
 %% from a fixed set, the field of the input at fault (or null), a sentence,
 %% and the HTTP status that fits. Input is checked here, field by field,
-%% before anything reaches a pairing; no atom is made from it.
+%% before anything reaches a pairing; no atom is made from it. Pairing
+%% options are then checked by evatar:check_pairing_opts/1 (the
+%% configuration file's check). Changing or rotating a pairing's options
+%% deletes and re-creates it (a pairing takes its options when it
+%% starts); an MQTT Avatar's description override restarts it through
+%% mqtt_avatar:reconfigure/2.
 -module(evatar_ops).
 
 -export([cluster/0, local_instances/0, pairings/0, pairing/1, bindings/1,

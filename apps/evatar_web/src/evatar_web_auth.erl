@@ -2,7 +2,8 @@
 %% "Authentication"): one token, kept only as its PBKDF2 hash (the
 %% credentials' scheme, evatar:hash_credential/1). Changes always need it
 %% (`Authorization: Bearer TOKEN'); reads need it too unless the listener
-%% is on a loopback address. With no token configured every change is
+%% is on a loopback address, and there only with a loopback `Host' header
+%% (against DNS rebinding). With no token configured every change is
 %% refused: there is no default secret.
 -module(evatar_web_auth).
 

@@ -1,6 +1,10 @@
 %% @doc Internal. JSON through Debian's erlang-jiffy: objects are maps with
 %% binary keys, strings binaries, `null' the atom. Decoding input never
-%% crashes: bad input is `{error, {bad_json, Why}}'.
+%% crashes: bad input is `{error, {bad_json, Why}}'. Decoding returns maps
+%% (`return_maps'), so keys stay binaries and no atom is made from input.
+%% OTP 25 has no `json' module; jiffy is a small NIF library packaged by
+%% Debian, and the release ships it (lib/jiffy-1.1.1 with its
+%% priv/jiffy.so).
 -module(evatar_web_json).
 
 -export([encode/1, decode/1]).

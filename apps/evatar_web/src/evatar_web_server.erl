@@ -3,6 +3,20 @@
 %% cowboy's HTTP/1.1 through evatar_web_conn, with one handler of ours,
 %% evatar_web_router, for every request. The limits of docs/api.md
 %% ("Limits") are set here as cowboy's and ranch's options.
+%%
+%% Why cowboy 2.8 (with ranch 2.1 and cowlib 2.9) rather than OTP's inets
+%% httpd: httpd answered three things before any of our code ran, so they
+%% could not be fixed: a chunked body over the limit was neither answered
+%% nor closed, OPTIONS and unknown methods got its HTML 501, and a client
+%% trickling its headers held its connection for ever. Hex cannot be
+%% reached, so the three are Debian's beams, built for this OTP, taken from
+%% its `rabbitmq-server' package (pinned, downloaded, never installed) by
+%% scripts/ensure-deps.sh into _deps/; rebar.config.script puts them on the
+%% code path and in ERL_LIBS for the nodes tests start, and the release
+%% copies them into its lib/. The listener starts after
+%% evatar_web:check_opts/1 (a mistake names the key); a port that cannot be
+%% opened stops the application's start with `{http_listen_failed, Ip,
+%% Port, Reason}'. cowboy's `request_timeout' is our `header_timeout'.
 -module(evatar_web_server).
 
 -include_lib("kernel/include/logger.hrl").

@@ -6,6 +6,33 @@
 %% and mqtt_avatar start, and fills their environment; a file with mistakes
 %% stops the start with every mistake named. Other node_config_* modules
 %% are internal.
+%%
+%% Boot: the release lists node_config right after sasl. A file with
+%% mistakes makes the start fail with `{bad_config, File, Problems}', each
+%% problem naming the line, the section, the entry (number and id) and what
+%% is wrong, printed on standard error and logged (`what =>
+%% bad_node_config'); under the release's boot script the node then halts
+%% with status 1 (no "Kernel pid terminated", no erl_crash.dump), before
+%% any listener, pairing or Avatar started. The same check (check_file/0)
+%% runs as `bin/evatar check_config' and as the start script's pre-start
+%% hook, so `bin/evatar daemon' refuses on the terminal
+%% (config/hooks/pre_start_config, config/extensions/check_config). A
+%% pairing entry takes every option evatar:check_pairing_opts/1 accepts:
+%% node_config_check turns the text into binaries, leaves the verdict to
+%% evatar, words its `{bad_option, _}' with the entry's line, and asks again
+%% without each refused key so that every refused key is named. A
+%% credential may be written as its hash (`bin/evatar hash_credential',
+%% hashed_credential/1).
+%%
+%% Why Erlang terms: OTP's own scanner and parser read them (what
+%% file:consult/1 uses), so no Hex package and no parser of our own, and
+%% the values map to the applications' options without a conversion layer;
+%% YAML or TOML would need a Hex parser (none in Debian's erlang-*
+%% packages), JSON has no comments and OTP 25 has no `json' module. Text is
+%% written in double quotes and becomes a binary, never an atom, and
+%% node_config_file refuses any atom the text spells that is neither a word
+%% of the file nor an existing atom, so a misspelt key is an error that
+%% names it and never a new atom.
 -module(node_config).
 
 -export([file/0, load/1, apply_env/1, format_error/1, check_file/0, hashed_credential/1,

@@ -1,7 +1,7 @@
 // The dashboard: the cluster, a pairing (entities, its Body Mapping
 // Registry as a graph, unbound entries and why, the live signal tail) and
 // the simulation when avatar_sim runs. Plain ES modules, no build step
-// (docs/architecture.md).
+// (docs/dashboard.md section 6).
 import { getJSON, events, token, setToken } from './api.js';
 import { Graph } from './graph.js';
 import { renderScenes } from './scenes.js';
