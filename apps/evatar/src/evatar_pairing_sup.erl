@@ -10,7 +10,10 @@
 %% `MaxT' seconds (application env `pairing_restart_limit', default
 %% `{2, 60}'); beyond that this supervisor gives up and the pairing is removed
 %% (its parent's children are temporary), logged by the supervisor's
-%% `reached_max_restart_intensity' report. With a cluster, a restarted
+%% `reached_max_restart_intensity' report. It stays in the catalogue of
+%% pairings, which does not start it again on this node until the node
+%% restarts; another node may, once both its instances are gone
+%% (docs/ha-design.md, section 11). With a cluster, a restarted
 %% instance first asks the other nodes: if its standby took over, it becomes
 %% that one's standby (docs/ha-design.md).
 -module(evatar_pairing_sup).
