@@ -54,8 +54,8 @@ async def agentspeak_va(node: Node) -> Tuple[List[str], Callable[[], Awaitable[N
 def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
             done: Optional[Callable[[List[str]], bool]] = None,
             embody: Embody = agentspeak_va, node_args: Sequence[str] = (),
-            fault: Optional[Tuple[str, Callable[[Node], Awaitable[None]]]] = None
-            ) -> Dict[str, object]:
+            fault: Optional[Tuple[str, Callable[[Node], Awaitable[None]]]] = None,
+            after: Optional[Callable[[Node], Awaitable[None]]] = None) -> Dict[str, object]:
     """Runs the house and the VA ``embody`` starts (by default the
     AgentSpeak one) from 17:55 (or ``start``) until ``until`` on the
     simulated clock; returns the house's outcome lines and the agent's log.
@@ -63,7 +63,8 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
     there (at most 30 s): the agent acts in real time on a clock a thousand
     times faster, so on a loaded machine it may act on the last reading
     after the clock has stopped. With ``fault`` = (HH:MM, f), the clock
-    stops at HH:MM for ``await f(node)``, then goes on."""
+    stops at HH:MM for ``await f(node)``, then goes on; ``await
+    after(node)`` runs once the VA has stopped, before the node does."""
     extra = ["--home-start", start] if start else []
     node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
                                      "--home", "home:home-gateway-secret:%s" % spool]
@@ -84,6 +85,8 @@ def evening(spool: Path, until: str = "22:05", start: Optional[str] = None,
             await asyncio.sleep(0.2)
             lines = await loop.run_in_executor(None, node.ask, "outcome")
         await stop()
+        if after is not None:
+            await after(node)
         return lines, log
 
     try:

@@ -9,6 +9,8 @@ hang; docs/clients.md's SPADE agent runs."""
 from __future__ import annotations
 
 import asyncio
+import re
+import subprocess
 import sys
 from pathlib import Path
 from typing import Awaitable, Callable, Dict, List, Optional, Tuple
@@ -22,13 +24,15 @@ from evatar import (Binding, Component, Description, Entry, NotBoundError,  # no
                     RefusedError)
 from evatar.spade import Body, EmbodiedAgent, EmbodiedBDIAgent  # noqa: E402
 
-from conftest import Node, XmppServer, run  # noqa: E402
+from conftest import REPO, Node, XmppServer, run  # noqa: E402
 from test_holiday import (BODY, complete, evening, test_alarm_then_warning,  # noqa: E402,F401
                           test_evening_light_schedule, test_intrusion_email_with_photos,
                           test_the_agent_recognised_the_intruder)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "holiday"))
 import holiday_spade  # noqa: E402
+
+DOCS_AGENT = REPO / "clients" / "python" / "examples" / "spade" / "light_agent.py"
 
 
 def endpoints(node: Node) -> List[Tuple[str, int]]:
@@ -80,10 +84,37 @@ def outcome(tmp_path_factory: pytest.TempPathFactory, xmpp: XmppServer) -> Dict[
             return r
         return started()
 
+    docs_agent: List[object] = []
+
+    async def run_docs_agent(node: Node) -> None:
+        """docs/clients.md's SPADE agent, once the holiday VA has left the
+        pairing, against node 2 (node 1 is dead)."""
+        loop = asyncio.get_running_loop()
+        port = endpoints(node)[1][1]
+        out = await loop.run_in_executor(None, lambda: subprocess.run(
+            [sys.executable, str(DOCS_AGENT), str(port), str(xmpp.port)],
+            capture_output=True, text=True, timeout=60))
+        lights = await loop.run_in_executor(None, node.ask, "outcome")
+        docs_agent.extend([out, [l for l in lights if l.startswith("LIGHT ")][-1]])
+
     result = evening(tmp_path_factory.mktemp("spade-holiday-spool"), done=complete,
-                     embody=embody, node_args=["--cluster", "2"], fault=("19:00", kill_node_1))
+                     embody=embody, node_args=["--cluster", "2"], fault=("19:00", kill_node_1),
+                     after=run_docs_agent)
     result["resumed"] = resumed
+    result["docs_agent"] = docs_agent
     return result
+
+
+def test_clients_md_spade_agent_runs(outcome) -> None:  # type: ignore[no-untyped-def]
+    """docs/clients.md's SPADE agent is examples/spade/light_agent.py, and
+    run after the evening it turns the living-room light on."""
+    text = (REPO / "docs" / "clients.md").read_text()
+    block = re.search(r"```python\n(.*?)```", text[text.index("### SPADE agents"):], re.S)
+    assert block is not None and block.group(1) == DOCS_AGENT.read_text()
+    out, last_light = outcome["docs_agent"]
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "the living-room light is on" in out.stdout, out.stdout
+    assert last_light.split()[2:] == ["living", "on"], last_light
 
 
 def test_the_body_resumed_on_node_2(outcome) -> None:  # type: ignore[no-untyped-def]
@@ -175,31 +206,6 @@ def test_unbound_action_bdi(xmpp: XmppServer, node: Node, tmp_path: Path) -> Non
         assert want <= set(agent.log), agent.log
         assert not [l for l in agent.log if l.startswith("feedback")]
     run(main())
-
-
-def test_clients_md_spade_agent_runs(xmpp: XmppServer, tmp_path: Path) -> None:
-    """docs/clients.md's SPADE agent is examples/spade/light_agent.py, and
-    it turns the simulated home's living-room light on."""
-    import re
-    import subprocess
-    from conftest import REPO
-    example = REPO / "clients" / "python" / "examples" / "spade" / "light_agent.py"
-    text = (REPO / "docs" / "clients.md").read_text()
-    section = text[text.index("### SPADE agents"):]
-    block = re.search(r"```python\n(.*?)```", section, re.S)
-    assert block is not None and block.group(1) == example.read_text()
-    node = Node("test-node-ctl.sh", ["home:home-va-secret:home-gateway-secret",
-                                     "--home", "home:home-gateway-secret:%s" % tmp_path,
-                                     "--script", "none"])
-    try:
-        out = subprocess.run([sys.executable, str(example), str(node.port), str(xmpp.port)],
-                             capture_output=True, text=True, timeout=60)
-        assert out.returncode == 0, out.stderr[-2000:]
-        assert "the living-room light is on" in out.stdout, out.stdout
-        assert [l for l in node.ask("outcome") if l.startswith("LIGHT ")][-1].split()[2:] == \
-            ["living", "on"]
-    finally:
-        node.stop()
 
 
 def test_bdi_agents_still_talk(xmpp: XmppServer, tmp_path: Path) -> None:
