@@ -2,8 +2,8 @@
 %% "Operator commands"): a node of the release that `rebar3 release'
 %% builds (or EVATAR_REL), started with bin/evatar daemon with its own HOME,
 %% data directory and free ports, and driven only with bin/evatar cluster,
-%% pairings, pairing, create, bindings, rotate, delete and mqtt_problems,
-%% in text and with --json; real clients join it over TCP with the
+%% pairings, pairing, create, bindings, rotate, delete, mqtt_problems and
+%% wot_problems, in text and with --json; real clients join it over TCP with the
 %% credentials the commands generated. The cookie is never on a command
 %% line: every program the commands start is traced (strace -f, execve),
 %% and the trace of relx's own `rpc' shows that the check sees a leak.
@@ -95,7 +95,8 @@ usage_and_unreachable(Config) ->
 %% new one joins); delete removes the pairing.
 commands_on_a_running_node(Config) ->
     with_facade([{create, 2}, {pairings, 0}, {pairing, 1}, {bindings, 1}, {rotate, 2},
-                 {delete, 1}, {problems, 1}, {mqtt_avatars, 0}], fun() -> commands(Config) end).
+                 {delete, 1}, {problems, 1}, {mqtt_avatars, 0}, {wot_problems, 1}, {wot_avatars, 0}],
+                fun() -> commands(Config) end).
 
 commands(Config) ->
     %% create, text: the secrets are shown once, with a warning.
@@ -151,8 +152,14 @@ commands(Config) ->
     {0, Rotated} = evatar(Config, ["rotate", "home", "agent", "--credential-file", File]),
     nomatch = re:run(Rotated, "from-a-file"),
     ok = close(join(Config, <<"home">>, agent, <<"va">>, <<"from-a-file-0123456789">>)),
-    %% mqtt_problems: none on this node.
+    %% mqtt_problems and wot_problems: none on this node.
     {0, _} = evatar(Config, ["mqtt_problems"]),
+    {0, NoWots} = evatar(Config, ["wot_problems"]),
+    ?assertMatch({match, _}, re:run(NoWots, "^No WoT Avatars on this node\\.$", [multiline]), NoWots),
+    [] = json(evatar(Config, ["wot_problems", "--json"])),
+    {1, NoWot} = evatar(Config, ["wot_problems", "wot-lamp"]),
+    ?assertMatch({match, _}, re:run(NoWot, "refused: not_found \\(entity_id\\): no WoT Avatar wot-lamp"),
+                 NoWot),
     %% delete.
     ok = close(Av),
     {0, _} = evatar(Config, ["delete", "home"]),

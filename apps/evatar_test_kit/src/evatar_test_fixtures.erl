@@ -6,7 +6,7 @@
 %% scripts/gen-bridge-certs.sh, and random secrets.
 -module(evatar_test_fixtures).
 
--export([va_credential/0, avatar_credential/0, credential/1, create_pairing/2,
+-export([va_credential/0, avatar_credential/0, credential/1, create_pairing/2, wot_lamp_td/1,
          entry/2, component/3, description/5, va_description/1, avatar_description/1,
          client_opts/3, client/4,
          hello/5, raw_connect/1, recv_doc/1, recv_doc/2, recv_until/2, recv_until/3,
@@ -30,6 +30,18 @@ va_credential() -> <<"va-secret">>.
 %% @doc The credential of the Avatars of the suites' pairings.
 -spec avatar_credential() -> binary().
 avatar_credential() -> <<"avatar-secret">>.
+
+%% @doc A Thing Description of a lamp named Title whose TD the suites read
+%% from a file (wot_avatar's `{file, Path}'): an action on 127.0.0.1 port 9,
+%% where nothing answers (the Avatar joins; a request would fail), and one
+%% with a CoAP form, which the Avatar leaves out (its one problem,
+%% `unsupported_scheme'). Allow host 127.0.0.1.
+-spec wot_lamp_td(binary()) -> binary().
+wot_lamp_td(Title) ->
+    <<"{\"@context\": \"https://www.w3.org/2022/wot/td/v1.1\", \"title\": \"", Title/binary, "\",\n"
+      " \"securityDefinitions\": {\"nosec_sc\": {\"scheme\": \"nosec\"}}, \"security\": \"nosec_sc\",\n"
+      " \"actions\": {\"toggle\": {\"forms\": [{\"href\": \"http://127.0.0.1:9/toggle\"}]},\n"
+      "             \"blink\": {\"forms\": [{\"href\": \"coap://127.0.0.1/blink\"}]}}}\n">>.
 
 %% @doc The credential for a role of the suites' pairings.
 -spec credential(agent | avatar) -> binary().

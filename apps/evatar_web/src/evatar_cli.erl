@@ -1,6 +1,7 @@
 %% @doc Internal. The release's operator commands (`bin/evatar cluster',
 %% `pairings', `pairing ID', `create ID', `delete ID', `rotate ID WHO',
-%% `bindings ID', `mqtt_problems [NAME]'; README.md, "Operator commands"):
+%% `bindings ID', `mqtt_problems [NAME]', `wot_problems [NAME]'; README.md,
+%% "Operator commands"):
 %% run by config/extensions/evatar_ctl in a short-lived hidden Erlang node,
 %% which reaches the running node through distribution with the cookie of
 %% `$HOME/.erlang.cookie' (never on a command line), calls {@link evatar_ops}
@@ -34,7 +35,8 @@
         "  rotate ID agent|avatar|ENTITY [--credential-file F]\n"
         "                              a new credential for a role or one identity, generated and\n"
         "                              printed once unless read from F\n"
-        "  mqtt_problems [NAME]        the MQTT Avatars' problems (one Avatar's with NAME)\n").
+        "  mqtt_problems [NAME]        the MQTT Avatars' problems (one Avatar's with NAME)\n"
+        "  wot_problems [NAME]         the WoT Avatars' problems (one Avatar's with NAME)\n").
 
 %% @doc The entry point of the extension script: the command and its
 %% arguments are the plain arguments (`-extra'), the node to reach is
@@ -93,7 +95,7 @@ print(Code, Text, _Out, false) ->
 -type command() :: cluster | pairings | {pairing, binary()} | {bindings, binary()}
                  | {create, binary(), map(), [binary()]} | {delete, binary()}
                  | {rotate, binary(), binary(), map(), boolean()}
-                 | {mqtt_problems, binary() | all}.
+                 | {mqtt_problems, binary() | all} | {wot_problems, binary() | all}.
 
 parse(["cluster"]) -> {ok, cluster};
 parse(["pairings"]) -> {ok, pairings};
@@ -102,6 +104,8 @@ parse(["bindings", Id]) -> {ok, {bindings, bin(Id)}};
 parse(["delete", Id]) -> {ok, {delete, bin(Id)}};
 parse(["mqtt_problems"]) -> {ok, {mqtt_problems, all}};
 parse(["mqtt_problems", Name]) -> {ok, {mqtt_problems, bin(Name)}};
+parse(["wot_problems"]) -> {ok, {wot_problems, all}};
+parse(["wot_problems", Name]) -> {ok, {wot_problems, bin(Name)}};
 parse(["create", Id | Rest]) -> create_args(bin(Id), Rest, #{}, [agent, avatar]);
 parse(["rotate", Id, Who | Rest]) -> rotate_args(bin(Id), bin(Who), Rest);
 parse([]) -> {error, "no command"};
@@ -172,7 +176,9 @@ run(Target, Command) ->
                  {create, Id, Body, _} -> {create, [Id, Body]};
                  {rotate, Id, Who, Body, _} -> {rotate, [Id, who(Who, Body)]};
                  {mqtt_problems, all} -> {mqtt_avatars, []};
-                 {mqtt_problems, Name} -> {problems, [Name]}
+                 {mqtt_problems, Name} -> {problems, [Name]};
+                 {wot_problems, all} -> {wot_avatars, []};
+                 {wot_problems, Name} -> {wot_problems, [Name]}
              end,
     try call(Target, Command, F, A) of
         {error, Error} -> {1, Error};
@@ -198,10 +204,14 @@ run(Target, Command) ->
 failed(Message) ->
     #{error => <<"failed">>, field => null, message => iolist_to_binary(Message)}.
 
-call(Target, {mqtt_problems, all}, F, A) ->
+call(Target, {Kind, all}, F, A) when Kind =:= mqtt_problems; Kind =:= wot_problems ->
     %% Every kept Avatar with its problems.
-    [Status#{problems => case erpc:call(Target, evatar_ops, problems, [E], ?TIMEOUT) of
-                             {ok, Problems} -> Problems;
+    Problems = case Kind of
+                   mqtt_problems -> problems;
+                   wot_problems -> wot_problems
+               end,
+    [Status#{problems => case erpc:call(Target, evatar_ops, Problems, [E], ?TIMEOUT) of
+                             {ok, Ps} -> Ps;
                              {error, _} -> []
                          end}
      || #{entity_id := E} = Status <- erpc:call(Target, evatar_ops, F, A, ?TIMEOUT)];
@@ -240,8 +250,10 @@ format(Command, Result) ->
         {{delete, Id}, _} ->
             ["Deleted pairing ", Id, ".\n"];
         {{mqtt_problems, all}, _} when is_list(R) ->
-            mqtt_avatars_problems(R);
-        {{mqtt_problems, _Name}, _} when is_list(R) ->
+            avatars_problems("MQTT", R);
+        {{wot_problems, all}, _} when is_list(R) ->
+            avatars_problems("WoT", R);
+        {{Kind, _Name}, _} when is_list(R), Kind =:= mqtt_problems orelse Kind =:= wot_problems ->
             problems(R, "");
         _ ->
             generic(R)
@@ -281,12 +293,12 @@ evatar_web_json_decode(Bin) ->
     {ok, T} = evatar_web_json:decode(Bin),
     T.
 
-%% Every kept MQTT Avatar as a table row with its problem count, then each
-%% Avatar's problems one a line (a problem is a map, which a table column
-%% cannot show).
-mqtt_avatars_problems([]) ->
-    "No MQTT Avatars on this node.\n";
-mqtt_avatars_problems(Avatars) ->
+%% Every kept MQTT (or WoT) Avatar as a table row with its problem count,
+%% then each Avatar's problems one a line (a problem is a map, which a
+%% table column cannot show).
+avatars_problems(Kind, []) ->
+    ["No ", Kind, " Avatars on this node.\n"];
+avatars_problems(_Kind, Avatars) ->
     Rows = [maps:without([<<"problems">>], A#{<<"problem_count">> => length(list(<<"problems">>, A))})
             || A <- Avatars],
     [generic(Rows),

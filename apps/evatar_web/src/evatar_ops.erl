@@ -15,7 +15,8 @@
 
 -export([cluster/0, local_instances/0, pairings/0, pairing/1, bindings/1,
          create/2, change/2, delete/1, rotate/2,
-         mqtt_avatars/0, mqtt_avatar/1, override_description/2, problems/1]).
+         mqtt_avatars/0, mqtt_avatar/1, override_description/2, problems/1,
+         wot_avatars/0, wot_problems/1]).
 
 -export_type([error/0]).
 
@@ -572,7 +573,8 @@ override_description(_EntityId, _) ->
 reconfigure(EntityId, Changes, Field) ->
     case mqtt_avatar:reconfigure(EntityId, Changes) of
         ok -> {ok, #{entity_id => EntityId, restarted => true}};
-        {error, not_found} -> avatar_not_found(EntityId);
+        {error, not_found} ->
+            err(404, <<"not_found">>, <<"entity_id">>, <<"no MQTT Avatar ", EntityId/binary, " on this node">>);
         {error, Problems} when is_list(Problems) ->
             err(400, <<"bad_request">>, Field,
                 iolist_to_binary(lists:join("; ", [M || #{message := M} <- Problems])))
@@ -609,23 +611,45 @@ override(_) ->
     {error, <<"must be an object">>}.
 
 with_avatar(EntityId, Fun) ->
-    case [S || #{entity_id := E} = S <- mqtt_avatar:kept(), E =:= EntityId] of
+    with_kept(mqtt, EntityId, Fun).
+
+%% ---------------------------------------------------------------------------
+%% WoT Avatars (docs/wot.md section 6)
+%% ---------------------------------------------------------------------------
+
+%% @doc The WoT Avatars this node keeps, with their keeper's state.
+-spec wot_avatars() -> [map()].
+wot_avatars() ->
+    [keeper_status(S) || S <- wot_avatar:kept()].
+
+%% @doc The problems of a kept WoT Avatar: what its TD left out, then
+%% (oldest first, at most 100) what went wrong while it ran.
+-spec wot_problems(binary()) -> {ok, [map()]} | {error, error()}.
+wot_problems(EntityId) ->
+    with_kept(wot, EntityId, fun(_Status, Pid) -> [problem(P) || P <- wot_avatar:problems(Pid)] end).
+
+%% A kept Avatar of either kind, running: Fun of its keeper's status and
+%% its pid.
+with_kept(Kind, EntityId, Fun) ->
+    {Kept, Noun, List} = case Kind of
+                             mqtt -> {mqtt_avatar:kept(), <<"MQTT Avatar">>, <<"/api/mqtt_avatars">>};
+                             wot -> {wot_avatar:kept(), <<"WoT Avatar">>, <<"/api/wot_avatars">>}
+                         end,
+    case [S || #{entity_id := E} = S <- Kept, E =:= EntityId] of
         [#{avatar := Pid} = S] when is_pid(Pid) ->
             try
                 {ok, Fun(keeper_status(S), Pid)}
             catch
                 exit:_ -> err(503, <<"busy">>, null,
-                              <<"the MQTT Avatar did not answer (restarting or busy); try again">>)
+                              <<"the ", Noun/binary, " did not answer (restarting or busy); try again">>)
             end;
         [_] ->
             err(503, <<"not_running">>, null,
-                <<"the MQTT Avatar is waiting to be restarted (GET /api/mqtt_avatars says when)">>);
+                <<"the ", Noun/binary, " is waiting to be restarted (GET ", List/binary, " says when)">>);
         [] ->
-            avatar_not_found(EntityId)
+            err(404, <<"not_found">>, <<"entity_id">>,
+                <<"no ", Noun/binary, " ", EntityId/binary, " on this node">>)
     end.
-
-avatar_not_found(EntityId) ->
-    err(404, <<"not_found">>, <<"entity_id">>, <<"no MQTT Avatar ", EntityId/binary, " on this node">>).
 
 %% ---------------------------------------------------------------------------
 

@@ -4,7 +4,8 @@
 -module(evatar_web_api).
 
 -export([cluster/1, openapi/1, pairings/1, create/1, pairing/1, change/1, delete/1, bindings/1,
-         rotate/1, mqtt_avatars/1, mqtt_avatar/1, problems/1, override_description/1]).
+         rotate/1, mqtt_avatars/1, mqtt_avatar/1, problems/1, override_description/1,
+         wot_avatars/1, wot_problems/1]).
 
 -type request() :: evatar_web_router:request().
 -type reply() :: evatar_web_router:reply().
@@ -82,6 +83,16 @@ problems(Req) ->
 -spec override_description(request()) -> reply().
 override_description(Req) ->
     with_body(Req, fun(Body) -> reply(200, evatar_ops:override_description(id(Req), Body)) end).
+
+%% @doc GET /api/wot_avatars
+-spec wot_avatars(request()) -> reply().
+wot_avatars(_Req) ->
+    {200, evatar_ops:wot_avatars()}.
+
+%% @doc GET /api/wot_avatars/:id/problems
+-spec wot_problems(request()) -> reply().
+wot_problems(Req) ->
+    reply(200, evatar_ops:wot_problems(id(Req))).
 
 id(#{bindings := #{<<"id">> := Id}}) -> Id.
 

@@ -57,7 +57,9 @@ routes() ->
      {<<"GET">>, <<"/api/mqtt_avatars">>, evatar_web_api, mqtt_avatars},
      {<<"GET">>, <<"/api/mqtt_avatars/:id">>, evatar_web_api, mqtt_avatar},
      {<<"GET">>, <<"/api/mqtt_avatars/:id/problems">>, evatar_web_api, problems},
-     {<<"PUT">>, <<"/api/mqtt_avatars/:id/description">>, evatar_web_api, override_description}]
+     {<<"PUT">>, <<"/api/mqtt_avatars/:id/description">>, evatar_web_api, override_description},
+     {<<"GET">>, <<"/api/wot_avatars">>, evatar_web_api, wot_avatars},
+     {<<"GET">>, <<"/api/wot_avatars/:id/problems">>, evatar_web_api, wot_problems}]
     ++ evatar_web_things_routes().
 
 %% The Web of Things binding (docs/wot.md).

@@ -91,3 +91,21 @@ mqtt_problems_text_test() ->
     ?assertEqual("No problems.\n",
                  lists:flatten(io_lib:format("~ts", [evatar_cli:format({mqtt_problems, <<"flat">>},
                                                                         [])]))).
+
+%% wot_problems reads like mqtt_problems: every WoT Avatar with its
+%% problem count and its problems a line each, or one Avatar's.
+wot_problems_text_test() ->
+    {ok, {wot_problems, all}} = evatar_cli:parse(["wot_problems"]),
+    {ok, {wot_problems, <<"wot-lamp">>}} = evatar_cli:parse(["wot_problems", "wot-lamp"]),
+    Problem = #{what => unsupported_scheme, affordance => <<"blink">>,
+                message => <<"a form uses coap: only the HTTP binding (http, https) is supported">>},
+    All = [#{entity_id => <<"wot-lamp">>, state => running, running => true, starts => 1,
+             crashes => 0, next_delay_ms => 1000, problems => [Problem]}],
+    Text = lists:flatten(io_lib:format("~ts", [evatar_cli:format({wot_problems, all}, All)])),
+    ?assertMatch({match, _}, re:run(Text, "wot-lamp .* 1 ")),
+    ?assertMatch({match, _}, re:run(Text, "Problems of wot-lamp \\(1\\)\n  -  unsupported_scheme  "
+                                          "affordance: blink  message: a form uses coap")),
+    ?assertEqual("No WoT Avatars on this node.\n",
+                 lists:flatten(io_lib:format("~ts", [evatar_cli:format({wot_problems, all}, [])]))),
+    ?assertEqual("No problems.\n",
+                 lists:flatten(io_lib:format("~ts", [evatar_cli:format({wot_problems, <<"x">>}, [])]))).

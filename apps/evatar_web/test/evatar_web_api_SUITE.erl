@@ -13,7 +13,7 @@
          off_loopback_reads_need_the_token/1, token_file/1,
          cluster/1, pairings_list/1, pairing_entities/1, bindings_graph/1,
          create_refusals/1, create_then_delete/1, change_options/1, rotate_role_credential/1,
-         rotate_identity_generated/1, mqtt_avatar_routes/1, openapi_document/1,
+         rotate_identity_generated/1, mqtt_avatar_routes/1, wot_avatar_routes/1, openapi_document/1,
          live_answers_match_openapi/1]).
 
 -define(T, evatar_web_test).
@@ -23,6 +23,9 @@
 -define(AV_CRED, <<"av-secret-456">>).
 -define(MQTT_AV, <<"web-plug">>).
 -define(MQTT_PAIRING, <<"web-mqtt">>).
+%% A kept WoT Avatar (a TD file: no Thing needs to answer) and its pairing.
+-define(WOT_AV, <<"web-lamp">>).
+-define(WOT_PAIRING, <<"web-wot">>).
 
 suite() -> [{timetrap, {minutes, 3}}].
 
@@ -33,7 +36,7 @@ groups() ->
                  off_loopback_reads_need_the_token, token_file]},
      {routes, [], [cluster, pairings_list, pairing_entities, bindings_graph, create_refusals,
                    create_then_delete, change_options, rotate_role_credential,
-                   rotate_identity_generated, mqtt_avatar_routes, openapi_document,
+                   rotate_identity_generated, mqtt_avatar_routes, wot_avatar_routes, openapi_document,
                    live_answers_match_openapi]}].
 
 init_per_suite(Config) ->
@@ -41,6 +44,7 @@ init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = application:ensure_all_started(mqtt_avatar),
+    {ok, _} = application:ensure_all_started(wot_avatar),
     {ok, _} = agent_bridge:start_listener(web_api_test, #{port => 0}),
     {ok, Addr} = agent_bridge:address(web_api_test),
     ?T:start(#{operator_token_hash => evatar:hash_credential(?TOKEN)}),
@@ -74,6 +78,15 @@ init_per_suite(Config) ->
                                  evatar => #{endpoints => [Addr], pairing => ?MQTT_PAIRING,
                                              credential => ?AV_CRED},
                                  description => mqtt_xml(<<"Plug01">>), discovery => false}),
+    %% A kept WoT Avatar, its TD read from a file, joined to its own pairing.
+    _ = evatar:delete_pairing(?WOT_PAIRING),
+    {ok, _} = evatar:create_pairing(?WOT_PAIRING, #{agent_credential => ?VA_CRED,
+                                                    avatar_credential => ?AV_CRED}),
+    Td = filename:join(?config(priv_dir, Config), "web-lamp.td.json"),
+    ok = file:write_file(Td, evatar_test_fixtures:wot_lamp_td(<<"web-lamp">>)),
+    {ok, _} = wot_avatar:keep(#{entity_id => ?WOT_AV, td => {file, Td}, allowed_hosts => [<<"127.0.0.1">>],
+                                evatar => #{endpoints => [Addr], pairing => ?WOT_PAIRING,
+                                            credential => ?AV_CRED}}),
     wait_until(fun() ->
                        case ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings") of
                            {200, #{<<"bound">> := [_ | _], <<"unbound">> := [_, _]}} -> true;
@@ -86,6 +99,8 @@ end_per_suite(Config) ->
     ?config(holder, Config) ! stop,
     _ = mqtt_avatar:unkeep(?MQTT_AV),
     _ = evatar:delete_pairing(?MQTT_PAIRING),
+    _ = wot_avatar:unkeep(?WOT_AV),
+    _ = evatar:delete_pairing(?WOT_PAIRING),
     %% mosquitto does not end when its port closes: killed by its pid.
     _ = os:cmd("kill " ++ integer_to_list(element(3, ?config(broker, Config)))),
     _ = evatar:delete_pairing(?PAIRING),
@@ -396,6 +411,19 @@ mqtt_avatar_routes(Config) ->
     {400, #{<<"field">> := <<"overrides">>}} =
         change(put, "/api/mqtt_avatars/nope/description", #{overrides => #{<<"d">> => #{skip => 3}}}).
 
+%% WoT Avatars: the list with the keeper's state, one's problems (what its
+%% TD left out: a CoAP form), and an unknown one's.
+wot_avatar_routes(_Config) ->
+    Path = "/api/wot_avatars/" ++ binary_to_list(?WOT_AV) ++ "/problems",
+    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
+    {200, L} = ?T:get("/api/wot_avatars"),
+    [#{<<"state">> := <<"running">>, <<"running">> := true, <<"starts">> := 1, <<"crashes">> := 0}] =
+        [A || #{<<"entity_id">> := E} = A <- L, E =:= ?WOT_AV],
+    {200, [#{<<"what">> := <<"unsupported_scheme">>, <<"affordance">> := <<"blink">>,
+             <<"message">> := <<"a form uses coap", _/binary>>}]} = ?T:get(Path),
+    {404, #{<<"field">> := <<"entity_id">>, <<"message">> := <<"no WoT Avatar nope on this node">>}} =
+        ?T:get("/api/wot_avatars/nope/problems").
+
 %% The OpenAPI document is served and is JSON.
 openapi_document(_Config) ->
     {200, #{<<"openapi">> := <<"3.0", _/binary>>, <<"paths">> := Paths}} = ?T:get("/api/openapi.json"),
@@ -412,7 +440,7 @@ live_answers_match_openapi(Config) ->
     Script = filename:join(?config(data_dir, Config), "check_openapi.py"),
     Spec = filename:join(code:priv_dir(evatar_web), "openapi.json"),
     {Status, Out} = run(Python, [Script, Spec, ?T:url("/"), binary_to_list(?PAIRING),
-                                 binary_to_list(?MQTT_AV)],
+                                 binary_to_list(?MQTT_AV), binary_to_list(?WOT_AV)],
                         [{"EVATAR_TOKEN", binary_to_list(?TOKEN)}]),
     ct:pal("~ts", [Out]),
     0 = Status,

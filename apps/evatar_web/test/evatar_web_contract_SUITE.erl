@@ -4,8 +4,9 @@
 %% content type, header or body outside the document. The node has the
 %% operator token, a pairing bound to the simulated smart home (avatar_sim)
 %% and a VA, a pairing with identities, one for the fuzzer to change and
-%% delete, a kept MQTT Avatar and a WoT consumer exporting the home as a
-%% Thing, so that routes with ids answer real data.
+%% delete, a kept MQTT Avatar, a kept WoT Avatar (its TD a file) and a WoT
+%% consumer exporting the home as a Thing, so that routes with ids answer
+%% real data.
 %% docs/api.md section 6 says how to run it alone.
 -module(evatar_web_contract_SUITE).
 
@@ -21,6 +22,8 @@
 -define(SCRATCH, <<"contract-scratch">>).
 -define(MQTT_PAIRING, <<"contract-mqtt">>).
 -define(MQTT_AV, <<"contract-plug">>).
+-define(WOT_PAIRING, <<"contract-wot">>).
+-define(WOT_AV, <<"contract-lamp">>).
 %% The pairing the node's WoT consumer exports (docs/wot.md), and the
 %% home's entity in it.
 -define(THINGS, <<"contract-things">>).
@@ -40,6 +43,7 @@ init_per_suite(Config) ->
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
     {ok, _} = application:ensure_all_started(mqtt_avatar),
+    {ok, _} = application:ensure_all_started(wot_avatar),
     {ok, _} = application:ensure_all_started(avatar_sim),
     {ok, _} = agent_bridge:start_listener(contract, #{port => 0}),
     {ok, Addr} = agent_bridge:address(contract),
@@ -74,7 +78,18 @@ init_per_suite(Config) ->
                            _ -> false
                        end
                end),
+    %% A kept WoT Avatar, its TD a file (its action's host answers nothing;
+    %% a CoAP action is left out, one problem).
+    {ok, _} = evatar:create_pairing(?WOT_PAIRING, Creds),
+    Td = filename:join(?config(priv_dir, Config), "contract-lamp.td.json"),
+    ok = file:write_file(Td, evatar_test_fixtures:wot_lamp_td(<<"contract-lamp">>)),
+    {ok, _} = wot_avatar:keep(#{entity_id => ?WOT_AV, td => {file, Td}, allowed_hosts => [<<"127.0.0.1">>],
+                                evatar => #{endpoints => [Addr], pairing => ?WOT_PAIRING,
+                                            credential => ?AV_CRED}}),
     wait_until(fun() -> element(1, ?T:get("/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV))) =:= 200 end),
+    wait_until(fun() ->
+                       element(1, ?T:get("/api/wot_avatars/" ++ binary_to_list(?WOT_AV) ++ "/problems")) =:= 200
+               end),
     wait_until(fun() ->
                        element(1, ?T:raw(get, "/api/things/" ++ binary_to_list(?THINGS) ++ "/"
                                          ++ binary_to_list(?THING), [], none)) =:= 200
@@ -85,6 +100,7 @@ end_per_suite(Config) ->
     ?config(va, Config) ! stop,
     ok = avatar_sim:stop(?config(home, Config)),
     _ = mqtt_avatar:unkeep(?MQTT_AV),
+    _ = wot_avatar:unkeep(?WOT_AV),
     ok = evatar_test_mosquitto:stop(?config(broker, Config)),
     [_ = evatar:delete_pairing(P) || P <- pairings()],
     %% What the fuzzer created.
@@ -95,7 +111,7 @@ end_per_suite(Config) ->
     %% start this suite's consumer.
     application:unset_env(evatar_web, things).
 
-pairings() -> [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING, ?THINGS].
+pairings() -> [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING, ?THINGS, ?WOT_PAIRING].
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -195,6 +211,7 @@ config() ->
      "[dictionaries.reads]\nvalues = [", Ids([?HOME, ?IDS, ?MQTT_PAIRING]), "]\n",
      "[dictionaries.changes]\nvalues = [", Ids([?SCRATCH]), "]\n",
      "[dictionaries.avatars]\nvalues = [", Ids([?MQTT_AV]), "]\n",
+     "[dictionaries.wot_avatars]\nvalues = [", Ids([?WOT_AV]), "]\n",
      "[dictionaries.events]\nvalues = [", Ids([?HOME]), "]\n",
      "[dictionaries.nodes]\nvalues = [", Ids([atom_to_binary(node())]), "]\n",
      "[dictionaries.xml]\nvalues = ['", mqtt_xml(), "']\n",
@@ -211,6 +228,8 @@ config() ->
      " \"body.standby_node\" = { dictionary = \"nodes\", probability = 1.0 } }\n",
      "[[operations]]\ninclude-name-regex = \"^GET /api/mqtt_avatars/\"\n",
      "parameters = { \"path.id\" = { dictionary = \"avatars\", probability = 0.5 } }\n",
+     "[[operations]]\ninclude-name-regex = \"^GET /api/wot_avatars/\"\n",
+     "parameters = { \"path.id\" = { dictionary = \"wot_avatars\", probability = 0.5 } }\n",
      "[[operations]]\ninclude-name-regex = \"^PUT /api/mqtt_avatars/\"\n",
      "parameters = { \"path.id\" = { dictionary = \"avatars\", probability = 0.5 },"
      " \"body.xml\" = { dictionary = \"xml\", probability = 1.0 } }\n",

@@ -19,7 +19,8 @@ import urllib.request
 from openapi_core import OpenAPI
 from openapi_core.testing import MockRequest, MockResponse
 
-spec_path, base, pairing, avatar = sys.argv[1], sys.argv[2].rstrip("/"), sys.argv[3], sys.argv[4]
+spec_path, base, pairing, avatar, thing = (sys.argv[1], sys.argv[2].rstrip("/"), sys.argv[3], sys.argv[4],
+                                           sys.argv[5])
 token = os.environ["EVATAR_TOKEN"]
 api = OpenAPI.from_file_path(spec_path)  # validates the document first
 
@@ -66,6 +67,9 @@ CASES = [
      {"xml": "<x/>"}, 404),
     ("PUT", "/api/mqtt_avatars/nope/description", "/api/mqtt_avatars/{id}/description", AUTH,
      {"colour": 1}, 400),
+    ("GET", "/api/wot_avatars", None, {}, None, 200),
+    ("GET", "/api/wot_avatars/" + thing + "/problems", "/api/wot_avatars/{id}/problems", {}, None, 200),
+    ("GET", "/api/wot_avatars/nope/problems", "/api/wot_avatars/{id}/problems", {}, None, 404),
     ("PATCH", "/api/cluster", None, AUTH, None, 405),
 ]
 
