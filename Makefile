@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-storm bench-flood bench-scale bench-partition bench-complexity release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-promises bench-storm bench-flood bench-scale bench-partition bench-complexity release tar shell clean vectors
 
 REBAR ?= rebar3
 # The HTTP server's libraries (cowboy, ranch, cowlib), copied into _deps/
@@ -60,6 +60,9 @@ bench-brokers: deps
 ## Failover times (kill -9, silent stall: p50/p99 over 50 trials) and TLS distribution's cost.
 bench-failover: deps
 	@bash scripts/bench-failover.sh $(BENCH_ARGS)
+
+bench-promises: deps
+	@bash scripts/bench-promises.sh $(BENCH_ARGS)
 
 ## Failover storm: kill -9 of the node holding N actives with traffic (3 nodes);
 ## per pairing the time until its new active serves a round trip, the time until

@@ -160,28 +160,14 @@ init([]) ->
             {ok, #s{durable = Durable, started = Now, last_sync = Now, last_disk_check = Now}}
     end.
 
-%% mnesia makes its directory but not the directory's parents (it would
-%% fail later, in ensure_storage/0, with a badmatch). A directory made here
-%% is readable by this node's user only: it holds the pairings'
-%% credentials as stored.
 ensure_data_dir() ->
     case application:get_env(mnesia, dir) of
         undefined ->
             ok;
         {ok, Dir} ->
-            case filelib:is_dir(Dir) of
-                true ->
-                    ok;
-                false ->
-                    case filelib:ensure_dir(filename:join(Dir, "schema.DAT")) of
-                        ok ->
-                            case file:change_mode(Dir, 8#700) of
-                                ok -> ok;
-                                {error, Why} -> {error, Dir, Why}
-                            end;
-                        {error, Why} ->
-                            {error, Dir, Why}
-                    end
+            case evatar_data_dir:ensure(Dir) of
+                ok -> ok;
+                {error, Why} -> {error, Dir, Why}
             end
     end.
 

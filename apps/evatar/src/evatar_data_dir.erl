@@ -9,7 +9,7 @@
 %% (docs/ha.md section 6, "A full disk").
 -module(evatar_data_dir).
 
--export([check/1, reserve_bytes/0]).
+-export([check/1, ensure/1, reserve_bytes/0]).
 
 -define(PROBE, ".evatar_space_probe").
 
@@ -30,6 +30,22 @@ check(Dir) ->
     case Result of
         {error, Full} when Full =:= enospc; Full =:= edquot -> {error, {disk_full, Dir}};
         _ -> ok
+    end.
+
+%% @doc Makes `Dir' with its parents when it is missing, readable by this
+%% node's user only: it holds the pairings' credentials as stored and the
+%% promises of the node's voter. mnesia makes its directory but not the
+%% directory's parents (it would fail later, in its storage set-up).
+-spec ensure(file:filename()) -> ok | {error, file:posix() | badarg}.
+ensure(Dir) ->
+    case filelib:is_dir(Dir) of
+        true ->
+            ok;
+        false ->
+            case filelib:ensure_dir(filename:join(Dir, "schema.DAT")) of
+                ok -> file:change_mode(Dir, 8#700);
+                {error, _} = Error -> Error
+            end
     end.
 
 %% A file system without fallocate (some network ones) is probed by

@@ -33,11 +33,11 @@
 -module(evatar_ha_core).
 
 -export([new/0, handle/3, claim/1, holding/1, electing/1, registering/1]).
--export([next_claim/1, quorum_size/1, new_record/0, vote/5, register/4, blockers/4,
+-export([next_claim/1, quorum_size/1, new_record/0, answer/2, vote/5, register/4, blockers/4,
          must_fence/3, reconcile/2, after_pause/2]).
 
 -export_type([state/0, ctx/0, event/0, effect/0, claim/0, record/0, refusal/0,
-              instance/0, verdict/0, pause_action/0, role/0]).
+              instance/0, verdict/0, pause_action/0, role/0, voter_request/0, voter_effect/0]).
 
 -type claim() :: {non_neg_integer(), non_neg_integer()}.
 %% What one node (a voter) remembers of one pairing: the highest epoch it
@@ -47,6 +47,13 @@
 %% active that may serve) or was only promised an epoch (a candidate).
 -type record() :: #{promised := non_neg_integer(), holder := term(), conf := claim(),
                     registered => boolean()}.
+%% What a voter is asked (`Blocked': whether an instance that holds the
+%% pairing's lease is still heard, {@link blockers/4}), and what it does:
+%% `{persist, Record}', write the new record where a crash of the node
+%% does not erase it, then `{reply, Answer}'.
+-type voter_request() :: {vote, Ec :: pos_integer(), Cand :: term(), claim(), Blocked :: boolean()}
+                       | {register, E :: pos_integer(), Seq :: non_neg_integer(), From :: term()}.
+-type voter_effect() :: {persist, record()} | {reply, granted | ok | {refused, refusal()}}.
 -type refusal() :: stale_claim | {promised, non_neg_integer()} | holder_live.
 -type role() :: starting | active | standby | fenced | handing_over.
 
@@ -392,6 +399,24 @@ quorum_size(Size) -> Size div 2 + 1.
 %% @doc A voter's record of a pairing it has heard nothing about.
 -spec new_record() -> record().
 new_record() -> #{promised => 0, holder => undefined, conf => {0, 0}, registered => false}.
+
+%% @doc A voter's answer to a vote or a registration, as effects in
+%% order. A promise outlives a crash of its node (docs/ha.md section 6):
+%% the `persist' of a changed record comes before the reply, which goes out
+%% only once the record is durable; a voter that cannot write it sends
+%% nothing, so it grants nothing. A grant that changes nothing (a
+%% candidate's retry) writes nothing.
+-spec answer(voter_request(), record()) -> [voter_effect()].
+answer({vote, Ec, Cand, Claim, Blocked}, Record) ->
+    case vote(Record, Ec, Cand, Claim, Blocked) of
+        {granted, R1} -> [{persist, R1} || R1 =/= Record] ++ [{reply, granted}];
+        Refused -> [{reply, Refused}]
+    end;
+answer({register, E, Seq, From}, Record) ->
+    case register(Record, E, Seq, From) of
+        {ok, R1} -> [{persist, R1} || R1 =/= Record] ++ [{reply, ok}];
+        Refused -> [{reply, Refused}]
+    end.
 
 %% @doc Whether a voter grants candidate `Cand' the pairing at epoch `Ec',
 %% the candidate holding claim `Claim'. `Blocked' is whether another

@@ -8,11 +8,14 @@
 %% (`{deliver, receiver, ...}') and acknowledged to its sender
 %% (`{accepted, sender, Sid}').
 %%
-%% The world: nodes with a voter record each (what `evatar_cluster' keeps),
+%% The world: nodes with a voter record each (what `evatar_cluster' keeps:
+%% in memory, and on disc by `evatar_ha_promises', written before the
+%% answer goes out),
 %% heartbeats every 50 ms, suspicion after 250 ms, a lease of 150 ms;
 %% messages between nodes with a latency, over links that can be cut; a
 %% node can be paused (its clock stops, messages to it queue) or crashed
-%% (its instance dies, messages to it are lost) and restarted. One sender
+%% (its instance and its memory go, messages to it are lost; its disc
+%% stays) and restarted (its voter reads its promises back). One sender
 %% client and one receiver client reach every running node.
 %%
 %% Checked after every command ({@link check/1}):
@@ -27,10 +30,9 @@
 %% SignalID routed twice (two different routings, which its library could
 %% not tell apart); a signal acknowledged while degraded and covered again
 %% later gets no routing but those it had when it was covered again;</li>
-%% <li>once an instance serves at or below an epoch another won, after a
-%% crash erased a node's promise of that epoch (the votes of a majority
-%% lost at once, outside docs/ha-design.md section 9), nothing accepted from
-%% there on is covered in that run.</li>
+%% <li>with three nodes, no epoch is won by two instances (a promise
+%% outlives a crash of its node; a cluster of two decides alone, and its
+%% epochs are checked by what its clients see).</li>
 %% </ul>
 %% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
 %% 6), or by {@link settle/1}, a looser form: once every node runs and hears
@@ -60,7 +62,7 @@ new(N) ->
     start_active(n1, W0).
 
 node0(Nodes) ->
-    #{status => up, voter => evatar_ha_core:new_record(),
+    #{status => up, voter => evatar_ha_core:new_record(), disk => evatar_ha_core:new_record(),
       heard => maps:from_list([{N, 0} || N <- Nodes]), alive => maps:from_list([{N, true} || N <- Nodes]),
       quorum => true, inst => undefined, paused_at => undefined}.
 
@@ -305,13 +307,14 @@ resume(N, #{nodes := Nodes, now := Now} = W) ->
             W
     end.
 
-%% kill -9 of the node: its instance and its votes (kept in memory) go.
+%% kill -9 of the node: its instance and its memory go; its disc, with the
+%% promises its voter gave, stays.
 crash(N, #{nodes := Nodes, names := Names} = W) ->
     Down = [M || M <- Names, maps:get(status, maps:get(M, Nodes)) =:= down],
     case maps:get(N, Nodes) of
-        #{status := S, voter := #{promised := P}} = Nd when S =/= down, Down =:= [] ->
-            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W)}},
-                    erased => max(P, maps:get(erased, W, 0))},
+        #{status := S} = Nd when S =/= down, Down =:= [] ->
+            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W),
+                                             voter := lost}}},
             W1 = case Nd of
                      #{inst := undefined} -> W0;
                      #{inst := Ref} -> kill(Ref, W0)
@@ -336,17 +339,19 @@ crash(N, #{nodes := Nodes, names := Names} = W) ->
     end.
 
 %% A node boots in a second at least: the others have suspected it by then.
+%% Its voter reads back what it promised (evatar_ha_promises).
 %% Its new incarnation connects to the others, which drop the old,
 %% silent, connection first: nodedown and the monitors' DOWN that a cut held
 %% back come now.
 restart(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
     case maps:get(N, Nodes) of
-        #{status := down, paused_at := At} when Now - At >= 1000 ->
+        #{status := down, paused_at := At, disk := Disk} when Now - At >= 1000 ->
             {Mine, Others} = lists:partition(fun({M, _, _}) -> M =:= N end,
                                              maps:get(pending, W, [])),
             W1 = lists:foldl(fun({_, To, Msg}, Acc) -> enqueue_at(Now, To, Msg, Acc) end,
                              W#{pending => Others}, Mine),
-            W1#{nodes := Nodes#{N := (node0(Names))#{heard := maps:from_list([{M, Now} || M <- Names])}}};
+            Heard = maps:from_list([{M, Now} || M <- Names]),
+            W1#{nodes := Nodes#{N := (node0(Names))#{heard := Heard, voter := Disk, disk := Disk}}};
         #{} ->
             W
     end.
@@ -466,28 +471,18 @@ fire_timers(#{insts := Insts, now := Now} = W) ->
                           end, Acc, Due)
       end, W, maps:values(Insts)).
 
-%% The voters: evatar_cluster's answers.
+%% The voters: evatar_cluster's answers, by evatar_ha_core:answer/2's
+%% effects: a changed record is on the node's disc before the reply goes.
 voter(N, {vote, Ec, Cand, Claim, Active, Dead}, #{nodes := Nodes} = W) ->
-    #{voter := Rec} = Nd = maps:get(N, Nodes),
+    #{voter := Rec} = maps:get(N, Nodes),
     Blocked = lists:any(fun(P) -> serving_as_seen(N, P, W) end,
                         evatar_ha_core:blockers(Rec, Cand, Active, Dead)),
-    case evatar_ha_core:vote(Rec, Ec, Cand, Claim, Blocked) of
-        {granted, R1} ->
-            W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
-            send(N, {inst, Cand}, {vote_reply, p, Ec, N, granted}, W1);
-        Refused ->
-            send(N, {inst, Cand}, {vote_reply, p, Ec, N, Refused}, W)
-    end;
-voter(N, {register, Claim, From}, #{nodes := Nodes} = W) ->
-    #{voter := Rec} = Nd = maps:get(N, Nodes),
-    {E, Seq} = Claim,
-    case evatar_ha_core:register(Rec, E, Seq, From) of
-        {ok, R1} ->
-            W1 = W#{nodes := Nodes#{N := Nd#{voter := R1}}},
-            send(N, {inst, From}, {register_reply, p, Claim, N, ok}, W1);
-        Refused ->
-            send(N, {inst, From}, {register_reply, p, Claim, N, Refused}, W)
-    end;
+    voter_effects(evatar_ha_core:answer({vote, Ec, Cand, Claim, Blocked}, Rec), N,
+                  fun(Result) -> {Cand, {vote_reply, p, Ec, N, Result}} end, W);
+voter(N, {register, {E, Seq} = Claim, From}, #{nodes := Nodes} = W) ->
+    #{voter := Rec} = maps:get(N, Nodes),
+    voter_effects(evatar_ha_core:answer({register, E, Seq, From}, Rec), N,
+                  fun(Result) -> {From, {register_reply, p, Claim, N, Result}} end, W);
 voter(N, {nodedown, M}, #{nodes := Nodes} = W) ->
     #{alive := Alive, heard := Heard} = Nd = maps:get(N, Nodes),
     W1 = W#{nodes := Nodes#{N := Nd#{alive := Alive#{M := false}, heard := Heard#{M := -?SUSPECT}}}},
@@ -514,6 +509,13 @@ voter(N, {start_standby, Active}, #{insts := Insts} = W) ->
         _ ->
             W
     end.
+
+voter_effects([{persist, R} | Rest], N, Reply, #{nodes := Nodes} = W) ->
+    Nd = maps:get(N, Nodes),
+    voter_effects(Rest, N, Reply, W#{nodes := Nodes#{N := Nd#{voter := R, disk := R}}});
+voter_effects([{reply, Result}], N, Reply, W) ->
+    {To, Msg} = Reply(Result),
+    send(N, {inst, To}, Msg, W).
 
 serving_as_seen(N, {M, _} = Ref, #{insts := Insts} = W) ->
     case M =:= N of
@@ -662,7 +664,7 @@ release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender 
                  true -> 0;
                  false -> maps:get(faults, W, 0)
              end,
-    {Degraded, W1} = case Faults =:= 0 andalso not maps:get(split, W, false) of
+    {Degraded, W1} = case Faults =:= 0 of
                          true -> {maps:get(degraded, Snd) -- Covered,
                                excuse([Sid || {Sid, _} <- A, lists:member(Sid, maps:get(degraded, Snd))],
                                       A, W)};
@@ -736,33 +738,12 @@ logic_step(Event, Mode, #{state := S, commit := C} = I, W0) ->
     I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
     effects(Out, I1, note_degraded(Mode, Effects, W)).
 
-%% Who won each epoch (a takeover or a re-election), for split/1.
+%% Who won each epoch (a takeover or a re-election), for check/1.
 won({Why, Ec}, Ref, W) when Why =:= takeover; Why =:= reelected ->
     Winners = maps:get(winners, W, #{}),
     W#{winners => Winners#{Ec => lists:usort([Ref | maps:get(Ec, Winners, [])])}};
 won(_Event, _Ref, W) ->
     W.
-
-%% An instance serves at an epoch that another instance won, or below it,
-%% after a crash erased a node's promise of that epoch: the votes of a
-%% majority were lost at once (docs/ha-design.md section 9, "Not covered").
-%% Two histories may now share claims, and an instance of one may take
-%% over from the other without what it accepted, whatever is synced since:
-%% nothing accepted is covered from then on in this run (a real cluster
-%% would start the pairing afresh from its catalogue).
-split(#{sender := #{acked := Acked, degraded := D} = Snd} = W) ->
-    Winners = maps:to_list(maps:get(winners, W, #{})),
-    Erased = maps:get(erased, W, 0),
-    Split = maps:get(split, W, false) orelse
-        lists:any(fun(#{ref := R, epoch := E}) ->
-                          lists:any(fun({E2, Refs}) -> E2 >= E andalso Erased >= E2
-                                                           andalso Refs -- [R] =/= []
-                                    end, Winners)
-                  end, serving(W)),
-    case Split of
-        true -> W#{split => true, sender := Snd#{degraded := lists:usort(Acked ++ D)}};
-        false -> W
-    end.
 
 degrade(Sid, #{sender := #{sent := Sent, degraded := D} = Snd} = W) ->
     W#{sender := Snd#{degraded := lists:usort([X || X <- Sent, X =< Sid] ++ D)}}.
@@ -781,7 +762,7 @@ effects([{send, receiver, {signal, X}} | Rest], I, W) ->
 effects([{acks, #{sender := Sid}} | Rest], #{standby := S} = I, W) ->
     %% Told without a standby that holds it: degraded, not covered by the
     %% guarantee until a standby is synced again.
-    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 orelse maps:get(split, W, false) of
+    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 of
              true -> degrade(Sid, W);
              false -> W
          end,
@@ -856,7 +837,7 @@ serving(#{insts := Insts} = W) ->
 %% @doc The safety checks; a violation is recorded in `violations'.
 -spec check(map()) -> map().
 check(W0) ->
-    check1(split(W0)).
+    check1(W0).
 
 check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
          receiver := #{got := Got, excused := Excused}} = W) ->
@@ -872,9 +853,12 @@ check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
     V4 = [{twice, Sid, Routes} || {Sid, Routes} <- maps:to_list(Got), lists:member(Sid, Covered),
                                   routed_twice(Routes, maps:get(Sid, Excused, []))],
     V5 = [{not_serving, maps:get(now, W)} || stuck(W)],
-    case V1 ++ V2 ++ V3 ++ V4 ++ V5 of
+    V6 = [{won_twice, E, Refs} || length(maps:get(names, W)) >= 3,
+                                  {E, [_, _ | _] = Refs} <- maps:to_list(maps:get(winners, W, #{}))],
+    Seen = maps:get(violations, W),
+    case V1 ++ V2 ++ V3 ++ V4 ++ V5 ++ [V || V <- V6, not lists:member(V, Seen)] of
         [] -> W;
-        Vs -> W#{violations := maps:get(violations, W) ++ Vs}
+        Vs -> W#{violations := Seen ++ Vs}
     end.
 
 %% A signal never degraded gets one routing; one covered again gets none
