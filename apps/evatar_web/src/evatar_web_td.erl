@@ -7,12 +7,17 @@
 %% `ACTION FEEDBACK' consumer); every `SENSOR' data service a component
 %% consumes (the stream it pushes) is a read-only property holding its
 %% last reading. The forms point at the node's HTTP binding
-%% (evatar_web_things), secured by the operator's bearer token.
+%% (evatar_web_things), secured by the operator's bearer token. For an
+%% MQTT Avatar (mqtt_avatar) kept by the node, an action or property whose
+%% device has a topic also gets the device's own MQTT binding form
+%% (`mqv:' vocabulary of the WoT Binding Templates: `mqtt://HOST:PORT/TOPIC',
+%% `mqv:controlPacket' publish to the command topic, subscribe to the
+%% state topic), beside the HTTP one.
 -module(evatar_web_td).
 
--export([thing/4, directory/2, thing_id/3, affordances/1, counterpart/2, component_id/1, directory_entry/1]).
+-export([thing/4, thing/5, directory/2, thing_id/3, affordances/1, counterpart/2, component_id/1, directory_entry/1]).
 
--export_type([affordance/0]).
+-export_type([affordance/0, mqtt/0]).
 
 %% What one TD interaction is in BIL terms.
 -type affordance() :: #{kind := action | property,
@@ -21,20 +26,34 @@
                         entry := bil:entry(),
                         feedback => bil:entry() | undefined}.
 
+%% An MQTT Avatar's broker (as its options name it) and its description as
+%% it generated it, the Mqtt* parameters included (which the pairing's copy
+%% has not: mqtt_avatar takes them out).
+-type mqtt() :: none | #{host := binary(), port := inet:port_number(), description := bil:description()}.
+
 -define(CONTEXT, [<<"https://www.w3.org/2019/wot/td/v1">>,
                   <<"https://www.w3.org/2022/wot/td/v1.1">>,
                   #{<<"@language">> => <<"en">>,
                     <<"htv">> => <<"http://www.w3.org/2011/http#">>,
+                    <<"mqv">> => <<"http://www.example.org/mqtt-binding#">>,
                     <<"bil">> => <<"urn:evatar:bil:1#">>}]).
 
 %% @doc The TD of Avatar description `Desc' in pairing `Pairing' of node
 %% `Node', its forms relative to `Base' ("http://host:port/").
 -spec thing(node(), binary(), bil:description(), binary()) -> map().
-thing(Node, Pairing, #{entity_id := Entity} = Desc, Base) ->
+thing(Node, Pairing, Desc, Base) ->
+    thing(Node, Pairing, Desc, Base, none).
+
+%% @doc thing/4, with the MQTT forms of an MQTT Avatar's devices.
+-spec thing(node(), binary(), bil:description(), binary(), mqtt()) -> map().
+thing(Node, Pairing, #{entity_id := Entity} = Desc, Base, Mqtt) ->
     Affs = affordances(Desc),
     Path = fun(Parts) -> iolist_to_binary(lists:join("/", [<<"api/things">> | [enc(P) || P <- [Pairing, Entity | Parts]]])) end,
-    Actions = maps:from_list([{N, action(A, Path)} || #{kind := action, name := N} = A <- Affs]),
-    Props = maps:from_list([{N, property(A, Path)} || #{kind := property, name := N} = A <- Affs]),
+    Topics = topics(Mqtt),
+    Actions = maps:from_list([{N, mqtt_action(action(A, Path), A, Topics)}
+                              || #{kind := action, name := N} = A <- Affs]),
+    Props = maps:from_list([{N, mqtt_property(property(A, Path), A, Topics)}
+                            || #{kind := property, name := N} = A <- Affs]),
     #{<<"@context">> => ?CONTEXT,
       <<"@type">> => <<"Thing">>,
       <<"id">> => thing_id(Node, Pairing, Entity),
@@ -208,6 +227,79 @@ property(#{component := C, entry := #{type := T, parameters := Ps}}, Path) ->
                         <<"contentType">> => <<"application/json">>,
                         <<"htv:methodName">> => <<"GET">>,
                         <<"additionalResponses">> => [error_response()]}]}.
+
+%% ---------------------------------------------------------------------------
+%% The MQTT binding of an MQTT Avatar's devices
+%% ---------------------------------------------------------------------------
+
+%% Per component, kind and entry type: the device's command topic (with what it
+%% publishes there) and its state topic. A topic not on the entry is the
+%% first its component gives (docs/mqtt.md section 3.1).
+topics(none) ->
+    none;
+topics(#{host := Host, port := Port, description := #{components := Cs}}) ->
+    Base = iolist_to_binary(["mqtt://", Host, ":", integer_to_binary(Port), "/"]),
+    Entries = maps:from_list(
+                [{{Id, Kind, T}, #{command => mqtt_param(<<"MqttCommandTopic">>, E, Services ++ Consumes),
+                                   command_text => mqtt_param(<<"MqttCommand">>, E, [E]),
+                                   state => mqtt_param(<<"MqttStateTopic">>, E, Services ++ Consumes)}}
+                 || #{id := Id, services := Services, consumes := Consumes} <- Cs,
+                    {Kind, Group} <- [{action, Services}, {property, Consumes}],
+                    #{type := T} = E <- Group]),
+    #{base => Base, entries => Entries}.
+
+mqtt_param(Name, #{parameters := Ps}, Component) ->
+    case lists:keyfind(Name, 1, Ps) of
+        {_, V} -> V;
+        false -> case [V || #{parameters := Ps1} <- Component, {N, V} <- Ps1, N =:= Name] of
+                     [V | _] -> V;
+                     [] -> undefined
+                 end
+    end.
+
+%% An action whose device takes commands on a topic: a publish there. The
+%% payload is the device's (`bil:mqttCommand', docs/mqtt.md section 3.2),
+%% not the HTTP form's input: this form drives the device without EVATAR.
+mqtt_action(Td, #{component := C, entry := #{type := T}}, #{base := Base, entries := Es}) ->
+    case Es of
+        #{{C, action, T} := #{command := Topic, command_text := Command}}
+          when is_binary(Topic), is_binary(Command) ->
+            Form = #{<<"href">> => <<Base/binary, (topic_path(Topic))/binary>>,
+                     <<"op">> => [<<"invokeaction">>],
+                     <<"mqv:controlPacket">> => <<"publish">>,
+                     <<"mqv:qos">> => <<"1">>,
+                     <<"mqv:retain">> => false,
+                     <<"contentType">> => <<"text/plain">>,
+                     <<"bil:mqttCommand">> => Command},
+            add_form(Td, Form);
+        #{} ->
+            Td
+    end;
+mqtt_action(Td, _, none) ->
+    Td.
+
+%% A property whose device publishes its readings on a topic: subscribe
+%% there (its messages are the device's, before EVATAR reads them).
+mqtt_property(Td, #{component := C, entry := #{type := T}}, #{base := Base, entries := Es}) ->
+    case Es of
+        #{{C, property, T} := #{state := Topic}} when is_binary(Topic) ->
+            Form = #{<<"href">> => <<Base/binary, (topic_path(Topic))/binary>>,
+                     <<"op">> => [<<"observeproperty">>],
+                     <<"mqv:controlPacket">> => <<"subscribe">>,
+                     <<"contentType">> => <<"text/plain">>},
+            (add_form(Td, Form))#{<<"observable">> => true};
+        #{} ->
+            Td
+    end;
+mqtt_property(Td, _, none) ->
+    Td.
+
+add_form(#{<<"forms">> := Forms} = Td, Form) ->
+    Td#{<<"forms">> := Forms ++ [Form]}.
+
+%% A topic as a URI path: each level percent-encoded.
+topic_path(Topic) ->
+    iolist_to_binary(lists:join("/", [enc(L) || L <- binary:split(Topic, <<"/">>, [global])])).
 
 param(N, V, Whose) ->
     #{<<"type">> => <<"string">>,

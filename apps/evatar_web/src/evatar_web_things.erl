@@ -14,7 +14,7 @@
 -spec list(evatar_web_router:request()) -> evatar_web_router:reply().
 list(Req) ->
     Base = base(Req),
-    TDs = [evatar_web_td:thing(node(), P, D, Base)
+    TDs = [evatar_web_td:thing(node(), P, D, Base, mqtt(D))
            || {P, Pid} <- evatar_web_things_sup:consumers(), D <- safe_things(Pid)],
     {raw, 200, [{"content-type", "application/json"}, {"cache-control", "no-store"}],
      evatar_web_json:encode(TDs)}.
@@ -23,8 +23,27 @@ list(Req) ->
 -spec td(evatar_web_router:request()) -> evatar_web_router:reply().
 td(Req) ->
     with_thing(Req, fun(P, _Pid, D) ->
-                            td_reply(evatar_web_td:thing(node(), P, D, base(Req)))
+                            td_reply(evatar_web_td:thing(node(), P, D, base(Req), mqtt(D)))
                     end).
+
+%% An entity that is an MQTT Avatar this node keeps (by its entity id):
+%% its broker and full description, for the MQTT forms of its devices.
+mqtt(#{entity_id := Entity}) ->
+    case [Pid || #{entity_id := E, avatar := Pid} <- mqtt_avatar:kept(), E =:= Entity, is_pid(Pid)] of
+        [Pid] ->
+            try
+                #{broker := #{host := Host, port := Port}} = mqtt_avatar:status(Pid),
+                #{host => host(Host), port => Port, description => mqtt_avatar:description(Pid)}
+            catch
+                %% Gone or restarting meanwhile: the TD has its HTTP forms.
+                exit:_ -> none
+            end;
+        [] ->
+            none
+    end.
+
+host(H) when is_tuple(H) -> list_to_binary(inet:ntoa(H));
+host(H) -> unicode:characters_to_binary(H).
 
 %% @doc POST /api/things/{pairing}/{entity}/actions/{component}/{service}.
 -spec invoke(evatar_web_router:request()) -> evatar_web_router:reply().

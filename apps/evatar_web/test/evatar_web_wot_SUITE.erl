@@ -113,6 +113,22 @@ tds_pass_schema_and_assertions(Config) ->
     [#{<<"actions">> := MqttActions, <<"properties">> := MqttProps}] =
         [X || #{<<"title">> := ?MQTT_AV} = X <- TDs],
     true = maps:size(MqttActions) >= 2 andalso maps:size(MqttProps) >= 2,
+    %% The MQTT Avatar's devices carry their own MQTT binding forms beside
+    %% the HTTP ones: a publish to the plug's command topic, a subscribe
+    %% to the temperature's state topic (on the suite's broker). (The
+    %% light's commands come from its HA config, MqttLight: no form.)
+    Port = integer_to_list(maps:get(port, ?config(broker, Config))),
+    MqttForms = fun(Affs) -> [F || #{<<"forms">> := Fs} <- maps:values(Affs), F <- Fs,
+                                   binary:match(maps:get(<<"href">>, F), <<"mqtt://">>) =/= nomatch] end,
+    [_, _] = PlugForms = [F || #{<<"href">> := H} = F <- MqttForms(MqttActions),
+                               H =:= list_to_binary("mqtt://127.0.0.1:" ++ Port ++ "/home/hall_plug/set")],
+    ok = lists:foreach(fun(#{<<"op">> := [<<"invokeaction">>], <<"mqv:controlPacket">> := <<"publish">>,
+                             <<"bil:mqttCommand">> := _}) -> ok
+                       end, PlugForms),
+    [_ | _] = [F || #{<<"href">> := H, <<"mqv:controlPacket">> := <<"subscribe">>,
+                      <<"op">> := [<<"observeproperty">>]} = F <- MqttForms(MqttProps),
+                    H =:= list_to_binary("mqtt://127.0.0.1:" ++ Port ++ "/home/hall_temperature")],
+    [] = [P || #{<<"forms">> := [_, _ | _], <<"observable">> := false} = P <- maps:values(MqttProps)],
     #{<<"@context">> := [<<"https://www.w3.org/2019/wot/td/v1">>, <<"https://www.w3.org/2022/wot/td/v1.1">>, _],
       <<"id">> := Id, <<"security">> := [<<"bearer_sc">>],
       <<"securityDefinitions">> := #{<<"bearer_sc">> := #{<<"scheme">> := <<"bearer">>}},
@@ -182,7 +198,7 @@ node_wot_reads_the_time(Config) ->
     %% A stream that never pushed (nothing publishes the MQTT devices'
     %% states): 503 no_reading, the error the TD declares.
     [#{<<"properties">> := MqttProps}] = [X || #{<<"title">> := ?MQTT_AV} = X <- things()],
-    [#{<<"forms">> := [#{<<"href">> := Href}]} | _] = maps:values(MqttProps),
+    [#{<<"forms">> := [#{<<"href">> := Href} | _]} | _] = maps:values(MqttProps),
     {503, #{<<"error">> := <<"no_reading">>}} = ?T:get("/" ++ binary_to_list(Href)).
 
 %% A pairing holds one agent: while the WoT consumer is joined, a VA is

@@ -191,8 +191,8 @@ print_problems(Avatar) ->
                   end, problems(Avatar)).
 
 %% @doc The state of the sessions and devices: `state', `mqtt' and `evatar'
-%% (up/down), `components', `availability', `last_values', `pending',
-%% `subscriptions'.
+%% (up/down), `broker' (`host', as the options give it, and `port'),
+%% `components', `availability', `last_values', `pending', `subscriptions'.
 -spec status(avatar()) -> map().
 status(Avatar) ->
     gen_statem:call(Avatar, status, ?CALL_TIMEOUT).

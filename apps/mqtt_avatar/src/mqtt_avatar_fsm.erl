@@ -230,6 +230,7 @@ handle_event({call, From}, status, State, D) ->
     L = D#d.logic,
     Status = #{state => State,
                mqtt => case D#d.mqtt_up of true -> up; false -> down end,
+               broker => maps:with([host, port], maps:get(mqtt, D#d.opts)),
                evatar => case D#d.bridge of undefined -> down; _ -> up end,
                joins => D#d.joins,
                retry => D#d.retry,
