@@ -482,7 +482,7 @@ restore({Id, Config}, #s{backoff = Backoff} = S) ->
                        _ ->
                            ?RESTORE_BACKOFF_MIN
                    end,
-            Result = evatar_pairings_sup:start_pairing(Id, Config),
+            Result = evatar_pairings_sup:start_pairing(Id, Config, restore),
             ?LOG_NOTICE(#{what => pairing_restored, pairing => Id,
                           result => element(1, Result), retry_after_ms => Next}),
             S1 = S#s{backoff = Backoff#{Id => {Now, Next}}},

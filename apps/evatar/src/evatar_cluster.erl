@@ -275,6 +275,9 @@ handle_info({evatar_ha, 1, {ask, Id, ReplyTo}}, S) ->
 handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, _Claim, _Active, _Dead}} = Msg, S)
   when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
     {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
+handle_info({evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}} = Msg, S)
+  when is_binary(Id), is_integer(Ec), is_pid(Cand), is_list(NoneOn) ->
+    {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
 handle_info({evatar_ha, 1, {register, Id, E, Seq, From}} = Msg, S)
   when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
     {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
@@ -309,6 +312,9 @@ more_requests(N) ->
         {evatar_ha, 1, {vote, Id, Ec, Cand, _, _, _}} = Msg
           when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
             [Msg | more_requests(N - 1)];
+        {evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}} = Msg
+          when is_binary(Id), is_integer(Ec), is_pid(Cand), is_list(NoneOn) ->
+            [Msg | more_requests(N - 1)];
         {evatar_ha, 1, {register, Id, E, Seq, From}} = Msg
           when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
             [Msg | more_requests(N - 1)]
@@ -341,6 +347,15 @@ decide({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, Dead}}, {Changed, Repl
                                                                           Dead),
                                              is_pid(P)]),
     Effects = evatar_ha_core:answer({vote, Ec, Cand, Claim, Blocked}, Record),
+    effects(Effects, Id, {vote_reply, Cand, Id, Ec}, Changed, Replies);
+decide({evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}}, {Changed, Replies}) ->
+    Record = record(Id, Changed),
+    Blocked = lists:any(fun serving/1,
+                        [P || P <- evatar_ha_core:restore_blockers(
+                                          Record, Cand, NoneOn, fun node_of/1,
+                                          local_instance(Id)),
+                              is_pid(P)]),
+    Effects = evatar_ha_core:answer({restore_vote, Ec, Cand, Blocked}, Record),
     effects(Effects, Id, {vote_reply, Cand, Id, Ec}, Changed, Replies);
 decide({evatar_ha, 1, {register, Id, E, Seq, From}}, {Changed, Replies}) ->
     Effects = evatar_ha_core:answer({register, E, Seq, From}, record(Id, Changed)),
@@ -410,6 +425,20 @@ record(Id) ->
         [{_, R}] -> R;
         [] -> evatar_ha_core:new_record()
     end.
+
+local_instance(Id) ->
+    case evatar_registry:role(Id) of
+        #{pid := Pid, role := Role} -> {Pid, Role};
+        none ->
+            %% Not published yet: starting.
+            case evatar_registry:whereis_name(Id) of
+                undefined -> undefined;
+                Pid -> {Pid, starting}
+            end
+    end.
+
+node_of(Pid) when is_pid(Pid) -> node(Pid);
+node_of(_) -> undefined.
 
 %% Whether an instance may still be serving, as far as this node can tell:
 %% a local process that is alive, or a remote one whose node is heard.

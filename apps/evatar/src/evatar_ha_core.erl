@@ -32,8 +32,9 @@
 %% instances are any term (pids in the node, names in the model).
 -module(evatar_ha_core).
 
--export([new/0, handle/3, claim/1, holding/1, electing/1, registering/1]).
+-export([new/0, handle/3, claim/1, holding/1, electing/1, registering/1, restoring/1]).
 -export([next_claim/1, quorum_size/1, new_record/0, answer/2, vote/5, register/4, blockers/4,
+         restore_vote/4, restore_blockers/5,
          must_fence/3, reconcile/2, after_pause/2]).
 
 -export_type([state/0, ctx/0, event/0, effect/0, claim/0, record/0, refusal/0,
@@ -52,6 +53,7 @@
 %% `{persist, Record}', write the new record where a crash of the node
 %% does not erase it, then `{reply, Answer}'.
 -type voter_request() :: {vote, Ec :: pos_integer(), Cand :: term(), claim(), Blocked :: boolean()}
+                       | {restore_vote, Ec :: pos_integer(), Cand :: term(), Blocked :: boolean()}
                        | {register, E :: pos_integer(), Seq :: non_neg_integer(), From :: term()}.
 -type voter_effect() :: {persist, record()} | {reply, granted | ok | {refused, refusal()}}.
 -type refusal() :: stale_claim | {promised, non_neg_integer()} | holder_live.
@@ -66,6 +68,9 @@
                  epoch := non_neg_integer(), role := role(), suspect_ms => pos_integer(),
                  self => node(), keep_standby => boolean()}.
 
+%% `{elect, {restore, NoneOn}, _}': a pairing restored afresh (no
+%% instance was found; `NoneOn' are the nodes that said they run none)
+%% stands for election before it serves, as a takeover does.
 -type event() :: {elect, Why :: term(), ActiveDead :: boolean()}
                | {handover_asked}
                | {timeout, election | register | deadline}
@@ -75,6 +80,7 @@
                | standby_claimed
                | paused
                | active_heard
+               | {runs_none, node()}
                | {claim, claim()}.
 
 %% `{vote, Node, Ec, Claim, ActiveDead}': ask Node for the pairing at Ec;
@@ -83,6 +89,7 @@
 %% which comes back as `{timeout, Key}'. The last three end an election or
 %% a registration and come last in a list.
 -type effect() :: {vote, node(), pos_integer(), claim(), boolean()}
+                | {restore_vote, node(), pos_integer(), [node()]}
                 | {register, node(), claim()}
                 | {timer, election | register | deadline, non_neg_integer()}
                 | {pause, pause_action()}
@@ -92,7 +99,8 @@
                 | {fence, refusal() | registration_timeout}.
 
 -type election() :: #{epoch := non_neg_integer(), granted := [node()], replied := [node()],
-                      dead := boolean(), why := term(), attempt := non_neg_integer()}.
+                      dead := boolean(), why := term(), attempt := non_neg_integer(),
+                      none_on => [node()]}.
 %% pause: a reconfirmation after a pause of this node, where a refusal for
 %% a promise means a standby may have won (the active fences).
 -type registration() :: #{claim := claim(), ok := [node()], no := [node()],
@@ -130,6 +138,10 @@ holding(#core{hold = H}) -> H.
 -spec electing(state()) -> boolean().
 electing(#core{election = E}) -> E =/= undefined.
 
+%% @doc Whether a restore's election runs.
+-spec restoring(state()) -> boolean().
+restoring(#core{election = E}) -> is_map(E) andalso is_map_key(none_on, E).
+
 %% @doc Whether a registration runs.
 -spec registering(state()) -> boolean().
 registering(#core{reg = R}) -> R =/= undefined.
@@ -151,6 +163,8 @@ handle({elect, Why, true}, Ctx, #core{election = #{dead := false} = El} = C) ->
     elect(Ctx, C#core{election = El#{dead := true, why := Why}});
 handle({elect, _Why, _Dead}, _Ctx, #core{election = #{}} = C) ->
     {C, []};
+handle({elect, {restore, NoneOn}, _Dead}, Ctx, C) ->
+    elect(Ctx, C#core{election = (fresh(restore, true))#{none_on => NoneOn}});
 handle({elect, Why, Dead}, Ctx, C) ->
     elect(Ctx, C#core{election = fresh(Why, Dead)});
 handle({handover_asked}, Ctx, C) ->
@@ -268,6 +282,15 @@ handle(paused, #{nodes := Nodes} = Ctx, #core{conf = Claim, reg = Reg, hold = Ho
         Action ->
             {C, [{pause, Action}]}
     end;
+handle({runs_none, Node}, Ctx, #core{election = #{none_on := NoneOn} = El} = C) ->
+    %% A restore's election: a node heard again runs no instance either, so
+    %% a holder recorded there (an earlier incarnation's) no longer counts.
+    case lists:member(Node, NoneOn) of
+        true -> {C, []};
+        false -> elect(Ctx, C#core{election = El#{none_on := lists:usort([Node | NoneOn])}})
+    end;
+handle({runs_none, _}, _Ctx, C) ->
+    {C, []};
 handle(active_heard, _Ctx, C) ->
     {C#core{election = undefined}, []};
 handle(standby_claimed, #{role := active} = Ctx,
@@ -329,9 +352,12 @@ fresh(Why, Dead) ->
 elect(#{nodes := Nodes, heartbeat_ms := Hb, epoch := Epoch},
       #core{election = #{dead := Dead, attempt := N} = El, conf = Claim} = C) ->
     Ec = max(maps:get(epoch, El), max(Epoch, C#core.promised) + 1),
+    Votes = case El of
+                #{none_on := NoneOn} -> [{restore_vote, Node, Ec, NoneOn} || Node <- Nodes];
+                #{} -> [{vote, Node, Ec, Claim, Dead} || Node <- Nodes]
+            end,
     {C#core{election = El#{epoch := Ec, granted := [], replied := [], attempt := N + 1}},
-     [{vote, Node, Ec, Claim, Dead} || Node <- Nodes]
-     ++ [{timer, election, min(Hb, 10 bsl min(N, 6))}]}.
+     Votes ++ [{timer, election, min(Hb, 10 bsl min(N, 6))}]}.
 
 %% Won: the configuration {Ec, 1}, which no other instance's claim can
 %% reach. After a handover the old active becomes the standby at once;
@@ -412,6 +438,11 @@ answer({vote, Ec, Cand, Claim, Blocked}, Record) ->
         {granted, R1} -> [{persist, R1} || R1 =/= Record] ++ [{reply, granted}];
         Refused -> [{reply, Refused}]
     end;
+answer({restore_vote, Ec, Cand, Blocked}, Record) ->
+    case restore_vote(Record, Ec, Cand, Blocked) of
+        {granted, R1} -> [{persist, R1} || R1 =/= Record] ++ [{reply, granted}];
+        Refused -> [{reply, Refused}]
+    end;
 answer({register, E, Seq, From}, Record) ->
     case register(Record, E, Seq, From) of
         {ok, R1} -> [{persist, R1} || R1 =/= Record] ++ [{reply, ok}];
@@ -438,6 +469,40 @@ vote(_Record, _Ec, _Cand, _Claim, true) ->
     {refused, holder_live};
 vote(#{conf := Conf} = R, Ec, Cand, Claim, false) ->
     {granted, R#{promised := Ec, holder := Cand, conf := max(Conf, Claim), registered => false}}.
+
+%% @doc Whether a voter grants a restored instance `Cand' the pairing at
+%% `Ec': a pairing that no node was found to run, started afresh by the
+%% catalogue. Its state is new, so a newer configuration this voter saw
+%% (one whose instances are all gone) does not make it stale; one promise
+%% per epoch, and the lease (`Blocked', {@link restore_blockers/5}), hold
+%% as for any candidate. Its configuration is recorded when it registers.
+-spec restore_vote(record(), pos_integer(), term(), Blocked :: boolean()) ->
+          {granted, record()} | {refused, refusal()}.
+restore_vote(#{promised := P, holder := H}, Ec, Cand, _Blocked)
+  when Ec < P; Ec =:= P, H =/= Cand ->
+    {refused, {promised, P}};
+restore_vote(_Record, _Ec, _Cand, true) ->
+    {refused, holder_live};
+restore_vote(R, Ec, Cand, false) ->
+    {granted, R#{promised := Ec, holder := Cand, registered => false}}.
+
+%% @doc The instances that block a restore vote for `Cand' while the voter
+%% sees them serve: an instance of the pairing on the voter's own node
+%% (`Local', with its role: an active or a standby, whether or not it ever
+%% registered, since a new pairing's never did, or one starting, which may
+%% be about to become a standby; not a fenced one, such as another
+%% restorer: two restorers would otherwise refuse each other for ever),
+%% and the holder, if
+%% it recorded a configuration and its node (`NodeOf') is not one the
+%% restorer heard say it runs no instance of the pairing (`NoneOn': a
+%% holder there is dead, e.g. one of a node's earlier incarnation, read
+%% back from disc).
+-spec restore_blockers(record(), term(), [node()], fun((term()) -> node() | undefined),
+                       Local :: {term(), atom()} | undefined) -> [term()].
+restore_blockers(Record, Cand, NoneOn, NodeOf, Local) ->
+    [P || {P, Role} <- [Local], P =/= Cand,
+          lists:member(Role, [starting, active, handing_over, standby])]
+    ++ [H || H <- blockers(Record, Cand, undefined, false), not lists:member(NodeOf(H), NoneOn)].
 
 %% @doc Whether a voter accepts the active `From''s new configuration
 %% `{E, Seq}' (the standby dropped, or a takeover confirmed): not when it

@@ -67,6 +67,7 @@
                 | {ask, [node()]}
                 | {start_standby, node()}
                 | {vote, node(), pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
+                | {restore_vote, node(), pos_integer(), [node()]}
                 | {register, node(), evatar_ha_core:claim()}
                 | {monitor, active | standby, peer()} | {demonitor, active | standby}
                 | {timer, atom(), non_neg_integer()} | {ensure_timer, atom(), non_neg_integer()}
@@ -131,6 +132,13 @@ node_of(Peer) -> evatar_ha_serving:node_of(Peer).
 -spec handle(event(), view(), state()) -> {state(), [effect()]}.
 handle(Event, View, #inst{role = starting} = S) ->
     starting(Event, View, S);
+handle({instance, Node, Info}, View, #inst{role = fenced} = S) ->
+    %% A restorer asked a node heard again (an instance there is met
+    %% through the inventories).
+    case evatar_ha_roles:runs_none(Info) of
+        true -> core({runs_none, Node}, View, S);
+        false -> {S, []}
+    end;
 handle({msg, Msg}, View, S) ->
     msg(Msg, View, S);
 handle({cluster, Event}, View, S) ->
@@ -182,11 +190,27 @@ start_effects([{offer, Active} | _], V, S, Acc) ->
     {S#inst{active = Active, watching = true},
      lists:reverse(Acc, [{monitor, active, Active}, {send, Active, {offer, version(V)}},
                          {timer, offered, 5 * suspect(V) + 2000}])};
-start_effects([become_active | _], V, S, Acc) ->
+start_effects([become_active | _], #{nodes := Nodes} = V, #inst{core = Core} = S, Acc) ->
+    %% A new pairing: every node records its first configuration (nothing
+    %% waits for the answers), so that a voter that hears this active
+    %% refuses a restore of the pairing by a node that does not.
     S1 = S#inst{role = active},
     {S2, Place} = place_soon(V, S1),
+    Announce = [{register, N, evatar_ha_core:claim(Core)} || N <- Nodes],
     {S2, lists:reverse(Acc, [new_logic, {log, info, #{what => pairing_started}}, serving
-                             | left_starting([publish | Place])])};
+                             | left_starting([publish | Announce ++ Place])])};
+start_effects([{restore, _} | Rest], #{nodes := [_]} = V, S, Acc) ->
+    %% A lone node: nobody else can hold the pairing.
+    start_effects([become_active | Rest], V, S, Acc);
+start_effects([{restore, NoneOn} | _], V, #inst{me = Me} = S, Acc) ->
+    %% Nobody runs the pairing, as far as this node found: a new state, but
+    %% fenced (no client is taken, nothing goes out) until it wins an
+    %% election, which makes it active at a new epoch as a takeover does.
+    Nodes = lists:usort([node_of(Me) | NoneOn]),
+    {S1, Elect} = core({elect, {restore, Nodes}, true}, V, S#inst{role = fenced}),
+    {S1, lists:reverse(Acc, [new_logic, {log, notice, #{what => pairing_restoring,
+                                                        runs_none => Nodes}}
+                             | left_starting([publish | Elect])])};
 start_effects([E | Rest], V, S, Acc) ->
     start_effects(Rest, V, S, [E | Acc]);   % ask, timer, log: as they are
 start_effects([], _V, S, Acc) ->
@@ -373,8 +397,11 @@ cluster(stalled, V, #inst{role = active} = S) ->
     paused(V, S);
 cluster({quorum, true}, V, #inst{role = fenced} = S) ->
     core({elect, fenced, false}, V, S);
-cluster({node_alive, _}, V, #inst{role = fenced} = S) ->
-    core({elect, fenced, false}, V, S);
+cluster({node_alive, Node}, V, #inst{role = fenced, core = Core} = S) ->
+    case evatar_ha_core:restoring(Core) of
+        true -> {S, [{ask, [Node]}]};
+        false -> core({elect, fenced, false}, V, S)
+    end;
 cluster(_Event, _V, S) ->
     {S, []}.
 

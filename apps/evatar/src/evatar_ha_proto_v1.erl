@@ -14,7 +14,7 @@
 -export([heartbeat/2, inventory/2, ask/3, instance/4, start_standby/5]).
 -export([offer/3, snapshot/5, events/3, confirm/3, resync/3, dismiss/2, stale/3,
          handover/3, handover_done/4, peer_instance/2, rebalance/2]).
--export([vote/7, vote_reply/5, register/5, register_reply/5]).
+-export([vote/7, restore_vote/5, vote_reply/5, register/5, register_reply/5]).
 
 -export_type([message/0, instance_info/0]).
 
@@ -40,6 +40,7 @@
               | {handover_done, pid(), pos_integer(), evatar_ha_core:claim()}
               | {vote, evatar:pairing_id(), pos_integer(), pid(), evatar_ha_core:claim(),
                  pid() | undefined, boolean()}
+              | {restore_vote, evatar:pairing_id(), pos_integer(), pid(), [node()]}
               | {vote_reply, evatar:pairing_id(), pos_integer(), node(),
                  granted | {refused, evatar_ha_core:refusal()}}
               | {register, evatar:pairing_id(), pos_integer(), non_neg_integer(), pid()}
@@ -151,7 +152,15 @@ rebalance(To, Move) -> pid(To, {rebalance, Move}).
 vote(To, Id, Ec, Cand, Claim, Active, ActiveDead) ->
     cluster(To, {vote, Id, Ec, Cand, Claim, Active, ActiveDead}).
 
-%% @doc A node's answer to {@link vote/7}.
+%% @doc Instance `Cand', restored afresh, asks node `To' for pairing `Id'
+%% at epoch `Ec'; the nodes `NoneOn' told it they run no instance of it.
+%% Added after 0.2.0: a node that does not know it ignores it (grants
+%% nothing), so a restore wins once a majority runs this version.
+-spec restore_vote(node(), evatar:pairing_id(), pos_integer(), pid(), [node()]) -> ok.
+restore_vote(To, Id, Ec, Cand, NoneOn) ->
+    cluster(To, {restore_vote, Id, Ec, Cand, NoneOn}).
+
+%% @doc A node's answer to {@link vote/7} and {@link restore_vote/5}.
 -spec vote_reply(pid(), evatar:pairing_id(), pos_integer(), node(),
                  granted | {refused, evatar_ha_core:refusal()}) -> ok.
 vote_reply(To, Id, Ec, Node, Result) -> pid(To, {vote_reply, Id, Ec, Node, Result}).

@@ -10,20 +10,22 @@
 %% events with apply_events/4 (docs/ha-design.md, sections 7 and 12).
 %%
 %% ```
-%%  start/4 --> become_active
+%%  start/4 --> become_active                   a new pairing
 %%          --> {offer, Active}                 (then a snapshot, or stop)
-%%          --> {ask, Peers} + {timer, asked}   a restart: every answer, or the
-%%                 |                            timer, decides (starting/3):
+%%          --> {ask, Peers} + {timer, asked}   a restore or a restart: every
+%%                 |                            answer, or the timer, decides
+%%                 |                            (starting/3):
 %%                 +--> an active or fenced one found: {offer, Active}
-%%                 +--> only standbys (taking over): {timer, retry_ask}, ask again
-%%                 +--> nobody: become_active
+%%                 +--> only standbys (taking over), or a peer silent:
+%%                 |    {timer, retry_ask}, ask the alive peers again
+%%                 +--> nobody: {restore, NoneOn}, an election before serving
 %% '''
 -module(evatar_ha_roles).
 
 -export([start/4, starting/3]).
 -export([apply_events/4]).
 -export([held_due/3, held_poll_ms/1]).
--export([meet/2]).
+-export([meet/2, runs_none/1]).
 
 -export_type([starting/0, start_event/0, start_effect/0, held/1, held_ctx/0, meeting/0]).
 
@@ -37,7 +39,10 @@
 %% as `{instance, ..}'); `{timer, Key, Ms}': (re)arm that timer, which
 %% comes back as `{timeout, Key}'; `{offer, Active}': offer to be the
 %% standby of `Active'; `become_active': start as the pairing's active.
+%% `{restore, NoneOn}': start afresh, but serve only once elected (the
+%% nodes in `NoneOn' said they run no instance of the pairing).
 -type start_effect() :: become_active
+                      | {restore, [node()]}
                       | {offer, pid()}
                       | {ask, [node()]}
                       | {timer, asked | retry_ask, non_neg_integer()}
@@ -60,21 +65,25 @@
 %% Starting
 %% ---------------------------------------------------------------------------
 
-%% @doc How an instance starts: its mode, what the registry remembers of
-%% an earlier instance on this node (`none' for a new pairing) and the
-%% alive peers. A restart with nobody to ask starts afresh, as a lone node
-%% does.
--spec start(create | {standby_for, pid()}, Previous :: term(), [node()],
+%% @doc How an instance starts: its mode (`restore': the catalogue found
+%% no instance of the pairing), what the registry remembers of an earlier
+%% instance on this node (`none' for a new pairing) and the alive peers. A
+%% new pairing is active at once; a restore, or a restart, asks the peers
+%% first, and one that finds nobody (or has nobody to ask) stands for
+%% election before it serves: two nodes whose views differ may both
+%% restore a pairing, and one epoch is granted to one of them only.
+-spec start(create | restore | {standby_for, pid()}, Previous :: term(), [node()],
             SuspectMs :: pos_integer()) -> {starting(), [start_effect()]}.
 start(create, none, _Peers, _SuspectMs) ->
     {new_starting(), [become_active]};
 start({standby_for, Active}, none, _Peers, _SuspectMs) ->
     {new_starting(), [{offer, Active}]};
 start(_Mode, _Previous, [], _SuspectMs) ->
-    {new_starting(), [become_active]};
+    {new_starting(), [{restore, []}]};
 start(_Mode, Previous, Peers, SuspectMs) ->
     {S, Effects} = ask(Peers, SuspectMs, new_starting()),
-    {S, [{log, notice, #{what => pairing_restarted, previous => Previous}} | Effects]}.
+    {S, [{log, notice, #{what => pairing_restarted, previous => Previous}}
+         || Previous =/= none] ++ Effects}.
 
 %% @doc An answer of a peer, or a timer. A restarted instance: an active
 %% (or fenced one) elsewhere takes it as its standby; a standby elsewhere
@@ -94,6 +103,14 @@ starting({timeout, retry_ask, Peers}, SuspectMs, S) ->
 
 new_starting() -> #{asks => 0, answers => []}.
 
+%% @doc Whether a node's answer says it runs no instance of the pairing,
+%% or one still starting (which holds no state): a holder recorded there
+%% is dead.
+-spec runs_none(evatar_ha_proto_v1:instance_info()) -> boolean().
+runs_none(none) -> true;
+runs_none(#{role := starting}) -> true;
+runs_none(_Info) -> false.
+
 ask(Peers, SuspectMs, S) ->
     {S#{asks := length(Peers), answers := []},
      [{ask, Peers}, {timer, asked, 2 * SuspectMs}]}.
@@ -104,9 +121,12 @@ decide(SuspectMs, #{asks := Asks, answers := Answers} = S) ->
         [#{pid := Active} | _] ->
             {S, [{offer, Active}]};
         [] ->
-            case [I || #{role := standby} = I <- Infos] of
-                [_ | _] when Asks > 0 -> {S#{answers := []}, [{timer, retry_ask, SuspectMs}]};
-                _ -> {S, [become_active]}
+            %% A peer that has not answered may run anything (as for the
+            %% catalogue): ask again, as while a standby takes over.
+            Waiting = [I || #{role := standby} = I <- Infos] =/= [] orelse length(Answers) < Asks,
+            case Waiting of
+                true when Asks > 0 -> {S#{answers := []}, [{timer, retry_ask, SuspectMs}]};
+                _ -> {S, [{restore, lists:usort([N || {N, Info} <- Answers, runs_none(Info)])}]}
             end
     end.
 

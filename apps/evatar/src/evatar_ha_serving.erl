@@ -43,6 +43,8 @@ core_effects([{vote, Node, Ec, Claim, Dead} | Rest], V, S, Acc) ->
                  #inst{me = Me} -> Me
              end,
     core_effects(Rest, V, S, [{vote, Node, Ec, Claim, Active, Dead} | Acc]);
+core_effects([{restore_vote, _, _, _} = E | Rest], V, S, Acc) ->
+    core_effects(Rest, V, S, [E | Acc]);
 core_effects([{Kind, _, _} = E | Rest], V, S, Acc) when Kind =:= register; Kind =:= timer ->
     core_effects(Rest, V, S, [E | Acc]);
 core_effects([{pause, keep} | Rest], V, S, Acc) ->

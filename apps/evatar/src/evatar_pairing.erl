@@ -18,7 +18,7 @@
 %%                 start_link
 %%                     |
 %%                     v
-%%              +----------+  create: active at once; restart after a crash,
+%%              +----------+  create: active at once; restore, restart after a crash,
 %%              | starting |  or asked to be a standby: ask the peers, offer
 %%              +----------+  ourselves to the active found
 %%               |        |
@@ -60,7 +60,7 @@
 
 -export_type([mode/0]).
 
--type mode() :: create | {standby_for, pid()}.
+-type mode() :: create | restore | {standby_for, pid()}.
 -type state() :: starting | evatar_pairing_logic:phase() | standby | fenced | handing_over.
 
 -include("evatar_pairing.hrl").
@@ -77,7 +77,8 @@
 start_link(PairingId, Config) ->
     start_link(PairingId, Config, create).
 
-%% @doc Starts an instance: `create' (a new pairing, active) or
+%% @doc Starts an instance: `create' (a new pairing, active), `restore' (a
+%% pairing no node runs: fenced until it wins an election) or
 %% `{standby_for, Active}'.
 -spec start_link(evatar:pairing_id(), evatar_pairing_logic:config(), mode()) ->
           {ok, pid()} | {error, term()}.

@@ -233,6 +233,9 @@ effect({start_standby, Node}, #data{id = Id, config = Config, logic = Logic} = D
 effect({vote, Node, Ec, Claim, Active, Dead}, #data{id = Id} = Data) ->
     ok = evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead),
     Data;
+effect({restore_vote, Node, Ec, NoneOn}, #data{id = Id} = Data) ->
+    ok = evatar_ha_proto_v1:restore_vote(Node, Id, Ec, self(), NoneOn),
+    Data;
 effect({register, Node, {E, Seq}}, #data{id = Id} = Data) ->
     ok = evatar_ha_proto_v1:register(Node, Id, E, Seq, self()),
     Data;

@@ -113,6 +113,29 @@ blockers_test() ->
     ?assertEqual([b], evatar_ha_core:blockers(Registered, c, a, true)),
     ?assertEqual([], evatar_ha_core:blockers(Registered, b, undefined, false)).
 
+%% A restore stands for election with restore votes, ignores a newer
+%% claim a voter saw (its instances are gone), keeps one promise per epoch
+%% and the lease of a holder heard, except on a node that said it runs
+%% none; a node heard again that runs none is added, and asked again.
+restore_test() ->
+    {C1, Votes} = h({elect, {restore, [a]}, true}, fenced, evatar_ha_core:new()),
+    ?assert(evatar_ha_core:restoring(C1)),
+    ?assertEqual([a, b, c], [N || {restore_vote, N, 2, [a]} <- Votes]),
+    {ok, Old} = evatar_ha_core:register(evatar_ha_core:new_record(), 5, 3, {b, 1}),
+    ?assertEqual({refused, {promised, 5}}, evatar_ha_core:restore_vote(Old, 5, {a, 9}, false)),
+    {granted, R} = evatar_ha_core:restore_vote(Old, 6, {a, 9}, false),
+    ?assertEqual({5, 3}, maps:get(conf, R)),
+    ?assertEqual({refused, holder_live}, evatar_ha_core:restore_vote(Old, 6, {a, 9}, true)),
+    NodeOf = fun({N, _}) -> N end,
+    ?assertEqual([{b, 1}], evatar_ha_core:restore_blockers(Old, {a, 9}, [a], NodeOf, undefined)),
+    ?assertEqual([], evatar_ha_core:restore_blockers(Old, {a, 9}, [a, b], NodeOf, undefined)),
+    ?assertEqual([{c, 2}], evatar_ha_core:restore_blockers(Old, {a, 9}, [b], NodeOf,
+                                                           {{c, 2}, standby})),
+    ?assertEqual([], evatar_ha_core:restore_blockers(Old, {a, 9}, [b], NodeOf, {{c, 2}, fenced})),
+    {C2, Again} = h({runs_none, b}, fenced, C1),
+    ?assertEqual([a, b, c], [N || {restore_vote, N, _, [a, b]} <- Again]),
+    ?assertEqual({C2, []}, h({runs_none, b}, fenced, C2)).
+
 %% ---------------------------------------------------------------------------
 %% evatar_ha_commit
 %% ---------------------------------------------------------------------------

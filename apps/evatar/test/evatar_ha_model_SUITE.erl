@@ -1,8 +1,9 @@
 %% @doc The high-availability core under faults, in one process: PropEr
 %% generates schedules (signals from a client; messages delivered late,
 %% dropped, duplicated, delayed; nodes crashed (their memory lost, their
-%% disc kept) and restarted, paused and resumed; links cut and healed) for
-%% two and three instances of one pairing
+%% disc kept) and restarted, paused and resumed; links cut and healed; the
+%% pairing restored by a node whose view says nobody runs it, as after a
+%% partial restart) for two and three instances of one pairing
 %% in `evatar_ha_sim', which runs them through the node's own role machine
 %% (`evatar_ha_instance', with `evatar_ha_serving', `evatar_ha_core',
 %% `evatar_ha_roles') and output commit (`evatar_ha_commit') and checks after every command that at most one
@@ -38,7 +39,7 @@
          reelection_after_registered/1, two_nodes_winner_gone/1, paused_active_stale_claim/1,
          fenced_rewin_keeps_standby/1, reelected_after_pause_keeps_standby/1,
          epoch_won_twice_after_vote_loss/1, epoch_won_twice_then_old_standby_serves/1,
-         old_epoch_served_after_vote_loss/1,
+         old_epoch_served_after_vote_loss/1, two_restorers/1,
          live_three_nodes/1, live_two_nodes/1]).
 -export([prop_model/2, prop_live/2]).
 
@@ -50,6 +51,7 @@ all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_re
           two_nodes_winner_gone, paused_active_stale_claim, fenced_rewin_keeps_standby,
           reelected_after_pause_keeps_standby, epoch_won_twice_after_vote_loss,
           epoch_won_twice_then_old_standby_serves, old_epoch_served_after_vote_loss,
+          two_restorers,
           three_nodes, two_nodes,
           live_three_nodes, live_two_nodes].
 
@@ -224,6 +226,23 @@ old_epoch_served_after_vote_loss(_Config) ->
     [#{state := #{applied := Applied}}] = evatar_ha_sim:serving(W1),
     true = lists:keymember(1, 1, Applied).
 
+%% @doc Two restorers (docs/ha.md section 6): the active's node crashes
+%% before a standby is placed, boots again, and is cut from n2; each of
+%% n1 and n2 then restores the pairing, each hearing n3 but not the other.
+%% Both used to start active at epoch 1 at once, and both served; now
+%% each stands for election first, n3 grants one of them, the other stays
+%% fenced (no client is taken) and steps down once they meet.
+two_restorers(_Config) ->
+    Cmds = [{tick, 10}, {crash, n1}, {tick, 1000}, {restart, n1}, {cut, n1, n2}, {tick, 300},
+            {restore, n1}, {restore, n2}, {tick, 1000}],
+    W = evatar_ha_sim:run(Cmds, evatar_ha_sim:new(3)),
+    [] = maps:get(violations, W),
+    [#{epoch := E}] = evatar_ha_sim:serving(W),
+    true = E > 1,
+    {true, W1} = evatar_ha_sim:settle(W),
+    [_] = evatar_ha_sim:serving(W1),
+    [] = maps:get(violations, W1).
+
 %% @doc Liveness, three nodes: 5000 schedules of at most two faults, then
 %% the heal (docs/ha.md section 6).
 live_three_nodes(_Config) ->
@@ -265,7 +284,7 @@ fault_or_tick(N, Nodes, Drop) ->
     Always = [{10, {tick, range(10, 400)}},
               {6, {signal, Node}},
               {1, {pause, Node}}, {2, {resume, Node}},
-              {1, {crash, Node}}, {2, {restart, Node}},
+              {1, {crash, Node}}, {2, {restart, Node}}, {1, {restore, Node}},
               {1, {dup, range(0, 20)}},
               {1, {delay, Node, range(50, 600)}}]
         ++ [{1, {drop, range(0, 20)}} || Drop =:= drop],

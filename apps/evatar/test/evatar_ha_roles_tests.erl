@@ -7,12 +7,15 @@
 -define(S, 250).
 
 %% A new pairing is active at once; a standby started for an active
-%% offers itself to it; a restart with no peer starts afresh.
+%% offers itself to it; a restart or a restore with no peer to ask stands
+%% for election (a restore).
 start_test() ->
     A = self(),
     ?assertMatch({_, [become_active]}, evatar_ha_roles:start(create, none, [b], ?S)),
     ?assertMatch({_, [{offer, A}]}, evatar_ha_roles:start({standby_for, A}, none, [b], ?S)),
-    ?assertMatch({_, [become_active]}, evatar_ha_roles:start(create, prev, [], ?S)),
+    ?assertMatch({_, [{restore, []}]}, evatar_ha_roles:start(create, prev, [], ?S)),
+    ?assertMatch({_, [{restore, []}]}, evatar_ha_roles:start(restore, none, [], ?S)),
+    ?assertMatch({_, [{ask, [b]}, {timer, asked, 500}]}, evatar_ha_roles:start(restore, none, [b], ?S)),
     ?assertMatch({_, [{log, notice, #{what := pairing_restarted, previous := prev}},
                       {ask, [b, c]}, {timer, asked, 500}]},
                  evatar_ha_roles:start(create, prev, [b, c], ?S)).
@@ -26,17 +29,24 @@ restart_finds_active_test() ->
     ?assertMatch({_, [{offer, A}]},
                  evatar_ha_roles:starting({instance, c, info(fenced, A)}, ?S, S1)).
 
-%% Only a standby answered (it is taking over): ask again later; nobody:
-%% start afresh, also when the answers never all come.
+%% Only a standby answered (it is taking over), or a peer did not answer
+%% (it may run anything): ask again later; every peer runs nothing (or
+%% one still starting): a restore, naming them; nobody alive to ask: a
+%% restore.
 restart_finds_standby_test() ->
     {S0, _} = evatar_ha_roles:start(create, prev, [b, c], ?S),
     {S1, []} = evatar_ha_roles:starting({instance, b, info(standby, self())}, ?S, S0),
     {S2, [{timer, retry_ask, ?S}]} = evatar_ha_roles:starting({instance, c, none}, ?S, S1),
     {S3, [{ask, [b]}, {timer, asked, 500}]} =
         evatar_ha_roles:starting({timeout, retry_ask, [b]}, ?S, S2),
-    ?assertMatch({_, [become_active]}, evatar_ha_roles:starting({timeout, asked}, ?S, S3)),
-    {S4, []} = evatar_ha_roles:starting({instance, b, none}, ?S, element(1, evatar_ha_roles:start(create, prev, [b, c], ?S))),
-    ?assertMatch({_, [become_active]}, evatar_ha_roles:starting({timeout, asked}, ?S, S4)).
+    {S4, [{timer, retry_ask, ?S}]} = evatar_ha_roles:starting({timeout, asked}, ?S, S3),
+    {S5, [{ask, []}, {timer, asked, 500}]} =
+        evatar_ha_roles:starting({timeout, retry_ask, []}, ?S, S4),
+    ?assertMatch({_, [{restore, []}]}, evatar_ha_roles:starting({timeout, asked}, ?S, S5)),
+    {S6, []} = evatar_ha_roles:starting({instance, b, none}, ?S,
+                                        element(1, evatar_ha_roles:start(restore, none, [b, c], ?S))),
+    ?assertMatch({_, [{restore, [b, c]}]},
+                 evatar_ha_roles:starting({instance, c, info(starting, self())}, ?S, S6)).
 
 %% Two actives: the lower epoch steps down, the higher tells it so; a
 %% standby of another active stops for a higher epoch.

@@ -15,7 +15,10 @@
 %% messages between nodes with a latency, over links that can be cut; a
 %% node can be paused (its clock stops, messages to it queue) or crashed
 %% (its instance and its memory go, messages to it are lost; its disc
-%% stays) and restarted (its voter reads its promises back). One sender
+%% stays) and restarted (its voter reads its promises back); a node may
+%% restore the pairing (`{restore, N}': the catalogue found nobody running
+%% it, from a view that may be wrong). Peers answer a starting instance's
+%% `ask' as evatar_cluster does. One sender
 %% client and one receiver client reach every running node.
 %%
 %% Checked after every command ({@link check/1}):
@@ -112,6 +115,7 @@ fault({pause, N}, W) -> pause(N, W);
 fault({resume, N}, W) -> resume(N, W);
 fault({crash, N}, W) -> crash(N, W);
 fault({restart, N}, W) -> restart(N, W);
+fault({restore, N}, W) -> restore(N, W);
 fault({drop, I}, #{msgs := Ms0} = W) ->
     %% A message lost on its way; never a node's own view of its
     %% connections (nodedown) nor a monitor's DOWN.
@@ -432,6 +436,19 @@ start_active(N, W) ->
     {I, W1} = new_inst(N, W),
     handle({start, create, none}, I#{now => maps:get(now, W)}, W1).
 
+%% The catalogue of node N restores the pairing: N runs no instance of it
+%% and, from its view, no connected node does (evatar_catalogue). Views
+%% differ after a partial restart: two nodes may both do it, and one may
+%% while an instance runs where it does not look.
+restore(N, W) ->
+    case running(N, W) andalso inst_on(N, W) of
+        undefined ->
+            {I, W1} = new_inst(N, W),
+            handle({start, restore, none}, I#{now => maps:get(now, W)}, W1);
+        _ ->
+            W
+    end.
+
 inst_event(N, Event, W) ->
     case running(N, W) andalso inst_on(N, W) of
         #{ref := Ref} -> inst_event_ref(Ref, Event, W);
@@ -479,6 +496,33 @@ voter(N, {vote, Ec, Cand, Claim, Active, Dead}, #{nodes := Nodes} = W) ->
                         evatar_ha_core:blockers(Rec, Cand, Active, Dead)),
     voter_effects(evatar_ha_core:answer({vote, Ec, Cand, Claim, Blocked}, Rec), N,
                   fun(Result) -> {Cand, {vote_reply, p, Ec, N, Result}} end, W);
+voter(N, {restore_vote, Ec, Cand, NoneOn}, #{nodes := Nodes} = W) ->
+    #{voter := Rec} = maps:get(N, Nodes),
+    Local = case inst_on(N, W) of
+                undefined -> undefined;
+                #{ref := Ref, role := Role} -> {Ref, Role}
+            end,
+    Blocked = lists:any(fun(P) -> serving_as_seen(N, P, W) end,
+                        evatar_ha_core:restore_blockers(Rec, Cand, NoneOn,
+                                                        fun evatar_ha_instance:node_of/1, Local)),
+    voter_effects(evatar_ha_core:answer({restore_vote, Ec, Cand, Blocked}, Rec), N,
+                  fun(Result) -> {Cand, {vote_reply, p, Ec, N, Result}} end, W);
+voter(N, {ask, From}, W) ->
+    %% evatar_cluster's answer: what this node runs of the pairing.
+    Info = case inst_on(N, W) of
+               undefined -> none;
+               #{ref := Ref, role := Role, epoch := E, inst := Inst} ->
+                   Shown = case Role of
+                               handing_over -> active;
+                               _ -> Role
+                           end,
+                   Peer = case Shown of
+                              standby -> evatar_ha_instance:active(Inst);
+                              _ -> evatar_ha_instance:standby(Inst)
+                          end,
+                   #{pid => Ref, role => Shown, epoch => E, peer => Peer}
+           end,
+    send(N, {inst, From}, {event, {instance, N, Info}}, W);
 voter(N, {register, {E, Seq} = Claim, From}, #{nodes := Nodes} = W) ->
     #{voter := Rec} = maps:get(N, Nodes),
     voter_effects(evatar_ha_core:answer({register, E, Seq, From}, Rec), N,
@@ -552,6 +596,7 @@ handle(Event, #{inst := Inst, ref := Ref} = I, W) ->
 ha_event({timeout, _} = E) -> E;
 ha_event({msg, _} = E) -> E;
 ha_event({start, _, _} = E) -> E;
+ha_event({instance, _, _} = E) -> E;
 ha_event({down, _, _} = E) -> E;
 ha_event(ClusterEvent) -> {cluster, ClusterEvent}.
 
@@ -586,6 +631,10 @@ ha_effect({start_standby, M}, I, W) ->
     send(node_of(I), {node, M}, {start_standby, ref(I)}, W);
 ha_effect({vote, M, Ec, Claim, Active, Dead}, I, W) ->
     send(node_of(I), {node, M}, {vote, Ec, ref(I), Claim, Active, Dead}, W);
+ha_effect({restore_vote, M, Ec, NoneOn}, I, W) ->
+    send(node_of(I), {node, M}, {restore_vote, Ec, ref(I), NoneOn}, W);
+ha_effect({ask, Peers}, I, W) ->
+    lists:foldl(fun(M, Acc) -> send(node_of(I), {node, M}, {ask, ref(I)}, Acc) end, W, Peers);
 ha_effect({register, M, Claim}, I, W) ->
     send(node_of(I), {node, M}, {register, Claim, ref(I)}, W);
 ha_effect({monitor, Which, To}, #{mons := Mons} = I, #{insts := Insts} = W) ->
@@ -902,8 +951,9 @@ settle(#{names := Names} = W0) ->
 %% then is accepted and routed once within `AcceptMs' more (a standby whose
 %% snapshot a cut lost is replaced only after its offer times out, 5 x
 %% suspect_ms + 2 s). `{ok, Ms}' gives how long after the heal one instance
-%% served (`{ok, restored}': none was left, the catalogue starts the pairing
-%% afresh); `{frozen, Why}' what was missing at the bound.
+%% served (`{ok, restored}': none was left, the catalogue restored the
+%% pairing afresh, and the restored instance won its election and served
+%% within `ServeMs'); `{frozen, Why}' what was missing at the bound.
 -spec live(map(), boolean(), {pos_integer(), pos_integer()}) ->
           {{ok, non_neg_integer() | restored} | {frozen, term()}, map()}.
 live(#{names := Names} = W0, Restart, {ServeMs, AcceptMs}) ->
@@ -923,20 +973,40 @@ live(#{names := Names} = W0, Restart, {ServeMs, AcceptMs}) ->
     Holders = [I || #{role := R} = I <- maps:values(maps:get(insts, W3)), R =/= starting],
     case Served of
         false when Holders =:= [] ->
-            %% Both instances failed before a standby was synced: the
-            %% catalogue starts the pairing afresh (evatar_catalogue,
-            %% outside this model); what they held is outside the guarantee.
-            {{ok, restored}, W3};
+            %% Both instances failed before a standby was synced: what they
+            %% held is outside the guarantee, and the catalogue of the
+            %% first node (the owner) restores the pairing afresh; the
+            %% restored instance wins an election, although the voters
+            %% remember configurations of the instances gone, and serves.
+            %% A standby still starting whose active died refuses a
+            %% restore until its offer times out (AcceptMs covers it).
+            W4 = restore_somewhere(maps:get(now, W3) + AcceptMs, W3),
+            case until_one_serves(maps:get(now, W4) + ServeMs + AcceptMs, check(W4)) of
+                {true, W5} -> signal_accepted(restored, AcceptMs, W5);
+                {false, W5} -> {{frozen, {restored, [R || #{ref := R} <- serving(W5)]}}, W5}
+            end;
         false ->
             {{frozen, {serving, [R || #{ref := R} <- serving(W3)]}}, W3};
         true ->
-            Ms = maps:get(now, W3) - T0,
-            %% Then a signal through every node: the one serving takes it.
-            W4 = lists:foldl(fun(N, Acc) -> client_send(N, Acc) end, W3, Names),
-            case until_accepted(maps:get(now, W4) + AcceptMs, check(advance(?HB, W4))) of
-                {true, W5} -> {{ok, Ms}, W5};
-                {false, W5} -> {{frozen, {after_signal, maps:get(sender, W5)}}, W5}
-            end
+            signal_accepted(maps:get(now, W3) - T0, AcceptMs, W3)
+    end.
+
+%% The owner is the first running node without an instance (one still
+%% starting, e.g. a standby whose active died before its snapshot, stops at
+%% its offer's timeout, and is waited for).
+restore_somewhere(Deadline, #{names := Names} = W) ->
+    case [N || N <- Names, running(N, W), inst_on(N, W) =:= undefined] of
+        [Owner | _] -> restore(Owner, W);
+        [] when map_get(now, W) >= Deadline -> W;
+        [] -> restore_somewhere(Deadline, check(advance(?HB, W)))
+    end.
+
+%% Then a signal through every node: the one serving takes it.
+signal_accepted(Result, AcceptMs, #{names := Names} = W) ->
+    W1 = lists:foldl(fun(N, Acc) -> client_send(N, Acc) end, W, Names),
+    case until_accepted(maps:get(now, W1) + AcceptMs, check(advance(?HB, W1))) of
+        {true, W2} -> {{ok, Result}, W2};
+        {false, W2} -> {{frozen, {after_signal, maps:get(sender, W2)}}, W2}
     end.
 
 %% Whatever the sender sent is accepted (it resends to the node serving,
