@@ -329,8 +329,10 @@ evatar_rev() ->
 %% ---------------------------------------------------------------------------
 
 %% @doc Runs in the EVATAR node (by erpc): eprof over every process of the
-%% node for Seconds, its total analysis sorted by time written to File.
--spec profile_node(number(), file:filename(), [pid()]) -> ok.
+%% node for Seconds, or from when it sends `{ready, self()}' to Pid until
+%% Pid sends it `{stop, Pid}' (answered `{stopped, self()}' once eprof has
+%% stopped tracing), its total analysis sorted by time written to File.
+-spec profile_node(number() | {until, pid()}, file:filename(), [pid()]) -> ok.
 profile_node(Seconds, File, Exclude) ->
     {ok, Dev} = file:open(File, [write]),
     Leader = group_leader(),
@@ -340,8 +342,16 @@ profile_node(Seconds, File, Exclude) ->
     true = group_leader(Leader, self()),
     Procs = [P || P <- processes(), P =/= self(), P =/= Eprof, not lists:member(P, Exclude)],
     profiling = eprof:start_profiling(Procs),
-    timer:sleep(round(Seconds * 1000)),
-    profiling_stopped = eprof:stop_profiling(),
+    case Seconds of
+        {until, Pid} ->
+            Pid ! {ready, self()},
+            receive {stop, Pid} -> ok end,
+            profiling_stopped = eprof:stop_profiling(),
+            Pid ! {stopped, self()};
+        _ ->
+            timer:sleep(round(Seconds * 1000)),
+            profiling_stopped = eprof:stop_profiling()
+    end,
     ok = eprof:analyze(total, [{sort, time}]),
     stopped = eprof:stop(),
     file:close(Dev).

@@ -6,6 +6,8 @@
 # starts each system as its own OS process on 127.0.0.1 (a fresh one per N)
 # and stops it; this script kills whatever a crashed run left behind.
 # Usage: scripts/bench-brokers.sh [ERLANG_OPTION_LIST | quick]
+#        scripts/bench-brokers.sh profile-rt [ERLANG_OPTION_LIST]
+#   (where a round trip's server CPU goes: bench/broker_bench_profile.erl)
 #   scripts/bench-brokers.sh                           # the full run (about 15 minutes)
 #   scripts/bench-brokers.sh quick                     # smoke run (N = 1, 100; 2 s windows)
 #   scripts/bench-brokers.sh '[{sizes, [1000]}, {systems, [evatar, mosquitto]}]'
@@ -14,17 +16,24 @@
 set -euo pipefail
 # shellcheck source=scripts/bench-lib.sh
 source "$(dirname "$0")/bench-lib.sh"
+MODULE=broker_bench
+if [ "${1:-}" = profile-rt ]; then
+  MODULE=broker_bench_profile
+  shift
+  command -v perf >/dev/null 2>&1 || { echo "bench-brokers: profile-rt needs perf (linux-perf)" >&2; exit 1; }
+fi
 OPTS=${1:-[]}
 [ "$OPTS" = quick ] && OPTS='[quick]'
 
 # --- the brokers ------------------------------------------------------------
 # The systems the run measures: every broker unless the options name them
-# ({transport, tls} measures EVATAR and mosquitto only).
+# ({transport, tls} measures EVATAR and mosquitto only, profile-rt all but
+# RabbitMQ).
 wants() {
   case "$OPTS" in
     *'{systems,'*) [[ "$OPTS" =~ \{systems,[^]]*$1 ]] ;;
     *'{transport, tls}'*|*'{transport,tls}'*) [ "$1" = mosquitto ] ;;
-    *) true ;;
+    *) [ "$MODULE" = broker_bench ] || [ "$1" != rabbitmq ] ;;
   esac
 }
 missing=()
@@ -99,4 +108,4 @@ trap cleanup EXIT
 
 # No busy-waiting schedulers in the generator: on a small machine their
 # spinning would take CPU from the system under test.
-run_bench broker_bench "$OPTS" +sbwt none +sbwtdcpu none +sbwtdio none +P 2000000 +Q 1000000
+run_bench "$MODULE" "$OPTS" +sbwt none +sbwtdcpu none +sbwtdio none +P 2000000 +Q 1000000
