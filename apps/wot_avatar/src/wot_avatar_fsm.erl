@@ -3,7 +3,12 @@
 %% pairing as role `avatar' with agent_bridge_client, and carries the VA's
 %% requests to the Thing's forms and the Thing's readings and events back
 %% (wot_avatar_route decides, this process does the I/O). Its own httpc
-%% (stand-alone, so a Thing's long-polls never wait behind another's).
+%% (stand-alone, so a Thing's long-polls never wait behind another's), and
+%% for MQTT forms one mqtt_client per broker, started when it joins: a
+%% publish (QoS 1) carries a request, answered when the broker's PUBACK
+%% comes (the Thing answers nothing over MQTT); each message on a
+%% subscribed topic is a reading of its streams. The broker's connection
+%% lost is the Thing gone.
 %%
 %% ```
 %%  fetching --TD read, described, joined--> joined
@@ -30,7 +35,7 @@
 %% What an HTTP request in flight is for: the TD, a VA's request, or the
 %% stream with that index (its SSE buffer).
 -type purpose() :: td | {request, wot_avatar_route:pending()} | {stream, pos_integer()}
-                 | {sse, pos_integer(), binary()}.
+                 | {sse, pos_integer(), binary()} | {mqtt, wot_avatar_route:pending()}.
 
 -record(d, {opts :: wot_avatar:opts(),
             entity :: binary(),
@@ -43,6 +48,9 @@
             bridge :: pid() | undefined,
             bound = [] :: [bil:binding()],
             inflight = #{} :: #{term() => purpose()},
+            %% MQTT: a client per broker, the streams of each topic
+            brokers = #{} :: #{{binary(), inet:port_number()} => pid()},
+            topics = #{} :: #{binary() => [pos_integer()]},
             last = #{} :: #{pos_integer() => [bil:parameter()]},
             retry = ?MIN_RETRY :: pos_integer(),
             %% the reason of the last problem of each kind, reported once while it lasts
@@ -111,6 +119,36 @@ handle_event({timeout, {stream, N}}, again, joined, D) ->
 handle_event({timeout, {stream, _}}, again, _State, _D) ->
     keep_state_and_data;
 
+%% MQTT.
+handle_event(info, {mqtt_client, B, {publish, #{topic := Topic, payload := Payload}}}, joined, D) ->
+    case lists:member(B, maps:values(D#d.brokers)) of
+        true -> {keep_state, lists:foldl(fun(N, DAcc) -> push(N, Payload, DAcc) end, D,
+                                         maps:get(Topic, D#d.topics, []))};
+        false -> keep_state_and_data
+    end;
+handle_event(info, {mqtt_client, _B, {puback, Ref}}, joined, #d{inflight = In} = D) when is_map_key(Ref, In) ->
+    {mqtt, P} = maps:get(Ref, In),
+    {keep_state, send(wot_avatar_route:answer(P, <<>>, ctx(D)), D#d{inflight = maps:remove(Ref, In)}),
+     [{{timeout, {mqtt, Ref}}, cancel}]};
+handle_event(info, {mqtt_client, _B, {puback_error, Ref, Why}}, joined, #d{inflight = In} = D)
+  when is_map_key(Ref, In) ->
+    {mqtt, P} = maps:get(Ref, In),
+    {keep_state, send(wot_avatar_route:failure(P, {status, 500, text(Why)}, ctx(D)),
+                      D#d{inflight = maps:remove(Ref, In)}),
+     [{{timeout, {mqtt, Ref}}, cancel}]};
+handle_event({timeout, {mqtt, Ref}}, _, joined, #d{inflight = In} = D) when is_map_key(Ref, In) ->
+    {mqtt, P} = maps:get(Ref, In),
+    {keep_state, send(wot_avatar_route:failure(P, timeout, ctx(D)), D#d{inflight = maps:remove(Ref, In)})};
+handle_event({timeout, {mqtt, _}}, _, _State, _D) ->
+    keep_state_and_data;
+handle_event(info, {mqtt_client, B, {disconnected, Why}}, joined, D) ->
+    case lists:member(B, maps:values(D#d.brokers)) of
+        true -> gone(<<"the MQTT broker's connection was lost: ", (text(Why))/binary>>, D);
+        false -> keep_state_and_data
+    end;
+handle_event(info, {mqtt_client, _, _}, _State, _D) ->
+    keep_state_and_data;
+
 %% EVATAR.
 handle_event(info, {agent_bridge, C, {signal, #{context := Ctx} = Signal}}, joined,
              #d{bridge = C, routes = Routes, opts = Opts} = D)
@@ -118,6 +156,8 @@ handle_event(info, {agent_bridge, C, {signal, #{context := Ctx} = Signal}}, join
     case wot_avatar_route:request(Signal, Routes, maps:with([room, thing_credentials], Opts)) of
         {answer, Signals} ->
             {keep_state, send(Signals, D)};
+        {http, #{method := <<"PUBLISH">>} = Http, Pending} ->
+            publish(Http, Pending, D);
         {http, Http, Pending} ->
             {keep_state, issue(Http, timeout(Opts), [], {request, Pending}, D)};
         {last, Type, Pending} ->
@@ -212,11 +252,14 @@ join(#d{opts = #{evatar := #{endpoints := Endpoints, pairing := Pairing} = E}, e
             monitor(process, Client),
             _ = agent_bridge_client:describe(Client, D#d.description),
             ?LOG_INFO(#{what => joined, entity => Entity, pairing => Pairing}),
-            D1 = lists:foldl(fun open_stream/2, D#d{bridge = Client, bound = [], retry = ?MIN_RETRY,
-                                                    quiet = #{}},
-                             maps:keys(D#d.streams)),
-            _ = [gen_statem:reply(W, ok) || W <- D1#d.waiters],
-            {next_state, joined, D1#d{waiters = []}};
+            case brokers(D#d{bridge = Client, bound = [], retry = ?MIN_RETRY, quiet = #{}}) of
+                {ok, D0} ->
+                    D1 = lists:foldl(fun open_stream/2, D0, maps:keys(D0#d.streams)),
+                    _ = [gen_statem:reply(W, ok) || W <- D1#d.waiters],
+                    {next_state, joined, D1#d{waiters = []}};
+                {error, Why, D0} ->
+                    away(thing_gone, <<"the MQTT broker cannot be reached (", Why/binary, ")">>, D0)
+            end;
         {error, Reason} ->
             away(join_failed, text(Reason), D)
     end.
@@ -245,12 +288,71 @@ lost_bridge(Reason, D) ->
     away(evatar_link_lost, text(Reason), D#d{bridge = undefined}).
 
 leave(#d{httpc = Httpc, inflight = In, bridge = C} = D) ->
-    _ = [httpc:cancel_request(Ref, Httpc) || Ref <- maps:keys(In)],
+    _ = [httpc:cancel_request(Ref, Httpc) || {Ref, P} <- maps:to_list(In), element(1, P) =/= mqtt],
+    _ = [mqtt_client:stop(B) || B <- maps:values(D#d.brokers)],
     case C of
         undefined -> ok;
         _ -> ok = agent_bridge_client:close(C)
     end,
-    D#d{inflight = #{}, bridge = undefined, bound = []}.
+    D#d{inflight = #{}, bridge = undefined, bound = [], brokers = #{}, topics = #{}}.
+
+%% ---------------------------------------------------------------------------
+%% MQTT
+%% ---------------------------------------------------------------------------
+
+%% A client for each broker the MQTT forms name, connected, with the
+%% streams' topics subscribed (QoS 1).
+brokers(#d{streams = Streams, routes = #{services := Services}} = D) ->
+    Forms = [F || #{form := F} <- maps:values(Streams) ++ maps:values(Services)],
+    Hrefs = lists:usort([broker(H) || #{href := <<"mqtt:", _/binary>> = H} <- Forms]),
+    Topics = lists:foldl(fun({N, #{mode := mqtt, form := #{href := H}}}, Acc) ->
+                                 T = topic(H),
+                                 Acc#{T => maps:get(T, Acc, []) ++ [N]};
+                            (_, Acc) -> Acc
+                         end, #{}, lists:sort(maps:to_list(Streams))),
+    connect_brokers(Hrefs, D#d{topics = Topics}).
+
+connect_brokers([], D) ->
+    {ok, D};
+connect_brokers([{Host, Port} = B | Rest], #d{opts = Opts, entity = E} = D) ->
+    Id = iolist_to_binary(["evatar-wot-", E, "-", integer_to_binary(erlang:unique_integer([positive]))]),
+    {ok, C} = mqtt_client:start_link(#{host => binary_to_list(Host), port => Port, client_id => Id,
+                                       reconnect => false, connect_timeout => timeout(Opts)}),
+    D1 = D#d{brokers = (D#d.brokers)#{B => C}},
+    Mine = [T || {T, _} <- maps:to_list(D#d.topics), broker_of_topic(T, B, D)],
+    case mqtt_client:await_connected(C, timeout(Opts)) of
+        ok when Mine =:= [] ->
+            connect_brokers(Rest, D1);
+        ok ->
+            case mqtt_client:subscribe(C, [{T, 1} || T <- Mine], timeout(Opts)) of
+                {ok, _} -> connect_brokers(Rest, D1);
+                {error, Why} -> {error, text(Why), D1}
+            end;
+        {error, Why} ->
+            {error, text(Why), D1}
+    end.
+
+%% The topics map keys topics only: which broker a topic's stream is on.
+broker_of_topic(T, B, #d{streams = Streams}) ->
+    lists:any(fun(#{mode := mqtt, form := #{href := H}}) -> topic(H) =:= T andalso broker(H) =:= B;
+                 (_) -> false
+              end, maps:values(Streams)).
+
+broker(Href) ->
+    #{host := H} = U = uri_string:parse(Href),
+    {string:lowercase(H), maps:get(port, U, 1883)}.
+
+topic(Href) ->
+    #{path := <<"/", T/binary>>} = uri_string:parse(Href),
+    uri_string:percent_decode(T).
+
+%% A VA's request over MQTT: published with QoS 1, answered at the PUBACK.
+publish(#{url := Href, body := Body}, Pending, #d{opts = Opts, inflight = In} = D) ->
+    C = maps:get(broker(Href), D#d.brokers),
+    Ref = make_ref(),
+    ok = mqtt_client:publish_async(C, topic(Href), case Body of none -> <<>>; B -> B end,
+                                   #{qos => 1, ref => Ref}),
+    {keep_state, D#d{inflight = In#{Ref => {mqtt, Pending}}}, [{{timeout, {mqtt, Ref}}, timeout(Opts), fire}]}.
 
 %% ---------------------------------------------------------------------------
 %% HTTP
@@ -345,6 +447,7 @@ open_stream(N, #d{opts = Opts, streams = Streams} = D) ->
              headers => wot_avatar_route:headers(Form, maps:get(thing_credentials, Opts, #{})),
              content_type => maps:get(content_type, Form), body => none},
     case Mode of
+        mqtt -> D;
         {poll, _} -> issue(Http, timeout(Opts), [], {stream, N}, D);
         longpoll -> issue(Http, maps:get(longpoll_ms, Opts, 60000), [], {stream, N}, D);
         sse -> issue(Http, infinity, [{stream, self}], {sse, N, <<>>}, D)

@@ -24,7 +24,7 @@
 -type route() :: #{op := invokeaction | readproperty | writeproperty | readevent, type := binary(),
                    form => wot_avatar_td:form(), stream => binary(), input := shape(), output := shape()}.
 -type stream() :: #{type := binary(), context := sensor_data | event, form := wot_avatar_td:form(),
-                    mode := longpoll | sse | {poll, pos_integer()}, output := shape()}.
+                    mode := longpoll | sse | mqtt | {poll, pos_integer()}, output := shape()}.
 %% `services': keyed by the ServiceType's keyword (bil:keyword/1).
 -type routes() :: #{component := binary(), services := #{binary() => route()}, streams := [stream()]}.
 

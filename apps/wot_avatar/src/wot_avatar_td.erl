@@ -1,5 +1,7 @@
 %% @doc Internal. Reads a W3C Thing Description (TD 1.1, JSON) into the
-%% affordances a WoT Avatar can drive over the HTTP binding: every form
+%% affordances a WoT Avatar can drive over the HTTP binding, or the MQTT
+%% binding (`mqtt://HOST:PORT/TOPIC', `mqv:controlPacket' publish to
+%% invoke and write, subscribe to observe and for events): every form
 %% resolved against the TD's `base' (or the address it was fetched from),
 %% checked against the hosts the operator allows, its method and
 %% subprotocol settled. What cannot be driven (another scheme, a security
@@ -18,8 +20,10 @@
                   allowed_hosts => [binary()],
                   max_size => pos_integer(),
                   max_affordances => pos_integer()}.
+%% An MQTT form: `method' <<"PUBLISH">> (subprotocol none) or subscribe
+%% (subprotocol mqtt), its href the broker and topic.
 -type form() :: #{href := binary(), method := binary(), content_type := binary(),
-                  subprotocol := none | longpoll | sse, security := security()}.
+                  subprotocol := none | longpoll | sse | mqtt, security := security()}.
 %% A data schema as the TD has it (a JSON object), only read, never trusted.
 -type schema() :: #{binary() => term()}.
 -type affordance() :: #{name := binary(), schema := schema(), forms := #{atom() => form()},
@@ -254,10 +258,22 @@ form(Op, #{<<"href">> := Href} = F, #{base := Base, allowed := Allowed} = Ctx) w
                         true ->
                             form_at(Op, Url, F, Ctx)
                     end;
+                {ok, <<"mqtt">>, Host, Port} ->
+                    case lists:any(fun({H, P}) -> H =:= Host andalso (P =:= any orelse P =:= Port) end,
+                                   Allowed) of
+                        false ->
+                            {error, {host_not_allowed,
+                                     iolist_to_binary(io_lib:format("a form points at the broker ~ts:~B, not "
+                                                                    "an allowed host (allowed_hosts)",
+                                                                    [text(Host), Port]))}};
+                        true ->
+                            mqtt_form(Op, Url, F, Ctx)
+                    end;
                 {ok, Scheme, _, _} ->
                     {error, {unsupported_scheme,
                              iolist_to_binary(io_lib:format("a form uses ~ts: only the HTTP binding (http, "
-                                                            "https) is supported", [text(Scheme)]))}};
+                                                            "https) and MQTT (mqtt) are supported",
+                                                            [text(Scheme)]))}};
                 error ->
                     {error, {bad_href, <<"a form's href is not a URL the WoT Avatar can reach">>}}
             end
@@ -296,6 +312,51 @@ form_at(Op, Url, F, #{security := Thing, definitions := Defs}) ->
             {error, {unsupported_form, <<"the form's contentType is neither application/json nor text/plain">>}}
     end.
 
+%% The MQTT binding: a publish to invoke or write, a subscribe to observe
+%% or for events (the Binding Templates' defaults when mqv:controlPacket
+%% is left out); a topic with no wildcard; no credentials (nosec).
+mqtt_form(Op, Url, F, #{security := Thing}) ->
+    Packet = maps:get(<<"mqv:controlPacket">>, F, default_packet(Op)),
+    Topic = case uri_string:parse(Url) of
+                #{path := <<"/", T/binary>>} -> uri_string:percent_decode(T);
+                _ -> <<>>
+            end,
+    CT = case maps:get(<<"contentType">>, F, <<"application/json">>) of
+             <<"application/json", _/binary>> -> {ok, <<"application/json">>};
+             <<"text/plain", _/binary>> -> {ok, <<"text/plain">>};
+             _ -> error
+         end,
+    Security = case maps:get(<<"security">>, F, undefined) of
+                   undefined -> Thing;
+                   _ -> unsupported
+               end,
+    case {Op, Packet} of
+        _ when not is_binary(Topic); Topic =:= <<>> ->
+            {error, {bad_href, <<"an MQTT form's href names no topic (mqtt://host:port/topic)">>}};
+        _ when Security =/= nosec ->
+            {error, {unsupported_security, <<"an MQTT form with credentials is not supported (nosec is)">>}};
+        _ when CT =:= error ->
+            {error, {unsupported_form, <<"the form's contentType is neither application/json nor text/plain">>}};
+        _ ->
+            case binary:match(Topic, [<<"+">>, <<"#">>, <<0>>]) of
+                nomatch -> mqtt_op(Op, Packet, Url, element(2, CT));
+                _ -> {error, {bad_href, <<"an MQTT form's topic has a wildcard (+ or #)">>}}
+            end
+    end.
+
+mqtt_op(Op, <<"publish">>, Url, CT) when Op =:= invokeaction; Op =:= writeproperty ->
+    {ok, #{href => Url, method => <<"PUBLISH">>, content_type => CT, subprotocol => none, security => nosec}};
+mqtt_op(Op, <<"subscribe">>, Url, CT) when Op =:= observeproperty; Op =:= subscribeevent ->
+    {ok, #{href => Url, method => <<"SUBSCRIBE">>, content_type => CT, subprotocol => mqtt, security => nosec}};
+mqtt_op(readproperty, _, _, _) ->
+    {error, {unsupported_form, <<"readproperty over MQTT is not supported (observeproperty, a subscribe, is)">>}};
+mqtt_op(_, _, _, _) ->
+    {error, {unsupported_form, <<"the form's mqv:controlPacket does not fit its op (publish: invokeaction, "
+                                 "writeproperty; subscribe: observeproperty, subscribeevent)">>}}.
+
+default_packet(Op) when Op =:= observeproperty; Op =:= subscribeevent -> <<"subscribe">>;
+default_packet(_) -> <<"publish">>.
+
 default_method(readproperty) -> <<"GET">>;
 default_method(writeproperty) -> <<"PUT">>;
 default_method(observeproperty) -> <<"GET">>;
@@ -330,6 +391,7 @@ endpoint(Url) ->
             Port = case U of
                        #{port := P} when is_integer(P) -> P;
                        _ when Scheme =:= <<"https">> -> 443;
+                       _ when Scheme =:= <<"mqtt">> -> 1883;
                        _ -> 80
                    end,
             {ok, Scheme, string:lowercase(H), Port};

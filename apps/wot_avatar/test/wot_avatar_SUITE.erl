@@ -19,7 +19,8 @@ suite() -> [{timetrap, {seconds, 120}}].
 
 all() ->
     [lamp_action_and_brightness, thermostat_range_and_polling, motion_event, thing_away_and_back,
-     killed_avatar_restarts_with_backoff, node_config_embodies_a_thing, bad_options].
+     killed_avatar_restarts_with_backoff, node_config_embodies_a_thing, mqtt_forms_through_mosquitto,
+     bad_options].
 
 init_per_suite(Config) ->
     Npm = evatar_test_npm:install(),
@@ -216,6 +217,65 @@ node_config_embodies_a_thing(Config) ->
     {ok, A} = peer:call(Peer, wot_avatar, find, [<<"wot-lamp">>]),
     [] = peer:call(Peer, wot_avatar, problems, [A]).
 
+%% A TD whose forms are MQTT (node-wot's MQTT broker server's topics:
+%% THING/actions/A, THING/properties/P and .../writeproperty), read from a
+%% file, on a real mosquitto: the VA's toggle and brightness write are
+%% publishes the device (this case's MQTT client) receives, answered once
+%% the broker acknowledges them; a value the device publishes on the
+%% property's topic reaches the VA as SensorData; a value out of range is
+%% refused before anything is published.
+mqtt_forms_through_mosquitto(Config) ->
+    {ok, Broker} = evatar_test_mosquitto:start(),
+    try
+        Port = integer_to_binary(maps:get(port, Broker)),
+        Url = fun(Topic) -> <<"mqtt://127.0.0.1:", Port/binary, "/mqtt-lamp/", Topic/binary>> end,
+        Td = #{<<"@context">> => <<"https://www.w3.org/2022/wot/td/v1.1">>, <<"title">> => <<"mqtt-lamp">>,
+               <<"securityDefinitions">> => #{<<"nosec_sc">> => #{<<"scheme">> => <<"nosec">>}},
+               <<"security">> => <<"nosec_sc">>,
+               <<"properties">> =>
+                   #{<<"brightness">> =>
+                         #{<<"type">> => <<"integer">>, <<"minimum">> => 0, <<"maximum">> => 100,
+                           <<"observable">> => true,
+                           <<"forms">> => [#{<<"href">> => Url(<<"properties/brightness">>),
+                                             <<"op">> => [<<"observeproperty">>],
+                                             <<"mqv:controlPacket">> => <<"subscribe">>},
+                                           #{<<"href">> => Url(<<"properties/brightness/writeproperty">>),
+                                             <<"op">> => [<<"writeproperty">>],
+                                             <<"mqv:controlPacket">> => <<"publish">>}]}},
+               <<"actions">> => #{<<"toggle">> => #{<<"forms">> => [#{<<"href">> => Url(<<"actions/toggle">>)}]}}},
+        File = filename:join(?config(priv_dir, Config), "mqtt-lamp.td.json"),
+        ok = file:write_file(File, mqtt_avatar_json:encode(Td)),
+        {ok, Device} = mqtt_client:start_link(#{host => "127.0.0.1", port => maps:get(port, Broker),
+                                                client_id => <<"wot-suite-device">>}),
+        ok = mqtt_client:await_connected(Device, ?WAIT),
+        {ok, _} = mqtt_client:subscribe(Device, [{<<"mqtt-lamp/#">>, 1}]),
+        A = avatar(Config, <<"mqtt-lamp">>, #{td => {file, File}, allowed_hosts => [<<"127.0.0.1">>],
+                                             component => <<"Lamp">>}),
+        [] = wot_avatar:problems(A),
+        Va = va(Config),
+        <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+        <<"Lamp">> = consumer_of(Va, <<"LampVa">>, <<"Brightness">>),
+        {ok, #{context := feedback, body := #{type := <<"ACTION FEEDBACK">>, parameters := P1}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+        <<"done">> = param(<<"Result">>, P1),
+        #{payload := _} = device_message(Device, <<"mqtt-lamp/actions/toggle">>),
+        {ok, #{context := feedback, body := #{parameters := P2}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"80">>}]),
+        <<"80">> = param(<<"Value">>, P2),
+        #{payload := <<"80">>} = device_message(Device, <<"mqtt-lamp/properties/brightness/writeproperty">>),
+        {error, #{context := error, body := #{type := <<"BadParameter">>}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"101">>}]),
+        wait_partner(A),
+        ok = mqtt_client:publish(Device, <<"mqtt-lamp/properties/brightness">>, <<"42">>, #{qos => 1}),
+        #{context := sensor_data, sender := <<"Lamp">>, body := #{parameters := P3}} =
+            evatar_test_fixtures:wait_signal(Va, fun(#{body := #{type := T}}) -> T =:= <<"Brightness">> end,
+                                             ?WAIT),
+        <<"42">> = param(<<"Value">>, P3),
+        ok = mqtt_client:stop(Device)
+    after
+        ok = evatar_test_mosquitto:stop(Broker)
+    end.
+
 %% Options with mistakes: every one named, nothing started.
 bad_options(_Config) ->
     {error, Ps} = wot_avatar:start(#{entity_id => <<>>, td => <<"ftp://x">>, poll_ms => -1,
@@ -293,6 +353,14 @@ bound(Va, Side, Id, Type, Other) ->
     Report = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end, ?WAIT),
     [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
     C.
+
+%% The next message the device gets on Topic (the avatar's own are the
+%% only ones published there).
+device_message(Device, Topic) ->
+    receive
+        {mqtt_client, Device, {publish, #{topic := Topic} = M}} -> M
+    after ?WAIT -> ct:fail({no_message_on, Topic})
+    end.
 
 %% The kept lamp's Nth start, running and joined; its pid.
 await_kept_start(N) ->

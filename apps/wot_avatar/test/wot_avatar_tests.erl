@@ -118,14 +118,14 @@ hosts_test() ->
     {error, _} = describe(Td, #{allowed_hosts => [<<"thing.example:80">>]}).
 
 %% What the WoT Avatar cannot drive is a problem of its affordance: CoAP,
-%% MQTT, an unknown security scheme, an array schema, a name with no
-%% letters. The rest is kept.
+%% a broker not allowed, an unknown security scheme, an array schema, a
+%% name with no letters. The rest is kept.
 problems_test() ->
     Td = td(#{<<"securityDefinitions">> => #{<<"nosec_sc">> => #{<<"scheme">> => <<"nosec">>},
                                               <<"psk_sc">> => #{<<"scheme">> => <<"psk">>}},
               <<"actions">> =>
                   #{<<"coap">> => #{<<"forms">> => [form("coap://127.0.0.1/x")]},
-                    <<"mqtt">> => #{<<"forms">> => [form("mqtt://127.0.0.1/x")]},
+                    <<"mqtt">> => #{<<"forms">> => [form("mqtt://broker.example/x")]},
                     <<"psk">> => #{<<"forms">> => [form(?BASE "/x", #{<<"security">> => <<"psk_sc">>})]},
                     <<"list">> => #{<<"input">> => #{<<"type">> => <<"array">>},
                                     <<"forms">> => [form(?BASE "/list")]},
@@ -133,7 +133,7 @@ problems_test() ->
                     <<"ok">> => #{<<"forms">> => [form(?BASE "/ok")]}}}),
     {ok, D, #{services := S}, Problems} = describe(Td),
     ?assertEqual([<<"ok">>], maps:keys(S)),
-    ?assertEqual([{unsupported_scheme, <<"coap">>}, {unsupported_scheme, <<"mqtt">>},
+    ?assertEqual([{unsupported_scheme, <<"coap">>}, {host_not_allowed, <<"mqtt">>},
                   {unsupported_security, <<"psk">>}, {bad_name, <<"%%%">>}, {unsupported_schema, undefined}],
                  [{W, maps:get(affordance, P, undefined)} || #{what := W} = P <- Problems]),
     [#{services := [#{type := <<"Ok">>}]}] = maps:get(components, D).
@@ -276,3 +276,36 @@ route_sse_test() ->
     [<<"VaLamp">>] = R = wot_avatar_route:receivers(<<"wot-lamp">>, <<"Lamp">>, <<"Brightness">>, Bound),
     {[{<<"Value">>, <<"7">>}, {<<"Room">>, <<"hall">>}], [#{context := sensor_data, receiver := <<"VaLamp">>}]} =
         wot_avatar_route:reading(Bright, <<"7">>, R, #{component => <<"Lamp">>, room => <<"hall">>}).
+
+%% MQTT forms: publish to invoke and write, subscribe to observe and for
+%% events (the defaults when mqv:controlPacket is left out), the broker's
+%% port 1883 by default; a topic with a wildcard, a read, a packet that
+%% does not fit its op, credentials: a problem of the affordance.
+mqtt_forms_test() ->
+    M = fun(Topic, More) -> form("mqtt://broker.example/" ++ Topic, More) end,
+    Td = td(#{<<"actions">> =>
+                  #{<<"go">> => #{<<"forms">> => [M("lamp/actions/go", #{})]},
+                    <<"wild">> => #{<<"forms">> => [M("lamp/%2B/go", #{})]},
+                    <<"sub">> => #{<<"forms">> => [M("lamp/sub", #{<<"mqv:controlPacket">> => <<"subscribe">>})]}},
+              <<"properties">> =>
+                  #{<<"level">> => #{<<"type">> => <<"integer">>, <<"observable">> => true,
+                                     <<"forms">> => [M("lamp/level", #{<<"op">> => [<<"observeproperty">>]}),
+                                                     M("lamp/level/set", #{<<"op">> => [<<"writeproperty">>]})]},
+                    <<"read">> => #{<<"type">> => <<"integer">>, <<"readOnly">> => true,
+                                    <<"forms">> => [M("lamp/read", #{<<"op">> => [<<"readproperty">>]})]}},
+              <<"events">> => #{<<"ring">> => #{<<"forms">> => [M("lamp/ring", #{})]}}}),
+    {ok, _D, #{services := S, streams := Streams}, Problems} =
+        describe(Td, #{allowed_hosts => [<<"broker.example:1883">>]}),
+    #{<<"go">> := #{form := #{method := <<"PUBLISH">>, href := <<"mqtt://broker.example/lamp/actions/go">>}},
+      <<"setlevel">> := #{form := #{method := <<"PUBLISH">>}}} = S,
+    [#{type := <<"Ring">>, mode := mqtt, context := event}, #{type := <<"Level">>, mode := mqtt}] =
+        lists:sort([maps:with([type, mode, context], St) || St <- Streams]),
+    ?assertEqual([{bad_href, <<"wild">>}, {unsupported_form, <<"read">>}, {unsupported_form, <<"sub">>}],
+                 lists:sort([{W, A} || #{what := W, affordance := A} <- Problems])),
+    %% Credentials over MQTT are not sent: the affordance is left out.
+    Basic = td(#{<<"securityDefinitions">> => #{<<"b">> => #{<<"scheme">> => <<"basic">>}},
+                 <<"security">> => <<"b">>,
+                 <<"actions">> => #{<<"go">> => #{<<"forms">> => [M("lamp/go", #{})]},
+                                    <<"ok">> => #{<<"forms">> => [form(?BASE "/ok")]}}}),
+    {ok, _, _, [#{what := unsupported_security, affordance := <<"go">>}]} =
+        describe(Basic, #{allowed_hosts => [<<"broker.example">>]}).
