@@ -22,12 +22,19 @@ compile: deps
 demo: compile
 	@bash scripts/demo.sh $(DEMO_ARGS)
 
-## Runs every check: xref, dialyzer, EUnit, Common Test with PropEr, cover.
-## The last line is `N passed, N failed`.
+## Runs everything: xref, dialyzer, EUnit, the client suites in other languages
+## (clients/*), and every Common Test suite (apps/*/test and the multi-node and
+## release suites of test/; the PropEr properties run inside them), with cover.
+## The last line is `N passed, N failed`. `.ci/run` runs this.
 test: deps
 	@bash scripts/test.sh
 
-check: test
+## The quick tier, for every change: xref, dialyzer, EUnit and the Common Test
+## suites of apps/*/test that run on one node (all but those starting a cluster;
+## the pure properties among them), without cover. Not the multi-node and
+## release suites of test/, nor the client suites. The same last line.
+check: deps
+	@bash scripts/test.sh check
 
 ## Only the multi-node high-availability suites (real OS-process nodes, kill -9,
 ## SIGSTOP, partitions through proxies, a 45 s nemesis); `make test` runs them too.

@@ -1,11 +1,29 @@
 #!/usr/bin/env bash
-# Runs every check of `make test`: xref, dialyzer, EUnit, Common Test (with
-# the PropEr properties inside), and cover. Each check's own output goes to
-# the terminal and to _build/test-report/; the last line is the plain count
-# `N passed, N failed` over every test case (xref and dialyzer count as one
-# case each), and the exit status is non-zero when anything failed.
+# The two tiers of tests, one script so that both count the same way.
+#
+#   scripts/test.sh         `make test`: everything. xref, dialyzer, EUnit,
+#                           the client suites in other languages (clients/*),
+#                           every Common Test suite (apps/*/test and the
+#                           multi-node root test/; the PropEr properties run
+#                           inside them), with cover.
+#   scripts/test.sh check   `make check`: the quick tier. xref, dialyzer,
+#                           EUnit and the Common Test suites of apps/*/test
+#                           that run on one node (the pure properties among
+#                           them); no root test/, no app suite that starts
+#                           a cluster, no client suites, no cover.
+#
+# Each check's own output goes to the terminal and to _build/test-report/;
+# the last line is the plain count `N passed, N failed` over every test case
+# (xref and dialyzer count as one case each), and the exit status is
+# non-zero when anything failed.
 set -u
 cd "$(dirname "$0")/.."
+
+tier=${1:-all}
+case "$tier" in
+  all|check) ;;
+  *) echo "usage: $0 [check]" >&2; exit 2 ;;
+esac
 
 REPORT=_build/test-report
 mkdir -p "$REPORT"
@@ -113,7 +131,71 @@ clients_count() {
   done
 }
 
+# The names of the cases that failed, so that the last lines of a run (all a
+# CI page may keep) say which ones: Common Test's "%%% SUITE ==> case: FAILED"
+# (and cases skipped because an init failed), EUnit's numbered failures, and
+# pytest's "FAILED file::test" and Maven's "[ERROR]   Class.method" lines.
+failed_cases() {
+  local log
+  for log in "$REPORT/ct.log" "$REPORT/eunit.log" "$REPORT"/clients-*.log; do
+    [ -f "$log" ] || continue
+    sed -E 's/\x1b\[[0-9;]*m//g' "$log" | grep -E \
+      -e '^%%% .* ==> .*: (FAILED|auto_skipped)' -e '^%%% [^ ]+ ==> [^ ]' \
+      -e '^  [0-9]+\) [a-z_0-9]+:' \
+      -e '^(FAILED|ERROR) [^ ]+::' \
+      -e '^\[ERROR\]   [A-Z][A-Za-z0-9_]*\.[a-z]' \
+      -e '^clients/.*: .* failed' \
+      | cut -c1-240 | sed -E "s|^|   $(basename "$log" .log): |" | head -20
+  done
+}
+
+# The summary and the last line; the exit status.
+summarize() {
+  echo
+  echo "== summary (${SECONDS} s in all)"
+  for line in "${summary[@]}"; do echo "   $line"; done
+  if [ "$failed" -ne 0 ]; then
+    echo "   failed cases:"
+    failed_cases
+  fi
+  echo "$passed passed, $failed failed"
+  [ "$failed" -eq 0 ]; exit $?
+}
+
+# The release (evatar_test_release), built once here for every root suite
+# that drives it (dist, release_commands, disk_full, node_config) and named
+# in EVATAR_REL; a suite run alone builds it itself, and so does a suite
+# that finds no EVATAR_REL because the build here failed (it then fails
+# saying why: the failure is not counted here). A given EVATAR_REL is used
+# as it is. The tarball has one suite (three_machines, as root only), which
+# builds it when it runs.
+build_once() {
+  local name=$1 var=$2 path=$3; shift 3
+  if [ -n "${!var:-}" ]; then
+    note "$name: $var=${!var} (given)"
+  elif step "$name" "$@" && [ -e "$path" ]; then
+    export "$var=$PWD/$path"
+  else
+    note "$name: not built (see $REPORT/$name.log); the suites build it themselves"
+  fi
+}
+
 check xref rebar3 xref
+
+if [ "$tier" = check ]; then
+  check dialyzer rebar3 dialyzer
+  step eunit rebar3 eunit; count_cases eunit $?
+  # The apps' suites that run on one node: not root test/ (the multi-node
+  # and release suites) and not an app's suite that starts a cluster of
+  # its own (evatar_test_cluster:start).
+  suites=$(grep -L 'evatar_test_cluster:start' apps/*/test/*_SUITE.erl | paste -sd, -)
+  step ct rebar3 ct --suite "$suites"; count_cases ct $?
+  summarize
+fi
+
+# The release first: it compiles the default profile, which the client
+# suites' nodes start from.
+build_once release EVATAR_REL _build/default/rel/evatar rebar3 release
 
 clients_pid=
 if ls clients/*/run-tests.sh >/dev/null 2>&1; then
@@ -145,30 +227,4 @@ else
   note "cover: could not build the report (see $REPORT/cover.log)"
 fi
 
-# The names of the cases that failed, so that the last lines of a run (all a
-# CI page may keep) say which ones: Common Test's "%%% SUITE ==> case: FAILED"
-# (and cases skipped because an init failed), EUnit's numbered failures, and
-# pytest's "FAILED file::test" and Maven's "[ERROR]   Class.method" lines.
-failed_cases() {
-  local log
-  for log in "$REPORT/ct.log" "$REPORT/eunit.log" "$REPORT"/clients-*.log; do
-    [ -f "$log" ] || continue
-    sed -E 's/\x1b\[[0-9;]*m//g' "$log" | grep -E \
-      -e '^%%% .* ==> .*: (FAILED|auto_skipped)' -e '^%%% [^ ]+ ==> [^ ]' \
-      -e '^  [0-9]+\) [a-z_0-9]+:' \
-      -e '^(FAILED|ERROR) [^ ]+::' \
-      -e '^\[ERROR\]   [A-Z][A-Za-z0-9_]*\.[a-z]' \
-      -e '^clients/.*: .* failed' \
-      | cut -c1-240 | sed -E "s|^|   $(basename "$log" .log): |" | head -20
-  done
-}
-
-echo
-echo "== summary (${SECONDS} s in all)"
-for line in "${summary[@]}"; do echo "   $line"; done
-if [ "$failed" -ne 0 ]; then
-  echo "   failed cases:"
-  failed_cases
-fi
-echo "$passed passed, $failed failed"
-[ "$failed" -eq 0 ]
+summarize

@@ -1,6 +1,6 @@
 %% Common Test suite of a node whose data directory fills (docs/ha.md
-%% section 6, "A full disk"), on a real full file system: the release that
-%% `rebar3 release' builds (or EVATAR_REL), node A's EVATAR_DATA_DIR a
+%% section 6, "A full disk"), on a real full file system: the release of
+%% evatar_test_release:dir/0 (EVATAR_REL, or `rebar3 release'), node A's EVATAR_DATA_DIR a
 %% 2 MiB tmpfs filled to the last block with a file, node B's an ordinary
 %% directory.
 %%
@@ -38,7 +38,7 @@ init_per_suite(Config) ->
     case os:cmd("id -u") of
         "0\n" ->
             ct:timetrap({minutes, 10}),
-            [{rel, rel_node:release(?config(priv_dir, Config))} | Config];
+            [{rel, evatar_test_release:dir()} | Config];
         _ ->
             {skip, "needs root: the data directory is a tmpfs mounted for the case"}
     end.

@@ -1,7 +1,7 @@
 %% Common Test suite of Erlang distribution's safety in the release (issue
-%% 15, section 1), tried as an attacker would: the release that `rebar3
-%% release' builds (or EVATAR_REL) is started with bin/evatar as README.md
-%% says, each node with a HOME of its own, and attacked over real sockets.
+%% 15, section 1), tried as an attacker would: the release of
+%% evatar_test_release:dir/0 (EVATAR_REL, or `rebar3 release') is started
+%% with bin/evatar as README.md says, each node with a HOME of its own, and attacked over real sockets.
 %%
 %% - cookie: no node starts with a known cookie. The first start makes a
 %%   random one in $HOME/.erlang.cookie, mode 0400, kept across restarts
@@ -27,7 +27,7 @@
 
 -compile([export_all, nowarn_export_all]).
 
--import(rel_node, [release/1, clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
+-import(rel_node, [clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
                    start_node/2, stop_node/2, rel/3, run/4, console_log/1]).
 
 -define(WAIT, 60000).
@@ -50,7 +50,7 @@ groups() ->
 
 init_per_suite(Config) ->
     ct:timetrap({minutes, 10}),
-    [{rel, release(?config(priv_dir, Config))} | Config].
+    [{rel, evatar_test_release:dir()} | Config].
 
 end_per_suite(_Config) ->
     ok.

@@ -40,9 +40,7 @@ groups() ->
                     release_refuses_another_nodes_data_dir, release_refuses_token_hash_and_file]}].
 
 init_per_group(release, Config) ->
-    Root = evatar_test_cluster:repo_root(),
-    Log = filename:join(?config(priv_dir, Config), "rebar3_release.log"),
-    "0\n" = os:cmd("cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo $?"),
+    Rel = evatar_test_release:dir(),
     %% The nodes' HOME holds their cookie, as an installed node's does
     %% (docs/ha.md section 1); their epmd is the group's own.
     Home = filename:join(?config(priv_dir, Config), "home"),
@@ -50,7 +48,7 @@ init_per_group(release, Config) ->
     ok = filelib:ensure_dir(Cookie),
     ok = file:write_file(Cookie, binary:encode_hex(crypto:strong_rand_bytes(24))),
     ok = file:change_mode(Cookie, 8#400),
-    [{rel, filename:join([Root, "_build", "default", "rel", "evatar"])}, {home, Home},
+    [{rel, Rel}, {home, Home},
      {epmd_port, integer_to_list(free_port())} | Config];
 init_per_group(_, Config) ->
     Config.

@@ -1,8 +1,8 @@
 %% @doc Test support, not a suite: release nodes for the suites that drive
 %% the release as an operator does (dist_SUITE, release_commands_SUITE). The
-%% release that `rebar3 release' builds (or EVATAR_REL); each node with a
-%% HOME of its own (so a cookie of its own), its own data directory, free
-%% ports and the case's epmd; `bin/evatar' run with its output in a file.
+%% release of evatar_test_release:dir/0 (EVATAR_REL, or built once for the
+%% run); each node with a HOME of its own (so a cookie of its own), its own
+%% data directory, free ports and the case's epmd; `bin/evatar' run with its output in a file.
 %% The suites' Config holds `rel', `dir' (the case's directory),
 %% `epmd_port' and `nodes' (an ETS bag of the nodes started, for the end of
 %% the case).
@@ -12,7 +12,7 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([init_case/2, end_case/1]).
--export([release/1, clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
+-export([clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
          start_node/2, stop_node/2, kill_by_name/1, rel/3, run/4, quote/1, console_log/1]).
 
 -define(WAIT, 60000).
@@ -34,25 +34,6 @@ end_case(Config) ->
     _ = os:cmd("ERL_EPMD_PORT=" ++ integer_to_list(?config(epmd_port, Config))
                ++ " epmd -kill"),
     ok.
-
-%% The release under test: EVATAR_REL, or the one `rebar3 release' builds
-%% (under REBAR_BASE_DIR or _build).
-release(Priv) ->
-    case os:getenv("EVATAR_REL") of
-        Dir when is_list(Dir), Dir =/= "" ->
-            Dir;
-        _ ->
-            Root = evatar_test_cluster:repo_root(),
-            Log = filename:join(Priv, "rebar3-release.log"),
-            Cmd = "cd " ++ Root ++ " && rebar3 release > " ++ Log ++ " 2>&1; echo rc=$?",
-            Out = os:cmd(Cmd),
-            ?assertEqual("rc=0\n", Out, Log),
-            Base = case os:getenv("REBAR_BASE_DIR") of
-                       B when is_list(B), B =/= "" -> B;
-                       _ -> filename:join(Root, "_build")
-                   end,
-            filename:join([Base, "default", "rel", "evatar"])
-    end.
 
 %% Variables a caller's environment might hold that would change what is
 %% tested; unset for every command.

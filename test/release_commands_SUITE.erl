@@ -1,12 +1,13 @@
 %% Common Test suite of the release's operator commands (README.md,
-%% "Operator commands"): a node of the release that `rebar3 release'
-%% builds (or EVATAR_REL), started with bin/evatar daemon with its own HOME,
-%% data directory and free ports, and driven only with bin/evatar cluster,
-%% pairings, pairing, create, bindings, rotate, delete, mqtt_problems and
-%% wot_problems, in text and with --json; real clients join it over TCP with the
-%% credentials the commands generated. The cookie is never on a command
-%% line: every program the commands start is traced (strace -f, execve),
-%% and the trace of relx's own `rpc' shows that the check sees a leak.
+%% "Operator commands"): a node of the release of evatar_test_release:dir/0
+%% (EVATAR_REL, or `rebar3 release'), started with bin/evatar daemon with
+%% its own HOME, data directory and free ports, and driven only with
+%% bin/evatar cluster, pairings, pairing, create, bindings, rotate, delete,
+%% mqtt_problems and wot_problems, in text and with --json; real clients
+%% join it over TCP with the credentials the commands generated. The
+%% cookie is never on a command line: every program the commands start is
+%% traced (strace -f, execve), and the trace of relx's own `rpc' shows that
+%% the check sees a leak.
 -module(release_commands_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -14,7 +15,7 @@
 
 -compile([export_all, nowarn_export_all]).
 
--import(rel_node, [release/1, node_env/3, env/2, home/1, node_name/1, start_node/2,
+-import(rel_node, [node_env/3, env/2, home/1, node_name/1, start_node/2,
                    stop_node/2, rel/3, run/4, quote/1]).
 
 suite() -> [{timetrap, {minutes, 5}}].
@@ -26,7 +27,7 @@ all() ->
 
 init_per_suite(Config) ->
     ct:timetrap({minutes, 10}),
-    [{rel, release(?config(priv_dir, Config))} | Config].
+    [{rel, evatar_test_release:dir()} | Config].
 
 end_per_suite(_Config) ->
     ok.

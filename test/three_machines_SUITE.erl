@@ -1,8 +1,9 @@
 %% Common Test suite of docs/ha.md section 4, "Three machines", as written:
 %% scripts/test-three-machines.sh makes the laptop, the desktop and the
 %% tablet out of network namespaces (each with its own /etc/hosts naming
-%% the three, its own /etc/evatar, /opt/evatar and /var/lib/evatar), builds
-%% the tarball with `make tar' (or takes EVATAR_TAR), and follows the
+%% the three, its own /etc/evatar, /opt/evatar and /var/lib/evatar), takes
+%% the tarball of evatar_test_release:tarball/0 (EVATAR_TAR, or `rebar3 as
+%% prod tar' once for the run), and follows the
 %% section's steps: certificates and cookie on the laptop, copied and
 %% installed on each, /etc/evatar/env with `EVATAR_NODE=evatar@laptop', TLS
 %% distribution and the TLS listener, each node started as the systemd
@@ -37,12 +38,9 @@ section_4_as_written(Config) ->
     Root = evatar_test_cluster:repo_root(),
     Script = filename:join([Root, "scripts", "test-three-machines.sh"]),
     Work = filename:join(?config(priv_dir, Config), "machines"),
-    Tar = case os:getenv("EVATAR_TAR") of
-              T when is_list(T), T =/= "" -> [T];
-              _ -> []
-          end,
+    Tar = evatar_test_release:tarball(),
     Port = open_port({spawn_executable, "/bin/bash"},
-                     [{args, [Script, Work | Tar]}, exit_status, stderr_to_stdout, binary]),
+                     [{args, [Script, Work, Tar]}, exit_status, stderr_to_stdout, binary]),
     {Status, Out} = collect(Port, []),
     ct:pal("scripts/test-three-machines.sh: exit ~p~n~ts", [Status, Out]),
     case Status of
