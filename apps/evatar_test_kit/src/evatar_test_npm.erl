@@ -4,23 +4,44 @@
 %% installed once with `npm ci' into _build/wot-npm (EVATAR_WOT_NPM to
 %% choose another directory), again when the lock file changes; and node
 %% scripts run with them. evatar_web_wot_SUITE and wot_avatar_SUITE share it.
+%% install/1 does the same for another npm project of a suite's data dir
+%% (wot_avatar_SUITE's node-wot 0.8.16 MQTT servient), in a directory of
+%% its own: two versions of node-wot cannot share one node_modules.
 -module(evatar_test_npm).
 
--export([install/0, node_env/1, run/3]).
+-export([install/0, install/1, node_env/1, run/3]).
 
 %% @doc Installs the packages if the lock file changed since; their
 %% directory. Raises when npm is missing or fails.
 -spec install() -> file:filename().
 install() ->
-    Npm = os:find_executable("npm"),
-    Npm =/= false orelse error({npm_not_installed, "Debian: npm"}),
-    Src = proplists:get_value(source, ?MODULE:module_info(compile)),
-    Root = filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))),
+    Root = root(),
     Dir = case os:getenv("EVATAR_WOT_NPM") of
               V when is_list(V), V =/= "" -> V;
               _ -> filename:join([Root, "_build", "wot-npm"])
           end,
-    Data = filename:join([Root, "apps", "evatar_web", "test", "evatar_web_wot_SUITE_data"]),
+    install(filename:join([Root, "apps", "evatar_web", "test", "evatar_web_wot_SUITE_data"]), Dir).
+
+%% @doc Installs the npm project (package.json and package-lock.json) of
+%% directory Data into _build/wot-npm-NAME, NAME Data's last component
+%% (EVATAR_WOT_NPM-NAME when that is set), if its lock file changed since;
+%% that directory.
+-spec install(file:filename()) -> file:filename().
+install(Data) ->
+    Name = filename:basename(Data),
+    Dir = case os:getenv("EVATAR_WOT_NPM") of
+              V when is_list(V), V =/= "" -> V ++ "-" ++ Name;
+              _ -> filename:join([root(), "_build", "wot-npm-" ++ Name])
+          end,
+    install(Data, Dir).
+
+root() ->
+    Src = proplists:get_value(source, ?MODULE:module_info(compile)),
+    filename:dirname(filename:dirname(filename:dirname(filename:dirname(Src)))).
+
+install(Data, Dir) ->
+    Npm = os:find_executable("npm"),
+    Npm =/= false orelse error({npm_not_installed, "Debian: npm"}),
     {ok, Lock} = file:read_file(filename:join(Data, "package-lock.json")),
     Marker = filename:join(Dir, "lock.installed"),
     case file:read_file(Marker) of

@@ -2,7 +2,9 @@
 %% 0.9.2 servient (HTTP binding; things.js in the data dir, packages from
 %% evatar_test_npm) exposing a lamp, a thermostat and a motion sensor, one
 %% WoT Avatar per Thing joined through a real agent_bridge listener to a
-%% real pairing, and a test VA (agent_bridge_client) that embodies them.
+%% real pairing, and a test VA (agent_bridge_client) that embodies them;
+%% and a node-wot 0.8.16 servient (MQTT binding; node-wot-mqtt/ in the
+%% data dir, its own npm project) exposing a lamp on a real mosquitto.
 %% Every wait is for an event: a signal, a Binding report, a line the
 %% servient prints; never for a time.
 -module(wot_avatar_SUITE).
@@ -20,17 +22,22 @@ suite() -> [{timetrap, {seconds, 120}}].
 all() ->
     [lamp_action_and_brightness, thermostat_range_and_polling, motion_event, thing_away_and_back,
      killed_avatar_restarts_with_backoff, node_config_embodies_a_thing, mqtt_forms_through_mosquitto,
-     bad_options].
+     node_wot_mqtt_lamp, bad_options].
 
 init_per_suite(Config) ->
     Npm = evatar_test_npm:install(),
+    NpmMqtt = evatar_test_npm:install(filename:join(?config(data_dir, Config), "node-wot-mqtt")),
     ok = evatar_test_node:start([wot_avatar]),
     Addr = evatar_test_node:listen(?LISTENER),
-    [{npm, Npm}, {addr, Addr} | Config].
+    [{npm, Npm}, {npm_mqtt, NpmMqtt}, {addr, Addr} | Config].
 
 end_per_suite(_Config) ->
     evatar_test_node:stop([?LISTENER], [wot_avatar]).
 
+init_per_testcase(node_wot_mqtt_lamp, Config) ->
+    %% its servient needs the case's broker: started by the case
+    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
+    Config;
 init_per_testcase(_Case, Config) ->
     {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
     Port = free_port(),
@@ -43,6 +50,7 @@ end_per_testcase(_Case, Config) ->
     [catch wot_avatar:unkeep(E) || E <- forget(kept)],
     [catch peer:stop(P) || P <- forget(peers)],
     stop_servient(?config(servient, Config)),
+    stop_servient(erase(servient2)),
     _ = evatar:delete_pairing(?PAIRING),
     ok.
 
@@ -249,12 +257,7 @@ mqtt_forms_through_mosquitto(Config) ->
                                                 client_id => <<"wot-suite-device">>}),
         ok = mqtt_client:await_connected(Device, ?WAIT),
         {ok, _} = mqtt_client:subscribe(Device, [{<<"mqtt-lamp/#">>, 1}]),
-        A = avatar(Config, <<"mqtt-lamp">>, #{td => {file, File}, allowed_hosts => [<<"127.0.0.1">>],
-                                             component => <<"Lamp">>}),
-        [] = wot_avatar:problems(A),
-        Va = va(Config),
-        <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
-        <<"Lamp">> = consumer_of(Va, <<"LampVa">>, <<"Brightness">>),
+        {A, Va} = mqtt_lamp(Config, File),
         {ok, #{context := feedback, body := #{type := <<"ACTION FEEDBACK">>, parameters := P1}}} =
             request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
         <<"done">> = param(<<"Result">>, P1),
@@ -276,6 +279,50 @@ mqtt_forms_through_mosquitto(Config) ->
         ok = evatar_test_mosquitto:stop(Broker)
     end.
 
+%% node-wot's own MQTT servient (0.8.16, the newest @node-wot/binding-mqtt)
+%% on a real mosquitto: its TD, as node-wot publishes it (retained, on the
+%% Thing's title; forms with no mqv:controlPacket, readproperty on the
+%% observe topic), read from a file. The VA's toggles and brightness write
+%% change the servient's state (it prints each change); its publishes of
+%% the brightness, after the write and after a change on the device's
+%% side, reach the VA as SensorData.
+node_wot_mqtt_lamp(Config) ->
+    {ok, Broker} = evatar_test_mosquitto:start(),
+    try
+        BrokerPort = maps:get(port, Broker),
+        Servient = servient(Config, "node-wot-mqtt/lamp_mqtt.js",
+                            ["mqtt://127.0.0.1:" ++ integer_to_list(BrokerPort)], ?config(npm_mqtt, Config)),
+        put(servient2, Servient),
+        {ok, C} = mqtt_client:start_link(#{host => "127.0.0.1", port => BrokerPort,
+                                           client_id => <<"wot-suite-td-reader">>}),
+        ok = mqtt_client:await_connected(C, ?WAIT),
+        {ok, _} = mqtt_client:subscribe(C, [{<<"mqtt-lamp">>, 1}]),
+        #{payload := TdText} = device_message(C, <<"mqtt-lamp">>),
+        ok = mqtt_client:stop(C),
+        File = filename:join(?config(priv_dir, Config), "node-wot-mqtt-lamp.td.json"),
+        ok = file:write_file(File, TdText),
+        {A, Va} = mqtt_lamp(Config, File),
+        wait_partner(A),
+        {ok, #{context := feedback, body := #{type := <<"ACTION FEEDBACK">>}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+        ok = servient_line(Config, <<"TOGGLE mqtt-lamp on true">>),
+        {ok, #{context := feedback}} = request(Va, <<"LampVa">>, <<"Lamp">>, <<"Toggle">>, []),
+        ok = servient_line(Config, <<"TOGGLE mqtt-lamp on false">>),
+        {ok, #{context := feedback, body := #{parameters := P1}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"80">>}]),
+        <<"80">> = param(<<"Value">>, P1),
+        ok = servient_line(Config, <<"WRITE mqtt-lamp brightness 80">>),
+        _ = brightness(Va, <<"80">>),
+        ok = servient_input(Config, <<"brightness 30\n">>),
+        _ = brightness(Va, <<"30">>),
+        {error, #{context := error, body := #{type := <<"BadParameter">>}}} =
+            request(Va, <<"LampVa">>, <<"Lamp">>, <<"SetBrightness">>, [{<<"Value">>, <<"101">>}]),
+        [<<"WRITE mqtt-lamp brightness 80">>] = [L || <<"WRITE", _/binary>> = L <- servient_lines(Servient)]
+    after
+        stop_servient(erase(servient2)),
+        ok = evatar_test_mosquitto:stop(Broker)
+    end.
+
 %% Options with mistakes: every one named, nothing started.
 bad_options(_Config) ->
     {error, Ps} = wot_avatar:start(#{entity_id => <<>>, td => <<"ftp://x">>, poll_ms => -1,
@@ -291,9 +338,11 @@ is_lamp(#{provider := #{entity := E}}) -> E =:= <<"wot-lamp">>;
 is_lamp(_) -> false.
 
 opts(Config, Thing, Extra) ->
-    Port = integer_to_binary(?config(port, Config)),
-    maps:merge(#{entity_id => <<"wot-", Thing/binary>>,
-                 td => <<"http://127.0.0.1:", Port/binary, "/", Thing/binary>>,
+    Td = case Extra of
+             #{td := T} -> T;
+             _ -> <<"http://127.0.0.1:", (integer_to_binary(?config(port, Config)))/binary, "/", Thing/binary>>
+         end,
+    maps:merge(#{entity_id => <<"wot-", Thing/binary>>, td => Td,
                  evatar => #{endpoints => [?config(addr, Config)], pairing => ?PAIRING,
                              credential => evatar_test_fixtures:avatar_credential()},
                  retry_max_ms => 1000, restart => #{min_ms => 100, max_ms => 1000}},
@@ -353,6 +402,24 @@ bound(Va, Side, Id, Type, Other) ->
     Report = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> lists:any(Match, B) end, ?WAIT),
     [C] = [maps:get(component, maps:get(Other, R)) || R <- maps:get(bound, Report), Match(R)],
     C.
+
+%% The WoT Avatar of the MQTT lamp whose TD is File, with no problem, and
+%% a VA bound to it.
+mqtt_lamp(Config, File) ->
+    A = avatar(Config, <<"mqtt-lamp">>, #{td => {file, File}, allowed_hosts => [<<"127.0.0.1">>],
+                                         component => <<"Lamp">>}),
+    [] = wot_avatar:problems(A),
+    Va = va(Config),
+    <<"Lamp">> = provider_of(Va, <<"LampVa">>, <<"Toggle">>),
+    <<"Lamp">> = consumer_of(Va, <<"LampVa">>, <<"Brightness">>),
+    {A, Va}.
+
+%% The Brightness SensorData with Value V, waited for.
+brightness(Va, V) ->
+    evatar_test_fixtures:wait_signal(Va, fun(#{context := sensor_data, body := #{type := T, parameters := Ps}}) ->
+                                                 T =:= <<"Brightness">> andalso lists:member({<<"Value">>, V}, Ps);
+                                            (_) -> false
+                                         end, ?WAIT).
 
 %% The next message the device gets on Topic (the avatar's own are the
 %% only ones published there).
@@ -434,16 +501,21 @@ free_port() ->
 %% ---------------------------------------------------------------------------
 
 servient(Config, Port) ->
-    Script = filename:join(?config(data_dir, Config), "things.js"),
-    Log = filename:join(?config(priv_dir, Config), "servient.log"),
+    servient(Config, "things.js", [integer_to_list(Port)], ?config(npm, Config)).
+
+%% A node script of the data dir run with the packages installed in Npm;
+%% its stderr goes to a log file in priv_dir named after it.
+servient(Config, Name, Args, Npm) ->
+    Script = filename:join(?config(data_dir, Config), Name),
+    Log = filename:join(?config(priv_dir, Config), filename:basename(Name, ".js") ++ ".log"),
     Node = os:find_executable("node"),
     Node =/= false orelse ct:fail("node is not installed (Debian: nodejs, npm)"),
     Self = self(),
     Reader = spawn(fun() ->
                            P = open_port({spawn_executable, "/bin/sh"},
                                          [{args, ["-c", "exec \"$0\" \"$1\" \"$2\" 2>>\"$3\"",
-                                                  Node, Script, integer_to_list(Port), Log]},
-                                          {env, evatar_test_npm:node_env(?config(npm, Config))},
+                                                  Node, Script | Args] ++ [Log]},
+                                          {env, evatar_test_npm:node_env(Npm)},
                                           {line, 4096}, binary, exit_status]),
                            reader(P, Self, [])
                    end),
@@ -503,6 +575,11 @@ servient_line(Config, Line, Pred) ->
                     fun({ok, Ls}) -> lists:any(Pred, Ls) end),
     [Line | _] = lists:filter(Pred, Lines),
     ok.
+
+%% The lines the servient has printed so far.
+servient_lines(#{reader := R}) ->
+    R ! {lines, self()},
+    receive {lines, R, Ls} -> Ls after 5000 -> ct:fail(servient_lines) end.
 
 servient_input(Config, Data) ->
     #{reader := R} = current_servient(Config),
