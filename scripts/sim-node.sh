@@ -44,6 +44,7 @@
 #   run_until HH:MM                       run the clock to that time, then pause
 #   time                                  TIME YYYY-MM-DD HH:MM:SS running|paused speed=N
 #   outcome                               home: LIGHT, EMAIL, PHOTO, PLAYED lines
+#                                         robots: BALL COLOUR X Y ZONE HELD_BY, ROBOT lines
 #   stop                                  stop the node
 #
 # Global option, before the command: --dir DIR (or EVATAR_SIM_DIR), the

@@ -51,7 +51,9 @@
 %%   run_until HH:MM              run the clock until that local time, pause
 %%   time                         TIME YYYY-MM-DD HH:MM:SS running|paused speed=N
 %%                                (the simulated time, UTC = the home's local time)
-%%   outcome                      the home's state: LIGHT/EMAIL/PHOTO/PLAYED lines
+%%   outcome                      the home's state: LIGHT/EMAIL/PHOTO/PLAYED lines;
+%%                                the arena's: BALL COLOUR X Y ZONE|none HELD_BY|none
+%%                                and ROBOT ENTITY X Y HOLDING|none lines
 %%   kill I                       (cluster) kill -9 node I (1-based)
 %%   freeze I                     (cluster) kill -STOP node I: a node that hangs
 %%   ha PAIRING                   (cluster) HA I ROLE EPOCH per node holding the pairing
@@ -292,6 +294,13 @@ command(["outcome"], #{home := Home} = S) ->
              || #{id := I, room := R, file := F} <- Photos]
          ++ [io_lib:format("PLAYED ~s\t~b\t~s", [K, V, W])
              || #{kind := K, volume := V, what := W} <- Played], S};
+command(["outcome"], #{arena := Arena} = S) ->
+    #{balls := Balls, robots := Robots} = avatar_sim:state(Arena),
+    {ok, [io_lib:format("BALL ~s ~b ~b ~s ~s", [C, round(X), round(Y), Z, H])
+          || #{colour := C, x := X, y := Y, zone := Z, held_by := H0} <- Balls,
+             H <- [case H0 of none -> "none"; I -> integer_to_list(I) end]]
+         ++ [io_lib:format("ROBOT ~s ~b ~b ~s", [E, round(X), round(Y), Hold])
+             || #{entity := E, x := X, y := Y, holding := Hold} <- Robots], S};
 command([Hook, Id | Ms], #{avatar := Avatar} = S)
   when Hook =:= "mute"; Hook =:= "unmute"; Hook =:= "disconnect"; Hook =:= "reconnect";
        Hook =:= "detach"; Hook =:= "attach" ->
@@ -323,7 +332,7 @@ command(["ha", Pairing], #{nodes := Nodes} = S) ->
              {ok, #{role := Role, epoch := Epoch}} <- [catch peer:call(P, evatar, ha_status,
                                                                       [Id], 2000)]], S};
 command(["outcome"], _S) ->
-    {error, "outcome needs the home (--home)"};
+    {error, "outcome needs the home or the robots (--home, --robots)"};
 command([Clock | _], _S)
   when Clock =:= "time"; Clock =:= "pause"; Clock =:= "resume"; Clock =:= "speed";
        Clock =:= "run_until" ->

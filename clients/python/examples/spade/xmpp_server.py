@@ -18,6 +18,7 @@ import sys
 
 import uvloop
 from loguru import logger
+from pyjabber.plugins.xep_0363.xep_0363 import HTTPFieldUpload
 from pyjabber.server import Server
 from pyjabber.server_parameters import Parameters
 
@@ -32,6 +33,11 @@ async def main(port: int) -> None:
                                database_in_memory=True, plugins=plugins,
                                message_persistence=False))
     server._public_ip = None  # loopback only: pyjabber also listens on the public address
+    # Without the upload plugin pyjabber never makes its HTTPFieldUpload
+    # singleton, yet every session's stanza handler asks for it: the session
+    # then dies after binding, silently, and routes no message or presence.
+    # Made here with no HTTP server; no client is told the service exists.
+    HTTPFieldUpload(None)
     task = asyncio.ensure_future(server.run_server())
     ready = asyncio.ensure_future(server.ready.wait())
     await asyncio.wait([task, ready], return_when=asyncio.FIRST_COMPLETED)
