@@ -16,7 +16,8 @@
 %% a majority up; then within 6 x suspect_ms exactly one instance serves,
 %% holding every accepted signal, and a signal sent then is accepted and
 %% routed once within a standby's offer timeout (?LIVE_BOUNDS), or no
-%% instance is left and the catalogue restores the pairing. `make test' runs
+%% instance is left, the catalogue restores the pairing and the restored
+%% instance wins its election and serves. `make test' runs
 %% the safety properties, the liveness properties and the fixed cases below
 %% (each a freeze or a loss the model found and the core now avoids).
 %% `prop_model(N, liveness)' is the older, looser check (any number of
@@ -326,9 +327,8 @@ prop_live(N, Bounds) ->
 %% remembering the epoch its clients saw).
 %% With three nodes at most two faults (a crash, a pause, an isolation or
 %% a cut; heals, restarts, resumes, duplicated and delayed messages are
-%% free): what docs/ha.md promises liveness after. A third, with the votes
-%% a crash erases, can leave an instance at an epoch below the one its
-%% clients saw. With two nodes one: a pause of each is a partition, outside
+%% free): what docs/ha.md promises liveness after. With two nodes one: a
+%% pause of each is a partition, outside
 %% the guarantee (docs/ha.md section 6, "Two nodes").
 live_schedule(N) ->
     ?LET(Cmds, list(fault_or_tick(N, lists:sublist([n1, n2, n3], N), nodrop)),

@@ -87,9 +87,8 @@ step(C, #{now := Now} = W) -> count_fault(C, W, fault(C, W#{last_change := Now})
 %% before a new standby is synced (docs/ha-design.md section 9): a second
 %% failure (a crash, a pause, a cut between the instances' nodes) leaves
 %% what was accepted until then outside it. The crash of a node without an
-%% instance is not one: it erases that node's promises, which matters only
-%% with another fault at the same time, and that one is counted (the
-%% liveness schedules, docs/ha.md section 6, count every crash).
+%% instance is not one: its voter's promises are on its disc (the liveness
+%% schedules, docs/ha.md section 6, count every crash).
 count_fault(C, #{insts := Insts}, #{sender := #{acked := Acked} = Snd} = W) ->
     Homes = [N || #{node := N} <- maps:values(Insts)],
     Hit = case C of
@@ -723,9 +722,10 @@ release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender 
 
 %% Covered again protects a signal from now on, not backwards: the
 %% routings it got while degraded (outside the guarantee, docs/ha-design.md
-%% section 9: with an epoch won twice after a majority's promises were lost, two
-%% histories may each route it) and the one in the history now covered are
-%% excused; any other routing it gets from now on is routed twice.
+%% section 9: after a second failure, an instance that took over without it
+%% routes it again when it is resent) and the one in the history now
+%% covered are excused; any other routing it gets from now on is routed
+%% twice.
 excuse(Sids, Applied, #{receiver := #{got := Got, excused := Ex} = R} = W) ->
     Ex1 = lists:foldl(fun(Sid, Acc) ->
                               {Sid, Route} = lists:keyfind(Sid, 1, Applied),
