@@ -230,9 +230,9 @@ generate(Messages, Opts) ->
     {Discovery, Problems} =
         lists:foldl(fun({Topic, Payload}, {S, Ps}) ->
                             case mqtt_avatar_discovery:handle(Topic, Payload, S) of
-                                ignore -> {S, Ps ++ [#{what => not_discovery, topic => Topic,
-                                                       message => <<"not a discovery topic">>}]};
-                                {_, S1, P} -> {S1, Ps ++ P}
+                                ignore -> {S, [[#{what => not_discovery, topic => Topic,
+                                                  message => <<"not a discovery topic">>}] | Ps]};
+                                {_, S1, P} -> {S1, [P | Ps]}
                             end
                     end, {mqtt_avatar_discovery:new(maps:get(discovery, Opts, #{})), []}, Messages),
     Static = case static(Opts) of
@@ -242,7 +242,7 @@ generate(Messages, Opts) ->
     mqtt_avatar_generate:description(
       #{entity_id => maps:get(entity_id, Opts, <<"mqtt-avatar">>), static => Static,
         overrides => maps:get(overrides, Opts, #{})},
-      mqtt_avatar_discovery:devices(Discovery), Problems).
+      mqtt_avatar_discovery:devices(Discovery), lists:append(lists:reverse(Problems))).
 
 %% @doc Reads a description file (BIL XML, as printed and edited).
 -spec read_description(file:filename()) -> {ok, bil:description()} | {error, binary()}.

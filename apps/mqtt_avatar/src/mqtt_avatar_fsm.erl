@@ -47,6 +47,8 @@
             discovery :: mqtt_avatar_discovery:state() | undefined,
             static :: [bil:component()],
             description :: bil:description(),
+            %% the description's runtime spec
+            spec = #{components => [], topics => []} :: mqtt_avatar_spec:spec(),
             described :: bil:description() | undefined,
             logic :: mqtt_avatar_logic:state(),
             subscribed = [] :: [binary()],
@@ -334,19 +336,18 @@ rebuild(#d{opts = Opts, entity = Entity, static = Static} = D) ->
                   undefined -> [];
                   S -> mqtt_avatar_discovery:devices(S)
               end,
-    {Full, Problems} = mqtt_avatar_generate:description(
-                         #{entity_id => Entity, static => Static,
-                           overrides => maps:get(overrides, Opts, #{}),
-                           api_name => maps:get(api_name, Opts, <<"MQTT AVATAR">>)},
-                         Devices, []),
-    {ok, Spec} = mqtt_avatar_spec:from_description(Full),
+    {Full, Spec, Problems} = mqtt_avatar_generate:build(
+                               #{entity_id => Entity, static => Static,
+                                 overrides => maps:get(overrides, Opts, #{}),
+                                 api_name => maps:get(api_name, Opts, <<"MQTT AVATAR">>)},
+                               Devices, []),
     %% A problem is reported when it first appears (a device left out
     %% because of its config is reported when the config arrives, even if
     %% the description stays the same), and not again while it lasts.
     Before = sets:from_list(D#d.generated),
     D1 = lists:foldl(fun problem/2, D, [P || P <- Problems, not sets:is_element(P, Before)]),
     Changed = Full =/= D#d.description,
-    {D1#d{description = Full, generated = Problems,
+    {D1#d{description = Full, spec = Spec, generated = Problems,
           logic = mqtt_avatar_logic:set_spec(Spec, D1#d.logic)}, Changed}.
 
 %% Sends the description when it changed and fits the session's MaxFrame.
@@ -396,16 +397,15 @@ too_large(Size, Max, #d{bridge = C, described = Old} = D) ->
 
 subscribe(#d{mqtt_up = false} = D) ->
     D;
-subscribe(#d{mqtt = Pid, subscribed = Done, logic = _L} = D) ->
-    {ok, Spec} = mqtt_avatar_spec:from_description(D#d.description),
+subscribe(#d{mqtt = Pid, subscribed = Done, spec = Spec} = D) ->
     Wanted = lists:usort(discovery_filters(D) ++ maps:get(topics, Spec)),
-    case Wanted -- Done of
+    case ordsets:subtract(Wanted, Done) of
         [] ->
             D;
         New ->
             case mqtt_client:subscribe(Pid, [{T, 1} || T <- New], 5000) of
                 {ok, _Codes} ->
-                    D#d{subscribed = lists:usort(Done ++ New)};
+                    D#d{subscribed = ordsets:union(Done, New)};
                 {error, Reason} ->
                     problem(#{what => subscribe_failed,
                               message => iolist_to_binary(io_lib:format("~0p", [Reason]))}, D)

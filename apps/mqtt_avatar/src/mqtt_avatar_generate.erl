@@ -1,10 +1,18 @@
 %% @doc Internal. Turns discovered devices into BIL components with the
 %% reserved `Mqtt*' parameters (docs/mqtt.md section 4 lists the rules), so
 %% devices join EVATAR without anyone writing BIL; per-device and
-%% per-entity overrides adapt the result to a VA's body. Pure.
+%% per-entity overrides adapt the result to a VA's body.
+%%
+%% Devices are generated and checked in batches of ?BATCH, each in a
+%% short-lived process: generating a device makes some hundred times its
+%% components' size in garbage, and a process that holds thousands of
+%% components while it makes that garbage spends most of its time in
+%% garbage collection (3,000 devices took 25 times as long as 300).
+%% ComponentIDs and the overrides used are kept in maps, so the whole is
+%% n log n (docs/mqtt.md section 6, "Large homes"). No other side effect.
 -module(mqtt_avatar_generate).
 
--export([components/2, description/3]).
+-export([components/2, description/3, build/3]).
 
 -export_type([overrides/0, override/0]).
 
@@ -19,63 +27,120 @@
 %% without the prefix), a device name, or an entity's unique id (HA `unique_id', zigbee2mqtt
 %% `<friendly_name>/<property>').
 -type overrides() :: #{binary() => override()}.
+-type opts() :: #{entity_id := binary(), static => [bil:component()],
+                  overrides => overrides(), api_name => binary()}.
 
 -define(ROOM, <<"Room">>).
+%% Devices generated and checked by one short-lived process.
+-define(BATCH, 64).
 
 -import(mqtt_avatar_part, [entry/3, camel/1, first_name/1, source/1]).
 
 %% @doc A complete description: `Static' components (hand-written, with
 %% their own `Mqtt*' parameters) first, then the generated ones. A generated
 %% component whose ComponentID a static one already has is left out.
--spec description(#{entity_id := binary(), static => [bil:component()],
-                    overrides => overrides(), api_name => binary()},
-                  [mqtt_avatar_discovery:device()], [map()]) ->
+-spec description(opts(), [mqtt_avatar_discovery:device()], [map()]) ->
           {bil:description(), [map()]}.
 description(Opts, Devices, Problems0) ->
+    {Description, _Specs, Problems} = generate(Opts, Devices, Problems0),
+    {Description, Problems}.
+
+%% @doc As `description/3', with the description's runtime spec (what
+%% `mqtt_avatar_spec:from_description/1' gives for it, made from the
+%% generated components' checks instead of a second pass). The static
+%% components must be valid.
+-spec build(opts(), [mqtt_avatar_discovery:device()], [map()]) ->
+          {bil:description(), mqtt_avatar_spec:spec(), [map()]}.
+build(Opts, Devices, Problems0) ->
+    {ok, #{components := StaticSpecs}} =
+        mqtt_avatar_spec:from_description(#{components => maps:get(static, Opts, [])}),
+    {Description, Specs, Problems} = generate(Opts, Devices, Problems0),
+    {Description, mqtt_avatar_spec:of_components(StaticSpecs ++ Specs), Problems}.
+
+generate(Opts, Devices, Problems0) ->
     Static = maps:get(static, Opts, []),
-    {Generated0, Problems1} = components(Devices, maps:get(overrides, Opts, #{})),
+    Overrides = maps:get(overrides, Opts, #{}),
+    Taken = maps:from_list([{Id, true} || #{id := Id} <- Static]),
+    {Results, Unused} = run(Devices, Overrides),
     %% What cannot be checked or written as BIL (a control character in a
     %% topic, an override with a bad parameter) stays out, with a reason.
-    Checked = [{C, check(C)} || C <- Generated0],
-    Generated = [C || {C, ok} <- Checked],
-    Problems = Problems1 ++ lists:append([Ps || {_, {error, Ps}} <- Checked]),
-    Taken = [Id || #{id := Id} <- Static],
-    Kept = [C || #{id := Id} = C <- Generated, not lists:member(Id, Taken)],
+    Kept = [{C, S} || {#{id := Id} = C, {ok, S}} <- Results, not maps:is_key(Id, Taken)],
+    Bad = lists:append([Ps || {_, {error, Ps}} <- Results]),
     Clashes = [#{what => component_clash, component => Id,
                  message => <<"a discovered device has the ComponentID of a hand-written "
                               "component; the hand-written one is kept">>}
-               || #{id := Id} <- Generated, lists:member(Id, Taken)],
+               || {#{id := Id}, {ok, _}} <- Results, maps:is_key(Id, Taken)],
     {#{entity_id => maps:get(entity_id, Opts),
        api_name => maps:get(api_name, Opts, <<"MQTT AVATAR">>),
        entity_type => avatar,
        context => <<"MqttDescription">>,
-       components => Static ++ Kept},
-     Problems0 ++ Problems ++ Clashes}.
+       components => Static ++ [C || {C, _} <- Kept]},
+     [S || {_, S} <- Kept],
+     lists:append([Problems0, Unused, Bad, Clashes])}.
 
 %% @doc One component per device, plus problems (overrides that match
 %% nothing).
 -spec components([mqtt_avatar_discovery:device()], overrides()) -> {[bil:component()], [map()]}.
 components(Devices, Overrides) ->
-    {Components, _Used, Keys} =
-        lists:foldl(fun(D, {Acc, Used, KeysAcc}) ->
-                            {C, Ks} = device(D, Overrides, Used),
-                            {Acc ++ [C], [maps:get(id, C) | Used], KeysAcc ++ Ks}
-                    end, {[], [], []}, Devices),
+    {Results, Unused} = run(Devices, Overrides),
+    {[C || {C, _} <- Results], Unused}.
+
+%% Every device's component with its check, in order, and the overrides
+%% that matched nothing. The ComponentIDs are chosen here, in device
+%% order, so the batches are independent.
+run(Devices, Overrides) ->
+    {Named, _Ids, UsedKeys} =
+        lists:foldl(fun(D, {Acc, Ids, Keys}) ->
+                            {Id, Ks, Ids1} = device_id(D, Overrides, Ids),
+                            {[{D, Id} | Acc], Ids1, add_keys(Ks, Keys)}
+                    end, {[], {#{}, #{}}, #{}}, Devices),
+    {Results, EntityKeys} = batches(lists:reverse(Named), Overrides, [], []),
+    Used = add_keys(EntityKeys, UsedKeys),
     Unused = [#{what => unused_override, key => K,
                 message => <<"this override matches no discovered device or entity (yet)">>}
-              || K <- lists:sort(maps:keys(Overrides)), not lists:member(K, Keys)],
-    {Components, Unused}.
+              || K <- lists:sort(maps:keys(Overrides)), not maps:is_key(K, Used)],
+    {Results, Unused}.
+
+add_keys(Ks, Map) -> lists:foldl(fun(K, M) -> M#{K => true} end, Map, Ks).
+
+batches([], _Overrides, Acc, Keys) ->
+    {lists:append(lists:reverse(Acc)), lists:append(Keys)};
+batches(Named, Overrides, Acc, Keys) ->
+    {Batch, Rest} = case length(Named) > ?BATCH of
+                        true -> lists:split(?BATCH, Named);
+                        false -> {Named, []}
+                    end,
+    {Results, Ks} = isolated(fun() -> batch(Batch, Overrides) end),
+    batches(Rest, Overrides, [Results | Acc], [Ks | Keys]).
+
+batch(Named, Overrides) ->
+    Generated = [device(D, Id, Overrides) || {D, Id} <- Named],
+    {[{C, check(C)} || {C, _} <- Generated], lists:append([Ks || {_, Ks} <- Generated])}.
+
+%% `Fun()' in a process of its own, whose garbage goes with it; its
+%% result is copied back. A crash there is a crash here.
+isolated(Fun) ->
+    Parent = self(),
+    Tag = make_ref(),
+    {Pid, Ref} = spawn_monitor(fun() -> Parent ! {Tag, Fun()} end),
+    receive
+        {Tag, Result} ->
+            demonitor(Ref, [flush]),
+            Result;
+        {'DOWN', Ref, process, Pid, Reason} ->
+            exit(Reason)
+    end.
 
 check(#{id := Id} = C) ->
     case mqtt_avatar_spec:from_description(#{components => [C]}) of
         {error, Problems} ->
             {error, [P#{what => bad_mqtt_parameters, message => mqtt_avatar_spec:format_problem(P)}
                      || P <- Problems]};
-        {ok, _} ->
+        {ok, #{components := [Spec]}} ->
             One = #{entity_id => <<"check">>, api_name => <<>>, entity_type => avatar,
                     context => <<>>, components => [C]},
             case mqtt_avatar_spec:round_trip(One) of
-                ok -> ok;
+                ok -> {ok, Spec};
                 {error, Message} ->
                     {error, [#{what => bad_component, component => Id, message => Message}]}
             end
@@ -85,32 +150,39 @@ check(#{id := Id} = C) ->
 %% Devices
 %% ---------------------------------------------------------------------------
 
-device(#{key := Key, entities := Entities} = D, Overrides, Used) ->
-    Name = maps:get(name, D),
+%% The device's ComponentID, the override keys its own override matched,
+%% and the ComponentIDs taken so far (a set, and the next suffix to try
+%% for each base name, so a thousand devices of one name stay linear).
+device_id(#{key := Key, entities := Entities} = D, Overrides, {Used, Next}) ->
+    {DevOverride, DevKeys} = lookup(device_keys(D), Overrides),
+    Base = case DevOverride of
+               #{component := C} -> C;
+               _ -> first_name([maps:get(name, D), maps:get(model, D), first_entity_name(Entities),
+                                Key])
+           end,
+    {Id, Next1} = unique(Base, Used, Next),
+    {Id, DevKeys, {Used#{Id => true}, Next1}}.
+
+device_keys(#{key := Key} = D) ->
     Bare = case binary:split(Key, <<":">>) of
                [_, B] -> B;
                _ -> Key
            end,
-    {DevOverride, DevKeys} = lookup([Key, Bare, Name], Overrides),
-    Id = unique(case DevOverride of
-                    #{component := C} -> C;
-                    _ -> first_name([Name, maps:get(model, D), first_entity_name(Entities), Key])
-                end, Used),
+    [Key, Bare, maps:get(name, D)].
+
+device(#{entities := Entities} = D, Id, Overrides) ->
+    Name = maps:get(name, D),
+    {DevOverride, _} = lookup(device_keys(D), Overrides),
     Room = case DevOverride of
                #{room := R} -> R;
                _ -> lower(maps:get(room, D))
            end,
     RoomParams = [{?ROOM, Room} || Room =/= undefined],
     Ctx = #{room => RoomParams, device => D},
-    {Parts, EntityKeys} =
-        lists:foldl(fun(#{uid := Uid} = E, {Acc, Ks}) ->
-                            case lookup([Uid], Overrides) of
-                                {#{skip := true}, K} ->
-                                    {Acc, Ks ++ K};
-                                {Override, K} ->
-                                    {Acc ++ [apply_override(mqtt_avatar_family:generate(E, Ctx), Override)], Ks ++ K}
-                            end
-                    end, {[], []}, Entities),
+    Looked = [{E, lookup([Uid], Overrides)} || #{uid := Uid} = E <- Entities],
+    Parts = [apply_override(mqtt_avatar_family:generate(E, Ctx), Override)
+             || {E, {Override, _}} <- Looked, maps:get(skip, Override, false) =/= true],
+    EntityKeys = lists:append([K || {_, {_, K}} <- Looked]),
     Services0 = lists:append([S || #{services := S} <- Parts]),
     Streams = lists:append([S || #{consumes := S} <- Parts]),
     SensorParams = lists:append([P || #{sensor := P} <- Parts]),
@@ -134,7 +206,7 @@ device(#{key := Key, entities := Entities} = D, Overrides, Used) ->
     Component = #{id => Id,
                   services => [distinct(E) || E <- [add_params(First, Avail) | Rest]],
                   consumes => [distinct(E) || E <- Streams ++ Feedback]},
-    {Component, DevKeys ++ EntityKeys}.
+    {Component, EntityKeys}.
 
 lookup(Keys, Overrides) ->
     case [{K, O} || K <- Keys, is_binary(K), {ok, O} <- [maps:find(K, Overrides)]] of
@@ -224,19 +296,19 @@ first_entity_name(Entities) ->
 lower(undefined) -> undefined;
 lower(B) -> string:lowercase(B).
 
-unique(Base0, Used) ->
+unique(Base0, Used, Next) ->
     Base = case camel(Base0) of
                <<>> -> <<"Device">>;
                B -> B
            end,
-    unique(Base, Used, 1).
+    unique(Base, Used, Next, maps:get(Base, Next, 1)).
 
-unique(Base, Used, N) ->
+unique(Base, Used, Next, N) ->
     Id = case N of
              1 -> Base;
              _ -> <<Base/binary, (integer_to_binary(N))/binary>>
          end,
-    case lists:member(Id, Used) of
-        true -> unique(Base, Used, N + 1);
-        false -> Id
+    case maps:is_key(Id, Used) of
+        true -> unique(Base, Used, Next, N + 1);
+        false -> {Id, Next#{Base => N + 1}}
     end.

@@ -91,7 +91,10 @@ new(Entity, Spec, EchoTimeout, Opts) ->
 -spec set_spec(mqtt_avatar_spec:spec(), state()) -> state().
 set_spec(#{components := Comps}, S) ->
     Index = maps:from_list([{Id, C} || #{id := Id} = C <- Comps]),
-    Routes = lists:foldl(fun add_routes/2, #{}, Comps),
+    %% Built reversed (one topic, a bridge's state, may route to every
+    %% component), then put in component order.
+    Routes = maps:map(fun(_, Rs) -> lists:reverse(Rs) end,
+                      lists:foldl(fun add_routes/2, #{}, Comps)),
     KeepLast = fun({Id, N}, _) ->
                        case maps:find(Id, Index) of
                            {ok, #{streams := Streams}} -> N =< length(Streams);
@@ -226,7 +229,7 @@ add_routes(#{id := Id, streams := Streams, services := Services, availability :=
         undefined -> R2
     end.
 
-append(K, V, M) -> M#{K => maps:get(K, M, []) ++ [V]}.
+append(K, V, M) -> M#{K => [V | maps:get(K, M, [])]}.
 
 stream(Id, N, #{comps := Comps}) ->
     lists:nth(N, maps:get(streams, maps:get(Id, Comps))).

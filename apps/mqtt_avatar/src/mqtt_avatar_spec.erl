@@ -5,7 +5,7 @@
 %% public description that EVATAR binds. Pure functions only.
 -module(mqtt_avatar_spec).
 
--export([from_description/1, public/1, is_reserved/1, reserved_names/0,
+-export([from_description/1, of_components/1, public/1, is_reserved/1, reserved_names/0,
          parse_source/1, keyword/1, format_problem/1, round_trip/1, is_name/1]).
 
 -export_type([spec/0, component/0, service/0, stream/0, availability/0, availability_entry/0,
@@ -139,11 +139,16 @@ from_description(#{components := Components}) ->
     Results = [component(C) || C <- Components],
     case lists:append([P || {error, P} <- Results]) of
         [] ->
-            Specs = [S || {ok, S} <- Results],
-            {ok, #{components => Specs, topics => topics(Specs)}};
+            {ok, of_components([S || {ok, S} <- Results])};
         Problems ->
             {error, Problems}
     end.
+
+%% @doc The spec of components read one by one (each the only component
+%% of a `from_description/1' spec), in order.
+-spec of_components([component()]) -> spec().
+of_components(Specs) ->
+    #{components => Specs, topics => topics(Specs)}.
 
 %% @doc Parses a payload source: `raw' or `json:a.b.c' (`json:' alone is the
 %% whole JSON value).
@@ -217,7 +222,7 @@ component(#{id := Id, services := Services, consumes := Consumes}) ->
 inherited(Entries) ->
     lists:foldl(fun(#{parameters := Ps}, Acc) ->
                         lists:foldl(fun({N, V}, A) ->
-                                            case lists:member(N, ?INHERITED) andalso
+                                            case is_inherited(N) andalso
                                                 not maps:is_key(N, A) of
                                                 true -> A#{N => V};
                                                 false -> A
@@ -225,9 +230,24 @@ inherited(Entries) ->
                                     end, Acc, Ps)
                 end, #{}, Entries).
 
+%% Whether a parameter is one a component's entries share (?INHERITED),
+%% without building that list for every parameter.
+is_inherited(<<"MqttStateTopic">>) -> true;
+is_inherited(<<"MqttCommandTopic">>) -> true;
+is_inherited(<<"MqttAvailabilityMode">>) -> true;
+is_inherited(<<"MqttAvailabilityTopic", S/binary>>) -> is_availability_suffix(S);
+is_inherited(<<"MqttPayloadAvailable", S/binary>>) -> is_availability_suffix(S);
+is_inherited(<<"MqttPayloadNotAvailable", S/binary>>) -> is_availability_suffix(S);
+is_inherited(<<"MqttAvailabilityValue", S/binary>>) -> is_availability_suffix(S);
+is_inherited(_) -> false.
+
+is_availability_suffix(<<>>) -> true;
+is_availability_suffix(<<D>>) -> D >= $2 andalso D - $0 =< ?MAX_AVAILABILITY;
+is_availability_suffix(_) -> false.
+
 unknown_names(Id, #{parameters := Ps} = E, What) ->
     [problem(Id, E, What, N, <<"unknown reserved parameter (see docs/mqtt.md section 3)">>)
-     || {N, _} <- Ps, is_reserved(N), not lists:member(N, reserved_names())].
+     || {N, _} <- Ps, is_reserved(N), not is_inherited(N), not lists:member(N, ?ENTRY_ONLY)].
 
 %% An entry's own value, else the component's.
 get(Name, #{parameters := Ps}, Inherited) ->
