@@ -96,6 +96,14 @@ count_fault(C, #{insts := Insts}, #{sender := #{acked := Acked} = Snd} = W) ->
               {pause, N} -> lists:member(N, Homes);
               {isolate, N} -> lists:member(N, Homes);
               {cut, A, B} -> lists:member(A, Homes) andalso lists:member(B, Homes);
+              {restore, N} ->
+                  %% A restore from a view that misses an instance holding
+                  %% the pairing's state (its node not heard by the
+                  %% restorer): outside the guarantee, like a second
+                  %% failure (docs/ha.md section 6, "Two restorers").
+                  running(N, W) andalso inst_on(N, W) =/= undefined
+                      andalso [I || #{node := M} = I <- maps:values(Insts), M =/= N,
+                                    holds_state(I)] =/= [];
               _ -> false
           end,
     case {Hit, maps:get(faults, W, 0)} of
@@ -970,7 +978,7 @@ live(#{names := Names} = W0, Restart, {ServeMs, AcceptMs}) ->
                      end, step(heal, W1), Names),
     T0 = maps:get(now, W2),
     {Served, W3} = until_one_serves(T0 + ServeMs, check(W2)),
-    Holders = [I || #{role := R} = I <- maps:values(maps:get(insts, W3)), R =/= starting],
+    Holders = [I || I <- maps:values(maps:get(insts, W3)), holds_state(I)],
     case Served of
         false when Holders =:= [] ->
             %% Both instances failed before a standby was synced: what they
@@ -994,12 +1002,21 @@ live(#{names := Names} = W0, Restart, {ServeMs, AcceptMs}) ->
 %% The owner is the first running node without an instance (one still
 %% starting, e.g. a standby whose active died before its snapshot, stops at
 %% its offer's timeout, and is waited for).
-restore_somewhere(Deadline, #{names := Names} = W) ->
+restore_somewhere(Deadline, #{names := Names, insts := Insts} = W) ->
+    Restoring = [I || #{role := fenced, core := C} = I <- maps:values(Insts),
+                      evatar_ha_core:restoring(C)],
     case [N || N <- Names, running(N, W), inst_on(N, W) =:= undefined] of
+        _ when Restoring =/= [] -> W;  % restored already, before the faults stopped
         [Owner | _] -> restore(Owner, W);
         [] when map_get(now, W) >= Deadline -> W;
         [] -> restore_somewhere(Deadline, check(advance(?HB, W)))
     end.
+
+%% An instance that holds the pairing's state: not one starting, nor a
+%% restorer still standing for election (its state is new).
+holds_state(#{role := starting}) -> false;
+holds_state(#{role := fenced, core := C}) -> not evatar_ha_core:restoring(C);
+holds_state(#{}) -> true.
 
 %% Then a signal through every node: the one serving takes it.
 signal_accepted(Result, AcceptMs, #{names := Names} = W) ->
