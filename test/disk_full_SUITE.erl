@@ -27,7 +27,7 @@
 
 -import(rel_node, [node_env/3, env/2, start_node/2, stop_node/2, rel/3, console_log/1]).
 
--define(WAIT, 60000).
+-define(WAIT, evatar_test_time:guard()).
 -define(CRED, "<<\"secret-cred\">>").
 
 suite() -> [{timetrap, {minutes, 5}}].

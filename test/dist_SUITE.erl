@@ -30,7 +30,7 @@
 -import(rel_node, [clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
                    start_node/2, stop_node/2, rel/3, run/4, console_log/1]).
 
--define(WAIT, 60000).
+-define(WAIT, evatar_test_time:guard()).
 
 suite() -> [{timetrap, {minutes, 5}}].
 

@@ -338,7 +338,7 @@ partial_partition(Config) ->
     Watch = watch_actives(C, Id),
     ok = evatar_test_cluster:cut(C, [{1, S}]),
     %% Long enough for any suspicion, takeover and fencing to play out.
-    timer:sleep(evatar_test_time:ms(3000)),
+    timer:sleep(evatar_test_time:cluster_ms(3000)),
     {ok, _} = evatar_test_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
     ok = evatar_test_cluster:heal(C, flush),
     ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),

@@ -93,7 +93,7 @@ refusal(Config) ->
 feedback_timeout(Config) ->
     C = ?config(cluster, Config),
     Id = ?config(pairing, Config),
-    ok = evatar_test_pairing:create(C, 1, Id, #{feedback_timeout => evatar_test_time:ms(300)}),
+    ok = evatar_test_pairing:create(C, 1, Id, #{feedback_timeout => evatar_test_time:cluster_ms(300)}),
     Ep = [evatar_test_cluster:endpoint(C, 1)],
     Opts = maps:with([agent_credential, avatar_credential], evatar_test_traffic:pairing_opts()),
     {ok, Av} = agent_bridge_client:connect(Ep, #{pairing => Id, role => avatar,

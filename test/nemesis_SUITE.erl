@@ -200,12 +200,12 @@ nemesis(C, Ids, Deadline, Log) ->
                         power_cut -> {power_cut, erlang:monotonic_time(millisecond)};
                         _ -> Fault0
                     end,
-            timer:sleep(evatar_test_time:ms(500 + rand:uniform(2500))),
+            timer:sleep(evatar_test_time:cluster_ms(500 + rand:uniform(2500))),
             ok = repair(C, Fault),
             _ = evatar_test_cluster:await_formed(C, 20000),
             _ = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end,
                                                              Ids) end, 20000, healthy),
-            timer:sleep(evatar_test_time:ms(rand:uniform(1500))),
+            timer:sleep(evatar_test_time:cluster_ms(rand:uniform(1500))),
             nemesis(C, Ids, Deadline, [{T, Fault} | Log])
     end.
 

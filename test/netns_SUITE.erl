@@ -29,7 +29,8 @@
 %% The first partition outlasts suspect_ms and an election; the measured
 %% one leaves a failover (suspect_ms, clients' 3 bridge heartbeats) well
 %% inside its first half.
--define(SCENARIO, #{first_ms => evatar_test_time:ms(2500), cut_ms => evatar_test_time:ms(5000),
+-define(SCENARIO, #{first_ms => evatar_test_time:cluster_ms(2500),
+                    cut_ms => evatar_test_time:cluster_ms(5000),
                     timeout => ?TIMEOUT}).
 
 suite() ->
@@ -168,7 +169,8 @@ rebalance_after_return(Config) ->
     Pairs = ?config(pairs, Config),
     {ok, R} = evatar_test_partition:rebalance(
                 Net, Pairs, #{node => 3, timeout => ?TIMEOUT,
-                              env => [{rebalance, true}, {rebalance_delay_ms, evatar_test_time:ms(1000)}]}),
+                              env => [{rebalance, true},
+                                      {rebalance_delay_ms, evatar_test_time:cluster_ms(1000)}]}),
     ct:pal("rebalance: ~p", [R]),
     ?assertEqual(#{1 => {2, 2}, 2 => {2, 2}, 3 => {2, 2}}, maps:get(counts_after, R)),
     check(rebalance, Pairs).

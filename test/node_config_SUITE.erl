@@ -566,7 +566,7 @@ log(_Event, _Config) ->
 
 events() ->
     ?COLLECTOR ! {get, self()},
-    receive {events, Es} -> Es after 10000 -> error(no_collector) end.
+    receive {events, Es} -> Es after evatar_test_time:guard() -> error(no_collector) end.
 
 logged(Peer) ->
     peer:call(Peer, ?MODULE, events, []).

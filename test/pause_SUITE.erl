@@ -36,7 +36,7 @@
 -define(LONE_PAUSES, [100, 250, 400, 1000, 2000, 5500]).
 %% Longer than the cluster's lease, well under its suspect_ms: the node's
 %% own pause must not cost it its majority.
--define(SHORT_PAUSE, evatar_test_time:ms(1000)).
+-define(SHORT_PAUSE, evatar_test_time:cluster_ms(1000)).
 
 suite() -> [{timetrap, evatar_test_time:ms(300000)}].
 

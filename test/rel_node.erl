@@ -15,7 +15,7 @@
 -export([clean_env/0, node_env/3, node_env/4, env/2, home/1, node_name/1,
          start_node/2, stop_node/2, kill_by_name/1, rel/3, run/4, quote/1, console_log/1]).
 
--define(WAIT, 60000).
+-define(WAIT, evatar_test_time:guard()).
 
 %% @doc A case's directory, epmd port and table of nodes, in Config.
 -spec init_case(atom(), list()) -> list().

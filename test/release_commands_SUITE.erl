@@ -64,7 +64,7 @@ http_api_of_the_release(Config) ->
     Log = rel_node:console_log(env(Config)),
     ok = evatar_test_wait:until(
            fun() -> re:run(Log(), "listening on http://127.0.0.1:[0-9]+/") =/= nomatch end,
-           #{timeout => 60000, interval => 200}),
+           #{interval => 200}),
     {match, [Port]} = re:run(Log(), "listening on http://127.0.0.1:([0-9]+)/", [{capture, all_but_first, list}]),
     Url = "http://127.0.0.1:" ++ Port ++ "/api/cluster",
     {ok, _} = application:ensure_all_started(inets),
@@ -279,7 +279,7 @@ collect(Port, Acc) ->
     receive
         {Port, {data, D}} -> collect(Port, [D | Acc]);
         {Port, {exit_status, S}} -> {S, binary_to_list(iolist_to_binary(lists:reverse(Acc)))}
-    after 600000 ->
+    after evatar_test_time:ms(600000) ->
             ct:fail({commands_hang, lists:reverse(Acc)})
     end.
 

@@ -54,6 +54,6 @@ collect(Port, Acc) ->
     receive
         {Port, {data, D}} -> collect(Port, [D | Acc]);
         {Port, {exit_status, S}} -> {S, binary_to_list(iolist_to_binary(lists:reverse(Acc)))}
-    after 840000 ->
+    after evatar_test_time:ms(840000) ->
             ct:fail({script_hangs, lists:reverse(Acc)})
     end.

@@ -6,6 +6,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -compile([export_all, nowarn_export_all]).
 
@@ -277,7 +278,7 @@ sent_request_feedback(Config, Extra) ->
     ok = agent_bridge_client:send(Va, (light_request())#{context => request}),
     receive
         {agent_bridge, Va, {signal, #{context := feedback}}} -> ok
-    after 5000 ->
+    after evatar_test_time:guard() ->
             ct:fail({no_feedback_to_owner, Extra})
     end,
     ok = agent_bridge_client:close(Va).
@@ -298,7 +299,7 @@ new_session_waits_for_peer(Config) ->
     exit(Pairing, kill),
     receive
         {agent_bridge, Va, {reconnected, #{resumed := Resumed}}} -> false = Resumed
-    after 10000 -> ct:fail(no_reconnect)
+    after evatar_test_time:guard() -> ct:fail(no_reconnect)
     end,
     ok = agent_bridge_client:send(Va, (light_request())#{id => <<"held-1">>,
                                                          context => request}),
@@ -306,7 +307,7 @@ new_session_waits_for_peer(Config) ->
     receive
         {agent_bridge, Va, {signal, #{in_reply_to := <<"held-1">>} = Answer}} ->
             ?assertMatch(#{context := feedback}, Answer)
-    after 10000 ->
+    after evatar_test_time:guard() ->
             ct:fail(no_answer)
     end,
     ok = agent_bridge_client:close(Va).
@@ -387,7 +388,7 @@ resume_sends_binding(Config) ->
     {control, {binding, #{entities := [<<"va">>]}}} = recv_doc_skipping_acks(S),
     ok = gen_tcp:close(S),
     Pairing = ?config(pairing, Config),
-    wait_until(fun() ->
+    ok = until(fun() ->
                        {ok, Reg} = evatar:registry(Pairing),
                        [false] =:= [A || #{entity := <<"va">>, attached := A} <- Reg]
                end),
@@ -423,7 +424,7 @@ request_closed_to_provider(Config) ->
         recv_doc(A),
     receive
         {answer, {ok, #{body := #{type := <<"Timeout">>}}}} -> ok
-    after 10000 -> ct:fail(no_timeout_feedback)
+    after evatar_test_time:guard() -> ct:fail(no_timeout_feedback)
     end,
     Late = #{id => <<"late-1">>, context => feedback, sender => <<"Light01">>,
              receiver => <<"LightEmulator01">>, in_reply_to => ReqId, timestamp => 1,
@@ -442,7 +443,7 @@ client_get_binding(Config) ->
     ok = agent_bridge_client:get_binding(Va),
     receive
         {agent_bridge, Va, {binding, #{bound := [_ | _]}}} -> ok
-    after 5000 -> ct:fail(no_binding)
+    after evatar_test_time:guard() -> ct:fail(no_binding)
     end,
     ok = agent_bridge_client:close(Va).
 
@@ -474,7 +475,7 @@ pairing_deleted(Config) ->
     ok = evatar:delete_pairing(?config(pairing, Config)),
     receive
         {agent_bridge, Va, {closed, {refused, <<"PairingDeleted">>, <<"the pairing was deleted">>}}} -> ok
-    after 5000 -> ct:fail(not_closed)
+    after evatar_test_time:guard() -> ct:fail(not_closed)
     end.
 
 %% ---------------------------------------------------------------------------
@@ -535,7 +536,7 @@ flooding_client(Config) ->
     Watermark = 20,
     ActiveN = 4,
     %% Past the watermark the connection reads no more.
-    ok = wait_until(fun() -> queue_len(Pid) > Watermark end),
+    ok = until(fun() -> queue_len(Pid) > Watermark end),
     %% The reader is paused; more waiting does not let more in.
     Peak = lists:max([begin timer:sleep(20), signals_waiting(Pid, <<"av">>) end
                       || _ <- lists:seq(1, 25)]),
@@ -544,7 +545,7 @@ flooding_client(Config) ->
            [Peak, Watermark, ActiveN, queue_len(Pid)]),
     true = Peak =< Watermark + ActiveN + 1,
     ok = sys:resume(Pid),
-    receive flooded -> ok after 30000 -> ct:fail(flooder_stuck) end,
+    receive flooded -> ok after evatar_test_time:guard() -> ct:fail(flooder_stuck) end,
     N = length(collect_sensor(Va, N, [])),
     unlink(Flooder),
     ok = agent_bridge_client:close(Va),
@@ -638,7 +639,7 @@ listener_port_taken_retries(Config) ->
         {error, not_found} = agent_bridge:address(kept),
         receive
             {crash_loop, #{listener := kept, crashes := N}} -> true = N >= 3
-        after 30000 -> ct:fail(no_crash_loop_report)
+        after evatar_test_time:guard() -> ct:fail(no_crash_loop_report)
         end,
         %% Each failure doubles the delay, up to the maximum.
         #{state := waiting, failures := Failures, next_delay_ms := Next} =
@@ -646,9 +647,7 @@ listener_port_taken_retries(Config) ->
         true = Failures >= 3,
         true = Next >= 400,
         ok = gen_tcp:close(Taken),
-        ok = evatar_test_wait:until(
-               fun() -> agent_bridge:address(kept) =:= {ok, {{127, 0, 0, 1}, Port}} end,
-               #{timeout => 12000}),
+        ok = until(fun() -> agent_bridge:address(kept) =:= {ok, {{127, 0, 0, 1}, Port}} end),
         #{state := running, starts := 1} = agent_bridge_listener_keeper:status(Keeper),
         {ok, C} = client([{addr, {{127, 0, 0, 1}, Port}} | Config], agent, <<"va">>),
         ok = agent_bridge_client:close(C)
@@ -686,10 +685,10 @@ port_round_trip(Config, Python) ->
     {ok, #{context := feedback, sender := <<"Light01">>}} =
         agent_bridge_client:request(Va, light_request(), 5000),
     receive {stderr_line, <<"port_avatar: answered", _/binary>>} -> ok
-    after 5000 -> ct:fail(no_stderr_logged)
+    after evatar_test_time:guard() -> ct:fail(no_stderr_logged)
     end,
     %% The script exits after its first answer; the keeper starts it again.
-    ok = wait_until(fun() -> agent_bridge_port:runs(Keeper) >= 2 end),
+    ok = until(fun() -> agent_bridge_port:runs(Keeper) >= 2 end),
     ok = agent_bridge:stop_port(port_test),
     ok = logger:remove_handler(port_test),
     ok = logger:set_primary_config(level, Level),
@@ -717,7 +716,7 @@ busy_pairing_refuses_hello(Config) ->
     ok = gen_tcp:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
     ok = expect_refused(S, <<"Busy">>),
     ok = sys:resume(Pid),
-    ok = wait_until(fun() -> registered_entities(Config) =:= [] end),
+    ok = until(fun() -> registered_entities(Config) =:= [] end),
     {ok, C} = client(Config, agent, <<"va">>),
     ok = agent_bridge_client:close(C).
 
@@ -749,7 +748,7 @@ busy_pairing_bye(Config) ->
     {error, closed} = gen_tcp:recv(S, 0, 5000),
     true = suspended(Pid),
     ok = sys:resume(Pid),
-    ok = wait_until(fun() -> registered_entities(Config) =:= [] end).
+    ok = until(fun() -> registered_entities(Config) =:= [] end).
 
 %% Operator calls to a busy pairing return `{error, busy}' (or show it
 %% unavailable) instead of raising; a delete goes through once it can.
@@ -763,7 +762,7 @@ busy_pairing_operator(Config) ->
     {error, busy} = evatar:delete_pairing(P),
     Ref = monitor(process, Pid),
     ok = sys:resume(Pid),
-    receive {'DOWN', Ref, process, Pid, normal} -> ok after 10000 -> ct:fail(not_deleted) end.
+    receive {'DOWN', Ref, process, Pid, normal} -> ok after evatar_test_time:guard() -> ct:fail(not_deleted) end.
 
 suspend_pairing(Config, CallTimeout) ->
     ok = application:set_env(evatar, call_timeout, CallTimeout),
@@ -849,7 +848,6 @@ signals_waiting(Pid, Entity) ->
     {messages, Ms} = erlang:process_info(Pid, messages),
     length([M || {'$gen_cast', {signal, E, _}} = M <- Ms, E =:= Entity]).
 
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 10000}).
 
 %% A VA and an Avatar bound to each other; the Avatar runs a responder.
 bound_pair(Config) ->
@@ -870,7 +868,7 @@ collect_sensor(Va, N, Acc) ->
                                       body := #{parameters := Params}}}} ->
             {_, I} = lists:keyfind(<<"N">>, 1, Params),
             collect_sensor(Va, N - 1, [{Seq, I} | Acc])
-    after 10000 -> lists:reverse(Acc)
+    after evatar_test_time:guard() -> lists:reverse(Acc)
     end.
 
 %% An Avatar client that answers every request with a feedback, streams on
@@ -883,7 +881,7 @@ start_responder(Config, Entity) ->
                              Self ! {responder, self()},
                              responder(C, true)
                      end),
-    receive {responder, Pid} -> Pid after 5000 -> ct:fail(responder_not_started) end.
+    receive {responder, Pid} -> Pid after evatar_test_time:guard() -> ct:fail(responder_not_started) end.
 
 responder(C, Answer) ->
     receive
@@ -919,7 +917,7 @@ start_bystander(Addr) ->
                            Parent ! {bystander, Va, Av},
                            bystander_holder(Va, undefined)
                    end),
-    receive {bystander, Va, Av} -> {Va, Av, Holder} after 10000 -> ct:fail(no_bystander) end.
+    receive {bystander, Va, Av} -> {Va, Av, Holder} after evatar_test_time:guard() -> ct:fail(no_bystander) end.
 
 %% Keeps the bystander VA's owner messages: a close names its reason, so a
 %% failed round trip says why the node dropped a healthy client (it once

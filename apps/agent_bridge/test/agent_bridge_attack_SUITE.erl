@@ -9,6 +9,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -compile([export_all, nowarn_export_all]).
 
@@ -116,7 +117,7 @@ connection_flood(Config) ->
     ok = bystander_round_trip(Config),
     {ok, _} = agent_bridge_client:session(Va),
     [ok = gen_tcp:close(S) || S <- Socks],
-    ok = wait_until(fun() -> maps:get(connections, guard_info(flood, Config)) =:= 1 end),
+    ok = until(fun() -> maps:get(connections, guard_info(flood, Config)) =:= 1 end),
     {ok, Av} = agent_bridge_client:connect([Addr], client_opts(Config, avatar, <<"av">>)),
     ok = agent_bridge_client:close(Av),
     ok = agent_bridge_client:close(Va),
@@ -152,7 +153,7 @@ wrong_credential_flood(Config) ->
     Self = self(),
     Pids = [spawn_link(fun() -> Self ! {answer, self(), wrong_hello(Addr, Config)} end)
             || _ <- lists:seq(1, 200)],
-    Answers = [receive {answer, P, A} -> A after 60000 -> ct:fail(no_answer) end || P <- Pids],
+    Answers = [receive {answer, P, A} -> A after evatar_test_time:guard() -> ct:fail(no_answer) end || P <- Pids],
     Bad = length([A || A <- Answers, A =:= <<"BadCredential">>]),
     Locked = length([A || A <- Answers, A =:= <<"LockedOut">>]),
     ct:log("200 wrong credentials at once: ~b BadCredential, ~b LockedOut, others ~p",
@@ -198,13 +199,13 @@ slow_consumer_closed(Config) ->
      || I <- lists:seq(1, 3000)],
     %% The server let go of the socket: the connection count fell by one
     %% while the VA still has not read a byte.
-    ok = wait_until(fun() -> maps:get(connections, guard_info(slow, Config)) =:= Held - 1 end),
+    ok = until(fun() -> maps:get(connections, guard_info(slow, Config)) =:= Held - 1 end),
     %% ... and reset it: the client's kernel has closed the connection
     %% although the client neither read nor wrote. (A plain close would
     %% leave it established until the client read every queued byte, the
     %% server's end waiting in FIN_WAIT1 behind them.)
     {ok, {_, Port}} = inet:sockname(S),
-    ok = wait_until(fun() -> tcp_state(Port) =/= established end),
+    ok = until(fun() -> tcp_state(Port) =/= established end),
     ?assertMatch({ok, _}, agent_bridge_client:session(Av)),
     ok = agent_bridge_client:close(Av),
     gen_tcp:close(S).
@@ -240,7 +241,7 @@ long_id_hello(Config) ->
     {control, {refused, #{code := Code}}} = recv_doc(S),
     ct:log("refused ~s", [Code]),
     {error, closed} = gen_tcp:recv(S, 0, 5000),
-    ok = wait_until(fun() -> byte_size(read_log(Config)) > Before end),
+    ok = until(fun() -> byte_size(read_log(Config)) > Before end),
     Log = read_log(Config),
     Grown = byte_size(Log) - Before,
     ct:log("log grew by ~b bytes:~n~s", [Grown, binary:part(Log, Before, Grown)]),
@@ -312,7 +313,7 @@ answers(Socks) ->
     Pids = [spawn_link(fun() ->
                                Self ! {answer, self(), refused_or_open(S)}
                        end) || S <- Socks],
-    [receive {answer, P, A} -> A after 30000 -> ct:fail(no_answer) end || P <- Pids].
+    [receive {answer, P, A} -> A after evatar_test_time:guard() -> ct:fail(no_answer) end || P <- Pids].
 
 %% The Refused code a fresh socket got without sending anything, or `open'
 %% when the server kept it (waiting for the Hello: the listeners of these
@@ -362,7 +363,6 @@ until_not_binding(S) ->
         Other -> Other
     end.
 
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).
 
 start_bystander(Peer, Addr) ->
     Pairing = <<"bystander">>,
@@ -374,7 +374,7 @@ start_bystander(Peer, Addr) ->
                            Parent ! {bystander, Va, Av},
                            receive stop -> ok end
                    end),
-    receive {bystander, Va, Av} -> {Va, Av, Holder} after 10000 -> ct:fail(no_bystander) end.
+    receive {bystander, Va, Av} -> {Va, Av, Holder} after evatar_test_time:guard() -> ct:fail(no_bystander) end.
 
 bystander_round_trip(Config) ->
     agent_bridge_SUITE:bystander_round_trip(Config).

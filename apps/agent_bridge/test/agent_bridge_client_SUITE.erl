@@ -9,6 +9,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -compile([export_all, nowarn_export_all]).
 
@@ -61,7 +62,7 @@ close_twice(Config) ->
     ok = agent_bridge_client:close(C),
     false = is_process_alive(C),
     ok = agent_bridge_client:close(C),
-    receive {agent_bridge, C, {closed, normal}} -> ok after 5000 -> ct:fail(no_closed) end,
+    receive {agent_bridge, C, {closed, normal}} -> ok after evatar_test_time:guard() -> ct:fail(no_closed) end,
     receive {agent_bridge, C, {closed, _} = Again} -> ct:fail({closed_twice, Again})
     after 200 -> ok
     end,
@@ -85,7 +86,7 @@ close_during_tcp_connect(_Config) ->
     Opts = (opts([{pairing, <<"p">>}], <<"va">>))#{connect_timeout => infinity},
     {ok, C} = agent_bridge_client:start([{{127, 0, 0, 1}, Port}], Opts),
     Caller = connect_async(C),
-    ok = wait_until(fun() -> connectors() =/= [] end),
+    ok = until(fun() -> connectors() =/= [] end),
     [Helper] = connectors(),
     connecting = state(C),
     ok = agent_bridge_client:close(C),
@@ -103,11 +104,11 @@ close_during_silent_handshake(_Config) ->
     Opts = (opts([{pairing, <<"p">>}], <<"va">>))#{handshake_timeout => infinity},
     {ok, C} = agent_bridge_client:start([{{127, 0, 0, 1}, Port}], Opts),
     Caller = connect_async(C),
-    receive {Server, hello} -> ok after 10000 -> ct:fail(no_hello) end,
+    receive {Server, hello} -> ok after evatar_test_time:guard() -> ct:fail(no_hello) end,
     handshaking = state(C),
     ok = agent_bridge_client:close(C),
     {error, closed} = connect_result(Caller),
-    receive {Server, peer_closed} -> ok after 10000 -> ct:fail(socket_left_open) end.
+    receive {Server, peer_closed} -> ok after evatar_test_time:guard() -> ct:fail(socket_left_open) end.
 
 %% close/1 while the Welcome is on its way (the server sends it after the
 %% client was told to close): the client stays closed and the late Welcome
@@ -116,11 +117,11 @@ close_during_late_welcome(Config) ->
     {Port, Server} = fake_server({late_welcome, ?config(pairing, Config)}),
     {ok, C} = agent_bridge_client:start([{{127, 0, 0, 1}, Port}], opts(Config, <<"va">>)),
     Caller = connect_async(C),
-    receive {Server, hello} -> ok after 10000 -> ct:fail(no_hello) end,
+    receive {Server, hello} -> ok after evatar_test_time:guard() -> ct:fail(no_hello) end,
     ok = agent_bridge_client:close(C),
     Server ! welcome,
     {error, closed} = connect_result(Caller),
-    receive {Server, peer_closed} -> ok after 10000 -> ct:fail(socket_left_open) end,
+    receive {Server, peer_closed} -> ok after evatar_test_time:guard() -> ct:fail(socket_left_open) end,
     receive {agent_bridge, C, Event} -> ct:fail({event_after_close, Event}) after 200 -> ok end.
 
 %% With ha, close/1 while the client reconnects on its own and waits in a
@@ -133,12 +134,12 @@ close_during_reconnect(Config) ->
                                           (opts(Config, <<"va">>))#{ha => true,
                                                                     handshake_timeout => infinity}),
     exit(evatar_registry:whereis_name(?config(pairing, Config)), kill),
-    receive {Server, hello} -> ok after 10000 -> ct:fail(no_reconnect) end,
+    receive {Server, hello} -> ok after evatar_test_time:guard() -> ct:fail(no_reconnect) end,
     handshaking = state(C),
     ok = agent_bridge_client:close(C),
     false = is_process_alive(C),
-    receive {agent_bridge, C, {closed, normal}} -> ok after 5000 -> ct:fail(no_closed) end,
-    receive {Server, peer_closed} -> ok after 10000 -> ct:fail(socket_left_open) end.
+    receive {agent_bridge, C, {closed, normal}} -> ok after evatar_test_time:guard() -> ct:fail(no_closed) end,
+    receive {Server, peer_closed} -> ok after evatar_test_time:guard() -> ct:fail(socket_left_open) end.
 
 %% connect/1 on a connected client fails locally with already_connected, and
 %% while another process connects it with connecting; the session is not
@@ -153,7 +154,7 @@ connect_connected_client(Config) ->
     {ok, C2} = agent_bridge_client:start([{{127, 0, 0, 1}, Port}],
                                          (opts(Config, <<"va">>))#{handshake_timeout => infinity}),
     Caller = connect_async(C2),
-    receive {Server, hello} -> ok after 10000 -> ct:fail(no_hello) end,
+    receive {Server, hello} -> ok after evatar_test_time:guard() -> ct:fail(no_hello) end,
     {error, connecting} = agent_bridge_client:connect(C2),
     ok = agent_bridge_client:close(C2),
     {error, closed} = connect_result(Caller).
@@ -188,7 +189,12 @@ refused_loop(Addr, Pairing, N) ->
                  Code
              end || _ <- lists:seq(1, N)],
     %% connect/2 returns once the client is gone; wait anyway, in case.
-    _ = wait_until(fun() -> counts() =:= Before end),
+    ok = until(fun() ->
+                                        case counts() of
+                                            Before -> true;
+                                            Now -> {false, #{before => Before, now => Now}}
+                                        end
+                                end),
     {Before, counts(), Codes}.
 
 counts() ->
@@ -277,7 +283,7 @@ accepted(C, N, Acc) ->
     receive
         {agent_bridge, C, {accepted, Ids}} ->
             accepted(C, N - length(Ids), lists:reverse(Ids, Acc))
-    after 10000 -> ct:fail({accepted_missing, N, lists:reverse(Acc)})
+    after evatar_test_time:guard() -> ct:fail({accepted_missing, N, lists:reverse(Acc)})
     end.
 
 connect_async(C) ->
@@ -285,7 +291,7 @@ connect_async(C) ->
     spawn_link(fun() -> Self ! {connect_result, self(), agent_bridge_client:connect(C)} end).
 
 connect_result(Caller) ->
-    receive {connect_result, Caller, R} -> R after 10000 -> ct:fail(connect_did_not_return) end.
+    receive {connect_result, Caller, R} -> R after evatar_test_time:guard() -> ct:fail(connect_did_not_return) end.
 
 state(C) ->
     {State, _} = sys:get_state(C),
@@ -351,14 +357,13 @@ fake_server(Mode) ->
                              {error, closed} = gen_tcp:recv(S, 0),
                              Self ! {self(), peer_closed}
                      end),
-    receive {Pid, port, Port} -> {Port, Pid} after 5000 -> ct:fail(no_fake_server) end.
+    receive {Pid, port, Port} -> {Port, Pid} after evatar_test_time:guard() -> ct:fail(no_fake_server) end.
 
 welcome(Pairing) ->
     bil_control:encode({welcome, #{pairing => Pairing, entity_id => <<"va">>,
                                    session_id => binary:copy(<<"a">>, 32),
                                    max_frame => 1048576, join_timeout => 2000}}).
 
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 10000}).
 
 light_request() ->
     #{sender => <<"LightEmulator01">>, receiver => <<"Light01">>,

@@ -82,8 +82,7 @@ take_detached_entity(Config) ->
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"lamp">>))),
     {control, {binding, _}} = recv_doc(S),
     ok = gen_tcp:close(S),
-    ok = evatar_test_wait:until(fun() -> not attached(Pairing, <<"lamp">>) end,
-                                #{timeout => 10000}),
+    ok = evatar_test_wait:until(fun() -> not attached(Pairing, <<"lamp">>) end),
     [<<"BadCredential">> = refused_code(Config, hello(Config, avatar, <<"lamp">>, Cred, V))
      || Cred <- [?AV_CRED, ?VA_CRED, <<>>], V <- [1, 2]],
     {ok, Registry} = evatar:registry(Pairing),
@@ -176,8 +175,7 @@ hold_100000_requests(Config) ->
     S = joined_raw(Config, avatar, <<"mute">>, ?AV_CRED),
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mute">>))),
     ok = evatar_test_wait:until(
-           fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end,
-           #{timeout => 10000}),
+           fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end),
     %% Both sockets are read by processes of their own, so the bridge never
     %% drops either as a slow consumer; the VA's counts the refusals.
     N = 100000,
@@ -346,7 +344,7 @@ start_bystander(Addr) ->
                            Parent ! {bystander, Va, Av},
                            receive stop -> ok end
                    end),
-    receive {bystander, Va, Av} -> {Va, Av, Holder} after 20000 -> ct:fail(no_bystander) end.
+    receive {bystander, Va, Av} -> {Va, Av, Holder} after evatar_test_time:guard() -> ct:fail(no_bystander) end.
 
 answer(Av) ->
     receive

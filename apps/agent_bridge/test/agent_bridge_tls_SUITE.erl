@@ -189,7 +189,7 @@ client_certificate_identifies(Config) ->
             {joined, PeerCert} ->
                 ?assertEqual(#{sha256 => read(cert(Config, "client-va.sha256")), cn => <<"va">>},
                              PeerCert)
-        after 5000 -> ct:fail(no_join_seen)
+        after evatar_test_time:guard() -> ct:fail(no_join_seen)
         end,
         ok = agent_bridge_client:close(C)
     after
@@ -547,7 +547,7 @@ bound_session(Config, Listener, VaTls, AvTls, Extra) ->
                             Parent ! {avatar, self()},
                             responder(C)
                     end),
-    receive {avatar, Av} -> ok after 10000 -> ct:fail(no_avatar) end,
+    receive {avatar, Av} -> ok after evatar_test_time:guard() -> ct:fail(no_avatar) end,
     {ok, Va} = connect(Config, Listener, agent, <<"va">>, VaTls, Extra),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
     _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
@@ -565,7 +565,7 @@ bound_session(Config, Listener, VaTls, AvTls, Extra) ->
     Av ! {stop, self()},
     %% Longer than the client's close_timeout (5 s), which bounds the
     %% Avatar's close/1: waiting exactly that long failed once in CT.
-    receive {stopped, Av} -> ok after 15000 -> ct:fail(avatar_not_stopped) end.
+    receive {stopped, Av} -> ok after evatar_test_time:guard() -> ct:fail(avatar_not_stopped) end.
 
 responder(C) ->
     receive
@@ -632,7 +632,7 @@ sniffed_session(Config, Listener, Tls) ->
     _ = evatar_test_fixtures:wait_binding(C, fun(_) -> true end, 5000),
     ok = agent_bridge_client:close(C),
     Relay ! {bytes, self()},
-    Bytes = receive {relay_bytes, B} -> B after 5000 -> ct:fail(no_relay_bytes) end,
+    Bytes = receive {relay_bytes, B} -> B after evatar_test_time:guard() -> ct:fail(no_relay_bytes) end,
     ct:log("the relay saw ~b bytes", [byte_size(Bytes)]),
     true = byte_size(Bytes) > 0,
     #{credential => ?VA_CRED, session_id => Sid, bytes => Bytes}.

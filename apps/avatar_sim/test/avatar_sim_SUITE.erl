@@ -7,12 +7,13 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -compile([export_all, nowarn_export_all]).
 
 -define(VA_CRED, evatar_test_fixtures:va_credential()).
 -define(AV_CRED, evatar_test_fixtures:avatar_credential()).
--define(WAIT, 10000).
+-define(WAIT, evatar_test_time:guard()).
 
 suite() -> [{timetrap, {seconds, 60}}].
 
@@ -160,13 +161,13 @@ home_request_without_feedback(Config) ->
                                         receiver => <<"KitchenLightSwitch01">>,
                                         body => #{category => <<"ACTUATOR">>, type => <<"TurnLightOn">>,
                                                   parameters => []}}),
-    wait_for(fun() -> maps:get(<<"kitchen">>, maps:get(lights, avatar_sim:state(Home))) =:= on end),
+    until(fun() -> maps:get(<<"kitchen">>, maps:get(lights, avatar_sim:state(Home))) =:= on end),
     %% The sound ends on the clock (a task); once no task is left it has
     %% ended, and the answer it would have given is behind us.
-    wait_for(fun() ->
-                     #{played := Played, tasks_left := Left} = avatar_sim:state(Home),
-                     Played =/= [] andalso Left =:= 0
-             end),
+    until(fun() ->
+                  #{played := Played, tasks_left := Left} = avatar_sim:state(Home),
+                  Played =/= [] andalso Left =:= 0
+          end),
     [#{kind := sound}] = maps:get(played, avatar_sim:state(Home)),
     %% A round trip through the same house after that: a feedback sent
     %% for either request would have reached the VA before this answer.
@@ -278,8 +279,8 @@ same_seed_same_signals(Config) ->
                                                                 parameters => [{<<"Duration">>, <<"30">>},
                                                                                {<<"UntilObject">>, <<"no">>}]}}),
                   _ = avatar_sim:state(Arena),
-                  wait_for(fun() -> maps:get(behaviour, hd(maps:get(robots, avatar_sim:state(Arena))))
-                                        =:= explore end),
+                  until(fun() -> maps:get(behaviour, hd(maps:get(robots, avatar_sim:state(Arena))))
+                                     =:= explore end),
                   [ok = avatar_sim:advance(Clock, 1000) || _ <- lists:seq(1, 15)],
                   %% A request answered after everything the Avatars sent so far.
                   {ok, _} = request(Va, <<"TouchSensorEmulator">>, <<"TouchSensor">>, <<"SENSOR">>,
@@ -416,7 +417,7 @@ va_desc(Config, Pairing, Desc, N) ->
 
 %% Every link of the Avatar has its bindings, and the world has heard of them.
 settle(Avatar) ->
-    wait_for(fun() -> lists:all(fun(#{routes := R}) -> R > 0 end, avatar_sim:links(Avatar)) end),
+    until(fun() -> lists:all(fun(#{routes := R}) -> R > 0 end, avatar_sim:links(Avatar)) end),
     _ = avatar_sim:state(Avatar),
     ok.
 
@@ -443,7 +444,6 @@ wait_signal(Va, Pred) ->
 wait_binding(Va, Pred) ->
     evatar_test_fixtures:wait_binding(Va, Pred, ?WAIT).
 
-wait_for(F) -> evatar_test_wait:until(F, #{timeout => 5000, interval => 25}).
 
 %% The attachments of an .eml file: {Filename, DecodedBytes}.
 attachments(Eml) ->

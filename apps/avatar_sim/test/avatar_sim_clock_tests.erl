@@ -53,8 +53,7 @@ paced_test() ->
     ok = avatar_sim_clock:resume(Clock),
     %% Until it has run ten ticks, however loaded the machine (a fixed
     %% sleep made this depend on the scheduler).
-    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1000 end,
-                                #{timeout => 10000}),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1000 end),
     ok = avatar_sim_clock:pause(Clock),
     Now = avatar_sim_clock:now(Clock),
     ?assert(Now >= 1000),
@@ -87,20 +86,17 @@ follow_test() ->
     ok = avatar_sim_clock:resume(Clock),
     %% It gets to 1500 (1000 + the lead) and is then held there: the wait
     %% for it to reach 1500 ends, and later reads are still 1500.
-    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1500 end,
-                                #{timeout => 10000}),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 1500 end),
     ?assertEqual(1500, avatar_sim_clock:now(Clock)),
     ?assertMatch(#{now := 1500}, avatar_sim_clock:info(Clock)),
     ok = atomics:put(Cell, 1, 4000),
-    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 4500 end,
-                                #{timeout => 10000}),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 4500 end),
     ?assertEqual(4500, avatar_sim_clock:now(Clock)),
     %% advance/2 is not held; `none' stops following.
     ok = avatar_sim_clock:advance(Clock, 1000),
     ?assertEqual(5500, avatar_sim_clock:now(Clock)),
     ok = avatar_sim_clock:follow(Clock, none, 0),
-    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 10000 end,
-                                #{timeout => 10000}),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 10000 end),
     ok = avatar_sim_clock:pause(Clock),
     ?assertEqual(lists:seq(100, avatar_sim_clock:now(Clock), 100), seen(A)),
     unlink(A), exit(A, kill), unlink(Pid),

@@ -259,7 +259,7 @@ wait_binding_msg(Va, Pred) ->
                 true -> Report;
                 false -> wait_binding_msg(Va, Pred)
             end
-    after 20000 -> ct:fail({no_binding, get({binding, Va})})
+    after evatar_test_time:guard() -> ct:fail({no_binding, get({binding, Va})})
     end.
 
 wait_signal(Va, Pred) ->
@@ -272,7 +272,7 @@ wait_signal(Va, Pred) ->
         {agent_bridge, Va, {binding, Report}} ->
             put({binding, Va}, Report),
             wait_signal(Va, Pred)
-    after 15000 -> ct:fail(no_signal)
+    after evatar_test_time:guard() -> ct:fail(no_signal)
     end.
 
 p(Name, Params) ->

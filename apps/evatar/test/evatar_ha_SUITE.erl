@@ -17,6 +17,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1, poll/1]).
 
 -export([all/0, groups/0, suite/0, init_per_testcase/2, end_per_testcase/2]).
 -export([replication_keeps_state_equal/1, kill_active_takes_over/1,
@@ -26,7 +27,7 @@
 
 -define(CRED_VA, <<"va-secret">>).
 -define(CRED_AV, <<"av-secret">>).
--define(WAIT, 10000).
+-define(WAIT, evatar_test_time:guard()).
 
 suite() -> [{timetrap, evatar_test_time:ms(60000)}].
 
@@ -53,7 +54,7 @@ init_per_testcase(TC, Config) ->
                   prefix => "ha",
                   modules => [?MODULE], conn => #{heartbeat => 100},
                   evatar => evatar_test_time:ha_timing()
-                      ++ [{resume_timeout, evatar_test_time:ms(10000)}]}),
+                      ++ [{resume_timeout, evatar_test_time:cluster_ms(10000)}]}),
     [{cluster, C}, {pairing, atom_to_binary(TC)} | Config].
 
 end_per_testcase(_TC, Config) ->
@@ -106,7 +107,7 @@ replication_keeps_state_equal(Config) ->
     ok = wait_received(Sink, Ids),
     %% Acks and heartbeats keep changing both states: they are compared
     %% only as read at one version (one call each), which fixes the state.
-    ok = wait_until(fun() -> equal_at_same_version(N1, N2, Id) end),
+    ok = until(fun() -> equal_at_same_version(N1, N2, Id) end),
     {ok, #{role := standby, epoch := 1}} = rpc(N2, evatar, ha_status, [Id]),
     {error, not_found} = rpc(N3, evatar, ha_status, [Id]),
     close_all([Va, Av]).
@@ -147,22 +148,22 @@ tail_follows_takeover(Config) ->
     ok = rpc(N3, ?MODULE, start_tail, [Id]),
     {Va, Av, _Sink} = bound_pair(Config, Nodes),
     {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
-    ok = wait_until(fun() -> tail_has(N3, fun(#{kind := K}) -> K =:= <<"request">> end) end),
+    ok = until(fun() -> tail_has(N3, fun(#{kind := K}) -> K =:= <<"request">> end) end),
     ok = kill9(N1),
     #{epoch := 2} = expect_reconnected(Va),
     Node2 = atom_to_binary(node_name(N2)),
-    ok = wait_until(fun() ->
-                            tail_has(N3, fun(#{kind := K, node := N}) ->
-                                                 K =:= <<"attached">> andalso N =:= Node2;
-                                            (_) -> false
-                                         end)
-                    end),
+    ok = until(fun() ->
+                       tail_has(N3, fun(#{kind := K, node := N}) ->
+                                            K =:= <<"attached">> andalso N =:= Node2;
+                                       (_) -> false
+                                    end)
+               end),
     Before = length(rpc(N3, ?MODULE, tail_items, [])),
     {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
-    ok = wait_until(fun() ->
-                            Items = lists:nthtail(Before, rpc(N3, ?MODULE, tail_items, [])),
-                            lists:any(fun(#{kind := K}) -> K =:= <<"feedback">> end, Items)
-                    end),
+    ok = until(fun() ->
+                       Items = lists:nthtail(Before, rpc(N3, ?MODULE, tail_items, [])),
+                       lists:any(fun(#{kind := K}) -> K =:= <<"feedback">> end, Items)
+               end),
     [#{role := <<"gone">>} | _] = [I || #{kind := <<"moved">>} = I <- rpc(N3, ?MODULE, tail_items, [])],
     close_all([Va, Av]).
 
@@ -213,7 +214,7 @@ partition_fences_isolated_active(Config) ->
     {First, Rest} = lists:split(50, Ids),
     _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- First],
     ok = partition(N1, [N2, N3]),
-    ok = dump_on_error(wait_until(fun() -> role(N1, Id) =:= fenced end), Nodes, Id),
+    ok = dump_on_error(poll(fun() -> role(N1, Id) =:= fenced end), Nodes, Id),
     _ = [ok = agent_bridge_client:send(Va, light(I)) || I <- Rest],
     #{epoch := 2} = expect_reconnected(Va),
     {ok, #{role := active, epoch := 2}} = rpc(N2, evatar, ha_status, [Id]),
@@ -221,8 +222,8 @@ partition_fences_isolated_active(Config) ->
     ok = dump_on_error(wait_received(Sink, Ids), Nodes, Id),
     ok = heal(N1, [N2, N3]),
     Final = [{node_name(N2), active, 2}, {node_name(N3), standby, 2}],
-    ok = dump_on_error(wait_until(fun() -> roles(N2, Id) =:= Final end), Nodes, Id),
-    ok = wait_until(fun() -> roles(N1, Id) =:= Final end),
+    ok = dump_on_error(poll(fun() -> roles(N2, Id) =:= Final end), Nodes, Id),
+    ok = until(fun() -> roles(N1, Id) =:= Final end),
     {ok, _} = agent_bridge_client:request(Va, request(), ?WAIT),
     close_all([Va, Av]).
 
@@ -241,17 +242,17 @@ two_node_cluster(Config) ->
     %% A partition: the standby cannot tell it from a crash and takes over;
     %% the old active goes on alone (degraded), its clients still on it.
     ok = partition(N1, [N2]),
-    ok = wait_until(fun() -> role(N2, Id) =:= active end),
+    ok = until(fun() -> role(N2, Id) =:= active end),
     {ok, #{role := active, epoch := 1, standby := undefined}} = rpc(N1, evatar, ha_status, [Id]),
     ok = agent_bridge_client:send(Va, light(<<"t-2">>)),
     ok = agent_bridge_client:await_acks(Va, ?WAIT),
     ok = heal(N1, [N2]),
     %% The lower epoch steps down; its clients move to the epoch 2 side.
     ok = dump_on_error(
-           wait_until(fun() ->
-                              roles(N2, Id) =:= [{node_name(N1), standby, 2},
-                                                 {node_name(N2), active, 2}]
-                      end), Nodes, Id),
+           poll(fun() ->
+                        roles(N2, Id) =:= [{node_name(N1), standby, 2},
+                                           {node_name(N2), active, 2}]
+                end), Nodes, Id),
     #{epoch := 2} = expect_reconnected(Va),
     %% A crash of the active: the standby takes over alone, at an epoch
     %% above the one its clients saw (docs/ha.md 6 promises a higher
@@ -266,7 +267,7 @@ two_node_cluster(Config) ->
     {ok, #{role := active, epoch := E3}} = rpc(N1, evatar, ha_status, [Id]),
     ok = agent_bridge_client:send(Va, light(<<"t-3">>)),
     ok = agent_bridge_client:await_acks(Va, ?WAIT),
-    ok = wait_until(fun() -> lists:member(<<"t-3">>, received(Sink)) end),
+    ok = until(fun() -> lists:member(<<"t-3">>, received(Sink)) end),
     close_all([Va, Av]).
 
 %% @doc A client that does not acknowledge a delivered signal within
@@ -342,14 +343,14 @@ equal_at_same_version(Active, Standby, Id) ->
 
 wait_synced(N, Id, Standby) ->
     StandbyNode = node_name(Standby),
-    wait_until(fun() ->
-                       case rpc(N, evatar, ha_status, [Id]) of
-                           {ok, #{role := active, synced := true, standby_node := StandbyNode}} ->
-                               true;
-                           _ ->
-                               false
-                       end
-               end).
+    until(fun() ->
+                  case rpc(N, evatar, ha_status, [Id]) of
+                      {ok, #{role := active, synced := true, standby_node := StandbyNode}} ->
+                          true;
+                      _ ->
+                          false
+                  end
+          end).
 
 %% ---------------------------------------------------------------------------
 %% Clients
@@ -410,7 +411,7 @@ received(Sink) ->
 %% Every id arrived, each exactly once, in the order sent (the harness's
 %% checker says what was lost or duplicated when not).
 wait_received(Sink, Ids) ->
-    case wait_until(fun() -> length(received(Sink)) >= length(Ids) end) of
+    case poll(fun() -> length(received(Sink)) >= length(Ids) end) of
         ok ->
             ?assertEqual(Ids, received(Sink)),
             ok;
@@ -506,4 +507,3 @@ dump_on_error(Error, Nodes, Id) ->
     ct:pal("mailbox: ~p", [element(2, process_info(self(), messages))]),
     Error.
 
-wait_until(F) -> evatar_test_wait:poll(F, #{timeout => 10000, interval => 50}).

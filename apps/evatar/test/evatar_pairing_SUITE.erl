@@ -19,6 +19,7 @@
          configured_pairings/1, inspection/1, lifecycle_model/1]).
 
 -include_lib("evatar_test_kit/include/evatar_entities.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -define(AGENT_CRED, <<"agent-secret">>).
 -define(AVATAR_CRED, <<"avatar-secret">>).
@@ -465,19 +466,18 @@ crash_past_limit(Id) ->
     P3 = wait_for_restart(Id, P2),
     exit(P3, kill),
     receive {'DOWN', Ref, process, Sup, _} -> ok end,
-    wait_until(fun() -> not lists:keymember(Sup, 2, supervisor:which_children(evatar_pairings_sup)) end).
+    until(fun() -> not lists:keymember(Sup, 2, supervisor:which_children(evatar_pairings_sup)) end).
 
 wait_for_restart(Id, Old) ->
-    ok = wait_until(fun() ->
-                            case evatar_registry:whereis_name(Id) of
-                                undefined -> false;
-                                Old -> false;
-                                _ -> true
-                            end
-                    end),
+    ok = until(fun() ->
+                       case evatar_registry:whereis_name(Id) of
+                           undefined -> false;
+                           Old -> false;
+                           _ -> true
+                       end
+               end),
     evatar_registry:whereis_name(Id).
 
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000, interval => 10}).
 
 %% @doc PropEr state machine model of the lifecycle (join, describe, route,
 %% leave, crash of an entity process) against the real pairing.

@@ -310,21 +310,13 @@ leave(Id) ->
 crash(Id) ->
     {_Session, Pid} = erase({entity, Id}),
     ok = ?E:kill(Pid),
-    ok = wait_gone(Id, erlang:monotonic_time(millisecond) + 30000),
+    ok = evatar_test_wait:until(fun() -> gone(Id) end, #{interval => 2, what => {gone, Id}}),
     {ok, flush()}.
 
-%% Polls until the pairing has handled the entity's death; the deadline is
-%% generous for a loaded machine (it once was 500 polls, about 1 s).
-wait_gone(Id, Deadline) ->
+%% Whether the pairing has handled the entity's death.
+gone(Id) ->
     {ok, Registry} = evatar:registry(?PAIRING),
-    case lists:any(fun(#{entity := E}) -> E =:= Id end, Registry) of
-        true ->
-            case erlang:monotonic_time(millisecond) > Deadline of
-                true -> {error, still_registered};
-                false -> timer:sleep(2), wait_gone(Id, Deadline)
-            end;
-        false -> ok
-    end.
+    not lists:any(fun(#{entity := E}) -> E =:= Id end, Registry).
 
 %% @private
 -spec check() -> {list(), map(), atom(), list()}.

@@ -198,7 +198,8 @@ wait_dead(Pid) ->
     Ref = erlang:monitor(process, Pid),
     receive {'DOWN', Ref, process, Pid, _} -> ok end.
 
-%% The pairing's count of watchers once it is `Want' (10 s at most).
+%% The pairing's count of watchers once it is `Want', or the last count
+%% seen when the kit's hang guard passes.
 wait_watchers(Id, Want) ->
     Probe = fun() ->
                     case gen_statem:call(evatar_registry:whereis_name(Id), {inspect, watchers}) of
@@ -206,7 +207,7 @@ wait_watchers(Id, Want) ->
                         Other -> {false, Other}
                     end
             end,
-    case evatar_test_wait:poll(Probe, #{timeout => 10000, interval => 50}) of
+    case evatar_test_wait:poll(Probe, #{interval => 50}) of
         ok -> {ok, Want};
         {error, {wait_timeout, #{last_seen := Other}}} -> {error, Other}
     end.

@@ -6,24 +6,28 @@
 %%
 %% A probe returns `true' (done), `false' (not yet), or `{false, Seen}' (not
 %% yet, and Seen is worth showing if the wait fails). until/1,2 raise on
-%% timeout; poll/2 returns `{error, ...}' for callers that handle it.
+%% timeout; poll/1,2 return `{error, ...}' for callers that handle it.
+%%
+%% The deadline only guards against a hang: by default the scale's hang
+%% guard (evatar_test_time:guard/0, 60 s at scale 1), the same for every
+%% suite, so that a wait's length never decides whether a case passes. A
+%% suite has no wait_until of its own: it calls this module.
 -module(evatar_test_wait).
 
--export([until/1, until/2, poll/2, value/3, value/4]).
+-export([until/1, until/2, poll/1, poll/2, value/3, value/4]).
 -export_type([probe/0, opts/0, failure/0]).
 
 -type probe() :: fun(() -> boolean() | {false, term()}).
-%% timeout: ms until the deadline (default 15000); interval: ms between
-%% polls (default 20); what: a term naming what is awaited (default: the
-%% probe's module and enclosing function).
+%% timeout: ms until the deadline (default evatar_test_time:guard/0);
+%% interval: ms between polls (default 20); what: a term naming what is
+%% awaited (default: the probe's module and enclosing function).
 -type opts() :: #{timeout => non_neg_integer(), interval => pos_integer(), what => term()}.
 -type failure() :: {wait_timeout, #{what := term(), waited_ms := non_neg_integer(),
                                     last_seen := term(), polls := pos_integer()}}.
 
--define(TIMEOUT, 15000).
 -define(INTERVAL, 20).
 
-%% @doc ok once Probe holds, within 15 s; otherwise raises failure().
+%% @doc ok once Probe holds, within the hang guard; otherwise raises failure().
 -spec until(probe()) -> ok.
 until(Probe) ->
     until(Probe, #{}).
@@ -38,16 +42,22 @@ until(Probe, Opts) ->
         {error, Failure} -> erlang:error(Failure)
     end.
 
+%% @doc As until/1, but returns the failure: for a caller that prints more
+%% context first.
+-spec poll(probe()) -> ok | {error, failure()}.
+poll(Probe) ->
+    poll(Probe, #{}).
+
 %% @doc As until/2, but returns the failure: for a caller that prints more
 %% context first, or for a wait whose timeout is not a failure.
 -spec poll(probe(), opts()) -> ok | {error, failure()}.
 poll(Probe, Opts) ->
-    Timeout = maps:get(timeout, Opts, ?TIMEOUT),
+    Timeout = maps:get(timeout, Opts, evatar_test_time:guard()),
     Interval = maps:get(interval, Opts, ?INTERVAL),
     Start = erlang:monotonic_time(millisecond),
     loop(Probe, Start, Start + Timeout, Interval, 1, Opts).
 
-%% @doc The value Fun returns once Pred holds for it, within 15 s;
+%% @doc The value Fun returns once Pred holds for it, within the hang guard;
 %% otherwise raises failure() with the last value.
 -spec value(term(), fun(() -> V), fun((V) -> boolean())) -> V.
 value(What, Fun, Pred) ->

@@ -208,9 +208,23 @@ trace_levels_restored_test() ->
 time_scale_keeps_ratios_test() ->
     S = evatar_test_time:scale(),
     ?assert(S >= 1),
+    C = evatar_test_time:cluster_scale(),
+    ?assert(C >= 1 andalso C =< S),
     Timing = maps:from_list(evatar_test_time:ha_timing()),
-    ?assertEqual(evatar_test_time:ms(1000), maps:get(suspect_ms, Timing)),
-    ?assertEqual(evatar_test_time:ms(100), maps:get(heartbeat_ms, Timing)),
-    ?assertEqual(evatar_test_time:ms(2000),
+    ?assertEqual(round(1000 * C), maps:get(suspect_ms, Timing)),
+    ?assertEqual(round(100 * C), maps:get(heartbeat_ms, Timing)),
+    ?assertEqual(round(2000 * C),
                  maps:get(suspect_ms, maps:from_list(evatar_test_time:ha_timing(#{suspect_ms => 2000})))),
     ?assertEqual(evatar_test_time:ms(60000), evatar_test_time:guard()).
+
+%% Cover-compiled code runs slower: the scale rises by itself, the
+%% cluster's (plain beams) does not.
+time_scale_rises_under_cover_test() ->
+    Covered = code:which(evatar) =:= cover_compiled,
+    case os:getenv("EVATAR_TEST_SCALE") of
+        V when V =:= false; V =:= "" ->
+            ?assertEqual(case Covered of true -> 3; false -> 1 end, evatar_test_time:scale()),
+            ?assertEqual(1, evatar_test_time:cluster_scale());
+        _ ->
+            ?assertEqual(evatar_test_time:cluster_scale(), evatar_test_time:scale())
+    end.

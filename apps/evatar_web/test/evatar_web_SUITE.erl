@@ -205,7 +205,7 @@ until_closed(S, Acc) ->
         {tcp, S, Data} -> until_closed(S, <<Acc/binary, Data/binary>>);
         {tcp_closed, S} -> Acc;
         {tcp_error, S, _} -> until_closed(S, Acc)
-    after 30000 -> ct:fail({not_closed, Acc})
+    after evatar_test_time:guard() -> ct:fail({not_closed, Acc})
     end.
 
 %% One response: status, headers (lower-case names), body.
@@ -410,7 +410,7 @@ listening_logged(_Config) ->
                 {Format, Args} = Cb(Report),
                 Line = lists:flatten(io_lib:format(Format, Args)),
                 {match, _} = re:run(Line, ["listening on ", Url])
-        after 10000 -> ct:fail(no_listening_report)
+        after evatar_test_time:guard() -> ct:fail(no_listening_report)
         end
     after
         ok = logger:remove_handler(listening_probe),

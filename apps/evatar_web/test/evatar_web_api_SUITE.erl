@@ -7,6 +7,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([reads_open_on_loopback/1, changes_need_the_token/1, no_token_refuses_changes/1,
@@ -66,7 +67,7 @@ init_per_suite(Config) ->
                            Self ! joined,
                            receive stop -> [agent_bridge_client:close(C) || C <- [Va, Av]] end
                    end),
-    receive joined -> ok after 30000 -> ct:fail(clients_did_not_join) end,
+    receive joined -> ok after evatar_test_time:guard() -> ct:fail(clients_did_not_join) end,
     %% A real MQTT Avatar (mosquitto, a hand-written description) kept by
     %% this node, joined to the pairing over TCP.
     %% Its own pairing: the counts of ?PAIRING do not depend on when it joins.
@@ -87,12 +88,12 @@ init_per_suite(Config) ->
     {ok, _} = wot_avatar:keep(#{entity_id => ?WOT_AV, td => {file, Td}, allowed_hosts => [<<"127.0.0.1">>],
                                 evatar => #{endpoints => [Addr], pairing => ?WOT_PAIRING,
                                             credential => ?AV_CRED}}),
-    wait_until(fun() ->
-                       case ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings") of
-                           {200, #{<<"bound">> := [_ | _], <<"unbound">> := [_, _]}} -> true;
-                           _ -> false
-                       end
-               end),
+    until(fun() ->
+                  case ?T:get("/api/pairings/" ++ binary_to_list(?PAIRING) ++ "/bindings") of
+                      {200, #{<<"bound">> := [_ | _], <<"unbound">> := [_, _]}} -> true;
+                      _ -> false
+                  end
+          end),
     [{addr, Addr}, {holder, Holder}, {broker, Broker} | Config].
 
 end_per_suite(Config) ->
@@ -363,7 +364,7 @@ rotate_identity_generated(Config) ->
 %% is refused naming the problem), and an unknown one's routes.
 mqtt_avatar_routes(Config) ->
     Path = "/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV),
-    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
+    until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
     {200, L} = ?T:get("/api/mqtt_avatars"),
     [#{<<"state">> := <<"running">>, <<"running">> := true}] =
         [A || #{<<"entity_id">> := E} = A <- L, E =:= ?MQTT_AV],
@@ -377,27 +378,27 @@ mqtt_avatar_routes(Config) ->
     ok = mqtt_client:await_connected(Device, 10000),
     ok = mqtt_client:publish(Device, <<"tele/webplug/POWER_W">>, <<"abc">>, #{qos => 1, retain => true}),
     ok = mqtt_client:stop(Device),
-    wait_until(fun() ->
-                       {200, Now} = ?T:get(Path ++ "/problems"),
-                       [x || #{<<"what">> := <<"bad_payload">>, <<"topic">> := <<"tele/webplug/POWER_W">>,
-                              <<"message">> := <<"the value 'abc' on tele/webplug/POWER_W is not a "
-                                                 "number", _/binary>>} <- Now] =/= []
-               end),
+    until(fun() ->
+                  {200, Now} = ?T:get(Path ++ "/problems"),
+                  [x || #{<<"what">> := <<"bad_payload">>, <<"topic">> := <<"tele/webplug/POWER_W">>,
+                         <<"message">> := <<"the value 'abc' on tele/webplug/POWER_W is not a "
+                                            "number", _/binary>>} <- Now] =/= []
+          end),
     {200, #{<<"restarted">> := true}} =
         change(put, Path ++ "/description", #{xml => mqtt_xml(<<"Plug02">>)}),
-    wait_until(fun() ->
-                       case ?T:get(Path) of
-                           {200, #{<<"components">> := [#{<<"id">> := <<"Plug02">>}]}} -> true;
-                           _ -> false
-                       end
-               end),
+    until(fun() ->
+                  case ?T:get(Path) of
+                      {200, #{<<"components">> := [#{<<"id">> := <<"Plug02">>}]}} -> true;
+                      _ -> false
+                  end
+          end),
     %% The pairing sees the new component.
-    wait_until(fun() ->
-                       {200, #{<<"entities">> := Es}} = ?T:get("/api/pairings/" ++ binary_to_list(?MQTT_PAIRING)),
-                       [<<"Plug02">>] =:= [C || #{<<"entity">> := E,
-                                                  <<"components">> := [#{<<"id">> := C}]} <- Es,
-                                                E =:= ?MQTT_AV]
-               end),
+    until(fun() ->
+                  {200, #{<<"entities">> := Es}} = ?T:get("/api/pairings/" ++ binary_to_list(?MQTT_PAIRING)),
+                  [<<"Plug02">>] =:= [C || #{<<"entity">> := E,
+                                             <<"components">> := [#{<<"id">> := C}]} <- Es,
+                                           E =:= ?MQTT_AV]
+          end),
     Broken = binary:replace(mqtt_xml(<<"Plug03">>), <<"<MqttExpect>raw:ON</MqttExpect>">>,
                             <<"<MqttExpect>sometimes</MqttExpect>">>),
     {400, #{<<"field">> := <<"xml">>, <<"message">> := _}} =
@@ -415,7 +416,7 @@ mqtt_avatar_routes(Config) ->
 %% TD left out: a CoAP form), and an unknown one's.
 wot_avatar_routes(_Config) ->
     Path = "/api/wot_avatars/" ++ binary_to_list(?WOT_AV) ++ "/problems",
-    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
+    until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
     {200, L} = ?T:get("/api/wot_avatars"),
     [#{<<"state">> := <<"running">>, <<"running">> := true, <<"starts">> := 1, <<"crashes">> := 0}] =
         [A || #{<<"entity_id">> := E} = A <- L, E =:= ?WOT_AV],
@@ -478,7 +479,7 @@ collect(Port, Acc) ->
     receive
         {Port, {data, D}} -> collect(Port, [Acc, D]);
         {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after 300000 -> ct:fail({no_exit, iolist_to_binary(Acc)})
+    after evatar_test_time:ms(300000) -> ct:fail({no_exit, iolist_to_binary(Acc)})
     end.
 
 %% ---------------------------------------------------------------------------
@@ -498,7 +499,6 @@ change(Method, Path, none) ->
 change(Method, Path, Body) ->
     ?T:request(Method, Path, [auth(?TOKEN)], json(Body)).
 
-wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 20000, interval => 100}).
 
 start_mosquitto(Dir) ->
     {ok, L} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
@@ -508,12 +508,12 @@ start_mosquitto(Dir) ->
     ok = file:write_file(Conf, io_lib:format("listener ~b 127.0.0.1~nallow_anonymous true~n", [Port])),
     P = open_port({spawn_executable, os:find_executable("mosquitto", "/usr/sbin:/usr/bin")},
                   [{args, ["-c", Conf]}, exit_status, stderr_to_stdout]),
-    wait_until(fun() ->
-                       case gen_tcp:connect({127, 0, 0, 1}, Port, []) of
-                           {ok, S} -> ok = gen_tcp:close(S), true;
-                           {error, _} -> false
-                       end
-               end),
+    until(fun() ->
+                  case gen_tcp:connect({127, 0, 0, 1}, Port, []) of
+                      {ok, S} -> ok = gen_tcp:close(S), true;
+                      {error, _} -> false
+                  end
+          end),
     {os_pid, OsPid} = erlang:port_info(P, os_pid),
     {P, Port, OsPid}.
 

@@ -11,6 +11,7 @@
 -module(evatar_web_contract_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([create_input_is_options_and_id/1, fuzz_the_live_server/1, a_wrong_document_fails/1]).
@@ -72,12 +73,12 @@ init_per_suite(Config) ->
                                  evatar => #{endpoints => [Addr], pairing => ?MQTT_PAIRING,
                                              credential => ?AV_CRED},
                                  description => mqtt_xml(), discovery => false}),
-    wait_until(fun() ->
-                       case ?T:get("/api/pairings/" ++ binary_to_list(?HOME) ++ "/bindings") of
-                           {200, #{<<"bound">> := [_ | _], <<"avatars">> := [_ | _]}} -> true;
-                           _ -> false
-                       end
-               end),
+    until(fun() ->
+                  case ?T:get("/api/pairings/" ++ binary_to_list(?HOME) ++ "/bindings") of
+                      {200, #{<<"bound">> := [_ | _], <<"avatars">> := [_ | _]}} -> true;
+                      _ -> false
+                  end
+          end),
     %% A kept WoT Avatar, its TD a file (its action's host answers nothing;
     %% a CoAP action is left out, one problem).
     {ok, _} = evatar:create_pairing(?WOT_PAIRING, Creds),
@@ -86,14 +87,14 @@ init_per_suite(Config) ->
     {ok, _} = wot_avatar:keep(#{entity_id => ?WOT_AV, td => {file, Td}, allowed_hosts => [<<"127.0.0.1">>],
                                 evatar => #{endpoints => [Addr], pairing => ?WOT_PAIRING,
                                             credential => ?AV_CRED}}),
-    wait_until(fun() -> element(1, ?T:get("/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV))) =:= 200 end),
-    wait_until(fun() ->
-                       element(1, ?T:get("/api/wot_avatars/" ++ binary_to_list(?WOT_AV) ++ "/problems")) =:= 200
-               end),
-    wait_until(fun() ->
-                       element(1, ?T:raw(get, "/api/things/" ++ binary_to_list(?THINGS) ++ "/"
-                                         ++ binary_to_list(?THING), [], none)) =:= 200
-               end),
+    until(fun() -> element(1, ?T:get("/api/mqtt_avatars/" ++ binary_to_list(?MQTT_AV))) =:= 200 end),
+    until(fun() ->
+                  element(1, ?T:get("/api/wot_avatars/" ++ binary_to_list(?WOT_AV) ++ "/problems")) =:= 200
+          end),
+    until(fun() ->
+                  element(1, ?T:raw(get, "/api/things/" ++ binary_to_list(?THINGS) ++ "/"
+                                    ++ binary_to_list(?THING), [], none)) =:= 200
+          end),
     [{python, Python}, {home, Home}, {va, Va}, {broker, Broker} | Config].
 
 end_per_suite(Config) ->
@@ -288,7 +289,7 @@ collect(Port, Acc) ->
     receive
         {Port, {data, D}} -> collect(Port, [Acc, D]);
         {Port, {exit_status, S}} -> {S, unicode:characters_to_list(iolist_to_binary(Acc))}
-    after 420000 -> ct:fail({no_exit, iolist_to_binary(Acc)})
+    after evatar_test_time:ms(420000) -> ct:fail({no_exit, iolist_to_binary(Acc)})
     end.
 
 %% ---------------------------------------------------------------------------
@@ -310,7 +311,7 @@ start_va(Addr) ->
                         Parent ! {va_up, self()},
                         receive stop -> agent_bridge_client:close(C) end
                 end),
-    receive {va_up, Pid} -> Pid after 30000 -> ct:fail(va_did_not_join) end.
+    receive {va_up, Pid} -> Pid after evatar_test_time:guard() -> ct:fail(va_did_not_join) end.
 
 mqtt_xml() ->
     iolist_to_binary(
@@ -326,4 +327,3 @@ mqtt_xml() ->
        "<MqttValue>Light=raw</MqttValue><MqttMap>ON=on OFF=off</MqttMap>"
        "</ServiceParameters></Service></bil:Component></bil:types></bil:description>"]).
 
-wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 30000, interval => 100}).

@@ -8,6 +8,7 @@
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -export([all/0, groups/0, suite/0, init_per_suite/1, end_per_suite/1,
          init_per_group/2, end_per_group/2]).
@@ -91,7 +92,7 @@ start_avatar(Addr) ->
                         Parent ! {avatar_up, self()},
                         avatar_loop(C)
                 end),
-    receive {avatar_up, Pid} -> Pid after 20000 -> ct:fail(avatar_did_not_join) end.
+    receive {avatar_up, Pid} -> Pid after evatar_test_time:guard() -> ct:fail(avatar_did_not_join) end.
 
 avatar_loop(C) ->
     receive
@@ -120,7 +121,7 @@ start_va(Addr) ->
                         Parent ! {va_up, self()},
                         va_loop(C)
                 end),
-    receive {va_up, Pid} -> Pid after 20000 -> ct:fail(va_did_not_bind) end.
+    receive {va_up, Pid} -> Pid after evatar_test_time:guard() -> ct:fail(va_did_not_bind) end.
 
 va_loop(C) ->
     receive
@@ -141,12 +142,12 @@ await_binding(Va) ->
     receive
         {agent_bridge, Va, {binding, #{bound := [_ | _]}}} -> ok;
         {agent_bridge, Va, {binding, _}} -> await_binding(Va)
-    after 20000 -> ct:fail(no_binding)
+    after evatar_test_time:guard() -> ct:fail(no_binding)
     end.
 
 light_request(Va) ->
     Va ! {request, self()},
-    receive {requested, Result} -> ok = Result after 10000 -> ct:fail(va_silent) end.
+    receive {requested, Result} -> ok = Result after evatar_test_time:guard() -> ct:fail(va_silent) end.
 
 %% ---------------------------------------------------------------------------
 %% An event stream read over a raw socket
@@ -189,7 +190,6 @@ split_events(Buf) ->
 
 has_kind(Kind) -> fun(Is) -> [x || #{<<"kind">> := K} <- Is, K =:= Kind] =/= [] end.
 
-wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 10000, interval => 50}).
 
 %% ---------------------------------------------------------------------------
 %% Cases
@@ -221,7 +221,7 @@ events_stream(Config) ->
     %% Both streams have ended (and left the pairing's watchers) before the
     %% next case counts the watchers: the server sees a close only when it
     %% next runs, later on a loaded machine.
-    wait_until(fun() -> evatar_web_streams:count() =:= Open end).
+    until(fun() -> evatar_web_streams:count() =:= Open end).
 
 %% @doc A missing pairing, an unknown pairing and an unknown kind are JSON
 %% errors naming the field.
@@ -244,8 +244,8 @@ events_client_goes(_Config) ->
     ?assert(Open >= 1),
     ?assertEqual(Before + 1, gen_statem:call(Pid, {inspect, watchers})),
     ok = gen_tcp:close(S),
-    wait_until(fun() -> gen_statem:call(Pid, {inspect, watchers}) =:= Before end),
-    wait_until(fun() -> evatar_web_streams:count() =:= Open - 1 end),
+    until(fun() -> gen_statem:call(Pid, {inspect, watchers}) =:= Before end),
+    until(fun() -> evatar_web_streams:count() =:= Open - 1 end),
     {200, _} = ?T:get("/api/cluster").
 
 %% @doc At most half of max_clients streams at once; the next one is a JSON
@@ -271,7 +271,7 @@ streams_are_capped(_Config) ->
         ?T:get("/api/events?pairing=" ++ binary_to_list(hd(Pairings))),
     {200, _} = ?T:get("/api/cluster"),
     [ok = gen_tcp:close(S) || S <- Streams],
-    wait_until(fun() -> evatar_web_streams:count() =:= Open end),
+    until(fun() -> evatar_web_streams:count() =:= Open end),
     [ok = evatar:delete_pairing(P) || P <- Pairings].
 
 %% @doc The graph route: both entities with their components, the bound
@@ -387,7 +387,7 @@ start_long_avatar(Addr) ->
                         Parent ! {avatar_up, self()},
                         avatar_loop(C)
                 end),
-    receive {avatar_up, Pid} -> Pid after 20000 -> ct:fail(long_avatar_did_not_join) end.
+    receive {avatar_up, Pid} -> Pid after evatar_test_time:guard() -> ct:fail(long_avatar_did_not_join) end.
 
 %% The script says `ready' when the VA should send its requests, `robots'
 %% when it is done with the home and wants the robots story (the holiday
@@ -421,7 +421,7 @@ browser(Port, Va, Stories, Lines) ->
             {ok, Stories};
         {Port, {exit_status, Status}} ->
             {{error, {browser_test_failed, Status, lists:reverse(Lines)}}, Stories}
-    after 180000 ->
+    after evatar_test_time:ms(180000) ->
             {{error, {browser_silent, lists:reverse(Lines)}}, Stories}
     end.
 

@@ -9,6 +9,7 @@
 -module(evatar_web_wot_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
+-import(evatar_test_wait, [until/1]).
 
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([tds_pass_schema_and_assertions/1, consumer_is_bound_like_a_va/1,
@@ -69,8 +70,8 @@ init_per_suite(Config) ->
     {ok, _} = mqtt_avatar:keep(#{entity_id => ?MQTT_AV, mqtt => Mqtt, discovery => #{},
                                  evatar => #{endpoints => [Addr], pairing => ?MQTT,
                                              credential => ?AV_CRED}}),
-    wait_until(fun() -> home_bound() end),
-    wait_until(fun() -> length(things()) =:= 3 end),
+    until(fun() -> home_bound() end),
+    until(fun() -> length(things()) =:= 3 end),
     [{npm, Npm}, {home, Home}, {broker, Broker}, {busy_va, Va}, {busy_lamp, Lamp} | Config].
 
 end_per_suite(Config) ->
@@ -187,7 +188,7 @@ node_wot_switches_the_lamp(Config) ->
 %% the property, the reading's parameters.
 node_wot_reads_the_time(Config) ->
     Path = "/api/things/wot-home/easy-home-01/properties/TimeSensor01/TimeOfDay",
-    wait_until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
+    until(fun() -> element(1, ?T:get(Path)) =:= 200 end),
     {200, #{<<"TimeOfDay">> := _}} = ?T:get(Path),
     Url = ?T:url("/api/things/wot-home/easy-home-01"),
     {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, "read", "TimeSensor01.TimeOfDay"]),
@@ -226,12 +227,12 @@ a_joined_va_keeps_it_out(Config) ->
     {503, #{<<"error">> := <<"not_joined">>, <<"message">> := M}} = ?T:request(post, Path, auth(), "{}"),
     {match, _} = re:run(M, "agent slot is taken"),
     ?config(busy_va, Config) ! stop,
-    wait_until(fun() ->
-                       case ?T:get("/api/pairings/wot-busy/bindings") of
-                           {200, #{<<"agents">> := [#{<<"entity">> := <<"wot">>}]}} -> true;
-                           _ -> false
-                       end
-               end).
+    until(fun() ->
+                  case ?T:get("/api/pairings/wot-busy/bindings") of
+                      {200, #{<<"agents">> := [#{<<"entity">> := <<"wot">>}]}} -> true;
+                      _ -> false
+                  end
+          end).
 
 %% ---------------------------------------------------------------------------
 
@@ -245,7 +246,7 @@ hold(Role, Entity, Description) ->
                         Parent ! {held, self()},
                         receive stop -> evatar:leave(S) end
                 end),
-    receive {held, Pid} -> Pid after 30000 -> ct:fail({cannot_join, Entity}) end.
+    receive {held, Pid} -> Pid after evatar_test_time:guard() -> ct:fail({cannot_join, Entity}) end.
 
 example(File) ->
     {ok, Xml} = file:read_file(filename:join([code:priv_dir(bil), "examples", File])),
@@ -309,4 +310,3 @@ node(Config, Script, Args) ->
     evatar_test_npm:run(Node, [filename:join(?config(data_dir, Config), Script) | Args],
                         evatar_test_npm:node_env(?config(npm, Config))).
 
-wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 30000, interval => 100}).

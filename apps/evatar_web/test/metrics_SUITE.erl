@@ -68,7 +68,7 @@ traffic_moves_counters(Config) ->
     %% A feedback timeout: a request the Avatar leaves unanswered, sent
     %% first (its timeout runs while the rest happens).
     Av ! {leave_unanswered, <<"unanswered-1">>, self()},
-    receive {leaving_unanswered, Av, _} -> ok after 10000 -> ct:fail(responder_silent) end,
+    receive {leaving_unanswered, Av, _} -> ok after evatar_test_time:guard() -> ct:fail(responder_silent) end,
     ok = agent_bridge_client:send(Va, (light_request())#{id => <<"unanswered-1">>,
                                                          context => request}),
     %% Refused joins (two more accepted connections, refused handshakes).
@@ -89,12 +89,11 @@ traffic_moves_counters(Config) ->
         {agent_bridge, Va, {signal, #{in_reply_to := <<"unanswered-1">>} = Timeout}} ->
             #{context := feedback, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}} =
                 Timeout
-    after 15000 -> ct:fail(no_timeout_feedback)
+    after evatar_test_time:guard() -> ct:fail(no_timeout_feedback)
     end,
     %% The refused sockets are closed: two connections held.
     ok = evatar_test_wait:until(
-           fun() -> gauge(scrape(Config), evatar_bridge_connections_open, []) =:= 2 end,
-           #{timeout => 10000}),
+           fun() -> gauge(scrape(Config), evatar_bridge_connections_open, []) =:= 2 end),
     After = scrape(Config),
     Expected = #{{evatar_joins_total, [{kind, agent_join}]} => 1,
                  {evatar_joins_total, [{kind, avatar_join}]} => 1,
@@ -243,7 +242,7 @@ bound_pair(Config) ->
 collect_sensor(Va, N) ->
     [receive
          {agent_bridge, Va, {signal, #{context := sensor_data} = S}} -> S
-     after 10000 -> ct:fail(sensor_data_missing)
+     after evatar_test_time:guard() -> ct:fail(sensor_data_missing)
      end || _ <- lists:seq(1, N)].
 
 start_responder(Config, Entity) ->

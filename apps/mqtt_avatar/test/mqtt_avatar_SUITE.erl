@@ -8,6 +8,7 @@
 
 -import(mqtt_avatar_test_setup, [light_device/1, test_va/1, mqtt/1, request/4, provider_of/3,
                                  consumer_of/3, entry/3]).
+-import(evatar_test_wait, [until/1]).
 
 -define(LIVE_LISTENER, mqtt_avatar_suite).
 -define(LIVE_CASE_PREFIX, "").
@@ -200,10 +201,10 @@ no_echo_times_out(Config) ->
         agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
                                                 <<"TurnLightOn">>, []), 5000),
     [_] = mqtt_avatar_test_device:commands(Dev),
-    ok = wait_until(fun() ->
-                            lists:any(fun(#{what := W}) -> W =:= no_state_echo end,
-                                      mqtt_avatar:problems(A))
-                    end).
+    ok = until(fun() ->
+                       lists:any(fun(#{what := W}) -> W =:= no_state_echo end,
+                                 mqtt_avatar:problems(A))
+               end).
 
 %% A device whose connection dies: the broker's last will says offline,
 %% the VA gets DeviceDisconnected, requests fail at once with
@@ -260,10 +261,10 @@ malformed_inputs(Config) ->
     %% (Three bad payloads on one topic in a row are one problem: a broken
     %% device cannot flood the log.)
     BadTopics = lists:usort([T || {T, _} <- Bad]),
-    ok = wait_until(fun() ->
-                            [] =:= BadTopics -- [maps:get(topic, X) || X <- mqtt_avatar:problems(A),
-                                                                       is_map_key(topic, X)]
-                    end),
+    ok = until(fun() ->
+                       [] =:= BadTopics -- [maps:get(topic, X) || X <- mqtt_avatar:problems(A),
+                                                                  is_map_key(topic, X)]
+               end),
     Problems = mqtt_avatar:problems(A),
     ct:pal("~p", [Problems]),
     Topics = lists:usort([maps:get(topic, X) || X <- Problems, is_map_key(topic, X)]),
@@ -301,13 +302,13 @@ broker_restart(Config) ->
     Subscriptions = maps:get(subscriptions, mqtt_avatar:status(A)),
     ok = mqtt_avatar_test_device:stop(Light),
     ok = evatar_test_mosquitto:kill(Broker, term),
-    ok = wait_until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= down end),
+    ok = until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= down end),
     {error, #{body := #{type := <<"BrokerUnavailable">>}}} =
         agent_bridge_client:request(Va, request(<<"LightEmulator01">>, Comp,
                                                 <<"TurnLightOff">>, []), 5000),
     {ok, Broker2} = evatar_test_mosquitto:start(maps:get(opts, Broker)),
     try
-        ok = wait_until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= up end),
+        ok = until(fun() -> maps:get(mqtt, mqtt_avatar:status(A)) =:= up end),
         Subscriptions = maps:get(subscriptions, mqtt_avatar:status(A)),
         %% A state made retained now is delivered live or on resubscription.
         ok = mqtt_avatar_test_device:publish(Hall, <<P/binary, "/hall/motion">>,
@@ -367,4 +368,3 @@ wait_signal(Va, Pred) ->
     %% Generous: the machine running the tests may be busy (25 readings).
     evatar_test_fixtures:wait_signal(Va, Pred, 20000).
 
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 5000}).

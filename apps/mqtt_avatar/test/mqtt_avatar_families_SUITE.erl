@@ -9,6 +9,7 @@
 -module(mqtt_avatar_families_SUITE).
 
 -import(mqtt_avatar_test_setup, [entry/3]).
+-import(evatar_test_wait, [until/1]).
 
 -define(LIVE_LISTENER, mqtt_families_suite).
 -define(LIVE_CASE_PREFIX, "").
@@ -485,7 +486,7 @@ sensors_named_by_what_they_are(Config) ->
     %% next Humidity it gets is the 55 published after), one problem.
     Humidity = <<P/binary, "/kitchen/humidity">>,
     ok = mqtt_avatar_test_device:publish(Sensor, Humidity, <<"abc">>, false),
-    ok = wait_until(fun() -> problems_with(A, Humidity, <<"'abc'">>) =/= [] end),
+    ok = until(fun() -> problems_with(A, Humidity, <<"'abc'">>) =/= [] end),
     [#{what := bad_payload, message := NotNumber}] = problems_with(A, Humidity, <<"'abc'">>),
     {match, _} = re:run(NotNumber, "is not a number.*device class humidity, unit %"),
     ok = mqtt_avatar_test_device:publish(Sensor, Humidity, <<"55">>, false),
@@ -495,7 +496,7 @@ sensors_named_by_what_they_are(Config) ->
     %% Not JSON, read by a value_json template: said as such.
     Thermo = <<P/binary, "/kitchen/sensor">>,
     ok = mqtt_avatar_test_device:publish(Sensor, Thermo, <<"not json">>, false),
-    ok = wait_until(fun() -> problems_with(A, Thermo, <<"is not JSON">>) =/= [] end),
+    ok = until(fun() -> problems_with(A, Thermo, <<"is not JSON">>) =/= [] end),
     [#{message := NotJson}] = problems_with(A, Thermo, <<"is not JSON">>),
     {match, _} = re:run(NotJson, "'not json'.*the value template '\\{\\{ \\(value_json.t"),
     %% Each once, though the thermometer's two streams read the topic.
@@ -714,5 +715,3 @@ stream(Va, Type, Param, Value) ->
 wait_signal(Va, Pred) ->
     evatar_test_fixtures:wait_signal(Va, Pred, 10000).
 
-%% Generous: the machine running the tests may be busy.
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).

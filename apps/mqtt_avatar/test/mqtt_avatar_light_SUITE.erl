@@ -9,6 +9,7 @@
 -module(mqtt_avatar_light_SUITE).
 
 -import(mqtt_avatar_test_setup, [entry/3]).
+-import(evatar_test_wait, [until/1]).
 
 -define(LIVE_LISTENER, mqtt_avatar_light_suite).
 -define(LIVE_CASE_PREFIX, "l_").
@@ -165,15 +166,15 @@ bad_values_and_payloads(Config) ->
                           <<"stat_tpl">> => <<"{% for x in value_json %}{{ x }}{% endfor %}">>},
     ok = mqtt_avatar_test_device:publish(Probe, <<Ha/binary, "/light/x/for/config">>,
                                          iolist_to_binary(mqtt_avatar_json:encode(BadTemplate)), false),
-    ok = wait_until(fun() ->
-                            Ms = [{W, M} || #{what := W, message := M} <- mqtt_avatar:problems(A)],
-                            lists:any(fun({W, M}) -> W =:= bad_discovery andalso
-                                                         binary:match(M, <<"unsupported construct '{% for %}'">>) =/= nomatch
-                                      end, Ms)
-                                andalso lists:member({bad_payload, <<"state MAYBE is neither ON nor OFF">>}, Ms)
-                                andalso lists:keymember(bad_payload, 1, Ms)
-                                andalso length([x || {bad_payload, _} <- Ms]) >= 2
-                    end),
+    ok = until(fun() ->
+                       Ms = [{W, M} || #{what := W, message := M} <- mqtt_avatar:problems(A)],
+                       lists:any(fun({W, M}) -> W =:= bad_discovery andalso
+                                                    binary:match(M, <<"unsupported construct '{% for %}'">>) =/= nomatch
+                                 end, Ms)
+                           andalso lists:member({bad_payload, <<"state MAYBE is neither ON nor OFF">>}, Ms)
+                           andalso lists:keymember(bad_payload, 1, Ms)
+                           andalso length([x || {bad_payload, _} <- Ms]) >= 2
+               end),
     <<"on">> = param(<<"Light">>, on(Va, <<"KitchenLight">>, C, [{<<"Brightness">>, <<"10">>}])),
     true = is_process_alive(A).
 
@@ -234,4 +235,3 @@ provider_of(Va, Consumer) ->
                   provider := #{component := P}} <- maps:get(bound, Report), C =:= Consumer],
     P.
 
-wait_until(Fun) -> evatar_test_wait:until(Fun, #{timeout => 10000}).

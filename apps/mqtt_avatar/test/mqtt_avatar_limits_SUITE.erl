@@ -88,7 +88,7 @@ raised_limits_join(Config) ->
         Entity = kept_home(Config, Addr, 320),
         ok = evatar_test_wait:until(fun() -> [] =/= [E || #{description := #{}} = E
                                                                 <- avatars_registered(Config)]
-                                    end, #{timeout => 60000}),
+                                    end),
         [#{description := Public}] = avatars_registered(Config),
         Size = iolist_size(bil:encode_description(Public)),
         ct:log("description of ~b components: ~b bytes",
@@ -164,7 +164,7 @@ problems(Entity, What) ->
 
 wait_problem(Entity, What) ->
     evatar_test_wait:value({problem, What}, fun() -> problems(Entity, What) end,
-                           fun(Ps) -> Ps =/= [] end, #{timeout => 30000}),
+                           fun(Ps) -> Ps =/= [] end),
     hd(problems(Entity, What)).
 
 status(Entity) ->
@@ -174,7 +174,7 @@ status(Entity) ->
 
 wait_joins(Entity, N) ->
     evatar_test_wait:value({joins, N}, fun() -> status(Entity) end,
-                           fun(#{joins := J}) -> J >= N end, #{timeout => 30000}).
+                           fun(#{joins := J}) -> J >= N end).
 
 avatars_registered(Config) ->
     {ok, Registry} = evatar:registry(?config(pairing, Config)),

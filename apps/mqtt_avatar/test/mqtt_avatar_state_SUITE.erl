@@ -7,6 +7,7 @@
 -module(mqtt_avatar_state_SUITE).
 
 -import(mqtt_avatar_test_setup, [light_device/1, test_va/1, mqtt/1, request/4, provider_of/3]).
+-import(evatar_test_wait, [until/1]).
 
 -define(LIVE_LISTENER, mqtt_avatar_state_suite).
 -define(LIVE_CASE_PREFIX, "").
@@ -164,13 +165,13 @@ birth_message(Config) ->
     ClientId = <<"evatar-birth-", P/binary>>,
     A = avatar(Config, #{birth => #{topic => Birth}, evatar => false,
                             mqtt => (mqtt(Config))#{client_id => ClientId}}),
-    ok = wait_until(fun() -> lists:member(<<"Lamp01">>, maps:get(components, mqtt_avatar:status(A))) end),
+    ok = until(fun() -> lists:member(<<"Lamp01">>, maps:get(components, mqtt_avatar:status(A))) end),
     1 = mqtt_avatar_test_device:births(Dev),
     %% Another client with the Avatar's client id takes its session over:
     %% the Avatar connects again and is born again.
     {ok, Thief} = mqtt_client:start(#{host => {127, 0, 0, 1}, port => ?SETUP:broker_port(Config),
                                       client_id => ClientId, reconnect => false}),
-    ok = wait_until(fun() -> mqtt_avatar_test_device:births(Dev) >= 2 end),
+    ok = until(fun() -> mqtt_avatar_test_device:births(Dev) >= 2 end),
     _ = mqtt_client:stop(Thief),
     %% Without a birth message, such a device stays unknown.
     {ok, Quiet} = mqtt_avatar:start(#{entity_id => <<"quiet-", P/binary>>, mqtt => mqtt(Config),
@@ -199,7 +200,7 @@ problems_once(Config) ->
     Count = fun(Pred) -> length([X || X <- mqtt_avatar:problems(A), Pred(X)]) end,
     IsBig = fun(#{what := W} = X) -> W =:= bad_discovery andalso maps:get(topic, X, none) =:= BigTopic end,
     IsUnused = fun(#{what := W}) -> W =:= unused_override end,
-    ok = wait_until(fun() -> Count(IsBig) =:= 1 end),
+    ok = until(fun() -> Count(IsBig) =:= 1 end),
     %% Re-sent, then unrelated devices come (each a new description).
     ok = mqtt_avatar_test_device:publish(Dev, BigTopic, Big, true),
     Sensor = fun(N) ->
@@ -210,8 +211,8 @@ problems_once(Config) ->
     [begin
          {T, C} = Sensor(N),
          ok = mqtt_avatar_test_device:publish(Dev, T, C, true),
-         ok = wait_until(fun() -> lists:member(<<"S", N/binary>>,
-                                                  maps:get(components, mqtt_avatar:status(A))) end)
+         ok = until(fun() -> lists:member(<<"S", N/binary>>,
+                                             maps:get(components, mqtt_avatar:status(A))) end)
      end || N <- [<<"1">>, <<"2">>]],
     1 = Count(IsBig),
     1 = Count(IsUnused).
@@ -235,5 +236,3 @@ event(Va, Type) ->
 avatar(Config, Extra) ->
     ?SETUP:avatar(Config, <<"mqtt-home">>, Extra).
 
-%% Generous: the machine running the tests may be busy.
-wait_until(Fun) -> evatar_test_wait:poll(Fun, #{timeout => 20000}).

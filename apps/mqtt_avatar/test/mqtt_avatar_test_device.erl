@@ -16,7 +16,7 @@ start(Port, Spec) ->
     Parent = self(),
     Pid = spawn(fun() -> init(Parent, Port, Spec) end),
     receive {Pid, ready} -> {ok, Pid}
-    after 10000 -> {error, device_not_ready}
+    after evatar_test_time:guard() -> {error, device_not_ready}
     end.
 
 publish(Dev, Topic, Payload, Retain) -> call(Dev, {publish, Topic, Payload, Retain}).
@@ -34,7 +34,7 @@ call(Dev, Req) ->
     Ref = make_ref(),
     Dev ! {call, self(), Ref, Req},
     receive {Ref, Reply} -> Reply
-    after 10000 -> error({device_timeout, Req})
+    after evatar_test_time:guard() -> error({device_timeout, Req})
     end.
 
 init(Parent, Port, Spec) ->

@@ -184,7 +184,7 @@ wait_partner(A, Comp, Partner) ->
     ok = evatar_test_wait:until(
            fun() ->
                    lists:member(Partner, maps:get(Comp, maps:get(partners, mqtt_avatar:status(A)), []))
-           end, #{timeout => 10000}).
+           end).
 
 %% @doc The VA's first Binding report that satisfies `Pred' (10 s at most).
 -spec wait_binding(pid(), fun((map()) -> boolean())) -> map().

@@ -94,7 +94,7 @@ recv(C, Timeout) ->
 event(C, Tag) ->
     receive
         {mqtt_client, C, Ev} when element(1, Ev) =:= Tag -> Ev
-    after 10000 -> ct:fail({no_event, Tag})
+    after evatar_test_time:guard() -> ct:fail({no_event, Tag})
     end.
 
 %%--------------------------------------------------------------------
@@ -154,7 +154,7 @@ publish_async(Config) ->
     N = 500,
     [ok = mqtt_client:publish_async(Pub, <<"async">>, integer_to_binary(I),
                                     #{qos => 1, ref => I}) || I <- lists:seq(1, N)],
-    [receive {mqtt_client, Pub, {puback, I}} -> ok after 5000 -> ct:fail({no_puback, I}) end
+    [receive {mqtt_client, Pub, {puback, I}} -> ok after evatar_test_time:guard() -> ct:fail({no_puback, I}) end
      || I <- lists:seq(1, N)],
     Got = [binary_to_integer(maps:get(payload, recv(Sub))) || _ <- lists:seq(1, N)],
     Got = lists:seq(1, N),
@@ -279,7 +279,7 @@ broker_killed(Config) ->
     {connected, _} = event(Sub, connected),
     %% Sub may resubscribe after Pub's message is routed; wait until then.
     {ok, [1]} = mqtt_client:subscribe(Sub, [{<<"k">>, 1}]),
-    receive {sent, ok} -> ok after 10000 -> ct:fail(publish_not_completed) end,
+    receive {sent, ok} -> ok after evatar_test_time:guard() -> ct:fail(publish_not_completed) end,
     ok = mqtt_client:publish(Pub, <<"k">>, <<"after">>, #{qos => 1}),
     Payloads = collect_until(Sub, <<"after">>),
     true = lists:member(<<"after">>, Payloads),
@@ -306,7 +306,7 @@ subscribe_waits_for_connection(_Config) ->
     {ok, B} = evatar_test_mosquitto:start(#{port => Port}),
     put(extra_broker, B),
     ok = mqtt_client:await_connected(C, 5000),
-    receive {subscribed, R} -> {ok, [1]} = R after 5000 -> ct:fail(no_subscribe) end,
+    receive {subscribed, R} -> {ok, [1]} = R after evatar_test_time:guard() -> ct:fail(no_subscribe) end,
     ok = mqtt_client:publish(C, <<"w">>, <<"x">>, #{qos => 1}),
     #{payload := <<"x">>} = recv(C),
     ok = mqtt_client:stop(C).
@@ -447,7 +447,7 @@ inflight_window(_Config) ->
                    fun(I, {StA, [Id | Rest]}) ->
                            send(S, #{type => puback, packet_id => Id}),
                            receive {mqtt_client, C, {puback, I}} -> ok
-                           after 2000 -> ct:fail({no_puback, I}) end,
+                           after evatar_test_time:guard() -> ct:fail({no_puback, I}) end,
                            case I =< 7 of
                                true ->
                                    {#{payload := P, packet_id := New}, StB} = next(S, StA, 2000),
@@ -481,7 +481,7 @@ retransmit_on_reconnect(_Config) ->
       #{packet_id := Id2, dup := true, payload := <<"2">>}], St2} = take(S2, St1, 2),
     send(S2, #{type => puback, packet_id => Id1}),
     {[#{dup := false, payload := <<"3">>}], _} = take(S2, St2, 1),
-    receive {mqtt_client, C, {puback, 1}} -> ok after 2000 -> ct:fail(no_puback) end,
+    receive {mqtt_client, C, {puback, 1}} -> ok after evatar_test_time:guard() -> ct:fail(no_puback) end,
     ok = mqtt_client:stop(C).
 
 %% @doc 3.1.1: a message unacknowledged for `retry_interval' is sent again
@@ -496,7 +496,7 @@ retransmit_on_timeout_v311(_Config) ->
     {#{packet_id := Id, dup := false}, St1} = next(S, St0, 2000),
     {#{packet_id := Id, dup := true, payload := <<"x">>}, _} = next(S, St1, 2000),
     send(S, #{type => puback, packet_id => Id}),
-    receive {done, ok} -> ok after 2000 -> ct:fail(no_completion) end,
+    receive {done, ok} -> ok after evatar_test_time:guard() -> ct:fail(no_completion) end,
     ok = mqtt_client:stop(C).
 
 %% @doc The client pings when idle and, when the broker stays silent for

@@ -129,7 +129,7 @@ keep_prints_the_remote_shell_command(Config) ->
     end,
     ok = reference_agents_demo:stop(),
     receive {result, Demo, Result} -> ?assertEqual(ok, Result)
-    after 10000 -> ct:fail(demo_did_not_return)
+    after evatar_test_time:guard() -> ct:fail(demo_did_not_return)
     end,
     ?assertEqual(?config(logger_level, Config), maps:get(level, logger:get_primary_config())).
 

@@ -40,8 +40,8 @@ passive_notice_can_be_stale_test() ->
     {R, W} = P = pair(),
     ok = sock_flow:activate(R, 1),
     ok = gen_tcp:send(W, <<"x">>),
-    receive {tcp, R, _} -> ok after 5000 -> error(no_data) end,
-    receive {tcp_passive, R} -> ok after 5000 -> error(no_passive_notice) end,
+    receive {tcp, R, _} -> ok after evatar_test_time:guard() -> error(no_data) end,
+    receive {tcp_passive, R} -> ok after evatar_test_time:guard() -> error(no_passive_notice) end,
     ?assert(sock_flow:is_passive(R)),
     ok = sock_flow:activate(R, 4),
     %% The notice read after a re-activation is stale.
@@ -57,7 +57,7 @@ read_on_tops_up_every_half_batch_test() ->
     ok = gen_tcp:send(W, <<"abc">>),
     Got = fun G(0, C) -> C;
               G(N, C) -> receive {tcp, R, _} -> G(N - 1, sock_flow:read_on(C, R, 8))
-                         after 5000 -> error(no_data) end
+                         after evatar_test_time:guard() -> error(no_data) end
           end,
     %% One frame read: the count is not touched before the credit is used up.
     C1 = Got(1, Credit0),

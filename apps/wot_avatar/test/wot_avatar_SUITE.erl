@@ -15,7 +15,7 @@
 
 -define(PAIRING, <<"wot-home">>).
 -define(LISTENER, wot_avatar_suite).
--define(WAIT, 20000).
+-define(WAIT, evatar_test_time:guard()).
 
 suite() -> [{timetrap, {seconds, 120}}].
 
@@ -470,8 +470,7 @@ code_path() ->
 %% The Avatar's own Binding report may come after the VA's: wait until it
 %% knows its partner, so that the event goes to it.
 wait_partner(A) ->
-    ok = evatar_test_wait:until(fun() -> maps:get(partners, wot_avatar:status(A)) =/= [] end,
-                                #{timeout => ?WAIT}).
+    ok = evatar_test_wait:until(fun() -> maps:get(partners, wot_avatar:status(A)) =/= [] end).
 
 param(Name, Ps) ->
     case lists:keyfind(Name, 1, Ps) of
@@ -522,7 +521,7 @@ servient(Config, Name, Args, Npm) ->
     receive
         {servient_ready, Reader, OsPid} -> #{reader => Reader, os_pid => OsPid};
         {servient_exit, Reader, Status, Lines} -> ct:fail({servient_failed, Status, Lines})
-    after 60000 -> ct:fail(servient_not_ready)
+    after evatar_test_time:guard() -> ct:fail(servient_not_ready)
     end.
 
 reader(P, Owner, Lines) ->
@@ -579,16 +578,16 @@ servient_line(Config, Line, Pred) ->
 %% The lines the servient has printed so far.
 servient_lines(#{reader := R}) ->
     R ! {lines, self()},
-    receive {lines, R, Ls} -> Ls after 5000 -> ct:fail(servient_lines) end.
+    receive {lines, R, Ls} -> Ls after evatar_test_time:guard() -> ct:fail(servient_lines) end.
 
 servient_input(Config, Data) ->
     #{reader := R} = current_servient(Config),
     R ! {input, self(), Data},
-    receive {input_sent, R} -> ok after 5000 -> ct:fail(servient_input) end.
+    receive {input_sent, R} -> ok after evatar_test_time:guard() -> ct:fail(servient_input) end.
 
 kill_servient(#{os_pid := OsPid, reader := R}) ->
     [] = os:cmd("kill -9 " ++ OsPid),
-    receive {servient_exit, R, _, _} -> ok after 30000 -> ct:fail(servient_not_killed) end.
+    receive {servient_exit, R, _, _} -> ok after evatar_test_time:guard() -> ct:fail(servient_not_killed) end.
 
 stop_servient(#{os_pid := OsPid, reader := R}) ->
     _ = os:cmd("kill -9 " ++ OsPid ++ " 2>/dev/null"),
