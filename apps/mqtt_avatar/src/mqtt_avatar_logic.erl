@@ -877,10 +877,12 @@ put_path([K | Rest], V, M) ->
             end,
     M#{K => put_path(Rest, V, Inner)}.
 
-%% Request parameters are text; numbers go out as JSON numbers.
+%% Request parameters are text; numbers go out as JSON numbers, and
+%% `true' and `false' as JSON booleans (a siren's Strobe: zigbee2mqtt
+%% reads the text "false" as true).
 json_value(V) ->
     case mqtt_avatar_json:decode(V) of
-        {ok, N} when is_number(N) -> N;
+        {ok, N} when is_number(N); is_boolean(N) -> N;
         _ -> V
     end.
 

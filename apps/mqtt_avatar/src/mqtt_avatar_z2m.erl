@@ -85,7 +85,17 @@ availability(Base, Topic) ->
                                Entry(<<Base/binary, "/bridge/state">>)]}.
 
 %% Composite exposes of the other families, and settable numbers and
-%% enums, are read by their family.
+%% enums, are read by their family; so are sirens (a `warning' or `squawk'
+%% composite, a settable binary `alarm', which stays a sensor too).
+expose(Topic, Dev, #{<<"type">> := <<"composite">>, <<"property">> := P, <<"access">> := A} = E,
+       _Exposes)
+  when (P =:= <<"warning">> orelse P =:= <<"squawk">>), is_integer(A), A band ?ACCESS_SET =/= 0 ->
+    mqtt_avatar_family_siren:from_z2m(E, #{topic => Topic, device => Dev});
+expose(Topic, Dev, #{<<"type">> := <<"binary">>, <<"property">> := <<"alarm">>,
+                     <<"access">> := A} = E, Exposes)
+  when is_integer(A), A band ?ACCESS_SET =/= 0 ->
+    expose(Topic, Dev, E#{<<"access">> := A band (bnot ?ACCESS_SET)}, Exposes)
+        ++ mqtt_avatar_family_siren:from_z2m(E, #{topic => Topic, device => Dev});
 expose(Topic, Dev, #{<<"type">> := Type} = E, _Exposes)
   when Type =:= <<"cover">>; Type =:= <<"lock">>; Type =:= <<"climate">>; Type =:= <<"fan">> ->
     Ctx = #{topic => Topic, device => Dev},

@@ -700,3 +700,48 @@ entry_spec(Key, Params) ->
     Entry = #{category => <<"SENSOR">>, type => <<"T">>, parameters => Params},
     mqtt_avatar_spec:from_description(
       (description())#{components => [(#{id => <<"C">>, services => [], consumes => []})#{Key => [Entry]}]}).
+
+%% A zigbee2mqtt siren's StartWarning publishes the warning composite with
+%% Strobe as a JSON boolean and Duration as a number; a mode the siren does
+%% not have is refused; StopWarning sends mode stop.
+zigbee2mqtt_siren_warning_test() ->
+    Enum = fun(P, Vs) -> #{<<"type">> => <<"enum">>, <<"property">> => P, <<"name">> => P,
+                           <<"access">> => 2, <<"values">> => Vs} end,
+    Warning = #{<<"type">> => <<"composite">>, <<"property">> => <<"warning">>,
+                <<"name">> => <<"warning">>, <<"access">> => 2,
+                <<"features">> =>
+                    [Enum(<<"mode">>, [<<"stop">>, <<"burglar">>, <<"fire">>]),
+                     Enum(<<"level">>, [<<"low">>, <<"high">>]),
+                     #{<<"type">> => <<"binary">>, <<"property">> => <<"strobe">>,
+                       <<"name">> => <<"strobe">>, <<"access">> => 2,
+                       <<"value_on">> => true, <<"value_off">> => false},
+                     #{<<"type">> => <<"numeric">>, <<"property">> => <<"duration">>,
+                       <<"name">> => <<"duration">>, <<"access">> => 2}]},
+    Dev = #{<<"friendly_name">> => <<"hall_siren">>, <<"ieee_address">> => <<"0x01">>,
+            <<"definition">> => #{<<"model">> => <<"SIRZB-110">>, <<"exposes">> => [Warning]}},
+    {D, []} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>,
+                                     iolist_to_binary(mqtt_avatar_json:encode([Dev]))}],
+                                   #{entity_id => ?E}),
+    ok = mqtt_avatar_spec:round_trip(D),
+    {ok, Spec} = mqtt_avatar_spec:from_description(D),
+    [#{id := Id}] = maps:get(components, D),
+    {S, _} = mqtt_avatar_logic:handle({mqtt_status, up}, 0, mqtt_avatar_logic:new(?E, Spec, 3000, #{})),
+    Request = fun(Type, Params) ->
+                      {signal, #{id => <<"r">>, context => request_no_feedback, sender => <<"Va">>,
+                                 receiver => Id, in_reply_to => undefined, timestamp => 1, seq => 1,
+                                 epoch => 1, body => #{category => <<"actuator">>, type => Type,
+                                                       parameters => Params}}}
+              end,
+    Start = [{<<"Mode">>, <<"burglar">>}, {<<"Level">>, <<"high">>}, {<<"Strobe">>, <<"false">>},
+             {<<"Duration">>, <<"10">>}],
+    {_, E1} = mqtt_avatar_logic:handle(Request(<<"StartWarning">>, Start), 1, S),
+    ?assertEqual([{ok, #{<<"warning">> => #{<<"mode">> => <<"burglar">>, <<"level">> => <<"high">>,
+                                            <<"strobe">> => false, <<"duration">> => 10}}}],
+                 [mqtt_avatar_json:decode(iolist_to_binary(P)) || P <- publishes(E1)]),
+    {_, E2} = mqtt_avatar_logic:handle(
+                Request(<<"StartWarning">>, lists:keystore(<<"Mode">>, 1, Start, {<<"Mode">>, <<"party">>})),
+                1, S),
+    ?assertEqual([], publishes(E2)),
+    {_, E3} = mqtt_avatar_logic:handle(Request(<<"StopWarning">>, []), 1, S),
+    ?assertEqual([{ok, #{<<"warning">> => #{<<"mode">> => <<"stop">>}}}],
+                 [mqtt_avatar_json:decode(iolist_to_binary(P)) || P <- publishes(E3)]).

@@ -11,11 +11,11 @@
 -include_lib("stdlib/include/assert.hrl").
 
 -export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
--export([every_definition_is_valid_bil/1]).
+-export([every_definition_is_valid_bil/1, sirens_get_their_services/1]).
 
 suite() -> [{timetrap, {minutes, 10}}].
 
-all() -> [every_definition_is_valid_bil].
+all() -> [every_definition_is_valid_bil, sirens_get_their_services].
 
 init_per_suite(Config) ->
     case {os:find_executable("node"), os:find_executable("npm")} of
@@ -75,6 +75,53 @@ every_definition_is_valid_bil(Config) ->
     ct:log("not expressed: ~p", [Failed]),
     ?assert(length(Lines) > 4000),
     ?assertEqual([], Failed).
+
+%% Every siren of the database (a settable `warning' or `squawk' composite,
+%% a settable binary `alarm') gets the services a user expects of it:
+%% StartWarning and StopWarning, Squawk, TurnSirenOn and TurnSirenOff, in
+%% valid BIL. Prints how many sirens there are.
+sirens_get_their_services(Config) ->
+    Sirens = [{Name, Expected, Dev} || L <- ?config(definitions, Config),
+                                       {ok, #{<<"definition">> := Def} = Dev} <- [mqtt_avatar_json:decode(L, #{})],
+                                       Name <- [iolist_to_binary([maps:get(<<"vendor">>, Def, <<"?">>), " ",
+                                                                  maps:get(<<"model">>, Def, <<"?">>)])],
+                                       Expected <- [siren_services(maps:get(<<"exposes">>, Def))],
+                                       Expected =/= []],
+    Missing = [{Name, Expected -- Types, Problems}
+               || {Name, Expected, Dev} <- Sirens,
+                  {Types, Problems} <- [services([Dev])],
+                  Expected -- Types =/= [] orelse Problems =/= []],
+    ct:print("~b sirens, ~b with every expected service", [length(Sirens), length(Sirens) - length(Missing)]),
+    ?assert(length(Sirens) >= 15),
+    ?assertEqual([], Missing).
+
+siren_services(Exposes) ->
+    lists:usort(lists:append(
+                  [case X of
+                       #{<<"type">> := <<"composite">>, <<"property">> := <<"warning">>} ->
+                           [<<"StartWarning">>, <<"StopWarning">>];
+                       #{<<"type">> := <<"composite">>, <<"property">> := <<"squawk">>} ->
+                           [<<"Squawk">>];
+                       #{<<"type">> := <<"binary">>, <<"property">> := <<"alarm">>} ->
+                           [<<"TurnSirenOn">>, <<"TurnSirenOff">>];
+                       _ ->
+                           []
+                   end || #{<<"access">> := A} = X <- Exposes, is_integer(A), A band 2 =/= 0])).
+
+%% The service types of the one component generated for the device, and
+%% the problems (of the generation, of writing and reading its BIL back).
+services(Devs) ->
+    Payload = iolist_to_binary(mqtt_avatar_json:encode(Devs)),
+    {D, Problems} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, Payload}],
+                                         #{entity_id => <<"z2m-db">>}),
+    RoundTrip = case mqtt_avatar_spec:round_trip(D) of
+                    ok -> [];
+                    {error, M} -> [M]
+                end,
+    case maps:get(components, D) of
+        [#{services := Services}] -> {[T || #{type := T} <- Services], Problems ++ RoundTrip};
+        Cs -> {[], [{components, length(Cs)} | Problems ++ RoundTrip]}
+    end.
 
 %% ---------------------------------------------------------------------------
 %% Helpers
