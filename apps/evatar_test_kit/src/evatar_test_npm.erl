@@ -4,12 +4,15 @@
 %% installed once with `npm ci' into _build/wot-npm (EVATAR_WOT_NPM to
 %% choose another directory), again when the lock file changes; and node
 %% scripts run with them. evatar_web_wot_SUITE and wot_avatar_SUITE share it.
-%% install/1 does the same for another npm project of a suite's data dir
-%% (wot_avatar_SUITE's node-wot 0.8.16 MQTT servient), in a directory of
-%% its own: two versions of node-wot cannot share one node_modules.
+%% install/1 does the same for another npm project of a suite's data dir,
+%% in a directory of its own: two versions of node-wot cannot share one
+%% node_modules. install_mqtt/0 installs node-wot 0.8.16 with its MQTT
+%% binding (no 0.9 release of it), pinned in
+%% apps/wot_avatar/test/wot_avatar_SUITE_data/node-wot-mqtt, whose scripts
+%% wot_avatar_SUITE and evatar_web_wot_SUITE run.
 -module(evatar_test_npm).
 
--export([install/0, install/1, node_env/1, run/3]).
+-export([install/0, install/1, install_mqtt/0, node_env/1, run/3]).
 
 %% @doc Installs the packages if the lock file changed since; their
 %% directory. Raises when npm is missing or fails.
@@ -34,6 +37,11 @@ install(Data) ->
               _ -> filename:join([root(), "_build", "wot-npm-" ++ Name])
           end,
     install(Data, Dir).
+
+%% @doc install/1 of the node-wot 0.8.16 MQTT project; its directory.
+-spec install_mqtt() -> file:filename().
+install_mqtt() ->
+    install(filename:join([root(), "apps", "wot_avatar", "test", "wot_avatar_SUITE_data", "node-wot-mqtt"])).
 
 root() ->
     Src = proplists:get_value(source, ?MODULE:module_info(compile)),

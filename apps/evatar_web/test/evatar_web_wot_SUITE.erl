@@ -5,7 +5,8 @@
 %% @thing-description-playground/core) and driven by a real node-wot
 %% consumer (npm @node-wot/core, @node-wot/binding-http), pinned in this
 %% suite's data dir and installed into _build/wot-npm (again when the lock
-%% file changes; evatar_test_npm).
+%% file changes; evatar_test_npm); and the MQTT Avatar's MQTT forms driven
+%% by node-wot 0.8.16's MQTT binding (evatar_test_npm:install_mqtt/0).
 -module(evatar_web_wot_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
@@ -15,7 +16,7 @@
 -export([tds_pass_schema_and_assertions/1, consumer_is_bound_like_a_va/1,
          node_wot_switches_the_lamp/1, feedback_timeout_is_504/1, actions_need_the_token/1,
          a_va_cannot_join_beside_it/1, bad_things_option_is_named/1,
-         node_wot_reads_the_time/1, a_joined_va_keeps_it_out/1]).
+         node_wot_reads_the_time/1, a_joined_va_keeps_it_out/1, node_wot_mqtt_drives_the_devices/1]).
 
 -define(T, evatar_web_test).
 -define(TOKEN, "wot-operator-token-0123456789abcdef").
@@ -31,10 +32,13 @@ suite() -> [{timetrap, {minutes, 6}}].
 
 all() -> [bad_things_option_is_named, tds_pass_schema_and_assertions, consumer_is_bound_like_a_va,
           actions_need_the_token, node_wot_switches_the_lamp, node_wot_reads_the_time, a_va_cannot_join_beside_it,
-          feedback_timeout_is_504, a_joined_va_keeps_it_out].
+          feedback_timeout_is_504, a_joined_va_keeps_it_out,
+          %% last: it publishes a retained reading, and node_wot_reads_the_time wants none
+          node_wot_mqtt_drives_the_devices].
 
 init_per_suite(Config) ->
     Npm = evatar_test_npm:install(),
+    NpmMqtt = evatar_test_npm:install_mqtt(),
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
@@ -72,7 +76,7 @@ init_per_suite(Config) ->
                                              credential => ?AV_CRED}}),
     until(fun() -> home_bound() end),
     until(fun() -> length(things()) =:= 3 end),
-    [{npm, Npm}, {home, Home}, {broker, Broker}, {busy_va, Va}, {busy_lamp, Lamp} | Config].
+    [{npm, Npm}, {npm_mqtt, NpmMqtt}, {home, Home}, {broker, Broker}, {busy_va, Va}, {busy_lamp, Lamp} | Config].
 
 end_per_suite(Config) ->
     ok = avatar_sim:stop(?config(home, Config)),
@@ -202,6 +206,41 @@ node_wot_reads_the_time(Config) ->
     [#{<<"forms">> := [#{<<"href">> := Href} | _]} | _] = maps:values(MqttProps),
     {503, #{<<"error">> := <<"no_reading">>}} = ?T:get("/" ++ binary_to_list(Href)).
 
+%% node-wot 0.8.16 with only its MQTT binding consumes the MQTT Avatar's
+%% TD: it observes the temperature through its MQTT form (a reading the
+%% device published, retained, on its state topic) and invokes a plug
+%% action through its: the device's command topic gets the payload the
+%% form's bil:mqttCommand names, published by node-wot, not by EVATAR.
+node_wot_mqtt_drives_the_devices(Config) ->
+    [Td] = [X || #{<<"title">> := ?MQTT_AV} = X <- things()],
+    Port = integer_to_binary(maps:get(port, ?config(broker, Config))),
+    Broker = <<"mqtt://127.0.0.1:", Port/binary, "/">>,
+    Mqtt = fun(Kind) -> [{Name, F} || {Name, #{<<"forms">> := Fs}} <- maps:to_list(maps:get(Kind, Td)),
+                                      #{<<"href">> := <<B:(byte_size(Broker))/binary, _/binary>>} = F <- Fs,
+                                      B =:= Broker] end,
+    [{Action, Payload} | _] =
+        [{A, P} || {A, #{<<"href">> := H, <<"bil:mqttCommand">> := <<"raw:", P/binary>>}} <- Mqtt(<<"actions">>),
+                   H =:= <<Broker/binary, "home/hall_plug/set">>],
+    %% (the sensor's component has two streams on its state topic)
+    [Property | _] = lists:sort([P || {P, #{<<"href">> := H}} <- Mqtt(<<"properties">>),
+                                      H =:= <<Broker/binary, "home/hall_temperature">>]),
+    File = write(Config, "mqtt-avatar.td.json", evatar_web_json:encode(Td)),
+    {ok, C} = mqtt_client:start_link(#{host => "127.0.0.1", port => maps:get(port, ?config(broker, Config)),
+                                       client_id => <<"wot-suite-devices">>}),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
+    {ok, _} = mqtt_client:subscribe(C, [{<<"home/hall_plug/set">>, 1}]),
+    ok = mqtt_client:publish(C, <<"home/hall_temperature">>, <<"21.5">>, #{qos => 1, retain => true}),
+    {0, Out} = node(Config, "consume_mqtt.js", [File, Action, Property], ?config(npm_mqtt, Config)),
+    ct:pal("~ts", [Out]),
+    {match, _} = re:run(Out, ["OBSERVED \\Q", Property, "\\E 21.5\n"]),
+    {match, _} = re:run(Out, ["INVOKED \\Q", Action, "\\E "]),
+    receive
+        {mqtt_client, C, {publish, #{topic := <<"home/hall_plug/set">>, payload := Got}}} -> Payload = Got
+    after evatar_test_time:guard() -> ct:fail(no_command_published)
+    end,
+    ok = mqtt_client:publish(C, <<"home/hall_temperature">>, <<>>, #{qos => 1, retain => true}),
+    ok = mqtt_client:stop(C).
+
 %% A pairing holds one agent: while the WoT consumer is joined, a VA is
 %% refused `occupied' (docs/wot.md, limits).
 a_va_cannot_join_beside_it(_Config) ->
@@ -303,10 +342,14 @@ write(Config, Name, Data) ->
     ok = file:write_file(F, Data),
     F.
 
-%% Runs a script of the data dir with the installed node_modules.
+%% Runs a script of the data dir with the installed node_modules (Npm:
+%% those of another npm project).
 node(Config, Script, Args) ->
+    node(Config, Script, Args, ?config(npm, Config)).
+
+node(Config, Script, Args, Npm) ->
     Node = os:find_executable("node"),
     Node =/= false orelse ct:fail("node is not installed (Debian: nodejs, npm)"),
     evatar_test_npm:run(Node, [filename:join(?config(data_dir, Config), Script) | Args],
-                        evatar_test_npm:node_env(?config(npm, Config))).
+                        evatar_test_npm:node_env(Npm)).
 

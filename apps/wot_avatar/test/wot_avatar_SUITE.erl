@@ -26,7 +26,7 @@ all() ->
 
 init_per_suite(Config) ->
     Npm = evatar_test_npm:install(),
-    NpmMqtt = evatar_test_npm:install(filename:join(?config(data_dir, Config), "node-wot-mqtt")),
+    NpmMqtt = evatar_test_npm:install_mqtt(),
     ok = evatar_test_node:start([wot_avatar]),
     Addr = evatar_test_node:listen(?LISTENER),
     [{npm, Npm}, {npm_mqtt, NpmMqtt}, {addr, Addr} | Config].
