@@ -31,6 +31,9 @@
 -export([start_link/1, start/1]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
+%% The states of the machine (the diagram above).
+-type state() :: starting | discovering | joining | joined.
+
 -define(MAX_PROBLEMS, 100).
 -define(MAX_RETRY, 5000).
 %% What the Avatar's bridge client reads: the largest Binding report a
@@ -101,8 +104,8 @@ init(#{entity_id := Entity} = Opts) ->
     {D1, _Changed} = rebuild(D0),
     {ok, starting, D1, [{next_event, internal, start_mqtt}]}.
 
--spec handle_event(gen_statem:event_type(), term(), atom(), #d{}) ->
-          gen_statem:event_handler_result(atom()).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(internal, start_mqtt, starting, #d{opts = Opts, entity = Entity} = D) ->
     MqttOpts0 = maps:get(mqtt, Opts),
     ClientId = maps:get(client_id, MqttOpts0,
@@ -256,7 +259,7 @@ handle_event({call, From}, stop, _State, D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), atom(), #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Reason, _State, #d{mqtt = Mqtt}) ->
     case Mqtt of
         undefined -> ok;

@@ -28,6 +28,9 @@
                     crashes := non_neg_integer(),
                     next_delay_ms := pos_integer()}.
 
+%% The states of the machine.
+-type state() :: waiting | running.
+
 -record(d, {opts :: mqtt_avatar:opts(),
             entity :: binary(),
             avatar :: pid() | undefined,
@@ -60,8 +63,8 @@ init(#{entity_id := Entity} = Opts) ->
            backoff = restart_backoff:new(maps:get(restart, Opts, #{}))},
     {ok, waiting, D, [{state_timeout, 0, start}]}.
 
--spec handle_event(gen_statem:event_type(), term(), waiting | running, #d{}) ->
-          gen_statem:event_handler_result(waiting | running).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(state_timeout, start, waiting, #d{opts = Opts} = D) ->
     Started = erlang:monotonic_time(millisecond),
     case mqtt_avatar:start_link(maps:remove(restart, Opts)) of
@@ -99,7 +102,7 @@ handle_event({call, From}, {reconfigure, Changes}, _State, #d{opts = Opts, avata
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), waiting | running, #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Reason, _State, #d{avatar = undefined}) ->
     ok;
 terminate(_Reason, _State, #d{avatar = Pid}) ->

@@ -25,6 +25,9 @@
                     starts := non_neg_integer(), crashes := non_neg_integer(),
                     next_delay_ms := pos_integer()}.
 
+%% The states of the machine.
+-type state() :: waiting | running.
+
 -record(d, {opts :: wot_avatar:opts(),
             entity :: binary(),
             avatar :: pid() | undefined,
@@ -50,8 +53,8 @@ init(#{entity_id := Entity} = Opts) ->
     {ok, waiting, #d{opts = Opts, entity = Entity, backoff = restart_backoff:new(maps:get(restart, Opts, #{}))},
      [{state_timeout, 0, start}]}.
 
--spec handle_event(gen_statem:event_type(), term(), waiting | running, #d{}) ->
-          gen_statem:event_handler_result(waiting | running).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(state_timeout, start, waiting, #d{opts = Opts} = D) ->
     case wot_avatar:start_link(Opts) of
         {ok, Pid} ->
@@ -73,7 +76,7 @@ handle_event({call, From}, status, State, D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), waiting | running, #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Reason, _State, #d{avatar = undefined}) ->
     ok;
 terminate(_Reason, _State, #d{avatar = Pid}) ->
