@@ -16,7 +16,8 @@ REPO = Path(__file__).resolve().parents[3]
 
 PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
             "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar",
-            "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret"]
+            "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret",
+            "artifacts:art-va:art-avatar"]
 
 
 class Node:

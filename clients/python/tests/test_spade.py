@@ -4,7 +4,9 @@ spade-bdi agent (examples/holiday/holiday_spade.asl) against the simulated
 home on a two-node cluster whose node 1 is killed under it, judged by the
 house's outcome as test_holiday judges the python-agentspeak agent; a
 wrong credential and an unbound action give the agent errors, never a
-hang; docs/clients.md's SPADE agent runs."""
+hang; docs/clients.md's SPADE agent runs; each emulator of a VA's
+description is a spade-artifact artifact its agent focuses on and acts
+through."""
 
 from __future__ import annotations
 
@@ -20,8 +22,8 @@ import pytest
 pytest.importorskip("spade")
 pytest.importorskip("spade_bdi")
 
-from evatar import (Binding, Component, Description, Entry, NotBoundError,  # noqa: E402
-                    RefusedError)
+from evatar import (Actuator, Binding, Client, Component, Description, Entry,  # noqa: E402
+                    NotBoundError, RefusedError, Sensor, describe)
 from evatar.spade import Body, EmbodiedAgent, EmbodiedBDIAgent  # noqa: E402
 
 from conftest import REPO, Node, XmppServer, run  # noqa: E402
@@ -228,4 +230,85 @@ def test_bdi_agents_still_talk(xmpp: XmppServer, tmp_path: Path) -> None:
         await teller.stop()
         await listener.stop()
         assert listener.log == ["hello 1"]
+    run(main())
+
+
+LIGHT_AND_LUX = Description(entity_id="art-va", entity_type="Agent", components=[
+    Component("LightEmulator01", [Entry("ACTUATOR", "ACTION FEEDBACK", {"Feedback": "yes"})],
+              [Entry("ACTUATOR", "TurnLightOn", {"Light": "yes"})]),
+    Component("LuxEmulator01", [Entry("SENSOR", "Luminosity", {"Room": "living"})])])
+
+
+def test_emulators_as_artifacts(xmpp: XmppServer, node: Node) -> None:
+    """Each emulator of the VA's description is an artifact (spade-artifact)
+    the agent focuses on: once the house joins, each artifact publishes its
+    emulator's binding, the luminosity emulator's artifact the house's
+    reading; through the light emulator's artifact the agent turns the
+    house's lamp on and gets its Feedback, and a service the emulator does
+    not consume fails with NotConsumed."""
+    pytest.importorskip("spade_artifact")
+    from evatar.spade import ArtifactError, UsesEmulators, emulator_artifacts
+
+    class VA(UsesEmulators, EmbodiedAgent):  # type: ignore[misc,valid-type]
+        async def setup(self) -> None:
+            self.emulator_percepts: "asyncio.Queue[Tuple[str, dict]]" = asyncio.Queue()
+
+        def on_emulator_percept(self, artifact: str, percept: dict) -> None:
+            self.emulator_percepts.put_nowait((artifact, percept))
+
+    async def main() -> None:
+        ep = ("127.0.0.1", node.port)
+        house = Client([ep], pairing="artifacts", role="avatar", entity_id="art-house",
+                       credential="art-avatar")
+        asked: List[Optional[str]] = []
+
+        def turn_on(request: object) -> Dict[str, str]:
+            asked.append(request.param("Light"))  # type: ignore[attr-defined]
+            return {"Light": "on"}
+        lamp = Actuator(house, "LivingLamp", [Entry("ACTUATOR", "TurnLightOn", {"Light": "yes"})],
+                        turn_on)
+        lux = Sensor(house, "LivingLux", "Luminosity", {"Room": "living"})
+        await house.connect()
+        agent = VA("art-va@127.0.0.1", "xmpp-secret", port=xmpp.port)
+        body = agent.embody(Body(LIGHT_AND_LUX, [ep], pairing="artifacts", credential="art-va"))
+        await asyncio.wait_for(agent.start(), GUARD)
+        light, lux_artifact = artifacts = emulator_artifacts(body, "127.0.0.1", "artifact-secret",
+                                                             port=xmpp.port)
+        assert [a.component for a in artifacts] == ["LightEmulator01", "LuxEmulator01"]
+        names = [str(a.jid.bare) for a in artifacts]
+        assert names == ["art-va.lightemulator01@127.0.0.1", "art-va.luxemulator01@127.0.0.1"]
+        try:
+            for a in artifacts:
+                await asyncio.wait_for(a.start(), GUARD)
+                await asyncio.wait_for(agent.focus(str(a.jid)), GUARD)
+
+            async def perceived(artifact: str, kind: str) -> dict:
+                while True:
+                    got, p = await asyncio.wait_for(agent.emulator_percepts.get(), GUARD)
+                    if got == artifact and p["percept"] == kind and p.get("bound", True):
+                        return p
+
+            await describe(house, [lamp, lux])
+            for name, component in zip(names, ["LightEmulator01", "LuxEmulator01"]):
+                p = await perceived(name, "binding")
+                assert (p["component"], p["bound"], p["unbound"]) == (component, True, [])
+            await house.wait_binding(lambda b: b.is_bound("LivingLux"), GUARD)
+            await lux.emit({"Lux": "12", "Room": "living"})
+            reading = await perceived(names[1], "reading")
+            assert (reading["component"], reading["context"], reading["type"], reading["sender"],
+                    reading["parameters"]) == ("LuxEmulator01", "SensorData", "Luminosity",
+                                               "LivingLux", {"Lux": "12", "Room": "living"})
+            assert lux_artifact.get("Luminosity") == reading
+            feedback = await asyncio.wait_for(
+                agent.use(names[0], "TurnLightOn", {"Light": "yes"}), GUARD)
+            assert feedback == {"Light": "on"} and asked == ["yes"]
+            with pytest.raises(ArtifactError) as refused:
+                await asyncio.wait_for(agent.use(names[0], "OpenDoor"), GUARD)
+            assert refused.value.code == "NotConsumed", refused.value
+        finally:
+            for a in artifacts:
+                await a.stop()
+            await agent.stop()
+            await house.close()
+        assert not any(a.is_alive() for a in artifacts)
     run(main())

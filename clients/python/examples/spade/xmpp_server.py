@@ -4,10 +4,11 @@ loopback only, for the tests and the demo:
     python xmpp_server.py [PORT]
 
 listens on 127.0.0.1:PORT (default 0: a free port) for clients, with an
-in-memory database, no admin web page and no server-to-server listener on
-a public address; prints ``XMPP_PORT=<port>`` once it listens, and stops
-when its stdin closes. Agents' JIDs are ``name@127.0.0.1``; SPADE
-registers them on their first start.
+in-memory database, no admin web page, no server-to-server listener on a
+public address, and PubSub mended for spade-artifact (below); prints
+``XMPP_PORT=<port>`` once it listens, and stops when its stdin closes.
+Agents' JIDs are ``name@127.0.0.1``; SPADE registers them on their first
+start.
 """
 
 from __future__ import annotations
@@ -18,11 +19,48 @@ import sys
 
 import uvloop
 from loguru import logger
+from pyjabber.plugins.xep_0060.xep_0060 import PubSub
 from pyjabber.plugins.xep_0363.xep_0363 import HTTPFieldUpload
 from pyjabber.server import Server
 from pyjabber.server_parameters import Parameters
 
 HOST = "127.0.0.1"
+
+
+class _Reload:
+    """PubSub's memory reload, run only when awaited."""
+
+    def __init__(self, load, pubsub) -> None:
+        self.load, self.pubsub = load, pubsub
+
+    def __await__(self):
+        return self.load(self.pubsub).__await__()
+
+
+def reload_pubsub_after_changes() -> None:
+    """pyjabber 0.4.5's PubSub calls update_memory_from_database() without
+    awaiting it after creating, deleting, subscribing or unsubscribing, so
+    it never sees a new node or subscriber: a publish to a node just made
+    answers item-not-found, a subscriber gets nothing. Made here to reload
+    before the answer is sent (before PubSub() takes its operations)."""
+    load = PubSub.update_memory_from_database
+    if getattr(load, "evatar_patched", False):
+        return
+
+    def update(self):
+        return _Reload(load, self)
+    update.evatar_patched = True
+    PubSub.update_memory_from_database = update
+
+    def reloading(op):
+        async def changed(self, element, jid):
+            try:
+                return await op(self, element, jid)
+            finally:
+                await self.update_memory_from_database()
+        return changed
+    for name in ("create_node", "delete_node", "subscribe", "unsubscribe"):
+        setattr(PubSub, name, reloading(getattr(PubSub, name)))
 
 
 async def main(port: int) -> None:
@@ -38,6 +76,7 @@ async def main(port: int) -> None:
     # then dies after binding, silently, and routes no message or presence.
     # Made here with no HTTP server; no client is told the service exists.
     HTTPFieldUpload(None)
+    reload_pubsub_after_changes()
     task = asyncio.ensure_future(server.run_server())
     ready = asyncio.ensure_future(server.ready.wait())
     await asyncio.wait([task, ready], return_when=asyncio.FIRST_COMPLETED)

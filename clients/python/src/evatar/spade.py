@@ -1,5 +1,5 @@
 """SPADE agents embodied through EVATAR (``pip install evatar[spade]``:
-``spade``, ``spade-bdi``).
+``spade``, ``spade-bdi``, ``spade-artifact``).
 
 A SPADE agent is an XMPP client: it reasons and talks to other agents
 there. EVATAR gives it a body: add a :class:`Body` (a SPADE behaviour) with
@@ -54,21 +54,45 @@ For spade-bdi agents (:class:`EmbodiedBDIAgent`) the percepts are beliefs
 The reasoning cycle of :class:`EmbodiedBDIAgent` sleeps while the agent
 has nothing to do (spade-bdi's own polls without pause).
 
-Not covered: spade-artifact (an emulator as an artifact), SPADE's
-presence and web interface, an agent with several bodies in one pairing.
-With ``ha`` and no node reachable, ``start()`` goes on trying for the
-client's ``reconnect_limit`` (600 s unless given).
+Emulators as artifacts (spade-artifact): :func:`emulator_artifacts` makes
+an :class:`EmulatorArtifact` for each component of the body's description,
+as the paper's sensor and actuator emulators are objects of the VA's
+environment. Each is an XMPP entity of its own with a PubSub node; it
+publishes its emulator's percepts as JSON (:func:`emulator_percept`:
+``reading`` for a device's ``SensorData``/``Event``, ``binding`` for the
+component's state in each Binding report, ``closed``) and takes requests
+(ontology :data:`ONTOLOGY`), which it acts on through the body. An agent
+class with the :class:`UsesEmulators` mixin (``class VA(UsesEmulators,
+EmbodiedAgent)``; spade-artifact's ArtifactMixin) ``focus()``es on an
+artifact, perceives its percepts as calls of ``on_emulator_percept(artifact,
+percept)``, and ``use()``s it: the Feedback's parameters, or
+:class:`ArtifactError` whose ``code`` is :func:`reason`'s. Any agent may
+focus on and use an artifact, not only the body's own. A percept published
+before an agent focused is not delivered to it (the PubSub service keeps
+no last item for new subscribers); the artifact's latest readings are its
+``get(type)``.
+
+Not covered: emulator artifacts for spade-bdi agents (no ``.focus`` or
+``.use`` internal action, and spade-bdi's cycle would take the artifacts'
+answers as its messages), spade-artifact's ``link`` between artifacts and
+its readers (CSV, SQL, MongoDB, HTTP), SPADE's presence and web interface,
+an agent with several bodies in one pairing. With ``ha`` and no node
+reachable, ``start()`` goes on trying for the client's ``reconnect_limit``
+(600 s unless given).
 """
 
 from __future__ import annotations
 
 import asyncio
 import inspect
+import json
 import logging
+import uuid
 from typing import Any, Callable, Dict, List, Optional, Sequence, Set, Tuple, Union
 
 from spade.agent import Agent  # type: ignore[import-untyped]
 from spade.behaviour import CyclicBehaviour  # type: ignore[import-untyped]
+from spade.message import Message  # type: ignore[import-untyped]
 
 from .bdi import minute_of, params_of, perceive, plist
 from .bil import Binding, Description, ParamsLike, Signal, parse_frame
@@ -86,7 +110,7 @@ Handler = Callable[[Percept], Any]
 
 def reason(error: BaseException) -> str:
     """The short code an agent acts on for a failed :meth:`Body.act`."""
-    if isinstance(error, SignalError):
+    if isinstance(error, (SignalError, ArtifactError)):
         return error.code
     if isinstance(error, FeedbackTimeout):
         return "Timeout"
@@ -140,6 +164,8 @@ class Body(CyclicBehaviour):  # type: ignore[misc]
         self.client: Optional[Client] = None
         self._parts: Dict[str, _Part] = {}
         self._joined: "Optional[asyncio.Future[None]]" = None
+        #: Component -> its EmulatorArtifacts' watchers (told before the handler).
+        self._watchers: Dict[str, List[Callable[[Percept], None]]] = {}
 
     # ------------------------------------------------------------ lifecycle
 
@@ -187,6 +213,10 @@ class Body(CyclicBehaviour):  # type: ignore[misc]
         if isinstance(ev, Closed):
             self.kill()
 
+    def match(self, message: Any) -> bool:
+        """The body reads EVATAR, never an XMPP message: none waits in its mailbox."""
+        return False
+
     def kill(self, exit_code: Optional[Any] = None) -> None:
         """Stops the behaviour; a body still joined leaves the pairing (so
         a plain ``Agent.stop()``, which kills its behaviours, leaves too)."""
@@ -215,7 +245,23 @@ class Body(CyclicBehaviour):  # type: ignore[misc]
 
     # ------------------------------------------------------------- percepts
 
+    def _watch(self, component: str, watcher: Callable[[Percept], None]) -> None:
+        """Tells ``watcher`` every signal addressed to ``component`` and
+        every Binding, Reconnected and Closed event, before the handler."""
+        self._watchers.setdefault(component, []).append(watcher)
+
+    def _unwatch(self, component: str, watcher: Callable[[Percept], None]) -> None:
+        ws = self._watchers.get(component, [])
+        if watcher in ws:
+            ws.remove(watcher)
+
     async def _perceive(self, ev: Percept) -> None:
+        if isinstance(ev, Signal):
+            watchers = list(self._watchers.get(ev.receiver, ()))
+        else:
+            watchers = [w for ws in self._watchers.values() for w in ws]
+        for w in watchers:
+            w(ev)
         handler = self.handler or getattr(self.agent, "on_percept", None)
         if handler is None:
             return
@@ -507,3 +553,288 @@ if _BDIAgent is not None:
                     asp_agent.intentions.remove(stack)
                 self.believe("failed", (comp, service, why), replace=2)
             self._wake()
+
+
+# ---------------------------------------------------------------- artifacts
+
+#: The ``ontology`` of the requests an :class:`EmulatorArtifact` takes and
+#: of its answers.
+ONTOLOGY = "evatar-emulator"
+
+
+class ArtifactError(EvatarError):
+    """An :class:`EmulatorArtifact` answered ``failure``: ``code`` is what
+    :func:`reason` would have named on the artifact's side (``NotBound``,
+    ``Timeout``, an Error signal's type, ...), the message its text."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__("%s: %s" % (code, message))
+        self.code = code
+
+
+def emulator_percept(component: str, ev: Percept) -> Optional[Dict[str, Any]]:
+    """What the artifact of ``component`` publishes for a body's event, or
+    None: a reading for a ``SensorData``/``Event`` from a device, the
+    component's binding state for a Binding report, ``closed`` at the end."""
+    if isinstance(ev, Signal):
+        if ev.context not in ("SensorData", "Event") or ev.from_evatar:
+            return None
+        return {"percept": "reading", "component": component, "context": ev.context,
+                "type": ev.type, "sender": ev.sender, "parameters": dict(ev.body.parameters),
+                "timestamp": ev.timestamp}
+    if isinstance(ev, Binding):
+        return {"percept": "binding", "component": component, "bound": ev.is_bound(component),
+                "unbound": [{"type": u.type, "reason": u.reason} for u in ev.unbound
+                            if u.consumer_component == component]}
+    if isinstance(ev, Closed):
+        return {"percept": "closed", "component": component}
+    return None
+
+
+try:
+    from spade_artifact import Artifact as _Artifact  # type: ignore[import-untyped]
+    from spade_artifact import ArtifactMixin as _ArtifactMixin  # type: ignore[import-untyped]
+    from slixmpp import JID as _JID  # type: ignore[import-untyped]
+except ImportError:  # pragma: no cover - spade-artifact is optional
+    _Artifact = None
+
+
+if _Artifact is not None:
+
+    class EmulatorArtifact(_Artifact):  # type: ignore[misc,valid-type]
+        """The emulator ``component`` of ``body``'s description as a
+        spade-artifact artifact (an XMPP entity ``jid`` with a PubSub node
+        named by its bare JID). Once started it publishes, as JSON text,
+        every percept of its emulator (:func:`emulator_percept`: readings,
+        its binding state, ``closed``) and takes requests: a message with
+        ``ontology`` :data:`ONTOLOGY`, performative ``request`` and body
+        ``{"service": S, "parameters": {...}}`` is acted on through the
+        body (:meth:`Body.act`), answered ``inform`` with the Feedback's
+        parameters or ``failure`` with ``{"reason": code, "error": text}``,
+        in the request's thread. :meth:`UsesEmulators.use` sends one."""
+
+        def __init__(self, jid: str, password: str, body: Body, component: str, *,
+                     port: int = 5222, pubsub_server: Optional[str] = None,
+                     verify_security: bool = False) -> None:
+            if not any(c.id == component for c in body.description.components):
+                raise ValueError("%s is not a component of %s" % (
+                    component, body.description.entity_id))
+            policy = asyncio.get_event_loop_policy()  # as Embodied: keep the program's loops
+            super().__init__(jid, password, pubsub_server=pubsub_server, port=port,
+                             verify_security=verify_security)
+            asyncio.set_event_loop_policy(policy)
+            self.body = body
+            self.component = component
+            self._outbox: "asyncio.Queue[Optional[Dict[str, Any]]]" = asyncio.Queue()
+            self._tasks: Set["asyncio.Task[None]"] = set()
+
+        async def start(self, auto_register: bool = True) -> None:
+            # spade-artifact runs run() on the loop of SPADE's container,
+            # the first agent's: in a later loop it would never run.
+            self.container.register(self)  # again after a stop()
+            self.loop = asyncio.get_running_loop()
+            await super().start(auto_register=auto_register)
+
+        async def setup(self) -> None:
+            self.body._watch(self.component, self._observe)
+            if self.body.binding is not None:
+                self._observe(self.body.binding)
+            self._spawn(self._publisher())
+
+        def _spawn(self, coro: Any) -> None:
+            task = asyncio.ensure_future(coro)
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+        def _observe(self, ev: Percept) -> None:
+            p = emulator_percept(self.component, ev)
+            if p is not None:
+                if p["percept"] == "reading":
+                    self.set(p["type"], p)
+                self._outbox.put_nowait(p)
+
+        async def _publisher(self) -> None:
+            while True:
+                p = await self._outbox.get()
+                if p is None:
+                    return
+                await self.publish(json.dumps(p))
+
+        def dispatch(self, msg: Any) -> List[Any]:
+            """SPADE's container hands a message from an agent of this
+            process here, not over XMPP."""
+            self.queue.put_nowait(msg)
+            return []
+
+        async def run(self) -> None:
+            while True:
+                msg = await self.queue.get()
+                if msg is None:
+                    return
+                if (msg.get_metadata("ontology") == ONTOLOGY
+                        and msg.get_metadata("performative") == "request"):
+                    self._spawn(self._act(msg))
+
+        async def _act(self, msg: Any) -> None:
+            reply = msg.make_reply()
+            reply.set_metadata("ontology", ONTOLOGY)
+            try:
+                req = json.loads(msg.body or "")
+                fb = await self.body.act(self.component, str(req["service"]),
+                                         req.get("parameters") or None)
+            except (EvatarError, OSError) as e:  # NotConsumedError is a ValueError too
+                reply.set_metadata("performative", "failure")
+                reply.body = json.dumps({"reason": reason(e), "error": str(e)})
+            except (ValueError, KeyError, TypeError) as e:
+                reply.set_metadata("performative", "not-understood")
+                reply.body = json.dumps({"reason": "BadRequest", "error": str(e)})
+            else:
+                reply.set_metadata("performative", "inform")
+                reply.body = json.dumps({"feedback": dict(fb.body.parameters)})
+            await self.send(reply)
+
+        async def stop(self) -> None:
+            """Stops publishing and taking requests, leaves XMPP."""
+            self.body._unwatch(self.component, self._observe)
+            self._outbox.put_nowait(None)
+            self.queue.put_nowait(None)
+            for task in list(self._tasks):
+                task.cancel()
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+            self.container.unregister(str(self.jid))
+            if self.presence:
+                self.presence.set_unavailable()
+            # spade-artifact's stop() clears the alive flag before it looks
+            # at it, and so never disconnects.
+            if self.client is not None and self.is_alive():
+                await self.client.disconnect()
+            self.kill()
+
+    def emulator_artifacts(body: Body, host: str, password: str, *, port: int = 5222,
+                           jid: Optional[Callable[[str], str]] = None,
+                           **options: Any) -> List[EmulatorArtifact]:
+        """An :class:`EmulatorArtifact` for each component (emulator) of
+        ``body``'s description, not started; the JID of component C is
+        ``jid(C)``, by default ``<entity>.<C>@host`` in lower case."""
+        me = body.description.entity_id
+        name = jid or (lambda c: ("%s.%s@%s" % (me, c, host)).lower())
+        return [EmulatorArtifact(name(c.id), password, body, c.id, port=port, **options)
+                for c in body.description.components]
+
+    class _Answers(CyclicBehaviour):  # type: ignore[misc]
+        """Takes the artifacts' answers to this agent's requests, by thread."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.pending: "Dict[str, asyncio.Future[Any]]" = {}
+            self._stopped = asyncio.Event()
+
+        def match(self, message: Any) -> bool:
+            return (message.get_metadata("ontology") == ONTOLOGY
+                    and message.thread in self.pending)
+
+        async def enqueue(self, message: Any) -> None:
+            f = self.pending.pop(message.thread, None)
+            if f is not None and not f.done():
+                f.set_result(message)
+
+        async def run(self) -> None:
+            await self._stopped.wait()
+
+        def kill(self, exit_code: Optional[Any] = None) -> None:
+            super().kill(exit_code)
+            self._stopped.set()
+            for f in self.pending.values():
+                if not f.done():
+                    f.set_exception(ClosedError("the agent stopped"))
+            self.pending.clear()
+
+    class UsesEmulators(_ArtifactMixin):  # type: ignore[misc,valid-type]
+        """Mixin for a SPADE agent class (``class A(UsesEmulators,
+        EmbodiedAgent)``): :meth:`focus` on an :class:`EmulatorArtifact`
+        makes its percepts calls of ``on_emulator_percept(artifact,
+        percept)`` (a dict, :func:`emulator_percept`), :meth:`use` acts
+        through it."""
+
+        async def _hook_plugin_after_connection(self, *args: Any, **kwargs: Any) -> None:
+            await super()._hook_plugin_after_connection(*args, **kwargs)
+            answers = self.__dict__.get("_answers")
+            if answers is None or answers.is_killed():
+                answers = self.__dict__["_answers"] = _Answers()
+                self.add_behaviour(answers)  # type: ignore[attr-defined]
+
+        def _message_received(self, msg: Any) -> Any:
+            # A PubSub notification is the artifact's percept, taken by
+            # spade-artifact's handler; no behaviour is to read it.
+            if msg.xml.find("{http://jabber.org/protocol/pubsub#event}event") is not None:
+                return []
+            return super()._message_received(msg)  # type: ignore[misc]
+
+        async def focus(self, artifact: str, handler: Optional[Callable[[str, Dict[str, Any]], Any]]
+                        = None) -> None:
+            """Subscribes to the artifact ``artifact`` (its JID); each of its
+            percepts is then a call of ``handler(artifact, percept)``
+            (function or coroutine function), by default
+            ``on_emulator_percept``. Raises :class:`ArtifactError`
+            (``NotFocused``) when the PubSub service refuses."""
+            node = str(_bare(artifact))
+            call = handler or self.on_emulator_percept
+
+            def received(_publisher: Any, text: str) -> None:
+                try:
+                    r = call(node, json.loads(text))
+                    if inspect.isawaitable(r):
+                        asyncio.ensure_future(r)
+                except Exception:  # the agent's bug must not cost it its artifacts
+                    LOG.exception("the percept handler of %s failed on %r", self.jid, text)
+            # spade-artifact's own focus() says nothing when the PubSub
+            # service refuses: the agent would wait for percepts that never come.
+            self.artifacts.focus_callbacks[node] = received  # type: ignore[attr-defined]
+            if await self.pubsub.subscribe(self.pubsub_server, node) is None:  # type: ignore[attr-defined]
+                del self.artifacts.focus_callbacks[node]  # type: ignore[attr-defined]
+                raise ArtifactError("NotFocused", "%s: the PubSub service %s refused the "
+                                    "subscription (is the artifact started?)"
+                                    % (node, self.pubsub_server))  # type: ignore[attr-defined]
+
+        async def ignore(self, artifact: str) -> None:
+            """Unsubscribes from the artifact."""
+            await self.artifacts.ignore(str(_bare(artifact)))  # type: ignore[attr-defined]
+
+        def on_emulator_percept(self, artifact: str, percept: Dict[str, Any]) -> Any:
+            pass
+
+        async def use(self, artifact: str, service: str, parameters: Optional[Dict[str, str]]
+                      = None, timeout: float = 30.0) -> Dict[str, str]:
+            """Asks the artifact to request ``service`` of its emulator's
+            provider; returns the Feedback's parameters, or raises
+            :class:`ArtifactError` (``code``: ``NotBound``, ``Timeout``,
+            ``NotConsumed``, an Error's type, ``BadRequest``),
+            :class:`~evatar.FeedbackTimeout` when no answer comes within
+            ``timeout`` seconds, :class:`~evatar.ClosedError` once the
+            agent stopped."""
+            answers = self.__dict__.get("_answers")
+            if answers is None or answers.is_killed():
+                raise ClosedError("the agent is not started")
+            msg = Message(to=str(_bare(artifact)), thread=uuid.uuid4().hex,
+                           body=json.dumps({"service": service,
+                                            "parameters": dict(parameters or {})}),
+                           metadata={"performative": "request", "ontology": ONTOLOGY})
+            answer = answers.pending[msg.thread] = asyncio.get_running_loop().create_future()
+            try:
+                await answers.send(msg)
+                reply = await asyncio.wait_for(answer, timeout)
+            except asyncio.TimeoutError:
+                raise FeedbackTimeout("%s did not answer %s within %s s"
+                                      % (artifact, service, timeout)) from None
+            finally:
+                answers.pending.pop(msg.thread, None)
+            body = json.loads(reply.body or "{}")
+            if reply.get_metadata("performative") != "inform":
+                raise ArtifactError(body.get("reason", "Failure"), body.get("error", ""))
+            return dict(body.get("feedback", {}))
+
+    def _bare(jid: str) -> Any:
+        return _JID(jid).bare
+
+    __all__ += ["ONTOLOGY", "ArtifactError", "EmulatorArtifact", "UsesEmulators",
+                "emulator_artifacts", "emulator_percept"]
