@@ -5,6 +5,8 @@
 %% inspection functions for a remote shell (`pairings/0', `bindings/1',
 %% `registry/1', `stats/1' and their `print_*' forms), and the
 %% high-availability view (`ha_status/1', `ha_locate/1', `cluster_status/0').
+%% For tests, timers fired now: a pairing's (`expire_timer/2') and the
+%% node's periodic rounds (`run_now/1').
 %% docs/architecture.md describes the processes; every other evatar_* module
 %% is internal.
 %%
@@ -38,7 +40,7 @@
 -export([pairings/0, bindings/1, registry/1, stats/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
 -export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0, stored_options/1]).
--export([expire_timer/2]).
+-export([expire_timer/2, run_now/1]).
 -export([hash_credential/1, hash_credential/2, verify_credential/2]).
 
 -export_type([pairing_id/0, role/0, session/0, pairing_opts/0, binding_report/0,
@@ -578,6 +580,26 @@ expire_timer(PairingId, Key) ->
                 Reply -> Reply
             end
     end.
+
+%% @doc For tests: one round of this node's periodic work now, as its
+%% timer would run it, returning once the round is done, so that a case
+%% fires the round whose decision it checks instead of waiting for it:
+%% `cluster' (the membership's evaluation, every `heartbeat_ms': who is
+%% alive, the majority), `catalogue' (the catalogue's periodic work, as if
+%% all of it were due: the data directory checked, the whole catalogue
+%% sent to every alive peer, pairings this node owns and no node runs
+%% started, deleted ones stopped), `rebalancer' (a
+%% rebalancing round, whatever `rebalance_delay_ms' and
+%% `rebalance_round_ms' say: on the coordinator, the moves it sent, `[]'
+%% once the placement is even; elsewhere why not,
+%% `{error, {not_coordinator, Node}}' naming the coordinator). An early
+%% round decides what the timed one would have: safe on a running node.
+%% What a round sent to other nodes or to pairings may still be on its way.
+-spec run_now(cluster | catalogue) -> ok;
+             (rebalancer) -> evatar_rebalancer:round().
+run_now(cluster) -> evatar_cluster:refresh_now();
+run_now(catalogue) -> evatar_catalogue:reconcile_now();
+run_now(rebalancer) -> evatar_rebalancer:plan_now().
 
 %% ---------------------------------------------------------------------------
 %% High availability

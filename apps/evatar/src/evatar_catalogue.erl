@@ -27,13 +27,19 @@
 %% what peers send is held in memory, and everything runs as before. When
 %% there is room again (`disk_space_back') what was held is written
 %% (docs/ha.md section 6, "A full disk").
+%%
+%% Its periodic work (the look every 500 ms, the check of the data
+%% directory every `disk_check_ms', the whole catalogue to every alive
+%% peer every `catalogue_sync_ms') runs now through {@link
+%% reconcile_now/0} (tests, through `evatar:run_now(catalogue)'): each
+%% early, deciding as the timed one would.
 -module(evatar_catalogue).
 -behaviour(gen_server).
 
 -include_lib("kernel/include/logger.hrl").
 
 -export([start_link/0, create/2, remove/2, ensure/2, lookup/1, entries/0, durable/0,
-         sync_now/0, disk_full/0]).
+         sync_now/0, reconcile_now/0, disk_full/0]).
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, evatar_catalogue).
@@ -130,6 +136,16 @@ disk_full() ->
 -spec sync_now() -> ok.
 sync_now() ->
     gen_server:cast(?MODULE, sync_now).
+
+%% @doc For tests: this node's periodic work now, as if each of its timers
+%% were due (the data directory checked, for room or for room back; the
+%% whole catalogue sent to every alive peer; what this node owns and no
+%% node runs started, once it is in sync with its peers; local instances
+%% of deleted pairings stopped), returning once it is done: what it sent
+%% may still be on its way, what it started is starting.
+-spec reconcile_now() -> ok.
+reconcile_now() ->
+    gen_server:call(?MODULE, reconcile_now, infinity).
 
 %% ---------------------------------------------------------------------------
 %% gen_server
@@ -255,6 +271,8 @@ handle_call({ensure, Id, Config}, _From, S0) ->
     end;
 handle_call(durable, _From, S) ->
     {reply, S#s.durable, S};
+handle_call(reconcile_now, _From, S) ->
+    {reply, ok, look(S, true)};
 handle_call(_Request, _From, S) ->
     {reply, {error, unknown_call}, S}.
 
@@ -270,7 +288,7 @@ handle_cast(_Msg, S) ->
 -spec handle_info(term(), #s{}) -> {noreply, #s{}}.
 handle_info(tick, S) ->
     erlang:send_after(?TICK_MS, self(), tick),
-    {noreply, reconcile(sync(check_disk(S)))};
+    {noreply, look(S, false)};
 handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S0)
   when is_atom(From), is_list(Entries), is_boolean(Full) ->
     Changed = evatar_catalogue_rules:changed(entries(), Entries),
@@ -317,6 +335,10 @@ handle_info(_Msg, S) ->
 %% ---------------------------------------------------------------------------
 %% Internals
 %% ---------------------------------------------------------------------------
+
+%% The periodic work: each part when due, or all now (`Forced').
+look(S, Forced) ->
+    reconcile(sync(check_disk(S, Forced), Forced)).
 
 write_new(Id, Value, #s{alive = Alive} = S) ->
     Current = case mnesia:dirty_read(?TABLE, Id) of
@@ -376,20 +398,20 @@ room(#s{full = Was} = S) ->
             {Full, S1}
     end.
 
-check_disk(#s{durable = true, last_disk_check = Last} = S) ->
-    case now_ms() - Last >= opt(disk_check_ms) of
+check_disk(#s{durable = true, last_disk_check = Last} = S, Forced) ->
+    case Forced orelse now_ms() - Last >= opt(disk_check_ms) of
         true -> element(2, room(S));
         false -> S
     end;
-check_disk(S) ->
+check_disk(S, _Forced) ->
     S.
 
 %% Peers that became alive get the whole catalogue; so does every alive
 %% peer every `catalogue_sync_ms' (what a silent partition held back).
-sync(#s{alive = Old, synced = Synced, last_sync = Last} = S) ->
+sync(#s{alive = Old, synced = Synced, last_sync = Last} = S, Forced) ->
     Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
     Now = now_ms(),
-    Periodic = Now - Last >= opt(catalogue_sync_ms),
+    Periodic = Forced orelse Now - Last >= opt(catalogue_sync_ms),
     Due = case Periodic of
               true -> Alive;
               false -> Alive -- Old

@@ -23,12 +23,17 @@
 %% asks for hundreds at once). A record that cannot be written (a full
 %% disk) grants nothing; the node says `promise_not_persisted' once, and
 %% `promises_persisted' when writes succeed again.
+%%
+%% Its evaluation every `heartbeat_ms' runs now through {@link
+%% refresh_now/0} (tests, through `evatar:run_now(cluster)'): an evaluation
+%% early, which decides as the timed one would (a shorter gap since the
+%% last one is never taken for a pause of this node).
 -module(evatar_cluster).
 -behaviour(gen_server).
 
 -export([start_link/0, opt/1, configured/0, size/0, alive/1, alive_now/1, alive_nodes/0,
          quorum/0, majority_now/0, heard_within/2, heard_after/2,
-         place_standby/1, status/0, quorum_size/0, stall_gen/0, unstalled/1]).
+         place_standby/1, status/0, quorum_size/0, stall_gen/0, unstalled/1, refresh_now/0]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2]).
 
 -include_lib("kernel/include/logger.hrl").
@@ -175,6 +180,15 @@ unstalled(Gen) ->
 place_standby(Preferred) ->
     evatar_ha_rules:standby_node(configured(), node(), alive_nodes(), Preferred).
 
+%% @doc For tests: the periodic evaluation now, as its timer would run it
+%% (a heartbeat sent to every connected peer; peers heard within
+%% `suspect_ms' alive, the others suspected; a reconnection tried; the
+%% majority judged), returning once it is done: the view, which the
+%% pairings read, is then up to date with what this node has heard.
+-spec refresh_now() -> ok.
+refresh_now() ->
+    gen_server:call(?MODULE, refresh_now, infinity).
+
 %% @doc The cluster as this node sees it.
 -spec status() -> #{configured := [node()], up := [node()], suspected := [node()],
                     quorum := boolean()}.
@@ -245,6 +259,8 @@ configured_nodes() ->
 
 %% @private
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
+handle_call(refresh_now, _From, S) ->
+    {reply, ok, tick(S)};
 handle_call(_Request, _From, S) ->
     {reply, {error, unknown_call}, S}.
 
