@@ -215,8 +215,7 @@ restart_with_changed_catalogue(Config) ->
     ok = evatar_test_pairing:create(C, 1, New),
     Watch = spawn_link(fun() -> never_started(C, 3, Old) end),
     ok = evatar_test_cluster:restart(C, 3),
-    ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),
-    ok = evatar_test_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
+    ok = await_catalogues_merged(C),
     ok = evatar_test_pairing:await_healthy(C, New, ?HEAL_TIMEOUT),
     {ok, _} = evatar_test_cluster:call(C, 3, evatar_catalogue, lookup, [New]),
     none = evatar_test_cluster:call(C, 3, evatar_catalogue, lookup, [Old]),
@@ -243,8 +242,7 @@ partition_create_delete(Config) ->
     ok = evatar_test_cluster:call(C, 3, evatar, delete_pairing, [Gone]),
     {ok, _} = evatar_test_cluster:call(C, 3, evatar, create_pairing, [Minor, evatar_test_traffic:pairing_opts()]),
     ok = evatar_test_cluster:heal(C, flush),
-    ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),
-    ok = evatar_test_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
+    ok = await_catalogues_merged(C),
     ok = evatar_test_pairing:await_healthy(C, Major, ?HEAL_TIMEOUT),
     ok = evatar_test_pairing:await_healthy(C, Minor, ?HEAL_TIMEOUT),
     ok = evatar_test_cluster:await(fun() -> evatar_test_pairing:roles(C, Gone) =:= [] end, ?HEAL_TIMEOUT,
@@ -604,6 +602,16 @@ never_took_over(T, C, I, Id, Mark) ->
 %% Samples the roles of Id's instances until stopped; never two actives of
 %% the same epoch, and never two actives at once once one of them holds a
 %% higher epoch for longer than a lease (see evatar_test_pairing:roles/2).
+%% Once the cluster has formed again, every node's catalogue work is fired
+%% (evatar:run_now(catalogue)): each sends its whole catalogue to every
+%% alive peer now, instead of at its next look, up to 500 ms on (or, for
+%% a peer it never found gone, `catalogue_sync_ms' on). What remains to
+%% wait for is the exchanges on their way.
+await_catalogues_merged(C) ->
+    ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),
+    [ok = R || {_, R} <- evatar_test_cluster:run_now(C, catalogue)],
+    evatar_test_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal).
+
 %% Every node's catalogue, tombstones included, is the same.
 catalogues_equal(C) ->
     case lists:usort([evatar_test_cluster:call(C, I, evatar_catalogue, entries, []) || I <- [1, 2, 3]]) of

@@ -36,7 +36,7 @@
 -export([start/1, stop/1, nodes/1, node/2, index/2, endpoints/1, endpoint/2, info/1,
          up/1, kill/2, stall/2, resume/2, restart/2, power_cut/1, restart_all/1,
          partition/2, isolate/2, cut_off/2, cut/2, heal/1, heal/2, links_down/1,
-         os_pid/2, call/5, call/6, set_env/3, await_formed/2, await/3, ensure_distributed/0,
+         os_pid/2, call/5, call/6, set_env/3, run_now/2, await_formed/2, await/3, ensure_distributed/0,
          release_distribution/1, repo_root/0, free_ports/1, code_path/1, node_args/1,
          start_evatar/1]).
 -export([node_setup/1, watchdog/0, watchdog/1]).
@@ -285,6 +285,14 @@ set_env(C, App, Env) ->
     _ = [ok = rpc(Info, application, set_env, [App, K, V], 5000)
          || #{status := up} = Info <- info(C), {K, V} <- Env],
     ok.
+
+%% @doc Fires periodic work What (evatar:run_now/1: `cluster',
+%% `catalogue' or `rebalancer') on every node that is up, one node after
+%% the other in index order: each node's result, once its round is done.
+-spec run_now(cluster(), cluster | catalogue | rebalancer) -> [{pos_integer(), term()}].
+run_now(C, What) ->
+    [{I, rpc(Info, evatar, run_now, [What], evatar_test_time:guard())}
+     || #{i := I, status := up} = Info <- info(C)].
 
 rpc(#{control := stdio, peer := Peer}, M, F, A, Timeout) when is_pid(Peer) ->
     try peer:call(Peer, M, F, A, Timeout)

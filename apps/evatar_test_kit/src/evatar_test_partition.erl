@@ -25,7 +25,9 @@
 %% switched on and the node returns; the rebalancer moves actives and
 %% standbys to it by planned handovers and standby moves until every node
 %% holds its share. What it measures: for each pairing, the longest time
-%% its VA went without a round trip from the return on.
+%% its VA went without a round trip from the return on. A test fires the
+%% rebalancer's rounds itself (`fire'), each once the moves of the one
+%% before are carried out; the benchmark leaves them to their timers.
 -module(evatar_test_partition).
 
 -export([run/4, rebalance/3, baseline/2, counts/2, placement/2, unserved/2, await_healthy/3]).
@@ -107,7 +109,12 @@ run(Net, [#{pairing := P} | _] = Pairs, Kind, Opts) ->
 %% then) with the pairs already carrying traffic. Opts: node (the node that
 %% leaves and returns, default the last), env (the evatar environment set
 %% on every node before it returns, default `[{rebalance, true}]': the
-%% release's delay and batch), timeout (for every wait, default 60000).
+%% release's delay and batch), timeout (for every wait, default 60000),
+%% fire (default false: the rebalancer's rounds run on their timers; true:
+%% the delay and the time between rounds are set beyond any wait, and
+%% every round is fired, evatar:run_now(rebalancer), once every pairing is
+%% healthy and the moves of the round before are carried out, until a
+%% round plans none).
 -spec rebalance(evatar_test_cluster:cluster(), [evatar_test_traffic:pair()], map()) ->
           {ok, rebalance_result()} | {error, term()}.
 rebalance(Net, Pairs, Opts) ->
@@ -126,7 +133,12 @@ rebalance(Net, Pairs, Opts) ->
            end,
     ok = evatar_test_cluster:await(Away, Timeout, {failed_over_from, Back}),
     Before = counts(Net, Ids),
-    ok = evatar_test_cluster:set_env(Net, evatar, maps:get(env, Opts, [{rebalance, true}])),
+    Fire = maps:get(fire, Opts, false),
+    Never = evatar_test_time:guard(),
+    ok = evatar_test_cluster:set_env(Net, evatar,
+                                     maps:get(env, Opts, [{rebalance, true}])
+                                     ++ [{K, Never} || Fire,
+                                                       K <- [rebalance_delay_ms, rebalance_round_ms]]),
     BackAt = erlang:monotonic_time(millisecond),
     ok = evatar_test_cluster:heal(Net),
     %% Every node's share: as many actives, and as many standbys, as any
@@ -149,7 +161,11 @@ rebalance(Net, Pairs, Opts) ->
                                andalso (Self ! {Ref, Counts}) =/= x
                        end
            end,
-    case evatar_test_cluster:await(Even, Timeout, spread_evenly) of
+    Spread = case Fire of
+                 true -> fire_rounds(Net, Ids, Even, Timeout, 0);
+                 false -> evatar_test_cluster:await(Even, Timeout, spread_evenly)
+             end,
+    case Spread of
         ok ->
             After = receive {Ref, Counts} -> Counts end,
             SpreadAt = erlang:monotonic_time(millisecond),
@@ -162,6 +178,42 @@ rebalance(Net, Pairs, Opts) ->
         {error, _} = Error ->
             {error, {Error, Before, counts(Net, Ids)}}
     end.
+
+%% Rounds fired one after the other: each once every pairing is healthy
+%% (the moves of the round before carried out, the returned node's
+%% instances settled), until a round plans nothing; the placement must
+%% then be even. A round that plans nothing while it is not (a pairing
+%% left out of the gathered placement) is fired again once all are
+%% healthy, up to the plan's bound of three moves a pairing.
+fire_rounds(Net, Ids, Even, Timeout, Round) ->
+    ok = evatar_test_cluster:await_formed(Net, Timeout),
+    ok = await_healthy(Net, Ids, Timeout),
+    Before = maps:from_list([{Id, placement(Net, Id)} || Id <- Ids]),
+    case lists:append([Moves || {_, {ok, Moves}} <- evatar_test_cluster:run_now(Net, rebalancer)]) of
+        [] ->
+            case Even() of
+                true -> ok;
+                false when Round =< 3 * length(Ids) -> fire_rounds(Net, Ids, Even, Timeout, Round + 1);
+                false -> {error, {not_spread, Round, counts(Net, Ids)}}
+            end;
+        Moves ->
+            Expected = [{Id, moved(Net, Move, maps:get(Id, Before))} || Move <- Moves,
+                                                                       Id <- [element(2, Move)]],
+            Done = fun() ->
+                           lists:all(fun({Id, Where}) ->
+                                             evatar_test_pairing:healthy(Net, Id)
+                                                 andalso placement(Net, Id) =:= Where
+                                     end, Expected)
+                   end,
+            case evatar_test_cluster:await(Done, Timeout, {moves_carried_out, Round, Moves}) of
+                ok -> fire_rounds(Net, Ids, Even, Timeout, Round + 1);
+                {error, _} = Error -> Error
+            end
+    end.
+
+%% Where a move leaves its pairing: {ActiveIndex, StandbyIndex}.
+moved(_Net, {handover, _Id}, {A, S}) -> {S, A};
+moved(Net, {standby, _Id, Node}, {A, _S}) -> {A, evatar_test_cluster:index(Net, Node)}.
 
 %% @doc {actives, standbys} of the pairings Ids per node index.
 -spec counts(evatar_test_cluster:cluster(), [binary()]) -> counts().
