@@ -1,6 +1,6 @@
 # EVATAR: the two commands a person needs are `make demo` and `make test`.
 # Both install missing prerequisites first (Debian packages; sudo when not root).
-.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-promises bench-storm bench-flood bench-scale bench-partition bench-complexity bench-mqtt release tar shell clean vectors
+.PHONY: all deps compile demo test test-upgrade test-ha soak check bench bench-bil bench-evatar bench-brokers bench-failover bench-promises bench-storm bench-flood bench-scale bench-partition bench-complexity bench-mqtt bench-json release tar shell clean vectors
 
 REBAR ?= rebar3
 # The HTTP server's libraries (cowboy, ranch, cowlib), copied into _deps/
@@ -108,6 +108,12 @@ bench-complexity: deps
 bench-mqtt: deps
 	$(REBAR) as bench compile
 	erl -noshell $(BENCH_PA) -eval 'mqtt_gen_bench:main($(or $(BENCH_ARGS),[])), halt().'
+
+## CPU ms of the device side's JSON (evatar_json, Debian's jiffy): state payloads,
+## commands, a device list.
+bench-json: deps
+	$(REBAR) as bench compile
+	erl -noshell $(BENCH_PA) -eval 'json_bench:main($(or $(BENCH_ARGS),[])), halt().'
 
 bench: bench-bil bench-evatar
 

@@ -62,7 +62,7 @@ old(Devices) ->
 %% The network as discovery reads it (mqtt_avatar_z2m, one device at a time).
 devices(N) ->
     [begin
-         Json = iolist_to_binary(mqtt_avatar_json:encode([device(I)])),
+         Json = evatar_json:encode([device(I)]),
          {ok, [D], []} = mqtt_avatar_z2m:parse(?BASE, Json),
          D
      end || I <- lists:seq(1, N)].

@@ -78,7 +78,7 @@ wrong_way_calls_are_caught(Config) ->
                 {reference_agents_wrong_way_fixture, "f() -> node_config:file()."},
                 {node_config_wrong_way_fixture, "f() -> evatar_test_wait:until(x)."},
                 {avatar_sim_wrong_way_fixture,
-                 "f() -> evatar:pairings(). g() -> mqtt_avatar_json:decode(<<>>)."},
+                 "f() -> evatar:pairings(). g() -> mqtt_avatar_z2m:parse(<<>>, <<>>)."},
                 {wrong_way_fixture, "f() -> ok."}],
     ok = lists:foreach(fun({M, Body}) -> ok = compile_fixture(Dir, M, Body) end, Fixtures),
     Answers = maps:from_list([{name(Q), Answer} || {Q, _, Answer} <- run_queries([Dir])]),
@@ -98,7 +98,7 @@ wrong_way_calls_are_caught(Config) ->
                  'DeviceSideCallsMediator' =>
                      [Call(avatar_sim_wrong_way_fixture, f, {evatar, pairings, 0})],
                  'CallsIntoOtherAppsInternals' =>
-                     [Call(avatar_sim_wrong_way_fixture, g, {mqtt_avatar_json, decode, 1})],
+                     [Call(avatar_sim_wrong_way_fixture, g, {mqtt_avatar_z2m, parse, 2})],
                  'ModulesOfNoApp' => [wrong_way_fixture]},
     %% Every query of rebar.config is one of these rules, each caught.
     Names = lists:sort(maps:keys(Answers)),

@@ -520,7 +520,7 @@ publish_light(Config) ->
                                        client_id => <<"node-config-suite">>}),
     ok = mqtt_client:await_connected(C, 10000),
     ok = mqtt_client:publish(C, <<"ha_", P/binary, "/light/", P/binary, "/config">>,
-                             mqtt_avatar_json:encode(Disc), #{qos => 1, retain => true}),
+                             evatar_json:encode(Disc), #{qos => 1, retain => true}),
     mqtt_client:stop(C).
 
 free_port() ->

@@ -70,12 +70,12 @@ http_api_of_the_release(Config) ->
     {ok, _} = application:ensure_all_started(inets),
     {ok, {{_, 200, _}, Headers, Body}} = httpc:request(get, {Url, []}, [], []),
     "application/json" = proplists:get_value("content-type", Headers),
-    {ok, #{<<"quorum">> := true}} = evatar_web_json:decode(list_to_binary(Body)),
+    {ok, #{<<"quorum">> := true}} = evatar_json:decode(list_to_binary(Body)),
     {ok, {{_, 204, _}, Options, ""}} = httpc:request(options, {Url, []}, [], []),
     "GET, HEAD, OPTIONS" = proplists:get_value("allow", Options),
     {ok, {{_, 405, _}, NotAllowed, Json}} = httpc:request(delete, {Url, []}, [], []),
     "GET, HEAD, OPTIONS" = proplists:get_value("allow", NotAllowed),
-    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_web_json:decode(list_to_binary(Json)).
+    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_json:decode(list_to_binary(Json)).
 
 %% Bad usage exits 2 with the usage, before reaching any node, and a secret
 %% given as an argument is refused; a node that does not run: exit 3.
@@ -322,14 +322,14 @@ evatar(Config, Args) ->
 
 %% The JSON a command printed on success.
 json({0, Out}) ->
-    {ok, Term} = evatar_web_json:decode(list_to_binary(Out)),
+    {ok, Term} = evatar_json:decode(list_to_binary(Out)),
     Term;
 json({Rc, Out}) ->
     ct:fail({command_failed, Rc, Out}).
 
 %% The JSON of a refusal (exit 1).
 json1({1, Out}) ->
-    {ok, Term} = evatar_web_json:decode(list_to_binary(Out)),
+    {ok, Term} = evatar_json:decode(list_to_binary(Out)),
     Term.
 
 ids(Pairings) when is_list(Pairings) ->

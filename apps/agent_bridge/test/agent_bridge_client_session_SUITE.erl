@@ -32,7 +32,7 @@ all() ->
 init_per_suite(Config) ->
     Dir = ?V:vectors_dir(),
     {ok, Json} = file:read_file(filename:join(Dir, "vectors.json")),
-    {ok, #{<<"vectors">> := Vectors}} = mqtt_avatar_json:decode(Json, #{max_size => 16#1000000}),
+    {ok, #{<<"vectors">> := Vectors}} = evatar_json:decode(Json, #{max_size => 16#1000000}),
     Transcripts = maps:from_list([{Name, V} || #{<<"kind">> := <<"transcript">>,
                                                  <<"name">> := Name} = V <- Vectors]),
     [{dir, Dir}, {transcripts, Transcripts} | Config].

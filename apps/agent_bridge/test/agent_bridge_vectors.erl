@@ -3,7 +3,7 @@
 %% into the JSON the vectors' `expect' holds, and back. Used by the
 %% generator (test/vectors/generate.escript) and by
 %% agent_bridge_vectors_SUITE, so both read and write one meaning.
-%% JSON values are those of mqtt_avatar_json: maps with binary keys, lists,
+%% JSON values are those of evatar_json: maps with binary keys, lists,
 %% binaries, integers, true, false, null.
 -module(agent_bridge_vectors).
 
@@ -250,14 +250,14 @@ root(#{<<"service">> := _}) -> <<"Envelope">>.
 
 %% @doc JSON text indented by two spaces. `{obj, [{Key, Value}]}' is an
 %% object whose keys keep that order; maps are written with sorted keys.
-%% Scalars are written by mqtt_avatar_json.
+%% Scalars are written by evatar_json.
 -spec pretty(term()) -> iodata().
 pretty(V) -> [pretty(V, 0), $\n].
 
 pretty({obj, []}, _) -> <<"{}">>;
 pretty({obj, Pairs}, I) ->
     In = indent(I + 1),
-    [${, lists:join($,, [[$\n, In, mqtt_avatar_json:encode(K), <<": ">>, pretty(V, I + 1)]
+    [${, lists:join($,, [[$\n, In, evatar_json:encode(K), <<": ">>, pretty(V, I + 1)]
                          || {K, V} <- Pairs]),
      $\n, indent(I), $}];
 pretty(M, I) when is_map(M) ->
@@ -267,13 +267,13 @@ pretty(L, I) when is_list(L) ->
     case lists:all(fun(V) -> not is_map(V) andalso not is_list(V)
                                  andalso not is_tuple(V) end, L) of
         true ->
-            [$[, lists:join(<<", ">>, [mqtt_avatar_json:encode(V) || V <- L]), $]];
+            [$[, lists:join(<<", ">>, [evatar_json:encode(V) || V <- L]), $]];
         false ->
             In = indent(I + 1),
             [$[, lists:join($,, [[$\n, In, pretty(V, I + 1)] || V <- L]), $\n, indent(I), $]]
     end;
 pretty(V, _) ->
-    mqtt_avatar_json:encode(V).
+    evatar_json:encode(V).
 
 indent(I) -> binary:copy(<<"  ">>, I).
 

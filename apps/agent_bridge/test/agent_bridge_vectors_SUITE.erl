@@ -23,7 +23,7 @@ init_per_suite(Config) ->
     Dir = ?V:vectors_dir(),
     {ok, Json} = file:read_file(filename:join(Dir, "vectors.json")),
     {ok, #{<<"version">> := 1, <<"vectors">> := Vectors}} =
-        mqtt_avatar_json:decode(Json, #{max_size => 16#1000000}),
+        evatar_json:decode(Json, #{max_size => 16#1000000}),
     ok = application:set_env(agent_bridge, listeners, [], [{persistent, true}]),
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),

@@ -96,7 +96,7 @@ handle_event(info, {mqtt_client, C, {connected, _}}, State, #d{client = C, devic
     D0 = case D#d.announced of
              false ->
                  %% The first time: who I am, and the states I start in.
-                 _ = [publish(D, T, mqtt_avatar:encode_json(J), true)
+                 _ = [publish(D, T, evatar_json:encode(J), true)
                       || {T, J} <- maps:get(discovery, Dev)],
                  _ = [publish(D, T, P, R) || {T, P, R} <- maps:get(initial, Dev)],
                  D#d{announced = true};

@@ -191,7 +191,7 @@ override(_, _Ctx) ->
 -spec command(kind(), binary(), binary(), ctx()) ->
           {request, binary(), [bil:parameter()]} | {error, binary()}.
 command(light, _Topic, Payload, _Ctx) ->
-    case mqtt_avatar:decode_json(Payload) of
+    case evatar_json:decode(Payload) of
         {ok, #{<<"state">> := S}} when is_binary(S) ->
             case string:uppercase(S) of
                 <<"ON">> -> {request, <<"TurnLightOn">>, []};
@@ -207,7 +207,7 @@ command(socket, _Topic, Payload, _Ctx) ->
         error -> {error, <<"expected ON or OFF">>}
     end;
 command(camera, _Topic, Payload, _Ctx) ->
-    case mqtt_avatar:decode_json(Payload) of
+    case evatar_json:decode(Payload) of
         {ok, M} when is_map(M) ->
             {request, <<"TakePhoto">>, params(M, [{<<"count">>, <<"Count">>},
                                                  {<<"interval">>, <<"Interval">>}])};
@@ -222,7 +222,7 @@ command(microphone, _Topic, Payload, _Ctx) ->
 command(speaker, _Topic, <<>>, _Ctx) ->
     {error, <<"empty command">>};
 command(speaker, Topic, Payload, _Ctx) ->
-    Json = mqtt_avatar:decode_json(Payload),
+    Json = evatar_json:decode(Payload),
     case binary:longest_common_suffix([Topic, <<"/sound/set">>]) =:= 10 of
         true -> sound(Json);
         false -> voice(Json, Payload)
@@ -348,7 +348,7 @@ capitalise(B) -> B.
 %% Payloads
 %% ---------------------------------------------------------------------------
 
-json(Map) -> iolist_to_binary(mqtt_avatar:encode_json(Map)).
+json(Map) -> evatar_json:encode(Map).
 
 on_off(Payload) ->
     case string:uppercase(string:trim(Payload)) of
@@ -359,7 +359,7 @@ on_off(Payload) ->
 
 %% JSON fields to request parameters (text, as BIL carries them).
 params(M, Fields) ->
-    [{Param, mqtt_avatar:json_text(V)} || {Field, Param} <- Fields,
+    [{Param, evatar_json:to_text(V)} || {Field, Param} <- Fields,
                                              {ok, V} <- [maps:find(Field, M)], V =/= null].
 
 get(Name, Ps, Default) ->

@@ -23,7 +23,7 @@ every_device_has_a_face(_Config) ->
     ?assertEqual([<<"Notifier01">>], [Id || {Id, none} <- Kinds]),
     Devices = [avatar_sim_mqtt_kind:device(C, K, ctx())
                || C <- components(), K <- [avatar_sim_mqtt_kind:kind(C)], K =/= none],
-    Messages = [{T, iolist_to_binary(mqtt_avatar_json:encode(J))}
+    Messages = [{T, evatar_json:encode(J)}
                 || #{discovery := Ds} <- Devices, {T, J} <- Ds],
     {D, Problems} = mqtt_avatar:generate(Messages,
                                          #{discovery => #{homeassistant => <<"ha">>},
@@ -67,10 +67,10 @@ push(_Config) ->
                                   [{<<"Motion">>, <<"yes">>}, {<<"Room">>, <<"hall">>},
                                    {<<"People">>, <<"2">>}], Ctx),
     ?assertEqual({ok, #{<<"motion">> => true, <<"people">> => 2, <<"ts">> => 42}},
-                 mqtt_avatar_json:decode(Json)),
+                 evatar_json:decode(Json)),
     TCtx = (avatar_sim_mqtt_kind:topics(<<"TimeSensor01">>, ctx()))#{ts => 1},
     [{_, TJson, true}] = avatar_sim_mqtt_kind:push(time, <<"TimeOfDay">>,
                                                    [{<<"TimeOfDay">>, <<"21:00">>},
                                                     {<<"Dark">>, <<"yes">>}], TCtx),
     ?assertEqual({ok, #{<<"time_of_day">> => <<"21:00">>, <<"dark">> => true, <<"ts">> => 1}},
-                 mqtt_avatar_json:decode(TJson)).
+                 evatar_json:decode(TJson)).

@@ -79,10 +79,10 @@ print(0, Text, _Out, false) ->
     io:put_chars(Text),
     0;
 print(0, _Text, Out, true) ->
-    io:put_chars([evatar_web_json:encode(Out), $\n]),
+    io:put_chars([evatar_json:encode(Out), $\n]),
     0;
 print(Code, _Text, Out, true) ->
-    io:put_chars([evatar_web_json:encode(Out), $\n]),
+    io:put_chars([evatar_json:encode(Out), $\n]),
     Code;
 print(Code, Text, _Out, false) ->
     io:put_chars(standard_error, Text),
@@ -287,10 +287,9 @@ secrets(_) ->
 %% JSON-ready terms with binary keys and values only (atoms as strings),
 %% as a script reading --json sees them.
 normalise(Term) ->
-    evatar_web_json_decode(evatar_web_json:encode(Term)).
-
-evatar_web_json_decode(Bin) ->
-    {ok, T} = evatar_web_json:decode(Bin),
+    Bin = evatar_json:encode(Term),
+    %% Our own output: no limit but its own size.
+    {ok, T} = evatar_json:decode(Bin, #{max_size => byte_size(Bin), max_depth => byte_size(Bin)}),
     T.
 
 %% Every kept MQTT (or WoT) Avatar as a table row with its problem count,
@@ -413,7 +412,7 @@ generic(V, Indent) ->
 flat(V) -> not is_map(V) andalso not is_list(V) orelse V =:= [] orelse
                (is_list(V) andalso lists:all(fun(X) -> not is_map(X) andalso not is_list(X) end, V)).
 
-inline(V) when is_map(V); is_list(V) -> evatar_web_json:encode(V);
+inline(V) when is_map(V); is_list(V) -> evatar_json:encode(V);
 inline(V) -> scalar(V).
 
 scalar(null) -> <<"-">>;
@@ -423,7 +422,7 @@ scalar(V) when is_binary(V) -> V;
 scalar(V) when is_integer(V) -> integer_to_binary(V);
 scalar(V) when is_float(V) -> float_to_binary(V, [short]);
 scalar(V) when is_atom(V) -> atom_to_binary(V);
-scalar(V) -> evatar_web_json:encode(V).
+scalar(V) -> evatar_json:encode(V).
 
 %% Rows under a header, each column as wide as its widest cell.
 table(Header, Rows, Indent) ->

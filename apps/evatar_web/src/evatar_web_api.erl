@@ -100,7 +100,8 @@ reply(Status, {ok, Value}) -> {Status, Value};
 reply(_, {error, #{status := S, error := C, field := F, message := M}}) -> {error, S, C, F, M}.
 
 with_body(#{body := Body}, Fun) ->
-    case evatar_web_json:decode(Body) of
+    %% The router bounded the body (max_body); the depth limit stays.
+    case evatar_json:decode(Body, #{max_size => max(byte_size(Body), 1)}) of
         {ok, Term} -> Fun(Term);
-        {error, {bad_json, Why}} -> {error, 400, <<"bad_json">>, null, <<"the body is not JSON: ", Why/binary>>}
+        {error, R} -> {error, 400, <<"bad_json">>, null, <<"the body: ", (evatar_json:format_error(R))/binary>>}
     end.

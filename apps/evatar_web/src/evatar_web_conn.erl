@@ -28,7 +28,7 @@ over_limit(Parent, Ref, Transport, #{env := #{max_clients := Max}} = Opts) ->
             cowboy_clear:connection_process(Parent, Ref, Transport, Opts);
         true ->
             {ok, Socket} = ranch:handshake(Ref),
-            Body = evatar_web_json:encode(
+            Body = evatar_json:encode(
                      #{error => <<"too_many_clients">>, field => null,
                        message => iolist_to_binary(
                                     io_lib:format("~b connections are open, this node's limit "
@@ -84,7 +84,7 @@ info(StreamID, Info, Next) ->
 json_errors({Commands, Next}) ->
     {[case C of
           {error_response, Status, Headers, _} ->
-              Body = evatar_web_json:encode(
+              Body = evatar_json:encode(
                        #{error => code(Status), field => null,
                          message => case Status of
                                         500 -> <<"the request failed inside the node; its log has "
@@ -109,7 +109,7 @@ terminate(StreamID, Reason, Next) ->
 early_error(StreamID, Reason, PartialReq, Resp0, Opts) ->
     {response, Status, Headers, _} =
         cowboy_stream:early_error(StreamID, Reason, PartialReq, Resp0, Opts),
-    Body = evatar_web_json:encode(#{error => code(Status), field => null,
+    Body = evatar_json:encode(#{error => code(Status), field => null,
                                     message => message(Reason)}),
     {response, Status,
      maps:merge(Headers, maps:from_list(headers(Body))),

@@ -111,4 +111,4 @@ loop(Req, Sub, Timer) ->
     end.
 
 event(Item) ->
-    ["data: ", evatar_web_json:encode(Item), "\n\n"].
+    ["data: ", evatar_json:encode(Item), "\n\n"].

@@ -323,4 +323,4 @@ respond({Status, Term}, Req) when is_integer(Status) ->
 
 json(Status, Term, Extra, Req) ->
     respond({raw, Status, [{"content-type", "application/json"}, {"cache-control", "no-store"} | Extra],
-             evatar_web_json:encode(Term)}, Req).
+             evatar_json:encode(Term)}, Req).

@@ -17,7 +17,7 @@ list(Req) ->
     TDs = [evatar_web_td:thing(node(), P, D, Base, mqtt(D))
            || {P, Pid} <- evatar_web_things_sup:consumers(), D <- safe_things(Pid)],
     {raw, 200, [{"content-type", "application/json"}, {"cache-control", "no-store"}],
-     evatar_web_json:encode(TDs)}.
+     evatar_json:encode(TDs)}.
 
 %% @doc GET /api/things/{pairing}/{entity}: one TD.
 -spec td(evatar_web_router:request()) -> evatar_web_router:reply().
@@ -101,14 +101,14 @@ safe_things(Pid) ->
 
 input(<<>>) -> {ok, []};
 input(Body) ->
-    case evatar_web_json:decode(Body) of
+    case evatar_json:decode(Body, #{max_size => byte_size(Body)}) of
         {ok, Map} when is_map(Map) ->
             case [K || {K, V} <- maps:to_list(Map), not is_binary(V)] of
                 [] -> {ok, maps:to_list(Map)};
                 [K | _] -> {error, <<"input parameter ", K/binary, " must be a string">>}
             end;
         {ok, _} -> {error, <<"the input must be a JSON object of parameter names and string values">>};
-        {error, {bad_json, Why}} -> {error, <<"not JSON: ", Why/binary>>}
+        {error, R} -> {error, evatar_json:format_error(R)}
     end.
 
 answer({ok, #{context := feedback, origin := evatar, body := #{type := T}} = Sig}) ->
@@ -148,7 +148,7 @@ params(#{body := #{parameters := Ps}, timestamp := Ts}) ->
                maps:from_list(lists:reverse([{K, V} || {K, V} <- Ps]))).
 
 td_reply(TD) ->
-    {raw, 200, [{"content-type", ?TD_TYPE}, {"cache-control", "no-store"}], evatar_web_json:encode(TD)}.
+    {raw, 200, [{"content-type", ?TD_TYPE}, {"cache-control", "no-store"}], evatar_json:encode(TD)}.
 
 %% The address a client reached the node at, for the TDs' `base'.
 base(#{headers := Headers}) ->

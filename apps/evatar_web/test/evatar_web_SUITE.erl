@@ -84,7 +84,7 @@ unknown_route(_Config) ->
     %% A query string that is not one counts as none.
     {400, _, Json} = parse_response(?T:raw_tcp("GET /api/events?a=%zz&pairing HTTP/1.1\r\n"
                                                "Host: localhost\r\nConnection: close\r\n\r\n")),
-    {ok, #{<<"error">> := <<"missing_field">>}} = evatar_web_json:decode(Json).
+    {ok, #{<<"error">> := <<"missing_field">>}} = evatar_json:decode(Json).
 
 %% A known path with another method is a JSON 405 naming the allowed ones,
 %% in the message and in `Allow'; so is a method no route has (QUERY).
@@ -93,11 +93,11 @@ method_not_allowed(_Config) ->
     "GET, HEAD, OPTIONS" = proplists:get_value("allow", Headers),
     "application/json" = proplists:get_value("content-type", Headers),
     {ok, #{<<"error">> := <<"method_not_allowed">>, <<"message">> := <<"allowed: GET, HEAD, OPTIONS">>}} =
-        evatar_web_json:decode(list_to_binary(Body)),
+        evatar_json:decode(list_to_binary(Body)),
     Reply = ?T:raw_tcp("QUERY /api/pairings HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"),
     {405, RawHeaders, Json} = parse_response(Reply),
     <<"GET, HEAD, OPTIONS, POST">> = maps:get(<<"allow">>, RawHeaders),
-    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_web_json:decode(Json).
+    {ok, #{<<"error">> := <<"method_not_allowed">>}} = evatar_json:decode(Json).
 
 %% OPTIONS on a known path (a route, or a file of the page) answers 204
 %% with the methods in `Allow' and no body; on an unknown one the JSON 404.
@@ -123,7 +123,7 @@ refusals_are_json(_Config) ->
          <<"application/json">> = maps:get(<<"content-type">>, Headers),
          <<"close">> = maps:get(<<"connection">>, Headers),
          {ok, #{<<"error">> := Code, <<"field">> := null, <<"message">> := <<_, _/binary>>}} =
-             evatar_web_json:decode(Json)
+             evatar_json:decode(Json)
      end || {Request, Status, Code} <-
                 [{"GET\r\n\r\n", 400, <<"bad_request">>},
                  {["GET /", Long, " HTTP/1.1\r\nHost: localhost\r\n\r\n"], 414, <<"uri_too_long">>},
@@ -163,7 +163,7 @@ body_limit(_Config) ->
     {match, _} = re:run(Reply, "\r\ncontent-type: application/json\r\n", [caseless]),
     [_, Json] = binary:split(Reply, <<"\r\n\r\n">>),
     {ok, #{<<"error">> := <<"body_too_large">>, <<"field">> := null, <<"message">> := Message}} =
-        evatar_web_json:decode(Json),
+        evatar_json:decode(Json),
     {match, _} = re:run(Message, ["limit ", integer_to_list(Max), " bytes \\(http.max_body"]),
     %% At the limit the body is read and reaches the route.
     AtLimit = ?T:raw_tcp(["POST /api/cluster HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n"
@@ -190,7 +190,7 @@ chunked_body_limit(_Config) ->
     <<"application/json">> = maps:get(<<"content-type">>, Headers),
     <<"close">> = maps:get(<<"connection">>, Headers),
     {ok, #{<<"error">> := <<"body_too_large">>, <<"field">> := null, <<"message">> := Message}} =
-        evatar_web_json:decode(Json),
+        evatar_json:decode(Json),
     {match, _} = re:run(Message, ["limit ", integer_to_list(Max), " bytes"]),
     %% A chunked body within the limit is read and reaches the route.
     Small = ?T:raw_tcp(["POST /api/pairings HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n"
@@ -280,7 +280,7 @@ header_timeout(_Config) ->
         exit(Trickle, kill),
         {408, Headers, Json} = parse_response(Reply),
         <<"application/json">> = maps:get(<<"content-type">>, Headers),
-        {ok, #{<<"error">> := <<"request_timeout">>, <<"field">> := null}} = evatar_web_json:decode(Json),
+        {ok, #{<<"error">> := <<"request_timeout">>, <<"field">> := null}} = evatar_json:decode(Json),
         {ok, Quiet} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, true}]),
         <<>> = until_closed(Quiet, <<>>),
         %% Once the headers are in, the deadline is over for that request.
@@ -317,7 +317,7 @@ max_clients(_Config) ->
         Reply = ?T:raw_tcp("GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
         {503, Headers, Json} = parse_response(Reply),
         <<"application/json">> = maps:get(<<"content-type">>, Headers),
-        {ok, #{<<"error">> := <<"too_many_clients">>}} = evatar_web_json:decode(Json),
+        {ok, #{<<"error">> := <<"too_many_clients">>}} = evatar_json:decode(Json),
         [First | Rest] = Open,
         ok = gen_tcp:close(First),
         %% The server sees the close in its own time: retry until served.

@@ -205,7 +205,7 @@ pairing_entities(_Config) ->
       <<"av">> := #{<<"role">> := <<"avatar">>, <<"components">> := [_, _]}} =
         maps:from_list([{E, X} || #{<<"entity">> := E} = X <- Es]),
     #{<<"agent_credential">> := <<"set">>, <<"join_timeout">> := 60000} = Opts,
-    nomatch = binary:match(evatar_web_json:encode(Opts), [?VA_CRED, ?AV_CRED]),
+    nomatch = binary:match(evatar_json:encode(Opts), [?VA_CRED, ?AV_CRED]),
     {404, #{<<"error">> := <<"not_found">>, <<"field">> := <<"id">>}} = ?T:get("/api/pairings/nope"),
     %% A percent-encoded id is decoded, never made an atom.
     {404, _} = ?T:get("/api/pairings/a%2Fb%20c").
@@ -354,7 +354,7 @@ rotate_identity_generated(Config) ->
                                             entity_id => <<"cam">>, credential => New}),
     ok = agent_bridge_client:close(C),
     {200, #{<<"options">> := Opts}} = ?T:get("/api/pairings/web-rid"),
-    nomatch = binary:match(evatar_web_json:encode(Opts), New),
+    nomatch = binary:match(evatar_json:encode(Opts), New),
     {404, #{<<"field">> := <<"entity">>}} =
         change(post, "/api/pairings/web-rid/rotate", #{entity => <<"nobody">>}),
     ok = evatar:delete_pairing(<<"web-rid">>).
@@ -492,7 +492,7 @@ openapi_path(P) ->
 
 auth(Token) -> {"authorization", "Bearer " ++ binary_to_list(Token)}.
 
-json(Term) -> binary_to_list(evatar_web_json:encode(Term)).
+json(Term) -> binary_to_list(evatar_json:encode(Term)).
 
 change(Method, Path, none) ->
     ?T:request(Method, Path, [auth(?TOKEN)], none);

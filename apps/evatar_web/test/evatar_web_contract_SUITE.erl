@@ -123,7 +123,7 @@ pairings() -> [?HOME, ?IDS, ?SCRATCH, ?MQTT_PAIRING, ?THINGS, ?WOT_PAIRING].
 %% the two lists stay the same.
 create_input_is_options_and_id(_Config) ->
     {ok, #{<<"components">> := #{<<"schemas">> := Schemas}}} =
-        evatar_web_json:decode(element(2, file:read_file(spec()))),
+        evatar_json:decode(element(2, file:read_file(spec()))),
     #{<<"CreateInput">> := #{<<"properties">> := Create, <<"additionalProperties">> := false},
       <<"OptionsInput">> := #{<<"properties">> := Options, <<"additionalProperties">> := false}} = Schemas,
     Options = maps:remove(<<"id">>, Create),
@@ -132,13 +132,13 @@ create_input_is_options_and_id(_Config) ->
 %% The checker can fail: a copy of the document that leaves out the 404
 %% of GET /api/pairings/{id} makes schemathesis report the server's 404.
 a_wrong_document_fails(Config) ->
-    {ok, Spec} = evatar_web_json:decode(element(2, file:read_file(spec()))),
+    {ok, Spec} = evatar_json:decode(element(2, file:read_file(spec()))),
     #{<<"paths">> := #{<<"/api/pairings/{id}">> := #{<<"get">> := #{<<"responses">> := R} = Get} = P}
           = Paths} = Spec,
     Wrong = Spec#{<<"paths">> := Paths#{<<"/api/pairings/{id}">> :=
                                             P#{<<"get">> := Get#{<<"responses">> := maps:remove(<<"404">>, R)}}}},
     File = filename:join(?config(priv_dir, Config), "wrong-openapi.json"),
-    ok = file:write_file(File, evatar_web_json:encode(Wrong)),
+    ok = file:write_file(File, evatar_json:encode(Wrong)),
     {Status, Out} = schemathesis(Config, File, ["--include-name", "GET /api/pairings/{id}",
                                                 "-n", "5", "--phases", "coverage,fuzzing"]),
     ct:pal("~ts", [Out]),

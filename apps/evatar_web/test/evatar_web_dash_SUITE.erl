@@ -186,7 +186,7 @@ split_events(Buf) ->
     Parts = binary:split(Buf, <<"\n\n">>, [global]),
     {Complete, [Rest]} = lists:split(length(Parts) - 1, Parts),
     {[Item || <<"data: ", Json/binary>> <- Complete,
-              {ok, Item} <- [evatar_web_json:decode(Json)]], Rest}.
+              {ok, Item} <- [evatar_json:decode(Json)]], Rest}.
 
 has_kind(Kind) -> fun(Is) -> [x || #{<<"kind">> := K} <- Is, K =:= Kind] =/= [] end.
 

@@ -38,7 +38,7 @@ get(Path, Headers) -> request(get, Path, Headers, none).
 request(Method, Path, Headers, Body) ->
     {Status, RespHeaders, RespBody} = raw(Method, Path, Headers, Body),
     "application/json" = proplists:get_value("content-type", RespHeaders),
-    {ok, Json} = evatar_web_json:decode(list_to_binary(RespBody)),
+    {ok, Json} = evatar_json:decode(list_to_binary(RespBody)),
     {Status, Json}.
 
 %% Any request: {Status, Headers, Body (a string)}.

@@ -113,7 +113,7 @@ bad_things_option_is_named(_Config) ->
 tds_pass_schema_and_assertions(Config) ->
     {200, Hdrs, Body} = ?T:raw(get, "/api/things", [], none),
     "application/json" = proplists:get_value("content-type", Hdrs),
-    {ok, TDs} = evatar_web_json:decode(list_to_binary(Body)),
+    {ok, TDs} = evatar_json:decode(list_to_binary(Body)),
     [TD] = [X || #{<<"title">> := <<"easy-home-01">>} = X <- TDs],
     [#{<<"actions">> := MqttActions, <<"properties">> := MqttProps}] =
         [X || #{<<"title">> := ?MQTT_AV} = X <- TDs],
@@ -153,7 +153,7 @@ tds_pass_schema_and_assertions(Config) ->
     ct:pal("~ts", [Report]),
     {match, _} = re:run(Report, "checked 5 TDs, 0 failed"),
     %% The checker can fail: a TD without its security is refused.
-    Broken = write(Config, "broken.json", evatar_web_json:encode(maps:remove(<<"security">>, TD))),
+    Broken = write(Config, "broken.json", evatar_json:encode(maps:remove(<<"security">>, TD))),
     {1, Refused} = node(Config, "validate.js", [Broken]),
     {match, _} = re:run(Refused, "checked 1 TDs, 1 failed").
 
@@ -167,7 +167,7 @@ consumer_is_bound_like_a_va(_Config) ->
                   <<"type">> := <<"SwitchSocketOn">>} = B <- Bound],
     %% The dashboard's graph shows it on the agents' side.
     {200, Graph} = ?T:get("/api/pairings/wot-home/graph"),
-    {match, _} = re:run(evatar_web_json:encode(Graph), "\"wot\\.BedroomSocketSwitch01\"").
+    {match, _} = re:run(evatar_json:encode(Graph), "\"wot\\.BedroomSocketSwitch01\"").
 
 %% Invoking an action is a change: without the operator token, 401.
 actions_need_the_token(_Config) ->
@@ -184,7 +184,7 @@ node_wot_switches_the_lamp(Config) ->
     {0, Out} = node(Config, "consume.js", [Url, ?TOKEN, "invoke", ?LAMP ".SwitchSocketOn", "{}"]),
     ct:pal("~ts", [Out]),
     {match, [Json]} = re:run(Out, "^OUTPUT (.*)$", [multiline, {capture, all_but_first, binary}]),
-    {ok, #{<<"Socket">> := <<"on">>, <<"Room">> := <<"bedroom">>}} = evatar_web_json:decode(Json),
+    {ok, #{<<"Socket">> := <<"on">>, <<"Room">> := <<"bedroom">>}} = evatar_json:decode(Json),
     {0, Off} = node(Config, "consume.js", [Url, ?TOKEN, "invoke", ?LAMP ".SwitchSocketOff", "{}"]),
     {match, _} = re:run(Off, "OUTPUT .*\"Socket\":\"off\"").
 
@@ -224,7 +224,7 @@ node_wot_mqtt_drives_the_devices(Config) ->
     %% (the sensor's component has two streams on its state topic)
     [Property | _] = lists:sort([P || {P, #{<<"href">> := H}} <- Mqtt(<<"properties">>),
                                       H =:= <<Broker/binary, "home/hall_temperature">>]),
-    File = write(Config, "mqtt-avatar.td.json", evatar_web_json:encode(Td)),
+    File = write(Config, "mqtt-avatar.td.json", evatar_json:encode(Td)),
     {ok, C} = mqtt_client:start_link(#{host => "127.0.0.1", port => maps:get(port, ?config(broker, Config)),
                                        client_id => <<"wot-suite-devices">>}),
     ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
@@ -298,7 +298,7 @@ auth() -> [{"authorization", "Bearer " ?TOKEN}].
 
 things() ->
     {200, _, Body} = ?T:raw(get, "/api/things", [], none),
-    {ok, TDs} = evatar_web_json:decode(list_to_binary(Body)),
+    {ok, TDs} = evatar_json:decode(list_to_binary(Body)),
     TDs.
 
 %% Retained Home Assistant discovery configs of a light, a switch, a
@@ -323,7 +323,7 @@ announce(Mqtt) ->
                 #{<<"name">> => <<"Hall motion">>, <<"uniq_id">> => <<"hall_motion">>,
                   <<"stat_t">> => <<"home/hall_motion">>, <<"dev_cla">> => <<"motion">>,
                   <<"dev">> => Dev(<<"hall_motion">>)}}],
-    [ok = mqtt_client:publish(C, <<"homeassistant/", T/binary, "/config">>, evatar_web_json:encode(J),
+    [ok = mqtt_client:publish(C, <<"homeassistant/", T/binary, "/config">>, evatar_json:encode(J),
                               #{qos => 1, retain => true}) || {T, J} <- Configs],
     mqtt_client:stop(C).
 

@@ -11,9 +11,9 @@
 -export([description/1, public_description/1, description_xml/1, print_description/1,
          problems/1, print_problems/1, status/1]).
 -export([discover/2, generate/2, read_description/1, check/1]).
--export([decode_json/1, encode_json/1, json_text/1, discovery_max_device_list/0]).
+-export([discovery_max_device_list/0]).
 
--export_type([opts/0, avatar/0, problem/0, json/0]).
+-export_type([opts/0, avatar/0, problem/0]).
 
 -type avatar() :: pid().
 %% `mqtt': the broker, as for mqtt_client (host, port, and optionally
@@ -256,25 +256,6 @@ read_description(File) ->
         {error, Reason} ->
             {error, iolist_to_binary(io_lib:format("~ts: ~ts", [File, file:format_error(Reason)]))}
     end.
-
-%% A JSON value as MQTT Avatars read and write payloads: objects are maps
-%% with binary keys, arrays lists, strings UTF-8 binaries.
--type json() :: mqtt_avatar_json:json().
-
-%% @doc Decodes a JSON payload as an MQTT Avatar does (RFC 8259; never
-%% raises, never makes atoms), for device simulators and tests that speak to
-%% MQTT Avatars (avatar_sim's MQTT devices).
--spec decode_json(binary()) -> {ok, json()} | {error, mqtt_avatar_json:error_reason()}.
-decode_json(Bin) -> mqtt_avatar_json:decode(Bin).
-
-%% @doc Encodes a JSON payload as an MQTT Avatar does.
--spec encode_json(json() | #{atom() => json()}) -> iodata().
-encode_json(Json) -> mqtt_avatar_json:encode(Json).
-
-%% @doc A JSON value as the text of a BIL parameter, as an MQTT Avatar
-%% writes it: strings as they are, anything else as JSON.
--spec json_text(json()) -> binary().
-json_text(Json) -> mqtt_avatar_json:to_text(Json).
 
 %% @doc Checks the `Mqtt*' parameters of a description (docs/mqtt.md
 %% section 3) and that it is valid BIL.

@@ -23,7 +23,7 @@ from_ha(C, Base) ->
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(#{light := Config} = E, Ctx) ->
     {ok, L} = mqtt_avatar_light:config(Config),
-    Json = iolist_to_binary(mqtt_avatar_json:encode(Config)),
+    Json = evatar_json:encode(Config),
     Room = maps:get(room, Ctx),
     Attributes = [{<<"MqttAttributes">>, <<"all">>} || maps:get(attributes, E, false)],
     Caps = mqtt_avatar_light:capabilities(L),

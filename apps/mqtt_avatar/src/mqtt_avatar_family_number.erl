@@ -25,7 +25,7 @@ from_ha(C, Base) ->
 -spec from_z2m(map(), mqtt_avatar_z2m:ctx()) -> [mqtt_avatar_discovery:entity()].
 from_z2m(#{<<"property">> := P} = X, Ctx) ->
     Num = fun(K, D) -> case maps:get(K, X, undefined) of
-                           N when is_number(N) -> mqtt_avatar_json:to_text(N);
+                           N when is_number(N) -> evatar_json:to_text(N);
                            _ -> D
                        end
           end,

@@ -70,7 +70,7 @@ feature_check(_) ->
 
 -spec generate(mqtt_avatar_discovery:entity(), mqtt_avatar_part:ctx()) -> mqtt_avatar_part:part().
 generate(#{z2m := alarm} = E, Ctx) ->
-    Json = fun(V) -> iolist_to_binary(["json:", mqtt_avatar_json:encode(#{<<"alarm">> => V})]) end,
+    Json = fun(V) -> iolist_to_binary(["json:", evatar_json:encode(#{<<"alarm">> => V})]) end,
     Entry = fun(Type, V) ->
                     mqtt_avatar_part:entry(<<"ACTUATOR">>, Type,
                                            maps:get(room, Ctx)
@@ -117,7 +117,7 @@ generate(E, Ctx) ->
     Capabilities = [{<<"Sound">>, <<"yes">>}]
         ++ [{<<"Volume">>, <<"yes">>} || maps:get(volume, E)]
         ++ [{<<"Duration">>, <<"yes">>} || maps:get(duration, E)],
-    Command = iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => maps:get(on, E)})),
+    Command = evatar_json:encode(#{<<"state">> => maps:get(on, E)}),
     Params = Capabilities ++ maps:get(room, Ctx)
         ++ [{<<"MqttCommandTopic">>, maps:get(command_topic, E)},
             {<<"MqttCommand">>, <<"json:", Command/binary>>},

@@ -32,7 +32,7 @@ parse(Prefix, Topic, Payload) ->
     parse(Prefix, Topic, Payload, #{}).
 
 %% @doc As `parse/3', the JSON decoded with `Opts' (`max_size').
--spec parse(binary(), binary(), binary(), mqtt_avatar_json:opts()) ->
+-spec parse(binary(), binary(), binary(), evatar_json:opts()) ->
           {ok, parsed()} | ignore | {error, binary()}.
 parse(Prefix, Topic, Payload, Opts) ->
     PrefixParts = binary:split(Prefix, <<"/">>, [global]),
@@ -61,14 +61,14 @@ config(Component, Node, Object, Payload, Opts) ->
             {error, iolist_to_binary(["component ", printable(Component), " is not supported "
                                       "(supported: ", lists:join(", ", components()), "); skipped"])};
         {ok, Kind, _Mod} ->
-            case mqtt_avatar_json:decode(Payload, Opts) of
+            case evatar_json:decode(Payload, Opts) of
                 {ok, Json} when is_map(Json) ->
                     entity(Component, Kind, Node, Object,
                            expand(Json, mqtt_avatar_family:abbreviations(Component)));
                 {ok, _} ->
                     {error, <<"the config is not a JSON object">>};
                 {error, R} ->
-                    {error, mqtt_avatar_json:format_error(R)}
+                    {error, evatar_json:format_error(R)}
             end
     end.
 
@@ -81,7 +81,7 @@ config(Component, Node, Object, Payload, Opts) ->
 device_config(_Node, _Object, <<>>, _Opts) ->
     {ok, remove};
 device_config(Node, Object, Payload, Opts) ->
-    case mqtt_avatar_json:decode(Payload, Opts) of
+    case evatar_json:decode(Payload, Opts) of
         {ok, Json} when is_map(Json) ->
             Cmps = maps:get(<<"cmps">>, Json, maps:get(<<"components">>, Json, undefined)),
             Shared = maps:without([<<"cmps">>, <<"components">>], Json),
@@ -96,7 +96,7 @@ device_config(Node, Object, Payload, Opts) ->
         {ok, _} ->
             {error, <<"the config is not a JSON object">>};
         {error, R} ->
-            {error, mqtt_avatar_json:format_error(R)}
+            {error, evatar_json:format_error(R)}
     end.
 
 device_component(Node, Object, Key, Shared, C) when is_map(C) ->
@@ -296,7 +296,7 @@ bool(Key, C, Default) ->
 -spec number(binary(), map(), binary() | undefined) -> binary() | undefined.
 number(Key, C, Default) ->
     case maps:get(Key, C, undefined) of
-        N when is_number(N) -> mqtt_avatar_json:to_text(N);
+        N when is_number(N) -> evatar_json:to_text(N);
         _ -> Default
     end.
 

@@ -69,7 +69,7 @@
 config_keys() -> ?KEYS.
 
 %% @doc Reads a light config: a map with HA's full key names.
--spec config(#{binary() => mqtt_avatar_json:json()}) -> {ok, light()} | {error, binary()}.
+-spec config(#{binary() => evatar_json:json()}) -> {ok, light()} | {error, binary()}.
 config(C) when is_map(C) ->
     try
         {ok, light(C)}
@@ -108,7 +108,7 @@ light(C) ->
              mireds => Mireds,
              kelvins => Kelvins,
              effects => [E || E <- list(<<"effect_list">>, C), is_binary(E)]
-                 ++ [mqtt_avatar_json:to_text(E) || E <- list(<<"effect_list">>, C), is_number(E)],
+                 ++ [evatar_json:to_text(E) || E <- list(<<"effect_list">>, C), is_number(E)],
              topics => #{},
              templates => #{}},
     schema(Schema, C, Base).
@@ -240,7 +240,7 @@ state_topics(#{state_topic := S}) -> [S].
 %% @doc The JSON-schema config of a zigbee2mqtt `light' expose (its
 %% features `state', `brightness', `color_temp', `color_xy', `color_hs'),
 %% with the device's `effect' enum expose when it has one.
--spec from_z2m(binary(), map(), [map()]) -> #{binary() => mqtt_avatar_json:json()}.
+-spec from_z2m(binary(), map(), [map()]) -> #{binary() => evatar_json:json()}.
 from_z2m(Topic, #{<<"features">> := Features}, Exposes) ->
     Names = [N || #{<<"name">> := N} <- Features, is_binary(N)],
     Modes = [M || {Name, M} <- [{<<"color_xy">>, <<"xy">>}, {<<"color_hs">>, <<"hs">>},
@@ -421,7 +421,7 @@ numbers(N, V, Count, Form, Ranges) ->
     end.
 
 to_number(V) ->
-    case mqtt_avatar_json:decode(V) of
+    case evatar_json:decode(V) of
         {ok, X} when is_number(X) -> {ok, X};
         _ -> error
     end.
@@ -435,7 +435,7 @@ publishes(#{schema := json} = L, OnOff, Req) ->
         ++ [{<<"color_temp">>, temp_out(M, K)} || {ok, M} <- [maps:find(color_temp, Req)]]
         ++ [{<<"effect">>, E} || {ok, E} <- [maps:find(effect, Req)]]
         ++ [{<<"transition">>, Tr} || {ok, Tr} <- [maps:find(transition, Req)]],
-    [{T, iolist_to_binary(mqtt_avatar_json:encode(maps:from_list(Fields)))}];
+    [{T, evatar_json:encode(maps:from_list(Fields))}];
 publishes(#{schema := template} = L, OnOff, Req) ->
     #{command_topic := T, scale := Scale, templates := Tpls, kelvin := K} = L,
     Vars = maps:from_list(
@@ -616,10 +616,10 @@ read(L, Topic, Payload, State) ->
     end.
 
 read1(#{schema := json, state_topic := Topic} = L, Topic, Payload, State) ->
-    J = case mqtt_avatar_json:decode(Payload) of
+    J = case evatar_json:decode(Payload) of
             {ok, M} when is_map(M) -> M;
             {ok, _} -> fail("the light's state is not a JSON object");
-            {error, R} -> fail(mqtt_avatar_json:format_error(R))
+            {error, R} -> fail(evatar_json:format_error(R))
         end,
     #{scale := Scale, kelvin := K} = L,
     S1 = case maps:get(<<"state">>, J, undefined) of
@@ -792,7 +792,7 @@ clamp({xy, {X, Y}}) -> {xy, {float(bound(X, 0, 1)), float(bound(Y, 0, 1))}}.
 
 bound(X, Lo, Hi) -> max(Lo, min(Hi, X)).
 
-to_text(V) -> iolist_to_binary(mqtt_avatar_json:encode(V)).
+to_text(V) -> evatar_json:encode(V).
 
 %% @doc The light's state as BIL parameters, in a fixed order.
 -spec params(state()) -> [bil:parameter()].
@@ -805,7 +805,7 @@ params(State) ->
 %% Helpers
 %% ---------------------------------------------------------------------------
 
-text(N) -> mqtt_avatar_json:to_text(N).
+text(N) -> evatar_json:to_text(N).
 
 num(N) -> text(N).
 

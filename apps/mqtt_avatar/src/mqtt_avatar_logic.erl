@@ -422,7 +422,7 @@ readable(Payload, Needs) ->
         {error, _} -> {error, <<"the payload is not UTF-8 text">>};
         {{ok, _}, text} -> ok;
         {{ok, _}, json} ->
-            case mqtt_avatar_json:decode(Payload) of
+            case evatar_json:decode(Payload) of
                 {ok, _} -> ok;
                 {error, R} -> {error, not_json(R, <<"the state's MqttExpect or MqttValue json:">>)}
             end
@@ -441,11 +441,11 @@ bad_payload(Id, Topic, Payload, Why) ->
 
 %% What a reason of read_values/3 or numbers/3 says, and its limit key.
 why({not_json, {too_large, _} = R, _Reader}, _Topic, _Payload) ->
-    {undefined, mqtt_avatar_json:format_error(R)};
+    {undefined, evatar_json:format_error(R)};
 why({not_json, R, Reader}, Topic, Payload) ->
     {not_json, iolist_to_binary(
                  ["the payload", on_topic(Topic), " is not JSON (", quoted(start(Payload)), "; ",
-                  mqtt_avatar_json:format_error(R), "), but ", Reader, " reads it as JSON"])};
+                  evatar_json:format_error(R), "), but ", Reader, " reads it as JSON"])};
 why({not_number, Value, Info}, Topic, _Payload) ->
     {not_number, iolist_to_binary(
                    ["the value ", quoted(Value), on_topic(Topic), " is not a number, and this "
@@ -629,7 +629,7 @@ exclude(#{ts_field := F}) -> #{exclude => [F]}.
 timestamp(_Payload, #{ts_field := undefined}) ->
     #{};
 timestamp(Payload, #{ts_field := Field}) ->
-    case mqtt_avatar_json:decode(Payload) of
+    case evatar_json:decode(Payload) of
         {ok, #{Field := T}} when is_integer(T), T >= 0, T < 1 bsl 62 -> #{timestamp => T};
         _ -> #{}
     end.
@@ -643,7 +643,7 @@ stamp(Sends, Stamp) ->
 matches({template, Text}, Payload, #{template := T}) ->
     case mqtt_avatar_template:value(T, mqtt_avatar_template:payload_vars(Payload)) of
         {ok, V} when is_binary(V); is_number(V); is_boolean(V) ->
-            same(string:trim(scalar(V)), Text) orelse same(mqtt_avatar_json:to_text(V), Text);
+            same(string:trim(scalar(V)), Text) orelse same(evatar_json:to_text(V), Text);
         _ -> false
     end;
 matches({template, _}, _Payload, _Mapping) ->
@@ -660,10 +660,10 @@ matches({raw, Text}, Payload) ->
         error -> false
     end;
 matches({json, Path, Text}, Payload) ->
-    case mqtt_avatar_json:decode(Payload) of
+    case evatar_json:decode(Payload) of
         {ok, J} ->
-            case mqtt_avatar_json:get_path(Path, J) of
-                {ok, V} -> same(mqtt_avatar_json:to_text(V), Text) orelse same(yes_no(V), Text);
+            case evatar_json:get_path(Path, J) of
+                {ok, V} -> same(evatar_json:to_text(V), Text) orelse same(yes_no(V), Text);
                 error -> false
             end;
         {error, _} -> false
@@ -803,7 +803,7 @@ checked_payload(Service, Params) ->
 render_command(undefined, Payload, _Args) ->
     {ok, Payload};
 render_command(Template, Payload, Args) ->
-    Value = case mqtt_avatar_json:decode(Payload) of
+    Value = case evatar_json:decode(Payload) of
                 {ok, N} when is_number(N) -> N;
                 _ -> Payload
             end,
@@ -823,11 +823,11 @@ check_args([{Name, Check} | Rest], Params) ->
         {{_, _}, present} ->
             check_args(Rest, Params);
         {{_, V}, {range, Lo, Hi}} ->
-            case mqtt_avatar_json:decode(V) of
+            case evatar_json:decode(V) of
                 {ok, N} when is_number(N), N >= Lo, N =< Hi -> check_args(Rest, Params);
                 _ -> {error, iolist_to_binary([Name, " must be a number from ",
-                                               mqtt_avatar_json:to_text(Lo), " to ",
-                                               mqtt_avatar_json:to_text(Hi)])}
+                                               evatar_json:to_text(Lo), " to ",
+                                               evatar_json:to_text(Hi)])}
             end;
         {{_, V}, {one_of, Values}} ->
             case [X || X <- Values, same(X, V)] of
@@ -857,7 +857,7 @@ command_payload(#{command := {raw, Text}, args := Args}, Params) ->
         [] -> {ok, Text}
     end;
 command_payload(#{command := {json, Base}, args := []}, _Params) ->
-    {ok, mqtt_avatar_json:encode(Base)};
+    {ok, evatar_json:encode(Base)};
 command_payload(#{command := {json, Base}, args := Args}, Params) when is_map(Base) ->
     Json = lists:foldl(fun({Name, Path}, Acc) ->
                                case lists:keyfind(Name, 1, Params) of
@@ -865,7 +865,7 @@ command_payload(#{command := {json, Base}, args := Args}, Params) when is_map(Ba
                                    false -> Acc
                                end
                        end, Base, Args),
-    {ok, mqtt_avatar_json:encode(Json)};
+    {ok, evatar_json:encode(Json)};
 command_payload(#{command := {json, _}}, _Params) ->
     {error, <<"MqttCommandArgs needs MqttCommand to be a JSON object">>}.
 
@@ -881,7 +881,7 @@ put_path([K | Rest], V, M) ->
 %% `true' and `false' as JSON booleans (a siren's Strobe: zigbee2mqtt
 %% reads the text "false" as true).
 json_value(V) ->
-    case mqtt_avatar_json:decode(V) of
+    case evatar_json:decode(V) of
         {ok, N} when is_number(N); is_boolean(N) -> N;
         _ -> V
     end.
@@ -963,7 +963,7 @@ read_values(#{values := Values, attributes := Attributes, map := Map} = Mapping,
     NeedsJson = Attributes orelse lists:any(fun({_, S}) -> S =/= raw andalso S =/= template end,
                                             Values),
     Decoded = case NeedsJson of
-                  true -> mqtt_avatar_json:decode(Payload);
+                  true -> evatar_json:decode(Payload);
                   false -> {ok, undefined}
               end,
     case {text(Payload), Decoded} of
@@ -1007,7 +1007,7 @@ one_value(Name, template, _Text, _Json, Payload, #{template := T} = Mapping) ->
         {Failed, true} when Failed =:= {ok, undefined}; element(1, Failed) =:= error ->
             %% The template reads JSON and the payload is not: say that,
             %% not what it led to (an undefined value given to `| float').
-            {error, R} = mqtt_avatar_json:decode(Payload),
+            {error, R} = evatar_json:decode(Payload),
             {error, not_json(R, ["the value template ",
                                  quoted(maps:get(template_text, Mapping, <<"of ", Name/binary>>))])};
         {{ok, undefined}, false} ->
@@ -1022,21 +1022,21 @@ one_value(Name, template, _Text, _Json, Payload, #{template := T} = Mapping) ->
         {{error, M}, false} -> {error, <<"the value template of ", Name/binary, ": ", M/binary>>}
     end;
 one_value(Name, {json, Path}, _Text, Json, _Payload, _Mapping) ->
-    case mqtt_avatar_json:get_path(Path, Json) of
+    case evatar_json:get_path(Path, Json) of
         {ok, null} -> [];
         {ok, V} -> [{Name, scalar(V)}];
         error -> []
     end.
 
 json_text(Payload, Path) ->
-    case mqtt_avatar_json:decode(Payload) of
+    case evatar_json:decode(Payload) of
         {ok, J} ->
-            case mqtt_avatar_json:get_path(Path, J) of
-                {ok, V} -> {ok, mqtt_avatar_json:to_text(V)};
+            case evatar_json:get_path(Path, J) of
+                {ok, V} -> {ok, evatar_json:to_text(V)};
                 error -> {error, <<"the availability field is missing">>}
             end;
         {error, R} ->
-            {error, mqtt_avatar_json:format_error(R)}
+            {error, evatar_json:format_error(R)}
     end.
 
 %% A description refused for one of the pairing's limits: which option
@@ -1066,14 +1066,14 @@ with_advice(Message) ->
 %% V reads as (V - Lo + 1) * 100 div (Hi - Lo + 1) per cent. A value that
 %% is not a number is left as it is (MqttArgCheck refuses it in a request).
 to_device({N, V} = P, Scale) ->
-    case {lists:keyfind(N, 1, Scale), mqtt_avatar_json:decode(V)} of
+    case {lists:keyfind(N, 1, Scale), evatar_json:decode(V)} of
         {{_, Lo, Hi}, {ok, Pct}} when is_number(Pct) ->
             {N, integer_to_binary(ceiling(Lo - 1 + Pct * (Hi - Lo + 1) / 100))};
         _ -> P
     end.
 
 from_device({N, V} = P, Scale) ->
-    case {lists:keyfind(N, 1, Scale), mqtt_avatar_json:decode(V)} of
+    case {lists:keyfind(N, 1, Scale), evatar_json:decode(V)} of
         {{_, Lo, Hi}, {ok, X}} when is_number(X) ->
             {N, integer_to_binary(floor((X - Lo + 1) * 100 / (Hi - Lo + 1)))};
         _ -> P
@@ -1087,7 +1087,7 @@ scalar(V) -> yes_no(V).
 
 yes_no(true) -> <<"yes">>;
 yes_no(false) -> <<"no">>;
-yes_no(V) -> clean(mqtt_avatar_json:to_text(V)).
+yes_no(V) -> clean(evatar_json:to_text(V)).
 
 is_scalar(V) -> not is_map(V) andalso not is_list(V) andalso V =/= null.
 

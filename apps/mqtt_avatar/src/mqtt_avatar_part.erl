@@ -373,8 +373,8 @@ escape_byte(B) ->
 %% order (a cover whose open position is below its closed one).
 -spec range(binary(), binary()) -> binary().
 range(A, B) ->
-    {ok, X} = mqtt_avatar_json:decode(A),
-    {ok, Y} = mqtt_avatar_json:decode(B),
+    {ok, X} = evatar_json:decode(A),
+    {ok, Y} = evatar_json:decode(B),
     case X =< Y of
         true -> <<A/binary, "..", B/binary>>;
         false -> <<B/binary, "..", A/binary>>
@@ -419,10 +419,10 @@ source({json, Path}) -> <<"json:", (join_path(Path))/binary>>.
 join_path(Path) -> iolist_to_binary(lists:join(<<".">>, Path)).
 
 %% @doc `Value' at `Path' of a JSON object, as JSON text.
--spec json_at([binary()], mqtt_avatar_json:json()) -> binary().
+-spec json_at([binary()], evatar_json:json()) -> binary().
 json_at(Path, Value) ->
     Json = lists:foldr(fun(K, Inner) -> #{K => Inner} end, Value, Path),
-    iolist_to_binary(mqtt_avatar_json:encode(Json)).
+    evatar_json:encode(Json).
 
 %% @doc The first candidate that gives a name.
 -spec first_name([binary() | undefined]) -> binary().

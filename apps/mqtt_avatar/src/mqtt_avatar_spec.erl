@@ -35,7 +35,7 @@
                      static := [bil:parameter()],
                      kind := command | read | unsupported,
                      command_topic => binary(),
-                     command => {raw, binary()} | {json, mqtt_avatar_json:json()}
+                     command => {raw, binary()} | {json, evatar_json:json()}
                               | {light, on | off},
                      light => mqtt_avatar_light:light(),
                      args => [{binary(), [binary()]}],
@@ -369,7 +369,7 @@ name_check(P, Check) ->
     end.
 
 number(B) ->
-    case mqtt_avatar_json:decode(B) of
+    case evatar_json:decode(B) of
         {ok, N} when is_number(N) -> {ok, N};
         _ -> error
     end.
@@ -478,14 +478,14 @@ light_service(Id, E, Base, Command) ->
                     {error, [problem(Id, E, What, <<"MqttLight">>,
                                      <<"a light:on or light:off command needs the light's config">>)]};
                 Text ->
-                    case mqtt_avatar_json:decode(Text) of
+                    case evatar_json:decode(Text) of
                         {ok, Json} ->
                             case mqtt_avatar_light:config(Json) of
                                 {ok, L} -> {ok, L};
                                 {error, M} -> {error, [problem(Id, E, What, <<"MqttLight">>, M)]}
                             end;
                         {error, R} ->
-                            {error, [problem(Id, E, What, <<"MqttLight">>, mqtt_avatar_json:format_error(R))]}
+                            {error, [problem(Id, E, What, <<"MqttLight">>, evatar_json:format_error(R))]}
                     end
             end,
     case collect([OnOff, Light, mapping(Id, E, What)]) of
@@ -534,10 +534,10 @@ command_service(Id, E, Inherited, Base, Command) ->
 command(_Id, _E, <<"raw:", Text/binary>>) ->
     {ok, {raw, Text}};
 command(Id, E, <<"json:", Text/binary>> = _V) ->
-    case mqtt_avatar_json:decode(Text) of
+    case evatar_json:decode(Text) of
         {ok, J} -> {ok, {json, J}};
         {error, R} -> {error, [problem(Id, E, "Service", <<"MqttCommand">>,
-                                       mqtt_avatar_json:format_error(R))]}
+                                       evatar_json:format_error(R))]}
     end;
 command(Id, E, _) ->
     {error, [problem(Id, E, "Service", <<"MqttCommand">>,

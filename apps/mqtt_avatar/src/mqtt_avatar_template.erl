@@ -31,7 +31,7 @@
 %%     `string', `round' allowed), which the spec can read without it.</li>
 %% </ul>
 %% Variables are `#{binary() => value()}' with JSON values
-%% (mqtt_avatar_json) plus `undefined'.
+%% (evatar_json) plus `undefined'.
 -module(mqtt_avatar_template).
 
 %% OTP 25's type optimisation pass (beam_ssa_type) takes about 15 s of CPU on
@@ -46,7 +46,7 @@
 
 -export_type([template/0, value/0, vars/0]).
 
--type value() :: mqtt_avatar_json:json() | undefined.
+-type value() :: evatar_json:json() | undefined.
 -type vars() :: #{binary() => value()}.
 -opaque template() :: {tpl, [node_()]}.
 -type node_() :: {text, binary()} | {out, expr()} | {'if', [{expr(), [node_()]}], [node_()]}.
@@ -126,7 +126,7 @@ value({tpl, Nodes} = T, Vars, Opts) ->
 %% `value_json' when the payload is JSON.
 -spec payload_vars(binary()) -> vars().
 payload_vars(Payload) ->
-    Json = case mqtt_avatar_json:decode(Payload) of
+    Json = case evatar_json:decode(Payload) of
                {ok, J} -> J;
                {error, _} -> undefined
            end,
@@ -166,8 +166,8 @@ to_text(null) -> <<"None">>;
 to_text(true) -> <<"True">>;
 to_text(false) -> <<"False">>;
 to_text(B) when is_binary(B) -> B;
-to_text(N) when is_number(N) -> mqtt_avatar_json:to_text(N);
-to_text(V) -> iolist_to_binary(mqtt_avatar_json:encode(V)).
+to_text(N) when is_number(N) -> evatar_json:to_text(N);
+to_text(V) -> evatar_json:encode(V).
 
 %% ---------------------------------------------------------------------------
 %% Template text: {{ }}, {% %}, {# #}
@@ -900,7 +900,7 @@ to_number(B) when is_binary(B), byte_size(B) =< 64 ->
                     end,
             try {ok, binary_to_integer(Clean)}
             catch error:badarg ->
-                    case mqtt_avatar_json:decode(normalise_float(Clean)) of
+                    case evatar_json:decode(normalise_float(Clean)) of
                         {ok, F} when is_number(F) -> {ok, float(F)};
                         _ -> error
                     end

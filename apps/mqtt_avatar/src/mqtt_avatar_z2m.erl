@@ -27,17 +27,17 @@ parse(Base, Payload) ->
     parse(Base, Payload, #{}).
 
 %% @doc As `parse/2', the JSON decoded with `Opts' (`max_size').
--spec parse(binary(), binary(), mqtt_avatar_json:opts()) ->
+-spec parse(binary(), binary(), evatar_json:opts()) ->
           {ok, [mqtt_avatar_discovery:device()], [binary()]} | {error, binary()}.
 parse(Base, Payload, Opts) ->
-    case mqtt_avatar_json:decode(Payload, Opts) of
+    case evatar_json:decode(Payload, Opts) of
         {ok, List} when is_list(List) ->
             Results = [device(Base, D) || D <- List],
             {ok, [Dev || {ok, Dev} <- Results, Dev =/= skip], [M || {error, M} <- Results]};
         {ok, _} ->
             {error, <<"bridge/devices is not a JSON array">>};
         {error, R} ->
-            {error, mqtt_avatar_json:format_error(R)}
+            {error, evatar_json:format_error(R)}
     end.
 
 device(Base, #{<<"type">> := <<"Coordinator">>}) ->
@@ -259,7 +259,7 @@ text(null) -> undefined;
 text(true) -> <<"true">>;
 text(false) -> <<"false">>;
 text(V) when is_binary(V) -> V;
-text(V) when is_number(V) -> mqtt_avatar_json:to_text(V);
+text(V) when is_number(V) -> evatar_json:to_text(V);
 text(_) -> undefined.
 
 %% @doc Where a property is read from the device's JSON state: a path, or,

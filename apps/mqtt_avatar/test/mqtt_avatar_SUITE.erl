@@ -47,7 +47,7 @@ discovery_to_feedback(Config) ->
     <<"kitchen">> = param(<<"Room">>, Ps),
     <<"yes">> = param(<<"Changed">>, Ps),
     [{_, Cmd}] = mqtt_avatar_test_device:commands(Dev),
-    {ok, #{<<"state">> := <<"ON">>}} = mqtt_avatar_json:decode(Cmd),
+    {ok, #{<<"state">> := <<"ON">>}} = evatar_json:decode(Cmd),
     {ok, Registry} = evatar:registry(?config(pairing, Config)),
     [#{description := Public}] = [E || #{role := avatar} = E <- Registry],
     [] = [N || #{services := S, consumes := C} <- maps:get(components, Public),
@@ -100,7 +100,7 @@ hand_written_description(Config) ->
 zigbee2mqtt_device(Config) ->
     P = ?config(prefix, Config),
     Base = <<"z2m_", P/binary>>,
-    Devices = mqtt_avatar_json:encode(
+    Devices = evatar_json:encode(
                 [#{<<"type">> => <<"Coordinator">>, <<"friendly_name">> => <<"Coordinator">>},
                  #{<<"type">> => <<"EndDevice">>, <<"friendly_name">> => <<"hall_pir">>,
                    <<"ieee_address">> => <<"0x00158d0001a2b3c4">>,
@@ -348,9 +348,9 @@ hall_device(Config) ->
     {ok, D} = mqtt_avatar_test_device:start(
                 port(Config),
                 #{discovery => [{<<Ha/binary, "/binary_sensor/", P/binary, "/motion/config">>,
-                                 mqtt_avatar_json:encode(Motion)},
+                                 evatar_json:encode(Motion)},
                                 {<<Ha/binary, "/sensor/", P/binary, "/temp/config">>,
-                                 mqtt_avatar_json:encode(Temp)}]}),
+                                 evatar_json:encode(Temp)}]}),
     remember(devices, D),
     D.
 

@@ -36,7 +36,7 @@ ha_json_light(_Config) ->
     %% The light's HA config rides in MqttLight (docs/mqtt.md 2.4).
     <<"light:on">> = p(<<"MqttCommand">>, OnPs),
     {ok, #{<<"schema">> := <<"json">>, <<"command_topic">> := <<"home/kitchen/set">>,
-           <<"state_topic">> := <<"home/kitchen/state">>}} = mqtt_avatar_json:decode(p(<<"MqttLight">>, OnPs)),
+           <<"state_topic">> := <<"home/kitchen/state">>}} = evatar_json:decode(p(<<"MqttLight">>, OnPs)),
     <<"home/kitchen/availability">> = p(<<"MqttAvailabilityTopic">>, OnPs),
     #{type := <<"TurnLightOff">>, parameters := OffPs} = Off,
     <<"light:off">> = p(<<"MqttCommand">>, OffPs),
@@ -178,7 +178,7 @@ zigbee2mqtt_devices(_Config) ->
     #{id := <<"LivingBulb">>, services := [#{parameters := LPs} | _]} = Bulb,
     <<"light:on">> = p(<<"MqttCommand">>, LPs),
     {ok, #{<<"schema">> := <<"json">>, <<"command_topic">> := <<"zigbee2mqtt/living_bulb/set">>}} =
-        mqtt_avatar_json:decode(p(<<"MqttLight">>, LPs)),
+        evatar_json:decode(p(<<"MqttLight">>, LPs)),
     <<"zigbee2mqtt/living_bulb/availability">> = p(<<"MqttAvailabilityTopic">>, LPs),
     <<"json:state">> = p(<<"MqttAvailabilityValue">>, LPs),
     #{services := [#{type := <<"SwitchSocketOn">>} | _]} = Plug,
@@ -279,7 +279,7 @@ generated_bil_validates(Config) ->
 %% without problems that passes the checks and bil.xsd; the new reserved
 %% parameters are checked in hand-written BIL too.
 families_validate(Config) ->
-    Enc = fun(M) -> iolist_to_binary(mqtt_avatar_json:encode(M)) end,
+    Enc = fun(M) -> evatar_json:encode(M) end,
     Dev = fun(N) -> #{<<"ids">> => [N], <<"name">> => N, <<"sa">> => <<"Living">>} end,
     Ha = [{<<"cover">>, #{<<"cmd_t">> => <<"b/set">>, <<"stat_t">> => <<"b/state">>,
                           <<"pos_t">> => <<"b/pos">>, <<"set_pos_t">> => <<"b/pos/set">>,
@@ -439,9 +439,9 @@ public_description_binds(_Config) ->
 %% @doc An empty topic next to a `~' base topic is a problem, not a crash
 %% (found by prop_discovery_never_crashes).
 empty_topic_with_base(_Config) ->
-    Payload = iolist_to_binary(mqtt_avatar_json:encode(
+    Payload = evatar_json:encode(
                                  #{<<"stat_t">> => <<>>, <<"~">> => <<"a/b">>,
-                                   <<"availability_topic">> => <<"a/b">>})),
+                                   <<"availability_topic">> => <<"a/b">>}),
     {_Desc, Problems} = mqtt_avatar:generate([{<<"homeassistant/light/o/config">>, Payload}], #{}),
     true = is_list(Problems).
 
@@ -458,9 +458,9 @@ z2m_null_on_off(_Config) ->
                {[#{<<"type">> => <<"switch">>, <<"features">> => [State]}], OnOff},
                {[State], []}],
     [begin
-         Devices = iolist_to_binary(mqtt_avatar_json:encode(
+         Devices = evatar_json:encode(
                                       [#{<<"friendly_name">> => <<"kitchen_thing">>,
-                                         <<"definition">> => #{<<"exposes">> => Es}}])),
+                                         <<"definition">> => #{<<"exposes">> => Es}}]),
          {D, []} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, Devices}], #{}),
          [#{services := Services}] = components(D),
          Commands = [C || #{parameters := Ps} <- Services, {<<"MqttCommand">>, C} <- Ps],
@@ -490,7 +490,7 @@ prop_discovery_never_crashes(_Config) ->
                  iolist_to_binary(lists:join(<<"/">>, [<<"homeassistant">>, C | Rest]))),
     P = ?FORALL({T, Pairs}, {Topic, list({elements(Keys), Value})},
                 begin
-                    Payload = iolist_to_binary(mqtt_avatar_json:encode(maps:from_list(Pairs))),
+                    Payload = evatar_json:encode(maps:from_list(Pairs)),
                     {Desc, Problems} = mqtt_avatar:generate([{T, Payload}], #{}),
                     is_list(Problems) andalso
                         (components(Desc) =:= [] orelse mqtt_avatar:check(Desc) =:= ok)
@@ -512,7 +512,7 @@ prop_discovery_never_crashes(_Config) ->
                     <<"features">> => Fs}),
     Device = ?LET({Name, Exposes}, {oneof([<<"pir">>, binary()]), list(Expose)},
                   #{<<"friendly_name">> => Name, <<"definition">> => #{<<"exposes">> => Exposes}}),
-    Z = ?FORALL(B, oneof([binary(), ?LET(L, list(Device), iolist_to_binary(mqtt_avatar_json:encode(L)))]),
+    Z = ?FORALL(B, oneof([binary(), ?LET(L, list(Device), evatar_json:encode(L))]),
                 begin
                     {Desc, _} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, B}], #{}),
                     components(Desc) =:= [] orelse mqtt_avatar:check(Desc) =:= ok
@@ -527,7 +527,7 @@ prop_payload_mapping_never_crashes(_Config) ->
     Json = ?LET(Pairs, list({oneof([binary(), <<"b">>, <<"on_off">>, <<"9lives">>]),
                              oneof([binary(), int(), real(), bool(), null, list(int()),
                                     ?LET(I, int(), #{<<"x">> => I})])}),
-                iolist_to_binary(mqtt_avatar_json:encode(maps:from_list(Pairs)))),
+                evatar_json:encode(maps:from_list(Pairs))),
     P = ?FORALL(Payload, oneof([binary(), Json]),
                 case mqtt_avatar_logic:extract(Mapping, Payload) of
                     {ok, Params} ->
@@ -634,7 +634,7 @@ z2m_devices() ->
 %% Helpers
 %% ---------------------------------------------------------------------------
 
-enc(Term) -> iolist_to_binary(mqtt_avatar_json:encode(Term)).
+enc(Term) -> evatar_json:encode(Term).
 
 components(#{components := C}) -> C.
 

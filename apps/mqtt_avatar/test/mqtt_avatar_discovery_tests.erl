@@ -5,7 +5,7 @@
 
 -include_lib("eunit/include/eunit.hrl").
 
-enc(Term) -> iolist_to_binary(mqtt_avatar_json:encode(Term)).
+enc(Term) -> evatar_json:encode(Term).
 
 %% One discovery message through a fresh state: the device and problems.
 one(Topic, Config) ->
@@ -197,8 +197,8 @@ over_max_device_list_size_is_named_test() ->
 
 %% The JSON decoder's own limit is not reported as a syntax error at byte 0.
 too_large_json_is_not_a_syntax_error_test() ->
-    {error, R} = mqtt_avatar_json:decode(<<"[1]">>, #{max_size => 2}),
-    M = mqtt_avatar_json:format_error(R),
+    {error, R} = evatar_json:decode(<<"[1]">>, #{max_size => 2}),
+    M = evatar_json:format_error(R),
     ?assertEqual(nomatch, binary:match(M, <<"at byte">>)),
     ?assertNotEqual(nomatch, binary:match(M, <<"size limit">>)).
 

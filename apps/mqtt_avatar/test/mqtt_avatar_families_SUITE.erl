@@ -310,7 +310,7 @@ alarm_with_remote_code(Config) ->
                                <<"dev">> => dev(P, <<"Garage Alarm">>, <<"Garage">>)}}],
                    [Al(<<"set">>)],
                    fun(_, Cmd) ->
-                           {ok, #{<<"action">> := Action, <<"code">> := Code}} = mqtt_avatar_json:decode(Cmd),
+                           {ok, #{<<"action">> := Action, <<"code">> := Code}} = evatar_json:decode(Cmd),
                            case {Action, Code} of
                                {<<"ARM_HOME">>, <<"2468">>} -> [{Al(<<"state">>), <<"armed_home">>}];
                                _ -> [{Al(<<"state">>), <<"disarmed">>}]
@@ -324,7 +324,7 @@ alarm_with_remote_code(Config) ->
     <<"armed_home">> = param(<<"State">>, ok(request(Va, Panel, <<"ArmHome">>,
                                                     [{<<"Code">>, <<"2468">>}]))),
     [{_, Cmd}] = mqtt_avatar_test_device:commands(Alarm),
-    {ok, #{<<"action">> := <<"ARM_HOME">>, <<"code">> := <<"2468">>}} = mqtt_avatar_json:decode(Cmd).
+    {ok, #{<<"action">> := <<"ARM_HOME">>, <<"code">> := <<"2468">>}} = evatar_json:decode(Cmd).
 
 %% A speaker's volume (number: min/max/step, a command template and a
 %% value template), its source (select) and a scene: values within the
@@ -380,9 +380,9 @@ number_select_scene(Config) ->
 vacuum(Config) ->
     P = ?config(prefix, Config),
     T = fun(S) -> <<P/binary, "/robot/", S/binary>> end,
-    State = fun(St, Fan) -> iolist_to_binary(mqtt_avatar_json:encode(
+    State = fun(St, Fan) -> evatar_json:encode(
                                                 #{<<"state">> => St, <<"battery_level">> => 81,
-                                                  <<"fan_speed">> => Fan})) end,
+                                                  <<"fan_speed">> => Fan}) end,
     Robot = device(Config, [{<<"vacuum">>, <<"robot">>,
                              #{<<"name">> => null, <<"cmd_t">> => T(<<"command">>),
                                <<"stat_t">> => T(<<"state">>), <<"set_fan_spd_t">> => T(<<"fan">>),
@@ -567,9 +567,9 @@ zigbee2mqtt_families(Config) ->
     Z2m = device(Config, [], [<<Base/binary, "/+/set">>],
                  fun(Topic, Cmd) -> z2m(Base, Initial, Topic, Cmd) end),
     ok = mqtt_avatar_test_device:publish(Z2m, <<Base/binary, "/bridge/devices">>,
-                                         iolist_to_binary(mqtt_avatar_json:encode(Devices)), true),
+                                         evatar_json:encode(Devices), true),
     [ok = mqtt_avatar_test_device:publish(Z2m, <<Base/binary, "/", N/binary>>,
-                                          iolist_to_binary(mqtt_avatar_json:encode(S)), true)
+                                          evatar_json:encode(S), true)
      || {N, S} <- maps:to_list(Initial)],
     _A = avatar(Config, #{discovery => #{homeassistant => false, zigbee2mqtt => Base}}),
     Va = va(Config, [<<"OpenCover">>, <<"SetCoverPosition">>, <<"SetHvacMode">>,
@@ -601,7 +601,7 @@ zigbee2mqtt_families(Config) ->
     <<"60">> = param(<<"Value">>, ok(request(Va, Plug, <<"SetCountdown">>, [{<<"Value">>, <<"60">>}]))),
     <<"previous">> = param(<<"Option">>, ok(request(Va, Plug, <<"SelectPowerOnBehavior">>,
                                                     [{<<"Option">>, <<"previous">>}]))),
-    Cmds = [begin {ok, J} = mqtt_avatar_json:decode(C), J end
+    Cmds = [begin {ok, J} = evatar_json:decode(C), J end
             || {_, C} <- mqtt_avatar_test_device:commands(Z2m)],
     [#{<<"state">> := <<"OPEN">>}, #{<<"position">> := 30}, #{<<"system_mode">> := <<"heat">>},
      #{<<"occupied_heating_setpoint">> := 21}, #{<<"state">> := <<"LOCK">>},
@@ -618,14 +618,14 @@ z2m(Base, Initial, Topic, Cmd) ->
                  undefined -> maps:get(Name, Initial);
                  S -> S
              end,
-    {ok, Change} = mqtt_avatar_json:decode(Cmd),
+    {ok, Change} = evatar_json:decode(Cmd),
     Moved = case Change of
                 #{<<"state">> := <<"OPEN">>} when Name =:= <<"living_blind">> -> #{<<"position">> => 100};
                 _ -> #{}
             end,
     State = maps:merge(maps:merge(State0, Change), Moved),
     put({z2m, Name}, State),
-    [{<<Base/binary, "/", Name/binary>>, iolist_to_binary(mqtt_avatar_json:encode(State))}].
+    [{<<Base/binary, "/", Name/binary>>, evatar_json:encode(State)}].
 
 %% ---------------------------------------------------------------------------
 %% Devices, Avatar, VA
@@ -640,7 +640,7 @@ dev(P, Name, Area) ->
 device(Config, Configs, Commands, Reply) ->
     P = ?config(prefix, Config),
     Discovery = [{<<"ha_", P/binary, "/", C/binary, "/", P/binary, "/", O/binary, "/config">>,
-                  mqtt_avatar_json:encode(Cfg#{<<"uniq_id">> => <<P/binary, "-", O/binary>>})}
+                  evatar_json:encode(Cfg#{<<"uniq_id">> => <<P/binary, "-", O/binary>>})}
                  || {C, O, Cfg} <- Configs],
     Spec = #{discovery => Discovery, commands => Commands},
     Spec1 = case Reply of

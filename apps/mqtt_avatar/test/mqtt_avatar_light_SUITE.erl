@@ -44,18 +44,18 @@ json_schema(Config) ->
     <<"kitchen">> = param(<<"Room">>, Ps),
     {_, Cmd} = lists:last(mqtt_avatar_test_device:commands(Dev)),
     {ok, #{<<"state">> := <<"ON">>, <<"brightness">> := 128, <<"transition">> := 2,
-           <<"color">> := #{<<"r">> := 255, <<"g">> := 0, <<"b">> := 0}}} = mqtt_avatar_json:decode(Cmd),
+           <<"color">> := #{<<"r">> := 255, <<"g">> := 0, <<"b">> := 0}}} = evatar_json:decode(Cmd),
     Ps2 = on(Va, <<"KitchenLight">>, C, [{<<"ColorTempKelvin">>, <<"2500">>}, {<<"Effect">>, <<"rainbow">>}]),
     <<"400">> = param(<<"ColorTemp">>, Ps2),
     <<"2500">> = param(<<"ColorTempKelvin">>, Ps2),
     <<"rainbow">> = param(<<"Effect">>, Ps2),
     <<"50">> = param(<<"Brightness">>, Ps2),
     {_, Cmd2} = lists:last(mqtt_avatar_test_device:commands(Dev)),
-    {ok, #{<<"color_temp">> := 400, <<"effect">> := <<"rainbow">>}} = mqtt_avatar_json:decode(Cmd2),
+    {ok, #{<<"color_temp">> := 400, <<"effect">> := <<"rainbow">>}} = evatar_json:decode(Cmd2),
     Ps3 = off(Va, <<"KitchenLight">>, C, [{<<"Transition">>, <<"0.5">>}]),
     <<"off">> = param(<<"Light">>, Ps3),
     {_, Cmd3} = lists:last(mqtt_avatar_test_device:commands(Dev)),
-    {ok, #{<<"state">> := <<"OFF">>, <<"transition">> := 0.5}} = mqtt_avatar_json:decode(Cmd3).
+    {ok, #{<<"state">> := <<"OFF">>, <<"transition">> := 0.5}} = evatar_json:decode(Cmd3).
 
 %% HA's default schema, as a Tasmota bulb announces it: one topic per
 %% feature, every answer on one RESULT topic read through templates;
@@ -100,7 +100,7 @@ template_schema(Config) ->
     <<"candle">> = param(<<"Effect">>, Ps),
     [{_, Cmd}] = mqtt_avatar_test_device:commands(Dev),
     {ok, #{<<"turn">> := <<"on">>, <<"brightness">> := 51, <<"rgb">> := [0, 0, 255],
-           <<"fx">> := <<"candle">>, <<"transition">> := 1500} = J} = mqtt_avatar_json:decode(Cmd),
+           <<"fx">> := <<"candle">>, <<"transition">> := 1500} = J} = evatar_json:decode(Cmd),
     false = maps:is_key(<<"ct">>, J),
     Ps2 = on(Va, <<"BedroomLight">>, C, [{<<"ColorTemp">>, <<"370">>}]),
     <<"370">> = param(<<"ColorTemp">>, Ps2),
@@ -126,11 +126,11 @@ zigbee2mqtt_light(Config) ->
     <<"breathe">> = param(<<"Effect">>, Ps),
     {_, Cmd} = lists:last(mqtt_avatar_test_device:commands(Dev)),
     {ok, #{<<"state">> := <<"ON">>, <<"brightness">> := 254, <<"effect">> := <<"breathe">>,
-           <<"color">> := #{<<"x">> := 0.701, <<"y">> := 0.299}}} = mqtt_avatar_json:decode(Cmd),
+           <<"color">> := #{<<"x">> := 0.701, <<"y">> := 0.299}}} = evatar_json:decode(Cmd),
     Ps2 = on(Va, <<"GarageLight">>, C, [{<<"ColorHS">>, <<"120,50">>}]),
     <<"120.0,50.0">> = param(<<"ColorHS">>, Ps2),
     {_, Cmd2} = lists:last(mqtt_avatar_test_device:commands(Dev)),
-    {ok, #{<<"color">> := #{<<"h">> := 120.0, <<"s">> := 50.0}}} = mqtt_avatar_json:decode(Cmd2).
+    {ok, #{<<"color">> := #{<<"h">> := 120.0, <<"s">> := 50.0}}} = evatar_json:decode(Cmd2).
 
 %% Bad values get BadParameter errors naming the parameter and the range;
 %% an unreadable light state, a template that fails on a state and a light
@@ -160,12 +160,12 @@ bad_values_and_payloads(Config) ->
     Ha = <<"ha_", P/binary>>,
     ok = mqtt_avatar_test_device:publish(Probe, <<P/binary, "/bulb/state">>, <<"{\"state\": ">>, false),
     ok = mqtt_avatar_test_device:publish(Probe, <<P/binary, "/bulb/state">>, <<"{\"state\":\"MAYBE\"}">>, false),
-    {ok, Shelly} = mqtt_avatar_json:decode(element(2, hd(element(1, mqtt_avatar_test_bulb:discovery(
+    {ok, Shelly} = evatar_json:decode(element(2, hd(element(1, mqtt_avatar_test_bulb:discovery(
                                                                       template, P, #{}))))),
     BadTemplate = Shelly#{<<"uniq_id">> => <<P/binary, "-for">>,
                           <<"stat_tpl">> => <<"{% for x in value_json %}{{ x }}{% endfor %}">>},
     ok = mqtt_avatar_test_device:publish(Probe, <<Ha/binary, "/light/x/for/config">>,
-                                         iolist_to_binary(mqtt_avatar_json:encode(BadTemplate)), false),
+                                         evatar_json:encode(BadTemplate), false),
     ok = until(fun() ->
                        Ms = [{W, M} || #{what := W, message := M} <- mqtt_avatar:problems(A)],
                        lists:any(fun({W, M}) -> W =:= bad_discovery andalso

@@ -51,7 +51,7 @@ config_test_() ->
 json_command_test_() ->
     C = fun(OnOff, Ps) ->
                 {ok, [{<<"l/set">>, P}], W} = mqtt_avatar_light:command(json(), OnOff, Ps),
-                {ok, J} = mqtt_avatar_json:decode(P),
+                {ok, J} = evatar_json:decode(P),
                 {J, W}
         end,
     [?_assertMatch({#{<<"state">> := <<"ON">>, <<"brightness">> := 127,

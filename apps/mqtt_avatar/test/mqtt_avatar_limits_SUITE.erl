@@ -120,7 +120,7 @@ kept_home(Config, Addr, N) ->
     {ok, Dev} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), #{}),
     remember(devices, Dev),
     ok = mqtt_avatar_test_device:publish(Dev, <<Base/binary, "/bridge/devices">>,
-                                         iolist_to_binary(mqtt_avatar_json:encode(devices(N))),
+                                         evatar_json:encode(devices(N)),
                                          true),
     Entity = entity(Config),
     {ok, _} = mqtt_avatar:keep(#{entity_id => Entity, mqtt => ?SETUP:mqtt(Config),

@@ -115,7 +115,7 @@ arguments_and_puback_test() ->
         mqtt_avatar_logic:handle(request(<<"r2">>, <<"Dim">>, [{<<"Level">>, <<"40">>},
                                                                 {<<"Other">>, <<"x">>}]), 0, state()),
     ?assertEqual({ok, #{<<"brightness">> => #{<<"level">> => 40}}},
-                 mqtt_avatar_json:decode(iolist_to_binary(Payload))),
+                 evatar_json:decode(iolist_to_binary(Payload))),
     {_, [{cancel_timer, Key}, {send, #{context := feedback, in_reply_to := <<"r2">>}}]} =
         mqtt_avatar_logic:handle({puback, Key}, 5, S1).
 
@@ -568,9 +568,9 @@ lock_with_state_template_is_done_at_unlocked_test() ->
 
 %% A generated HA sensor as the logic runs it, bound to emulator `Emu'.
 sensor_state(Config) ->
-    Json = iolist_to_binary(mqtt_avatar_json:encode(
+    Json = evatar_json:encode(
                               Config#{<<"dev">> => #{<<"ids">> => <<"k1">>,
-                                                     <<"name">> => <<"Kitchen">>}})),
+                                                     <<"name">> => <<"Kitchen">>}}),
     {D, []} = mqtt_avatar:generate([{<<"homeassistant/sensor/k1/t/config">>, Json}], #{}),
     {ok, Spec} = mqtt_avatar_spec:from_description(D#{entity_id => ?E}),
     #{components := [#{id := Id, streams := Streams}]} = Spec,
@@ -720,7 +720,7 @@ zigbee2mqtt_siren_warning_test() ->
     Dev = #{<<"friendly_name">> => <<"hall_siren">>, <<"ieee_address">> => <<"0x01">>,
             <<"definition">> => #{<<"model">> => <<"SIRZB-110">>, <<"exposes">> => [Warning]}},
     {D, []} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>,
-                                     iolist_to_binary(mqtt_avatar_json:encode([Dev]))}],
+                                     evatar_json:encode([Dev])}],
                                    #{entity_id => ?E}),
     ok = mqtt_avatar_spec:round_trip(D),
     {ok, Spec} = mqtt_avatar_spec:from_description(D),
@@ -737,11 +737,11 @@ zigbee2mqtt_siren_warning_test() ->
     {_, E1} = mqtt_avatar_logic:handle(Request(<<"StartWarning">>, Start), 1, S),
     ?assertEqual([{ok, #{<<"warning">> => #{<<"mode">> => <<"burglar">>, <<"level">> => <<"high">>,
                                             <<"strobe">> => false, <<"duration">> => 10}}}],
-                 [mqtt_avatar_json:decode(iolist_to_binary(P)) || P <- publishes(E1)]),
+                 [evatar_json:decode(iolist_to_binary(P)) || P <- publishes(E1)]),
     {_, E2} = mqtt_avatar_logic:handle(
                 Request(<<"StartWarning">>, lists:keystore(<<"Mode">>, 1, Start, {<<"Mode">>, <<"party">>})),
                 1, S),
     ?assertEqual([], publishes(E2)),
     {_, E3} = mqtt_avatar_logic:handle(Request(<<"StopWarning">>, []), 1, S),
     ?assertEqual([{ok, #{<<"warning">> => #{<<"mode">> => <<"stop">>}}}],
-                 [mqtt_avatar_json:decode(iolist_to_binary(P)) || P <- publishes(E3)]).
+                 [evatar_json:decode(iolist_to_binary(P)) || P <- publishes(E3)]).

@@ -63,7 +63,7 @@ switched_at_the_wall(Config) ->
 z2m_device_availability(Config) ->
     P = ?config(prefix, Config),
     Base = <<"z2m_", P/binary>>,
-    Devices = mqtt_avatar_json:encode(
+    Devices = evatar_json:encode(
                 [#{<<"friendly_name">> => <<"kitchen_bulb">>, <<"ieee_address">> => <<"0x0a">>,
                    <<"definition">> =>
                        #{<<"model">> => <<"LED1545G12">>, <<"description">> => <<"bulb">>,
@@ -75,9 +75,9 @@ z2m_device_availability(Config) ->
                                                      <<"value_off">> => <<"OFF">>}]}]}}]),
     Topic = <<Base/binary, "/kitchen_bulb">>,
     Reply = fun(_T, Cmd) ->
-                    {ok, #{<<"state">> := St}} = mqtt_avatar_json:decode(Cmd),
-                    [{Topic, iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => St,
-                                                                        <<"linkquality">> => 90})),
+                    {ok, #{<<"state">> := St}} = evatar_json:decode(Cmd),
+                    [{Topic, evatar_json:encode(#{<<"state">> => St,
+                                                                        <<"linkquality">> => 90}),
                       true}]
             end,
     {ok, Dev} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), #{commands => [<<Topic/binary, "/set">>],
@@ -130,7 +130,7 @@ ha_availability_list(Config) ->
     {ok, Dev} = mqtt_avatar_test_device:start(
                   ?SETUP:broker_port(Config),
                   #{discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/config">>,
-                                   mqtt_avatar_json:encode(Disc)}]}),
+                                   evatar_json:encode(Disc)}]}),
     remember(devices, Dev),
     Pub = fun(T, Pl) -> ok = mqtt_avatar_test_device:publish(Dev, <<Base/binary, T/binary>>, Pl, true) end,
     Pub(<<"/wifi">>, <<"online">>),
@@ -160,7 +160,7 @@ birth_message(Config) ->
                   ?SETUP:broker_port(Config),
                   #{announce_on => Birth,
                     discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/config">>,
-                                   mqtt_avatar_json:encode(Disc)}]}),
+                                   evatar_json:encode(Disc)}]}),
     remember(devices, Dev),
     ClientId = <<"evatar-birth-", P/binary>>,
     A = avatar(Config, #{birth => #{topic => Birth}, evatar => false,
@@ -194,7 +194,7 @@ problems_once(Config) ->
                             overrides => #{<<"nobody">> => #{room => <<"attic">>}}}),
     {ok, Dev} = mqtt_avatar_test_device:start(?SETUP:broker_port(Config), #{}),
     remember(devices, Dev),
-    Big = mqtt_avatar_json:encode(#{<<"name">> => binary:copy(<<"x">>, 2000), <<"stat_t">> => <<"s">>}),
+    Big = evatar_json:encode(#{<<"name">> => binary:copy(<<"x">>, 2000), <<"stat_t">> => <<"s">>}),
     BigTopic = <<Ha/binary, "/sensor/big/config">>,
     ok = mqtt_avatar_test_device:publish(Dev, BigTopic, Big, true),
     Count = fun(Pred) -> length([X || X <- mqtt_avatar:problems(A), Pred(X)]) end,
@@ -205,7 +205,7 @@ problems_once(Config) ->
     ok = mqtt_avatar_test_device:publish(Dev, BigTopic, Big, true),
     Sensor = fun(N) ->
                      {<<Ha/binary, "/sensor/s", N/binary, "/config">>,
-                      mqtt_avatar_json:encode(#{<<"name">> => <<"S", N/binary>>,
+                      evatar_json:encode(#{<<"name">> => <<"S", N/binary>>,
                                                 <<"stat_t">> => <<P/binary, "/s", N/binary>>})}
              end,
     [begin

@@ -218,7 +218,7 @@ piece() ->
 
 payload() ->
     oneof([binary(),
-           ?LET(J, json(3), iolist_to_binary(mqtt_avatar_json:encode(J)))]).
+           ?LET(J, json(3), evatar_json:encode(J))]).
 
 json(0) ->
     oneof([int(), real(), utf8(), bool(), null]);

@@ -136,11 +136,11 @@ state() ->
 save(S) -> put(bulb, S), S.
 
 reply(json, P, _T, Payload) ->
-    {ok, C} = mqtt_avatar_json:decode(Payload),
+    {ok, C} = evatar_json:decode(Payload),
     S = apply_json(C, <<"h">>, <<"s">>, 255),
     [{<<P/binary, "/bulb/state">>, encode(json_state(S, 255, false)), true}];
 reply(z2m, P, _T, Payload) ->
-    {ok, C} = mqtt_avatar_json:decode(Payload),
+    {ok, C} = evatar_json:decode(Payload),
     S = apply_json(C, <<"hue">>, <<"saturation">>, 254),
     [{<<"z2m_", P/binary, "/garage_bulb">>, encode(json_state(S, 254, true)), true}];
 reply(default, P, T, Payload) ->
@@ -164,7 +164,7 @@ reply(default, P, T, Payload) ->
                             ++ Colour ++ [{<<"Scheme">>, string:uppercase(Fx)} || Fx =/= null]),
     [{<<"stat/", P/binary, "/RESULT">>, encode(Result), false}];
 reply(template, P, _T, Payload) ->
-    {ok, C} = mqtt_avatar_json:decode(Payload),
+    {ok, C} = evatar_json:decode(Payload),
     S0 = state(),
     S = save(maps:fold(fun(<<"turn">>, V, A) -> A#{power := V =:= <<"on">>};
                           (<<"brightness">>, V, A) -> A#{brightness := V / 255};
@@ -214,4 +214,4 @@ json_state(S, Scale, Z2m) ->
 on_off(true) -> <<"ON">>;
 on_off(false) -> <<"OFF">>.
 
-encode(J) -> iolist_to_binary(mqtt_avatar_json:encode(J)).
+encode(J) -> evatar_json:encode(J).

@@ -111,16 +111,16 @@ light_device(Config) ->
              <<"dev">> => #{<<"ids">> => [<<P/binary, "-light-dev">>], <<"name">> => <<"Kitchen Light 01">>,
                             <<"sa">> => <<"Kitchen">>, <<"mdl">> => <<"LightSwitch">>}},
     Reply = fun(_T, Cmd) ->
-                    {ok, #{<<"state">> := S}} = mqtt_avatar_json:decode(Cmd),
+                    {ok, #{<<"state">> := S}} = evatar_json:decode(Cmd),
                     [{<<Base/binary, "/state">>,
-                      iolist_to_binary(mqtt_avatar_json:encode(#{<<"state">> => S,
-                                                                 <<"changed">> => true})), true}]
+                      evatar_json:encode(#{<<"state">> => S,
+                                                                 <<"changed">> => true}), true}]
             end,
     {ok, Dev} = mqtt_avatar_test_device:start(
                   broker_port(Config),
                   #{availability => <<Base/binary, "/availability">>,
                     discovery => [{<<"ha_", P/binary, "/light/", P/binary, "/light/config">>,
-                                   mqtt_avatar_json:encode(Disc)}],
+                                   evatar_json:encode(Disc)}],
                     commands => [<<Base/binary, "/set">>], reply => Reply}),
     ok = remember(devices, Dev),
     Dev.

@@ -82,7 +82,7 @@ every_definition_is_valid_bil(Config) ->
 %% valid BIL. Prints how many sirens there are.
 sirens_get_their_services(Config) ->
     Sirens = [{Name, Expected, Dev} || L <- ?config(definitions, Config),
-                                       {ok, #{<<"definition">> := Def} = Dev} <- [mqtt_avatar_json:decode(L, #{})],
+                                       {ok, #{<<"definition">> := Def} = Dev} <- [evatar_json:decode(L, #{})],
                                        Name <- [iolist_to_binary([maps:get(<<"vendor">>, Def, <<"?">>), " ",
                                                                   maps:get(<<"model">>, Def, <<"?">>)])],
                                        Expected <- [siren_services(maps:get(<<"exposes">>, Def))],
@@ -111,7 +111,7 @@ siren_services(Exposes) ->
 %% The service types of the one component generated for the device, and
 %% the problems (of the generation, of writing and reading its BIL back).
 services(Devs) ->
-    Payload = iolist_to_binary(mqtt_avatar_json:encode(Devs)),
+    Payload = evatar_json:encode(Devs),
     {D, Problems} = mqtt_avatar:generate([{<<"zigbee2mqtt/bridge/devices">>, Payload}],
                                          #{entity_id => <<"z2m-db">>}),
     RoundTrip = case mqtt_avatar_spec:round_trip(D) of
@@ -128,7 +128,7 @@ services(Devs) ->
 %% ---------------------------------------------------------------------------
 
 definition(Line) ->
-    {ok, Dev} = mqtt_avatar_json:decode(Line, #{}),
+    {ok, Dev} = evatar_json:decode(Line, #{}),
     Def = maps:get(<<"definition">>, Dev, #{}),
     Name = iolist_to_binary([maps:get(<<"vendor">>, Def, <<"?">>), " ",
                              maps:get(<<"model">>, Def, <<"?">>)]),

@@ -58,7 +58,7 @@ typed(<<"boolean">>, T) ->
 typed(<<"null">>, _) -> {ok, null};
 typed(undefined, T) ->
     %% No type: JSON if it reads as JSON, else the text as a string.
-    case mqtt_avatar:decode_json(T) of
+    case evatar_json:decode(T) of
         {ok, V} -> {ok, V};
         {error, _} -> {ok, T}
     end.
@@ -90,7 +90,7 @@ check(Name, V, F) ->
 params(_Shape, <<>>) ->
     [];
 params(Shape, Body) ->
-    case {Shape, mqtt_avatar:decode_json(Body)} of
+    case {Shape, evatar_json:decode(Body)} of
         {{object, Fields}, {ok, #{} = Object}} ->
             [{B, text(maps:get(J, Object))} || {B, J, _} <- Fields, is_map_key(J, Object)];
         {_, {ok, V}} ->
@@ -99,6 +99,6 @@ params(Shape, Body) ->
             [{<<"Value">>, Body}]
     end.
 
-text(V) -> mqtt_avatar:json_text(V).
+text(V) -> evatar_json:to_text(V).
 
-encode(V) -> iolist_to_binary(mqtt_avatar:encode_json(V)).
+encode(V) -> evatar_json:encode(V).

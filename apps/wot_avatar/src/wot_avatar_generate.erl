@@ -255,7 +255,7 @@ value_text(V) when is_binary(V) ->
         true -> {ok, V};
         false -> error
     end;
-value_text(V) when is_number(V); is_boolean(V) -> {ok, mqtt_avatar:json_text(V)};
+value_text(V) when is_number(V); is_boolean(V) -> {ok, evatar_json:to_text(V)};
 value_text(_) -> error.
 
 %% ---------------------------------------------------------------------------

@@ -56,7 +56,7 @@ read(Text, Opts) when is_binary(Text) ->
         true ->
             {error, [problem(too_large, "the TD is ~B bytes, over max_size ~B", [byte_size(Text), Max])]};
         false ->
-            case mqtt_avatar:decode_json(Text) of
+            case evatar_json:decode(Text) of
                 {ok, #{} = Td} -> thing(Td, Opts);
                 {ok, _} -> {error, [problem(not_a_td, "the TD is JSON but not an object", [])]};
                 {error, {Code, Offset}} ->

@@ -252,7 +252,7 @@ mqtt_forms_through_mosquitto(Config) ->
                                              <<"mqv:controlPacket">> => <<"publish">>}]}},
                <<"actions">> => #{<<"toggle">> => #{<<"forms">> => [#{<<"href">> => Url(<<"actions/toggle">>)}]}}},
         File = filename:join(?config(priv_dir, Config), "mqtt-lamp.td.json"),
-        ok = file:write_file(File, mqtt_avatar_json:encode(Td)),
+        ok = file:write_file(File, evatar_json:encode(Td)),
         {ok, Device} = mqtt_client:start_link(#{host => "127.0.0.1", port => maps:get(port, Broker),
                                                 client_id => <<"wot-suite-device">>}),
         ok = mqtt_client:await_connected(Device, ?WAIT),

@@ -12,7 +12,7 @@ td(Extra) ->
              <<"title">> => <<"lamp">>,
              <<"securityDefinitions">> => #{<<"nosec_sc">> => #{<<"scheme">> => <<"nosec">>}},
              <<"security">> => [<<"nosec_sc">>]},
-    iolist_to_binary(mqtt_avatar:encode_json(maps:merge(Base, Extra))).
+    evatar_json:encode(maps:merge(Base, Extra)).
 
 form(Href) -> form(Href, #{}).
 form(Href, More) -> maps:merge(#{<<"href">> => list_to_binary(Href)}, More).
@@ -197,7 +197,7 @@ body_test() ->
     {ok, _, #{services := #{<<"fade">> := #{input := In, output := Out},
                             <<"setbrightness">> := #{input := Value}}}, _} = describe(lamp()),
     {ok, Body} = wot_avatar_codec:body(In, [{<<"To">>, <<"40">>}, {<<"Mode">>, <<"ease">>}]),
-    {ok, #{<<"to">> := 40, <<"mode">> := <<"ease">>}} = mqtt_avatar:decode_json(Body),
+    {ok, #{<<"to">> := 40, <<"mode">> := <<"ease">>}} = evatar_json:decode(Body),
     {ok, <<"{\"to\":3}">>} = wot_avatar_codec:body(In, [{<<"to">>, <<"3">>}]),
     {error, <<"parameter To is above its maximum 100">>} = wot_avatar_codec:body(In, [{<<"To">>, <<"101">>}]),
     {error, <<"parameter To is not an integer">>} = wot_avatar_codec:body(In, [{<<"To">>, <<"x">>}]),

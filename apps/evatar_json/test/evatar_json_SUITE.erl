@@ -1,7 +1,8 @@
-%% Common Test suite of the MQTT Avatar's JSON codec: PropEr round trip
-%% and robustness properties (random and mutated bytes give an error,
-%% never an exception), and the RFC 8259 cases that must be refused.
--module(mqtt_avatar_json_SUITE).
+%% Common Test suite of evatar_json, jiffy as the node reads input: PropEr
+%% round trip and robustness properties (random and mutated bytes give an
+%% error, never an exception), the RFC 8259 cases that must be refused, and
+%% the limits (size, depth, long numbers) checked before or after jiffy.
+-module(evatar_json_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("proper/include/proper.hrl").
@@ -12,7 +13,7 @@ suite() -> [{timetrap, {seconds, 120}}].
 
 all() ->
     [round_trip, whitespace_is_ignored, random_bytes_never_crash, mutated_json_never_crash,
-     refused_documents, accepted_documents, no_atoms_from_input, limits].
+     refused_documents, accepted_documents, no_atoms_from_input, limits, long_numbers].
 
 numtests() ->
     case os:getenv("EVATAR_LONG_TESTS") of
@@ -24,8 +25,8 @@ numtests() ->
 round_trip(_Config) ->
     P = ?FORALL(V, json(),
                 begin
-                    Text = iolist_to_binary(mqtt_avatar_json:encode(V)),
-                    {ok, V1} = mqtt_avatar_json:decode(Text),
+                    Text = iolist_to_binary(evatar_json:encode(V)),
+                    {ok, V1} = evatar_json:decode(Text),
                     equal(V, V1)
                 end),
     ok = evatar_test_proper:check(P, numtests()).
@@ -34,9 +35,9 @@ round_trip(_Config) ->
 whitespace_is_ignored(_Config) ->
     P = ?FORALL({V, Ws}, {json(), list(oneof([<<" ">>, <<"\n">>, <<"\t">>, <<"\r">>]))},
                 begin
-                    Text = iolist_to_binary(mqtt_avatar_json:encode(V)),
+                    Text = iolist_to_binary(evatar_json:encode(V)),
                     Spaced = spread(Text, Ws),
-                    {ok, V1} = mqtt_avatar_json:decode(Spaced),
+                    {ok, V1} = evatar_json:decode(Spaced),
                     equal(V, V1)
                 end),
     ok = evatar_test_proper:check(P, numtests()).
@@ -51,7 +52,7 @@ random_bytes_never_crash(_Config) ->
 mutated_json_never_crash(_Config) ->
     P = ?FORALL({V, Mutations}, {json(), non_empty(list({oneof([flip, cut, insert]), nat(), byte()}))},
                 begin
-                    Text = iolist_to_binary(mqtt_avatar_json:encode(V)),
+                    Text = iolist_to_binary(evatar_json:encode(V)),
                     well_behaved(mutate(Text, Mutations))
                 end),
     ok = evatar_test_proper:check(P, numtests()).
@@ -63,43 +64,72 @@ refused_documents(_Config) ->
            <<"\"\\x\"">>, <<"\"\\u12\"">>, <<"\"\\ud800\"">>, <<"\"\\udc00\"">>,
            <<"\"a\nb\"">>, <<"\"", 16#ff, "\"">>, <<"[1 2]">>, <<"{\"a\" 1}">>, <<"tru">>,
            <<"nul">>, <<"[">>, <<"{">>, <<"\"abc">>, <<"1 2">>, <<"1e400">>,
-           binary:copy(<<"9">>, 100)],
-    [] = [{B, R} || B <- Bad, R <- [mqtt_avatar_json:decode(B)],
+           binary:copy(<<"9">>, 1025)],
+    [] = [{B, R} || B <- Bad, R <- [evatar_json:decode(B)],
                     not (element(1, R) =:= error andalso is_atom(element(1, element(2, R))))],
     <<"invalid JSON at byte 3: unexpected character">> =
-        mqtt_avatar_json:format_error(element(2, mqtt_avatar_json:decode(<<"[1,]">>))).
+        evatar_json:format_error(element(2, evatar_json:decode(<<"[1,]">>))),
+    {error, {unexpected_end, 2}} = evatar_json:decode(<<"  ">>),
+    {error, {trailing_data, 2}} = evatar_json:decode(<<"1 2">>),
+    {error, {bad_string, 1}} = evatar_json:decode(<<"\"", 16#ff, "\"">>),
+    {error, {not_binary, 0}} = evatar_json:decode("[]"),
+    [<<"invalid JSON", _/binary>> = evatar_json:format_error(R)
+     || B <- Bad, {error, R} <- [evatar_json:decode(B)]].
 
 %% @doc What devices actually send decodes as expected.
 accepted_documents(_Config) ->
     {ok, #{<<"state">> := <<"ON">>, <<"brightness">> := 254, <<"color">> := #{<<"x">> := 0.5}}} =
-        mqtt_avatar_json:decode(<<" {\"state\":\"ON\",\"brightness\":254,\"color\":{\"x\":0.5}} ">>),
+        evatar_json:decode(<<" {\"state\":\"ON\",\"brightness\":254,\"color\":{\"x\":0.5}} ">>),
     {ok, [true, false, null, -0.0, 1.0e-7, 12345678901234567890]} =
-        mqtt_avatar_json:decode(<<"[true,false,null,-0.0,1E-7,12345678901234567890]">>),
+        evatar_json:decode(<<"[true,false,null,-0.0,1E-7,12345678901234567890]">>),
     {ok, <<"é😀/\"\\\b\f\n\r\t"/utf8>>} =
-        mqtt_avatar_json:decode(<<"\"\\u00e9\\ud83d\\ude00\\/\\\"\\\\\\b\\f\\n\\r\\t\"">>),
-    {ok, <<"21.5">>} = {ok, mqtt_avatar_json:to_text(element(2, mqtt_avatar_json:decode(<<"21.5">>)))},
-    {ok, 7} = mqtt_avatar_json:get_path([<<"a">>, <<"1">>, <<"b">>],
-                                        element(2, mqtt_avatar_json:decode(
+        evatar_json:decode(<<"\"\\u00e9\\ud83d\\ude00\\/\\\"\\\\\\b\\f\\n\\r\\t\"">>),
+    {ok, <<"21.5">>} = {ok, evatar_json:to_text(element(2, evatar_json:decode(<<"21.5">>)))},
+    {ok, 7} = evatar_json:get_path([<<"a">>, <<"1">>, <<"b">>],
+                                        element(2, evatar_json:decode(
                                                      <<"{\"a\":[{},{\"b\":7}]}">>))),
-    error = mqtt_avatar_json:get_path([<<"a">>, <<"5">>], #{<<"a">> => [1]}).
+    error = evatar_json:get_path([<<"a">>, <<"5">>], #{<<"a">> => [1]}).
 
 %% @doc Keys that happen to be atom names stay binaries, and decoding
 %% never creates an atom.
 no_atoms_from_input(_Config) ->
     Before = erlang:system_info(atom_count),
     Keys = [iolist_to_binary(["evatar_never_an_atom_", integer_to_list(I)]) || I <- lists:seq(1, 200)],
-    Doc = iolist_to_binary(mqtt_avatar_json:encode(maps:from_list([{K, K} || K <- Keys]))),
-    {ok, M} = mqtt_avatar_json:decode(Doc),
+    Doc = iolist_to_binary(evatar_json:encode(maps:from_list([{K, K} || K <- Keys]))),
+    {ok, M} = evatar_json:decode(Doc),
     true = lists:all(fun is_binary/1, maps:keys(M)),
     Before = erlang:system_info(atom_count),
-    {ok, #{<<"ok">> := true}} = mqtt_avatar_json:decode(<<"{\"ok\":true}">>).
+    {ok, #{<<"ok">> := true}} = evatar_json:decode(<<"{\"ok\":true}">>).
 
 %% @doc Depth and size limits are enforced before any damage is done.
 limits(_Config) ->
     Deep = iolist_to_binary([binary:copy(<<"[">>, 100), binary:copy(<<"]">>, 100)]),
-    {error, {too_deep, _}} = mqtt_avatar_json:decode(Deep),
-    {ok, _} = mqtt_avatar_json:decode(Deep, #{max_depth => 200}),
-    {error, {too_large, 0}} = mqtt_avatar_json:decode(<<"[1,2,3]">>, #{max_size => 3}).
+    {error, {too_deep, _}} = evatar_json:decode(Deep),
+    {ok, _} = evatar_json:decode(Deep, #{max_depth => 200}),
+    {error, {too_large, 0}} = evatar_json:decode(<<"[1,2,3]">>, #{max_size => 3}),
+    Depth = fun(N) -> iolist_to_binary([binary:copy(<<"{\"a\":[">>, N), binary:copy(<<"]}">>, N)]) end,
+    {ok, _} = evatar_json:decode(Depth(32)),
+    {error, {too_deep, _}} = evatar_json:decode(Depth(33)),
+    {ok, [[1]]} = evatar_json:decode(<<"[[1]]">>, #{max_depth => 2}),
+    {error, {too_deep, _}} = evatar_json:decode(<<"[[[]]]">>, #{max_depth => 2}).
+
+%% @doc A number of more than 1,024 digits is refused before jiffy reads it
+%% (a million digits would keep it busy for seconds), where it starts;
+%% digits inside a string are text, escaped quotes and all.
+long_numbers(_Config) ->
+    D1024 = binary:copy(<<"7">>, 1024),
+    D1025 = binary:copy(<<"7">>, 1025),
+    {ok, [_, -1.5]} = evatar_json:decode(<<"[", D1024/binary, ",-1.5]">>),
+    {ok, [_, _]} = evatar_json:decode(<<"[", D1024/binary, ",", D1024/binary, "]">>),
+    {error, {bad_number, 5}} = evatar_json:decode(<<"[1, -", D1025/binary, "]">>),
+    {error, {bad_number, 3}} = evatar_json:decode(<<"[0.", D1025/binary, "]">>),
+    {error, {bad_number, 0}} = evatar_json:decode(binary:copy(<<"9">>, 1000000), #{max_size => 2000000}),
+    {ok, #{<<"id">> := <<"x", D1025:1025/binary, "\\">>, <<"n">> := 2}} =
+        evatar_json:decode(<<"{\"id\":\"x", D1025/binary, "\\\\\",\"n\":2}">>),
+    {ok, [<<"\"", D1025:1025/binary>>, <<D1025:1025/binary>>]} =
+        evatar_json:decode(<<"[\"\\\"", D1025/binary, "\", \"", D1025/binary, "\"]">>),
+    {error, {bad_number, 8}} =
+        evatar_json:decode(<<"[\"a\\\\\", ", D1025/binary, "]">>).
 
 %% ---------------------------------------------------------------------------
 %% Generators and helpers
@@ -142,7 +172,7 @@ equal(A, B) when is_map(A), is_map(B) ->
 equal(A, B) -> A =:= B.
 
 well_behaved(B) ->
-    case mqtt_avatar_json:decode(B) of
+    case evatar_json:decode(B) of
         {ok, _} -> true;
         {error, {Code, Offset}} when is_atom(Code), is_integer(Offset), Offset >= 0,
                                      Offset =< byte_size(B) -> true
