@@ -30,10 +30,17 @@ commands(Dev) -> call(Dev, commands).
 %% How many birth messages (`online' on `announce_on') it answered.
 births(Dev) -> call(Dev, births).
 
+%% A device that is gone answers at once: `stop' of a stopped device is
+%% `ok' (a case's clean-up may stop it again), anything else fails.
 call(Dev, Req) ->
-    Ref = make_ref(),
+    Ref = erlang:monitor(process, Dev),
     Dev ! {call, self(), Ref, Req},
-    receive {Ref, Reply} -> Reply
+    receive
+        {Ref, Reply} ->
+            erlang:demonitor(Ref, [flush]),
+            Reply;
+        {'DOWN', Ref, process, _, _} when Req =:= stop -> ok;
+        {'DOWN', Ref, process, _, Reason} -> error({device_down, Req, Reason})
     after evatar_test_time:guard() -> error({device_timeout, Req})
     end.
 
