@@ -91,7 +91,7 @@ unbound(#{consumer := #{entity := E, component := C} = Consumer, category := Cat
                     parameters_mismatch -> <<"ParametersMismatch">>
                 end,
       parameters => [[N, V] || {N, V} <- case Params of [P | _] -> P; [] -> [] end],
-      candidates => [#{provider => P, failed => [#{name => N, wanted => W, offered => O}
-                                                 || {N, W, O} <- F]}
+      candidates => [#{provider => P, mismatches => [#{name => N, wanted => W, offered => O}
+                                                     || {N, W, O} <- F]}
                      || #{provider := P, failed := F} <- Candidates],
       more_candidates => More}.

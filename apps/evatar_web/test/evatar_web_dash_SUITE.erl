@@ -288,9 +288,9 @@ graph_route(_Config) ->
        <<"reason">> := <<"ParametersMismatch">>,
        <<"parameters">> := [[<<"Room">>, <<"garden">>]],
        <<"candidates">> := [#{<<"provider">> := #{<<"component">> := <<"HallCamera">>},
-                              <<"failed">> := [#{<<"name">> := <<"Room">>,
-                                                 <<"wanted">> := <<"garden">>,
-                                                 <<"offered">> := [<<"hall">>]}]}]}] = Unbound,
+                              <<"mismatches">> := [#{<<"name">> := <<"Room">>,
+                                                     <<"wanted">> := <<"garden">>,
+                                                     <<"offered">> := [<<"hall">>]}]}]}] = Unbound,
     {404, #{<<"error">> := <<"not_found">>, <<"field">> := <<"id">>}} =
         ?T:get("/api/pairings/nobody/graph").
 

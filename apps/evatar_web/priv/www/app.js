@@ -83,7 +83,7 @@ async function refreshGraph() {
           h('code', {}, u.parameters.map(([n, v]) => `${n}=${v}`).join(', '))) : null,
         u.candidates.length ? h('ul', {}, ...u.candidates.map(c =>
           h('li', {}, `${c.provider.component} (${c.provider.entity}) offers `,
-            ...c.failed.map(f => h('code', { class: 'mismatch' },
+            ...c.mismatches.map(f => h('code', { class: 'mismatch' },
               `${f.name}: wanted ${f.wanted}, offered ${f.offered.length ? f.offered.join(' | ') : 'nothing'}`))))) : null,
         u.more_candidates ? h('span', {}, ` and ${u.more_candidates} more providers`) : null)));
   } catch (e) {
