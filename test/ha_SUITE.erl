@@ -225,31 +225,39 @@ restart_with_changed_catalogue(Config) ->
     ok = evatar_test_pairing:delete(C, 1, New).
 
 %% A partition during a create and a delete (a laptop on another
-%% network): node 3 is cut off; the majority creates a pairing, node 3
-%% deletes one and creates another on its own. When the links heal, the
+%% network): node 3 is cut off. Once it no longer hears a majority it
+%% refuses to create or delete (`no_majority': a change made on a minority
+%% side must not beat one made on the majority side); the majority creates
+%% a pairing and deletes one node 3 still holds. When the links heal, the
 %% catalogues merge with no operator action: the deleted pairing is gone
-%% everywhere, both created ones run with one active and one synced
-%% standby.
+%% everywhere, the created one runs with one active and one synced standby,
+%% and what node 3 was refused exists nowhere.
 partition_create_delete(Config) ->
     C = ?config(cluster, Config),
     Base = ?config(pairing, Config),
     [Gone, Major, Minor] = [<<Base/binary, "-", X/binary>> || X <- [<<"gone">>, <<"major">>,
                                                                      <<"minor">>]],
+    Opts = evatar_test_traffic:pairing_opts(),
     ok = evatar_test_pairing:create(C, 1, Gone),
     ok = evatar_test_cluster:await(fun() -> catalogues_equal(C) end, ?HEAL_TIMEOUT, catalogues_equal),
     ok = evatar_test_cluster:isolate(C, 3),
-    {ok, _} = evatar_test_cluster:call(C, 1, evatar, create_pairing, [Major, evatar_test_traffic:pairing_opts()]),
-    ok = evatar_test_cluster:call(C, 3, evatar, delete_pairing, [Gone]),
-    {ok, _} = evatar_test_cluster:call(C, 3, evatar, create_pairing, [Minor, evatar_test_traffic:pairing_opts()]),
+    ok = evatar_test_cluster:await(
+           fun() -> evatar_test_cluster:call(C, 3, evatar_cluster, majority_now, []) =:= false end,
+           ?HEAL_TIMEOUT, {no_majority, 3}),
+    {error, no_majority} = evatar_test_cluster:call(C, 3, evatar, delete_pairing, [Gone]),
+    {error, no_majority} = evatar_test_cluster:call(C, 3, evatar, create_pairing, [Minor, Opts]),
+    {ok, _} = evatar_test_cluster:call(C, 3, evatar_catalogue, lookup, [Gone]),
+    {ok, _} = evatar_test_cluster:call(C, 1, evatar, create_pairing, [Major, Opts]),
+    ok = evatar_test_cluster:call(C, 2, evatar, delete_pairing, [Gone]),
     ok = evatar_test_cluster:heal(C, flush),
     ok = await_catalogues_merged(C),
     ok = evatar_test_pairing:await_healthy(C, Major, ?HEAL_TIMEOUT),
-    ok = evatar_test_pairing:await_healthy(C, Minor, ?HEAL_TIMEOUT),
     ok = evatar_test_cluster:await(fun() -> evatar_test_pairing:roles(C, Gone) =:= [] end, ?HEAL_TIMEOUT,
                                    {gone, Gone}),
-    _ = [none = evatar_test_cluster:call(C, I, evatar_catalogue, lookup, [Gone]) || I <- [1, 2, 3]],
-    _ = [ok = evatar_test_pairing:delete(C, 1, Id) || Id <- [Major, Minor]],
-    ok.
+    _ = [none = evatar_test_cluster:call(C, I, evatar_catalogue, lookup, [Id])
+         || I <- [1, 2, 3], Id <- [Gone, Minor]],
+    ?assertEqual([], evatar_test_pairing:roles(C, Minor)),
+    ok = evatar_test_pairing:delete(C, 1, Major).
 
 %% kill -9 of the active node: the standby takes over with a higher epoch,
 %% traffic goes on through it, a new standby is synced on the third node,

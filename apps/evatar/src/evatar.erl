@@ -166,9 +166,12 @@
 %% the pid of the pairing process. `already_exists' when an alive node runs
 %% an instance of that id, or the catalogue has it; `{disk_full, Dir}'
 %% when this node's data directory has no room to record it (nothing is
-%% started; docs/ha.md section 6, "A full disk").
+%% started; docs/ha.md section 6, "A full disk"); `no_majority' when this
+%% node does not hear a majority of the configured nodes (it is on the
+%% minority side of a partition, or most nodes are down: nothing is
+%% started; ask a node of the majority, docs/ha.md section 2).
 -spec create_pairing(pairing_id(), pairing_opts()) ->
-          {ok, pid()} | {error, already_exists | {bad_option, term()}
+          {ok, pid()} | {error, already_exists | no_majority | {bad_option, term()}
                                | {disk_full, file:filename()}}.
 create_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     case pairing_config(Opts) of
@@ -223,10 +226,14 @@ pairing_option_ranges() ->
 %% the alive nodes and hears a majority (at once on a lone node). When it
 %% exists, nothing changes (`exists'), even if `Opts' differ: for a node's
 %% configuration file, read at every start, that lists pairings to create
-%% when absent. Options are checked as by {@link create_pairing/2};
-%% `{disk_full, Dir}' as there.
+%% when absent. `pending' when this node does not hear a majority yet
+%% (a node of a larger cluster booting first): the pairing is recorded
+%% once it does and has the others' catalogues, unless it exists by then.
+%% Options are checked as by {@link create_pairing/2}; `{disk_full, Dir}'
+%% as there.
 -spec ensure_pairing(pairing_id(), pairing_opts()) ->
-          {ok, created | exists} | {error, {bad_option, term()} | {disk_full, file:filename()}}.
+          {ok, created | exists | pending}
+          | {error, {bad_option, term()} | {disk_full, file:filename()}}.
 ensure_pairing(PairingId, Opts) when is_binary(PairingId), is_map(Opts) ->
     case pairing_config(Opts) of
         {ok, Config} ->
@@ -270,6 +277,8 @@ start_pairing(PairingId, Config) ->
             {error, already_exists};
         {error, {disk_full, _}} = Full ->
             Full;
+        {error, no_majority} = No ->
+            No;
         %% Lost a race with another create of the same id.
         {error, {shutdown, {failed_to_start_child, evatar_pairing, {already_started, _}}}} ->
             {error, already_exists}
@@ -285,9 +294,11 @@ start_pairing(PairingId, Config) ->
 %% large operation); the request stays queued, so the pairing goes once it
 %% gets to it (and the deletion is recorded already).
 %% `{error, {disk_full, Dir}}' when this node's data directory has no room
-%% to record the deletion: nothing stops.
+%% to record the deletion: nothing stops. `{error, no_majority}' when this
+%% node does not hear a majority of the configured nodes: nothing stops
+%% (ask a node of the majority).
 -spec delete_pairing(pairing_id()) ->
-          ok | {error, not_found | busy | {disk_full, file:filename()}}.
+          ok | {error, not_found | busy | no_majority | {disk_full, file:filename()}}.
 delete_pairing(PairingId) ->
     Target = case evatar_registry:role(PairingId) of
                  %% Deleting through the standby's node deletes at the active.
@@ -299,8 +310,8 @@ delete_pairing(PairingId) ->
     %% recorded all the same, so that entry cannot bring it back.
     Catalogued = evatar_catalogue:remove(PairingId, Target =/= undefined),
     case {Target, Catalogued} of
-        {_, {error, {disk_full, _}} = Full} ->
-            Full;
+        {_, {error, _} = Refused} ->
+            Refused;
         {undefined, ok} ->
             ok;
         {undefined, not_found} ->

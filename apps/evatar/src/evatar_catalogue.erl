@@ -14,6 +14,14 @@
 %% healed partition converge with no operator action
 %% (docs/ha-design.md, section 11).
 %%
+%% A node changes the catalogue (creates, deletes) only while it hears a
+%% majority of the configured nodes (evatar_catalogue_rules:may_change/2:
+%% a cluster of two also alone); else `{error, no_majority}', and an
+%% ensure (a configuration file's pairing, at boot) waits in memory until
+%% this node is in sync and hears a majority, then is written if the
+%% pairing is still absent. So a change made on a minority side of a
+%% partition never beats one made on the majority side.
+%%
 %% Once this node has exchanged catalogues with every alive peer and hears
 %% a majority (in a cluster of two, also after `catalogue_alone_ms' alone),
 %% it starts the pairings it owns of which no instance runs anywhere, and
@@ -69,6 +77,9 @@
             %% sent meanwhile (written once there is room).
             full = false :: false | file:filename(),
             held = [] :: [evatar_catalogue_rules:entry()],
+            %% Ensures asked while this node did not hear a majority:
+            %% written at the first reconcile that is ready, when absent.
+            pending = #{} :: #{evatar:pairing_id() => evatar_pairing_logic:config()},
             last_disk_check :: integer(),
             %% Last: evatar_catalogue_SUITE reads it from the state.
             watched = #{} :: #{pid() => evatar:pairing_id()}}).
@@ -80,9 +91,12 @@ start_link() ->
 
 %% @doc Starts a new pairing with its active on this node (its home) and
 %% records it, telling the alive peers; `already_exists' when the catalogue
-%% has it. One at a time with the restores, so neither undoes the other.
+%% has it, `no_majority' when this node does not hear a majority of the
+%% configured nodes (nothing starts). One at a time with the restores, so
+%% neither undoes the other.
 -spec create(evatar:pairing_id(), evatar_pairing_logic:config()) ->
-          {ok, pid()} | {error, already_exists | {disk_full, file:filename()} | term()}.
+          {ok, pid()} | {error, already_exists | no_majority | {disk_full, file:filename()}
+                                | term()}.
 create(Id, Config) ->
     gen_server:call(?MODULE, {create, Id, Config}, infinity).
 
@@ -93,17 +107,21 @@ create(Id, Config) ->
 %% this node yet), else the creation would come back later and undo the
 %% deletion. `not_found' when the catalogue has no live entry of that id
 %% and `Running' is false; `{error, {disk_full, Dir}}' when the deletion
-%% cannot be written.
+%% cannot be written, `{error, no_majority}' when this node does not hear
+%% a majority (nothing is written).
 -spec remove(evatar:pairing_id(), Running :: boolean()) ->
-          ok | not_found | {error, {disk_full, file:filename()}}.
+          ok | not_found | {error, no_majority | {disk_full, file:filename()}}.
 remove(Id, Running) ->
     gen_server:call(?MODULE, {remove, Id, Running}, infinity).
 
 %% @doc Records a pairing unless the catalogue already has it (live):
 %% then nothing changes, whatever `Config' says. The pairing is started
-%% by the node that owns it once the catalogues are in sync.
+%% by the node that owns it once the catalogues are in sync. `pending'
+%% when this node does not hear a majority: it is kept in memory and
+%% written (unless the pairing exists by then) once this node is in sync
+%% with its peers and hears a majority.
 -spec ensure(evatar:pairing_id(), evatar_pairing_logic:config()) ->
-          created | exists | {error, {disk_full, file:filename()}}.
+          created | exists | pending | {error, {disk_full, file:filename()}}.
 ensure(Id, Config) ->
     gen_server:call(?MODULE, {ensure, Id, Config}, infinity).
 
@@ -235,9 +253,11 @@ ensure_storage() ->
 %% @private
 -spec handle_call(term(), gen_server:from(), #s{}) -> {reply, term(), #s{}}.
 handle_call({create, Id, Config}, _From, S0) ->
-    case {lookup(Id), room(S0)} of
-        {{ok, _}, {_, S}} ->
-            {reply, {error, already_exists}, S};
+    case {lookup(Id), may_change() andalso room(S0)} of
+        {{ok, _}, _} ->
+            {reply, {error, already_exists}, S0};
+        {none, false} ->
+            {reply, {error, no_majority}, S0};
         {none, {{error, _} = Full, S}} ->
             {reply, Full, S};
         {none, {ok, S}} ->
@@ -250,9 +270,11 @@ handle_call({create, Id, Config}, _From, S0) ->
             end
     end;
 handle_call({remove, Id, Running}, _From, S0) ->
-    case {lookup(Id), Running, room(S0)} of
-        {none, false, {_, S}} ->
-            {reply, not_found, S};
+    case {lookup(Id), Running, may_change() andalso room(S0)} of
+        {none, false, _} ->
+            {reply, not_found, S0};
+        {_, _, false} ->
+            {reply, {error, no_majority}, S0};
         {_, _, {{error, _} = Full, S}} ->
             {reply, Full, S};
         {_, _, {ok, S}} ->
@@ -260,9 +282,14 @@ handle_call({remove, Id, Running}, _From, S0) ->
             {reply, ok, S}
     end;
 handle_call({ensure, Id, Config}, _From, S0) ->
-    case {lookup(Id), room(S0)} of
-        {{ok, _}, {_, S}} ->
-            {reply, exists, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})};
+    case {lookup(Id), may_change() andalso room(S0)} of
+        {{ok, _}, _} ->
+            {reply, exists, reconcile(S0#s{ran = maps:remove(Id, S0#s.ran)})};
+        {none, false} ->
+            ?LOG_NOTICE(#{what => pairing_ensure_pending, pairing => Id,
+                          hint => "this node does not hear a majority of the cluster yet: "
+                                  "the pairing is recorded once it does, if still absent"}),
+            {reply, pending, S0#s{pending = (S0#s.pending)#{Id => Config}}};
         {none, {{error, _} = Full, S}} ->
             {reply, Full, S};
         {none, {ok, S}} ->
@@ -445,25 +472,60 @@ reconcile(S0) ->
     case ready(Peers, S) of
         false ->
             S;
+        true when S#s.pending =/= #{} ->
+            case write_pending(S) of
+                %% Again, with what was written among the entries.
+                #s{pending = Left} = S1 when Left =:= #{} -> reconcile(S1);
+                S1 -> start_owned(Entries, Local, Peers, S1)
+            end;
         true ->
-            %% A connected peer whose catalogue this node has (ready/2)
-            %% runs and starts what it owns, even before its heartbeats
-            %% are heard: after a power cut a home node not yet heard but
-            %% restoring its pairings would otherwise meet a second
-            %% instance at the same epoch started by the next node.
-            View = {evatar_cluster:configured(), [node() | Peers]},
-            case evatar_catalogue_rules:to_start(Entries, node(), View, Local) of
-                [] ->
-                    S;
-                Candidates ->
-                    Remote = running_on(connected()),
-                    %% Running elsewhere: it did not give up here.
-                    S1 = S#s{ran = maps:without(Remote, Ran)},
-                    Missing = [C || {Id, _} = C <- Candidates, not lists:member(Id, Remote),
-                                    not is_map_key(Id, S1#s.ran)],
-                    lists:foldl(fun restore/2, S1, Missing)
-            end
+            start_owned(Entries, Local, Peers, S)
     end.
+
+%% Starts what this node owns of which no instance runs anywhere (once
+%% ready/2).
+start_owned(Entries, Local, Peers, #s{ran = Ran} = S) ->
+    %% A connected peer whose catalogue this node has (ready/2) runs and
+    %% starts what it owns, even before its heartbeats are heard: after a
+    %% power cut a home node not yet heard but restoring its pairings
+    %% would otherwise meet a second instance at the same epoch started
+    %% by the next node.
+    View = {evatar_cluster:configured(), [node() | Peers]},
+    case evatar_catalogue_rules:to_start(Entries, node(), View, Local) of
+        [] ->
+            S;
+        Candidates ->
+            Remote = running_on(connected()),
+            %% Running elsewhere: it did not give up here.
+            S1 = S#s{ran = maps:without(Remote, Ran)},
+            Missing = [C || {Id, _} = C <- Candidates, not lists:member(Id, Remote),
+                            not is_map_key(Id, S1#s.ran)],
+            lists:foldl(fun restore/2, S1, Missing)
+    end.
+
+%% The ensures that waited for a majority: each written when the pairing
+%% is still absent, now that this node is in sync with its peers. Kept
+%% while the data directory is full.
+write_pending(#s{pending = Pending} = S0) ->
+    case room(S0) of
+        {ok, S} ->
+            maps:foreach(fun(Id, Config) ->
+                                 case lookup(Id) of
+                                     none ->
+                                         ok = write_new(Id, {live, Config, node()}, S),
+                                         ?LOG_NOTICE(#{what => pairing_ensured, pairing => Id});
+                                     {ok, _} ->
+                                         ok
+                                 end
+                         end, Pending),
+            S#s{pending = #{}, ran = maps:without(maps:keys(Pending), S#s.ran)};
+        {{error, _}, S} ->
+            S
+    end.
+
+%% Whether this node may create or delete a pairing now.
+may_change() ->
+    evatar_catalogue_rules:may_change(evatar_cluster:size(), evatar_cluster:majority_now()).
 
 %% In sync with every peer alive or connected, and either a majority is
 %% heard or, in a cluster of two, this node has been alone long enough.

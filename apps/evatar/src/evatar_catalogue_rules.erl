@@ -4,17 +4,26 @@
 %% which node holds a pairing's active after a restart. No processes, no
 %% clock, no storage (docs/ha-design.md, section 11).
 %%
-%% An entry is a last-writer-wins register per pairing id: a live entry
-%% (the pairing's configuration and its home node) or a tombstone (it was
-%% deleted). Its version `{Counter, WallMs, Node}' orders every write: a
-%% node writes at one more than the highest counter it holds for that id,
-%% so a write made after seeing another always wins over it; two writes
-%% made apart (a partition) are ordered by their wall clocks, then by node
-%% name, so every node picks the same winner with no operator action.
+%% An entry is a register per pairing id: a live entry (the pairing's
+%% configuration and its home node) or a tombstone (it was deleted), with
+%% a version `{Counter, WallMs, Node}'. A node writes at one more than the
+%% highest counter it holds for that id, so a write made after seeing
+%% another always wins over it. Two writes made apart (neither saw the
+%% other) are ordered without any clock ({@link wins/2}): the higher
+%% counter, then a tombstone over a live entry, then the node name. So a
+%% deletion is never undone by a write it did not see at its counter, and
+%% every node picks the same winner whatever its clock says. `WallMs'
+%% only tells people when a write was made.
+%%
+%% Which writes may be made at all is decided by {@link may_change/2}: a
+%% node changes the catalogue only while it hears a majority of the
+%% configured nodes (a cluster of two, which has no majority once split,
+%% also alone), so a change made on a minority side of a partition cannot
+%% beat one made on the majority side: it is refused.
 -module(evatar_catalogue_rules).
 
--export([next_version/3, merge/2, newer/2, changed/2, owner/3, to_start/4, to_stop/2,
-         gave_up/1]).
+-export([next_version/3, wins/2, merge/2, changed/2, may_change/2, owner/3, to_start/4,
+         to_stop/2, gave_up/1]).
 
 -export_type([entry/0, version/0, value/0]).
 
@@ -23,25 +32,43 @@
 -type entry() :: {evatar:pairing_id(), version(), value()}.
 
 %% @doc The version of a new write of an id whose current entry (if any)
-%% has version `Current', made on `Node' at wall-clock time `WallMs'.
+%% has version `Current', made on `Node' at wall-clock time `WallMs' (kept
+%% for people reading the catalogue; it orders nothing).
 -spec next_version(version() | none, integer(), node()) -> version().
 next_version(none, WallMs, Node) -> {1, WallMs, Node};
 next_version({C, _, _}, WallMs, Node) -> {C + 1, WallMs, Node}.
 
-%% @doc Whether version `A' wins over `B'.
--spec newer(version(), version()) -> boolean().
-newer(A, B) -> A > B.
+%% @doc Whether entry `A' wins over entry `B' of the same id: the higher
+%% counter; at the same counter (two writes made apart) a tombstone over a
+%% live entry, then the greater node name; then, only for two writes of
+%% one node at one counter (a node that lost its catalogue in memory and
+%% wrote again), the greater value, then the later `WallMs' (the values
+%% are then equal: no decision rests on a clock).
+-spec wins(entry(), entry()) -> boolean().
+wins({_, VA, A}, {_, VB, B}) ->
+    rank(VA, A) > rank(VB, B).
+
+rank({Counter, WallMs, Node}, Value) ->
+    {Counter, Value =:= deleted, Node, Value, WallMs}.
+
+%% @doc Whether a node may create or delete a pairing now: while it hears
+%% a majority of the configured nodes (a lone node always does); in a
+%% cluster of two also without (neither side of a split has a majority:
+%% each goes on, and their concurrent writes are ordered by {@link wins/2}).
+-spec may_change(ClusterSize :: pos_integer(), HearsMajority :: boolean()) -> boolean().
+may_change(_Size, true) -> true;
+may_change(Size, false) -> Size =< 2.
 
 %% @doc Merges a peer's entries into ours (both lists sorted or not, one
-%% entry per id): per id, the entry of the newer version. Commutative,
+%% entry per id): per id, the entry that wins. Commutative,
 %% associative and idempotent, so catalogues exchanged in any order, any
 %% number of times, end equal.
 -spec merge([entry()], [entry()]) -> [entry()].
 merge(Ours, Theirs) ->
-    Merged = lists:foldl(fun({Id, V, _} = E, Acc) ->
+    Merged = lists:foldl(fun({Id, _, _} = E, Acc) ->
                                  case Acc of
-                                     #{Id := {_, V0, _}} ->
-                                         case newer(V, V0) of
+                                     #{Id := E0} ->
+                                         case wins(E, E0) of
                                              true -> Acc#{Id := E};
                                              false -> Acc
                                          end;
@@ -55,10 +82,10 @@ merge(Ours, Theirs) ->
 %% `Ours': what a node must write when it receives a peer's catalogue.
 -spec changed([entry()], [entry()]) -> [entry()].
 changed(Ours, Theirs) ->
-    Known = maps:from_list([{Id, V} || {Id, V, _} <- Ours]),
-    [E || {Id, V, _} = E <- Theirs,
+    Known = maps:from_list([{Id, E} || {Id, _, _} = E <- Ours]),
+    [E || {Id, _, _} = E <- Theirs,
           case Known of
-              #{Id := V0} -> newer(V, V0);
+              #{Id := E0} -> wins(E, E0);
               #{} -> true
           end].
 

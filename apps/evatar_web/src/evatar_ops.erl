@@ -227,6 +227,7 @@ create(Id, Body) ->
                     err(409, <<"already_exists">>, <<"id">>,
                         <<"a pairing with this id exists in the cluster">>);
                 {error, {disk_full, Dir}} -> disk_full(Dir);
+                {error, no_majority} -> no_majority();
                 {error, {bad_option, Bad}} -> bad_option(Bad)
             end;
         {{error, _} = Error, _} -> Error;
@@ -264,6 +265,7 @@ replace(Id, Opts) ->
             case evatar:delete_pairing(Id) of
                 ok -> recreate(Id, Opts, erlang:monotonic_time(millisecond) + ?RECREATE_WAIT_MS);
                 {error, {disk_full, Dir}} -> disk_full(Dir);
+                {error, no_majority} -> no_majority();
                 {error, not_found} -> not_found(Id);
                 {error, busy} -> busy(Id)
             end;
@@ -286,6 +288,8 @@ recreate(Id, Opts, Deadline) ->
             end;
         {error, {disk_full, Dir}} ->
             disk_full(Dir);
+        {error, no_majority} ->
+            no_majority();
         {error, {bad_option, Bad}} ->
             bad_option(Bad)
     end.
@@ -296,12 +300,20 @@ disk_full(Dir) ->
         iolist_to_binary(["this node's data directory ", Dir, " is full: nothing was changed; "
                           "free space there, or ask another node"])).
 
+%% A change this node may not make: it does not hear a majority of the
+%% cluster (evatar_catalogue_rules:may_change/2).
+no_majority() ->
+    err(503, <<"no_majority">>, null,
+        <<"this node does not hear a majority of the cluster's nodes (a partition, or most "
+          "nodes down): nothing was changed; ask a node of the majority">>).
+
 %% @doc Deletes a pairing in the whole cluster.
 -spec delete(binary()) -> ok | {error, error()}.
 delete(Id) ->
     case evatar:delete_pairing(Id) of
         ok -> ok;
         {error, {disk_full, Dir}} -> disk_full(Dir);
+        {error, no_majority} -> no_majority();
         {error, not_found} -> not_found(Id);
         {error, busy} -> busy(Id)
     end.
