@@ -97,7 +97,7 @@ changed(Ours, Theirs) ->
 owner(Home, Configured, Alive) ->
     case lists:member(Home, Alive) of
         true -> Home;
-        false -> evatar_ha_rules:standby_node(lists:usort([Home | Configured]), Home, Alive,
+        false -> evatar_ha_membership:standby_node(lists:usort([Home | Configured]), Home, Alive,
                                               undefined)
     end.
 

@@ -11,7 +11,7 @@
 %% process that connects nodes (`net_kernel:connect_node/1', retried).
 %% Distribution's own tick (`net_ticktime', 45-75 s) is far too slow to be
 %% relied on. Reads for the pairings go to an ETS table, never to this
-%% process. Decisions are in `evatar_ha_rules' (membership) and `evatar_ha_core'
+%% process. Decisions are in `evatar_ha_membership' (membership) and `evatar_ha_core'
 %% (votes and registrations).
 %%
 %% It is the node's voter too: it answers the pairings' vote and
@@ -129,7 +129,7 @@ majority_now() ->
     Connected = erlang:nodes(),
     Heard = [node() | [N || N <- Configured, N =/= node(), lists:member(N, Connected),
                             heard_within(N, Lease)]],
-    evatar_ha_rules:majority(Configured, Heard).
+    evatar_ha_membership:majority(Configured, Heard).
 
 %% @doc Whether `Node' was heard within the last `Ms' milliseconds.
 -spec heard_within(node(), non_neg_integer()) -> boolean().
@@ -169,7 +169,7 @@ stall_gen() ->
 -spec unstalled(non_neg_integer()) -> boolean().
 unstalled(Gen) ->
     Overdue = case ets:lookup(?TABLE, last_tick) of
-                  [{_, T}] -> evatar_ha_rules:stalled(T, erlang:monotonic_time(millisecond),
+                  [{_, T}] -> evatar_ha_membership:stalled(T, erlang:monotonic_time(millisecond),
                                                       opt(suspect_ms) + opt(heartbeat_ms));
                   [] -> false
               end,
@@ -178,7 +178,7 @@ unstalled(Gen) ->
 %% @doc The node where a standby of a pairing active here should go.
 -spec place_standby(node() | undefined) -> node() | none.
 place_standby(Preferred) ->
-    evatar_ha_rules:standby_node(configured(), node(), alive_nodes(), Preferred).
+    evatar_ha_membership:standby_node(configured(), node(), alive_nodes(), Preferred).
 
 %% @doc For tests: the periodic evaluation now, as its timer would run it
 %% (a heartbeat sent to every connected peer; peers heard within
@@ -208,7 +208,7 @@ status() ->
 init([]) ->
     %% Timings come from the release's environment (EVATAR_HEARTBEAT_MS...):
     %% a node with inconsistent ones does not start, saying which.
-    case evatar_ha_rules:check_timings(maps:from_list([{K, opt(K)} || K <- [heartbeat_ms,
+    case evatar_ha_membership:check_timings(maps:from_list([{K, opt(K)} || K <- [heartbeat_ms,
                                                                              suspect_ms,
                                                                              lease_ms]])) of
         ok -> init_view();
@@ -470,8 +470,8 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
     Suspect = opt(suspect_ms),
     Connected = erlang:nodes(),
     Peers = [N || N <- Nodes, N =/= node()],
-    S0 = discount(evatar_ha_rules:own_pause(Last, Now, opt(heartbeat_ms)), Now, S),
-    _ = case evatar_ha_rules:stalled(Last, Now, Suspect) of
+    S0 = discount(evatar_ha_membership:own_pause(Last, Now, opt(heartbeat_ms)), Now, S),
+    _ = case evatar_ha_membership:stalled(Last, Now, Suspect) of
             true ->
                 %% Long enough for the others to have suspected this node:
                 %% its actives ask the cluster again (evatar_pairing).
@@ -489,11 +489,11 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
 
 %% This node itself was stopped (SIGSTOP), starved or late: nobody is
 %% suspected, and the lease is not lost, for the silence this caused
-%% (evatar_ha_rules:discount/3).
+%% (evatar_ha_membership:discount/3).
 discount(0, _Now, S) ->
     S;
 discount(Paused, Now, #s{heard = Heard} = S) ->
-    Heard1 = maps:map(fun(_N, T) -> evatar_ha_rules:discount(T, Paused, Now) end, Heard),
+    Heard1 = maps:map(fun(_N, T) -> evatar_ha_membership:discount(T, Paused, Now) end, Heard),
     true = ets:insert(?TABLE, [{{heard, N}, T} || {N, T} <- maps:to_list(Heard1)]),
     S#s{heard = Heard1}.
 
@@ -531,7 +531,7 @@ quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old} = S) ->
     Connected = erlang:nodes(),
     Recent = [node() | [N || {N, T} <- maps:to_list(Heard), Now - T =< Lease,
                              lists:member(N, Connected)]],
-    Q = evatar_ha_rules:majority(Nodes, Recent),
+    Q = evatar_ha_membership:majority(Nodes, Recent),
     case Q =:= Old of
         true -> ok;
         false -> true = ets:insert(?TABLE, {quorum, Q}), broadcast({quorum, Q})

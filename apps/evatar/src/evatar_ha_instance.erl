@@ -135,7 +135,7 @@ handle(Event, View, #inst{role = starting} = S) ->
 handle({instance, Node, Info}, View, #inst{role = fenced} = S) ->
     %% A restorer asked a node heard again (an instance there is met
     %% through the inventories).
-    case evatar_ha_roles:runs_none(Info) of
+    case evatar_ha_role_machine:runs_none(Info) of
         true -> core({runs_none, Node}, View, S);
         false -> {S, []}
     end;
@@ -163,13 +163,13 @@ handle(_Event, _View, S) ->
 %% ---------------------------------------------------------------------------
 
 starting({start, Mode, Previous}, V, S) ->
-    started(evatar_ha_roles:start(Mode, Previous, peers(V, S), suspect(V)), V, S);
+    started(evatar_ha_role_machine:start(Mode, Previous, peers(V, S), suspect(V)), V, S);
 starting({instance, Node, Info}, V, #inst{start = St} = S) ->
-    started(evatar_ha_roles:starting({instance, Node, Info}, suspect(V), St), V, S);
+    started(evatar_ha_role_machine:starting({instance, Node, Info}, suspect(V), St), V, S);
 starting({timeout, asked}, V, #inst{start = St} = S) ->
-    started(evatar_ha_roles:starting({timeout, asked}, suspect(V), St), V, S);
+    started(evatar_ha_role_machine:starting({timeout, asked}, suspect(V), St), V, S);
 starting({timeout, retry_ask}, V, #inst{start = St} = S) ->
-    started(evatar_ha_roles:starting({timeout, retry_ask, peers(V, S)}, suspect(V), St), V, S);
+    started(evatar_ha_role_machine:starting({timeout, retry_ask, peers(V, S)}, suspect(V), St), V, S);
 starting({timeout, offered}, _V, S) ->
     stop(no_snapshot, S, []);
 starting({timeout, _}, _V, S) ->
@@ -337,7 +337,7 @@ snapshot_to(#inst{standby = Sb, core = Core} = S) ->
     {S#inst{core = Core1}, {snapshot, Sb, Claim}}.
 
 %% What this instance does about another instance of its pairing
-%% (evatar_ha_roles:meet/2).
+%% (evatar_ha_role_machine:meet/2).
 other_instance(Me, _Role, _E, _V, #inst{me = Me} = S) ->
     {S, []};
 other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
@@ -349,7 +349,7 @@ other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
     Mine = #{role => MyRole, epoch => epoch(V), node => node_of(Me), pid => Me, peer => Peer},
     Other = #{role => Role, epoch => E, node => node_of(Pid), pid => Pid},
     Why = {newer_instance, node_of(Pid), E},
-    case evatar_ha_roles:meet(Mine, Other) of
+    case evatar_ha_role_machine:meet(Mine, Other) of
         step_down -> step_down(Why, S, [{send, P, dismiss} || P <- [S#inst.standby],
                                                               P =/= undefined, P =/= Pid]);
         stop -> stop(Why, S, []);

@@ -10,7 +10,7 @@
                placing = false :: boolean(),
                standby_node :: node() | undefined,
                core = evatar_ha_core:new() :: evatar_ha_core:state(),
-               start :: evatar_ha_roles:starting() | undefined,
+               start :: evatar_ha_role_machine:starting() | undefined,
                reconfirming = false :: boolean(),
                %% Won again after a fence, keeping the standby: it has not
                %% yet confirmed the snapshot with the new claim.

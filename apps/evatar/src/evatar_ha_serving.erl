@@ -237,7 +237,7 @@ place(V, #inst{me = Me, standby_node = Preferred} = S) ->
     case wants_standby(V, S) of
         true ->
             #{nodes := Nodes, alive := Alive} = V,
-            case evatar_ha_rules:standby_node(Nodes, node_of(Me), Alive, Preferred) of
+            case evatar_ha_membership:standby_node(Nodes, node_of(Me), Alive, Preferred) of
                 none -> {S, []};
                 Node -> {S#inst{placing = true}, [{start_standby, Node},
                                                   {timer, place, ?PLACE_RETRY_MS}]}

@@ -4,7 +4,7 @@
 %% now and which wait for the standby or the cluster, `evatar_ha_instance'
 %% the instance's role (with `evatar_ha_serving' for what a serving active
 %% does, `evatar_ha_core' for elections and registrations and
-%% `evatar_ha_roles' for starting and the standby's apply;
+%% `evatar_ha_role_machine' for starting and the standby's apply;
 %% docs/ha-design.md, section 12). Start reading at
 %% handle_event/4 here, then `evatar_ha_instance:handle/3' and
 %% `evatar_pairing_effects:effect/2'. This process owns what
@@ -411,9 +411,9 @@ unpause(_State, Data) ->
 arm_held(#data{timers = #{{ha, held} := _}} = Data) ->
     Data;
 arm_held(Data) ->
-    timer({ha, held}, evatar_ha_roles:held_poll_ms(opt(heartbeat_ms)), Data).
+    timer({ha, held}, evatar_ha_role_machine:held_poll_ms(opt(heartbeat_ms)), Data).
 
-%% evatar_ha_roles:held_due/3 says which held resumes are answered NotActive.
+%% evatar_ha_role_machine:held_due/3 says which held resumes are answered NotActive.
 check_held(#data{held = Held, inst = Inst} = Data) ->
     Active = evatar_ha_instance:active(Inst),
     Ctx = #{suspect_ms => opt(suspect_ms), heartbeat_ms => opt(heartbeat_ms),
@@ -421,7 +421,7 @@ check_held(#data{held = Held, inst = Inst} = Data) ->
             heard_after => fun(Since) -> is_pid(Active) andalso
                                              evatar_cluster:heard_after(node(Active), Since)
                            end},
-    {Go, Keep} = evatar_ha_roles:held_due(Held, erlang:monotonic_time(millisecond), Ctx),
+    {Go, Keep} = evatar_ha_role_machine:held_due(Held, erlang:monotonic_time(millisecond), Ctx),
     Data1 = reply_held(Data#data{held = Go}),
     case Keep of
         [] -> Data1#data{held = []};

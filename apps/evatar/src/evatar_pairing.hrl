@@ -16,7 +16,7 @@
                gen = 0 :: non_neg_integer(),
                inspects = [] :: [{gen_statem:from(), atom()}],
                %% Standby: resumes held until it takes over or hears its active.
-               held = [] :: [evatar_ha_roles:held(gen_statem:from())],
+               held = [] :: [evatar_ha_role_machine:held(gen_statem:from())],
                %% The live tail's watchers (evatar_tap): [] costs nothing.
                watchers = [] :: [evatar_tap:watcher()],
                %% This pairing's own counters once active here (evatar_metrics).

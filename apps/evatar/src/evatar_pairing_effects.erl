@@ -328,10 +328,10 @@ send(To, {handover, Version}, #data{logic = L}) ->
 send(To, {handover_done, Ec, Claim}, _Data) ->
     evatar_ha_proto_v1:handover_done(To, self(), Ec, Claim).
 
-%% evatar_ha_roles applies the batch; this confirms it, or asks again.
+%% evatar_ha_role_machine applies the batch; this confirms it, or asks again.
 apply_events(Events, #data{inst = Inst, logic = Logic0, commit = C0} = Data) ->
     Apply = fun(Event, Now, L) -> element(1, evatar_pairing_logic:handle(Event, Now, L)) end,
-    {Logic, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, Logic0, C0),
+    {Logic, C, Answer} = evatar_ha_role_machine:apply_events(Events, Apply, Logic0, C0),
     Active = evatar_ha_instance:active(Inst),
     ok = case Answer of
              {confirm, V} -> evatar_ha_proto_v1:confirm(Active, epoch(Logic), V);

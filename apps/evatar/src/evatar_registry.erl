@@ -27,7 +27,7 @@
 -export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -define(TABLE, ?MODULE).
--define(ROLES, evatar_ha_roles).
+-define(ROLES, evatar_ha_role_machine).
 
 %% @doc Starts the registry and creates its table.
 -spec start_link() -> {ok, pid()} | {error, term()}.

@@ -1,6 +1,6 @@
 %% @doc EUnit tests of what high availability adds to the pure pairing logic
 %% (de-duplication window, outbound buffer, resume, detach, takeover,
-%% SlowConsumer) and of the pure decisions in evatar_ha_rules and evatar_ha_core.
+%% SlowConsumer) and of the pure decisions in evatar_ha_membership and evatar_ha_core.
 -module(evatar_ha_logic_tests).
 
 -include_lib("eunit/include/eunit.hrl").
@@ -245,23 +245,23 @@ deterministic_test() ->
     ?assertEqual(run(Events, Start), run(Events, Start)).
 
 %% ---------------------------------------------------------------------------
-%% evatar_ha_rules and evatar_ha_core (votes, registrations, fencing, reconcile)
+%% evatar_ha_membership and evatar_ha_core (votes, registrations, fencing, reconcile)
 %% ---------------------------------------------------------------------------
 
 standby_node_test_() ->
     Ring = [a@h, b@h, c@h],
-    [?_assertEqual(b@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, undefined)),
-     ?_assertEqual(a@h, evatar_ha_rules:standby_node(Ring, c@h, Ring, undefined)),
-     ?_assertEqual(c@h, evatar_ha_rules:standby_node(Ring, a@h, [a@h, c@h], undefined)),
-     ?_assertEqual(c@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, c@h)),
-     ?_assertEqual(b@h, evatar_ha_rules:standby_node(Ring, a@h, Ring, x@h)),
-     ?_assertEqual(none, evatar_ha_rules:standby_node(Ring, a@h, [a@h], undefined))].
+    [?_assertEqual(b@h, evatar_ha_membership:standby_node(Ring, a@h, Ring, undefined)),
+     ?_assertEqual(a@h, evatar_ha_membership:standby_node(Ring, c@h, Ring, undefined)),
+     ?_assertEqual(c@h, evatar_ha_membership:standby_node(Ring, a@h, [a@h, c@h], undefined)),
+     ?_assertEqual(c@h, evatar_ha_membership:standby_node(Ring, a@h, Ring, c@h)),
+     ?_assertEqual(b@h, evatar_ha_membership:standby_node(Ring, a@h, Ring, x@h)),
+     ?_assertEqual(none, evatar_ha_membership:standby_node(Ring, a@h, [a@h], undefined))].
 
 majority_test_() ->
-    [?_assert(evatar_ha_rules:majority([a, b, c], [a, b])),
-     ?_assertNot(evatar_ha_rules:majority([a, b, c], [a])),
-     ?_assertNot(evatar_ha_rules:majority([a, b, c, d], [a, b])),
-     ?_assertNot(evatar_ha_rules:majority([a, b, c], [a, x, y]))].
+    [?_assert(evatar_ha_membership:majority([a, b, c], [a, b])),
+     ?_assertNot(evatar_ha_membership:majority([a, b, c], [a])),
+     ?_assertNot(evatar_ha_membership:majority([a, b, c, d], [a, b])),
+     ?_assertNot(evatar_ha_membership:majority([a, b, c], [a, x, y]))].
 
 fence_test_() ->
     [?_assertNot(evatar_ha_core:must_fence(2, false, false)),
@@ -331,8 +331,8 @@ reconcile_test_() ->
      ?_assertEqual(keep, evatar_ha_core:reconcile(I(standby, 1, a, P1), I(standby, 2, b, P2)))].
 
 stalled_test() ->
-    ?assert(evatar_ha_rules:stalled(0, 1000, 250)),
-    ?assertNot(evatar_ha_rules:stalled(0, 60, 250)).
+    ?assert(evatar_ha_membership:stalled(0, 1000, 250)),
+    ?assertNot(evatar_ha_membership:stalled(0, 60, 250)).
 
 %% A pause never fences by itself: a lone node keeps serving (nobody else
 %% holds the state), a node of a cluster asks the others again, or awaits
@@ -349,34 +349,34 @@ after_pause_test_() ->
 %% outlive the others' suspicion, or a value that is no duration, is named.
 check_timings_test_() ->
     T = fun(Hb, S, L) -> #{heartbeat_ms => Hb, suspect_ms => S, lease_ms => L} end,
-    [?_assertEqual(ok, evatar_ha_rules:check_timings(T(50, 250, 150))),
-     ?_assertEqual(ok, evatar_ha_rules:check_timings(T(100, 1000, 600))),
-     ?_assertEqual(ok, evatar_ha_rules:check_timings(T(100, 250, 150))),
+    [?_assertEqual(ok, evatar_ha_membership:check_timings(T(50, 250, 150))),
+     ?_assertEqual(ok, evatar_ha_membership:check_timings(T(100, 1000, 600))),
+     ?_assertEqual(ok, evatar_ha_membership:check_timings(T(100, 250, 150))),
      ?_assertMatch({error, {bad_ha_timing, suspect_ms, 250, _}},
-                   evatar_ha_rules:check_timings(T(101, 250, 150))),
+                   evatar_ha_membership:check_timings(T(101, 250, 150))),
      ?_assertMatch({error, {bad_ha_timing, heartbeat_ms, 0, _}},
-                   evatar_ha_rules:check_timings(T(0, 250, 150))),
+                   evatar_ha_membership:check_timings(T(0, 250, 150))),
      ?_assertMatch({error, {bad_ha_timing, lease_ms, "150", _}},
-                   evatar_ha_rules:check_timings(T(50, 250, "150")))].
+                   evatar_ha_membership:check_timings(T(50, 250, "150")))].
 
 %% A tick later than planned is this node's own pause; the peers' silence
 %% is counted without it, and a peer silent before the pause stays silent.
 own_pause_test_() ->
-    [?_assertEqual(0, evatar_ha_rules:own_pause(1000, 1050, 50)),
-     ?_assertEqual(0, evatar_ha_rules:own_pause(1000, 1030, 50)),
-     ?_assertEqual(350, evatar_ha_rules:own_pause(1000, 1400, 50))].
+    [?_assertEqual(0, evatar_ha_membership:own_pause(1000, 1050, 50)),
+     ?_assertEqual(0, evatar_ha_membership:own_pause(1000, 1030, 50)),
+     ?_assertEqual(350, evatar_ha_membership:own_pause(1000, 1400, 50))].
 
 discount_test_() ->
-    Paused = evatar_ha_rules:own_pause(1000, 1400, 50),
+    Paused = evatar_ha_membership:own_pause(1000, 1400, 50),
     [%% Heard 40 ms before the last tick: 40 + 50 ms silent after the pause.
-     ?_assertEqual(1310, evatar_ha_rules:discount(960, Paused, 1400)),
-     ?_assert(1400 - evatar_ha_rules:discount(960, Paused, 1400) < 150),
+     ?_assertEqual(1310, evatar_ha_membership:discount(960, Paused, 1400)),
+     ?_assert(1400 - evatar_ha_membership:discount(960, Paused, 1400) < 150),
      %% Silent for 300 ms before the pause: still silent for 300 + 50 ms.
-     ?_assertEqual(1050, evatar_ha_rules:discount(700, Paused, 1400)),
-     ?_assert(1400 - evatar_ha_rules:discount(700, Paused, 1400) > 250),
+     ?_assertEqual(1050, evatar_ha_membership:discount(700, Paused, 1400)),
+     ?_assert(1400 - evatar_ha_membership:discount(700, Paused, 1400) > 250),
      %% Heard during the pause's last moments: never in the future.
-     ?_assertEqual(1400, evatar_ha_rules:discount(1390, Paused, 1400)),
-     ?_assertEqual(960, evatar_ha_rules:discount(960, 0, 1400))].
+     ?_assertEqual(1400, evatar_ha_membership:discount(1390, Paused, 1400)),
+     ?_assertEqual(960, evatar_ha_membership:discount(960, 0, 1400))].
 
 %% ---------------------------------------------------------------------------
 %% A stale promise (issue 18): the active re-elects itself above it

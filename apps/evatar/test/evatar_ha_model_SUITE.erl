@@ -6,7 +6,7 @@
 %% partial restart) for two and three instances of one pairing
 %% in `evatar_ha_sim', which runs them through the node's own role machine
 %% (`evatar_ha_instance', with `evatar_ha_serving', `evatar_ha_core',
-%% `evatar_ha_roles') and output commit (`evatar_ha_commit') and checks after every command that at most one
+%% `evatar_ha_role_machine') and output commit (`evatar_ha_commit') and checks after every command that at most one
 %% instance serves at the current epoch and that no accepted signal is lost
 %% or delivered twice.
 %%

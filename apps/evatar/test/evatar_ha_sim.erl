@@ -1,7 +1,7 @@
 %% @doc A deterministic simulation of one pairing's instances on two or
 %% three nodes, in one process, running the code the node runs for each
 %% instance: the role machine `evatar_ha_instance' (with `evatar_ha_serving',
-%% `evatar_ha_core', `evatar_ha_roles') and the output commit
+%% `evatar_ha_core', `evatar_ha_role_machine') and the output commit
 %% `evatar_ha_commit'. This module executes their effects on a simulated
 %% world instead of processes, as `evatar_pairing' does in the node; the
 %% pairing's rules are a stand-in: a signal is routed once
@@ -256,7 +256,7 @@ detect(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
                              end, Heard0),
             Alive = maps:map(fun(M, _) -> M =:= N orelse Now - maps:get(M, Heard) =< ?SUSPECT end,
                              Heard),
-            Q = evatar_ha_rules:majority(Names, [M || {M, T} <- maps:to_list(Heard),
+            Q = evatar_ha_membership:majority(Names, [M || {M, T} <- maps:to_list(Heard),
                                                      Now - T =< ?LEASE]),
             W1 = W#{nodes := Nodes#{N := Nd#{heard := Heard, alive := Alive, quorum := Q}}},
             Lost = [M || M <- Names, maps:get(M, Alive0), not maps:get(M, Alive)],
@@ -289,7 +289,7 @@ heard_within(N, M, Ms, #{nodes := Nodes, now := Now}) ->
     Now - maps:get(M, maps:get(heard, maps:get(N, Nodes))) =< Ms.
 
 majority_now(N, #{names := Names} = W) ->
-    evatar_ha_rules:majority(Names, [M || M <- Names, heard_within(N, M, ?LEASE, W)]).
+    evatar_ha_membership:majority(Names, [M || M <- Names, heard_within(N, M, ?LEASE, W)]).
 
 pause(N, #{nodes := Nodes, now := Now} = W) ->
     case maps:get(N, Nodes) of
@@ -298,13 +298,13 @@ pause(N, #{nodes := Nodes, now := Now} = W) ->
     end.
 
 %% The node finds it was paused itself: its peers' silence meanwhile says
-%% nothing about them (evatar_ha_rules:discount/3), and an active asks the
+%% nothing about them (evatar_ha_membership:discount/3), and an active asks the
 %% cluster again (evatar_ha_core's `paused').
 resume(N, #{nodes := Nodes, now := Now} = W) ->
     case maps:get(N, Nodes) of
         #{status := paused, paused_at := At, heard := Heard} = Nd ->
             Paused = Now - At,
-            Heard1 = maps:map(fun(_, T) -> evatar_ha_rules:discount(T, Paused, Now) end, Heard),
+            Heard1 = maps:map(fun(_, T) -> evatar_ha_membership:discount(T, Paused, Now) end, Heard),
             W1 = W#{nodes := Nodes#{N := Nd#{status := up, heard := Heard1}}},
             Q = maps:get(paused_q, W1, []),
             {Mine, Others} = lists:partition(fun({To, _}) -> to_node(To, W1) =:= N end, Q),
@@ -742,11 +742,11 @@ excuse(Sids, Applied, #{receiver := #{got := Got, excused := Ex} = R} = W) ->
                       end, Ex, Sids),
     W#{receiver := R#{excused := Ex1}}.
 
-%% The standby's apply is the pairing's own (evatar_ha_roles), over the
+%% The standby's apply is the pairing's own (evatar_ha_role_machine), over the
 %% stand-in rules.
 apply_events(Events, #{commit := C0, state := S0, active := A} = I, W) ->
     Apply = fun(Event, _Now, S) -> element(1, logic(Event, S)) end,
-    {S, C, Answer} = evatar_ha_roles:apply_events(Events, Apply, S0, C0),
+    {S, C, Answer} = evatar_ha_role_machine:apply_events(Events, Apply, S0, C0),
     I1 = I#{state := S, epoch := maps:get(epoch, S), commit := C},
     Msg = case Answer of
               {confirm, V} -> {confirm, ref(I), maps:get(epoch, S), V};

@@ -366,7 +366,7 @@ page_in_chromium(Config) ->
     after
         Left = case get(stories) of undefined -> Stories; S -> S end,
         [ok = reference_agents_holiday:stop(H) || #{holiday := H} <- [Left]],
-        [ok = reference_agents_robots:stop(R) || #{robots := R} <- [Left]],
+        [ok = reference_agents_lego_scenario:stop(R) || #{robots := R} <- [Left]],
         [ok = avatar_sim:stop(A) || #{arena := A} <- [Left]],
         ok = avatar_sim:stop(Home),
         exit(Long, shutdown),
@@ -409,7 +409,7 @@ browser(Port, Va, Stories, Lines) ->
                 false -> _ = application:unload(reference_agents);
                 true -> ok
             end,
-            {ok, R} = reference_agents_robots:start(#{print => false}),
+            {ok, R} = reference_agents_lego_scenario:start(#{print => false}),
             browser(Port, Va, #{robots => R}, ["robots" | Lines]);
         {Port, {data, {eol, Line}}} ->
             ct:log("browser: ~ts", [Line]),

@@ -53,8 +53,8 @@ rules_error(File, Error) -> reference_agents_rules:format_error(File, Error).
 holiday(Opts) -> reference_agents_holiday:run(Opts).
 
 %% @doc Runs the collaborative robots scenario to its end.
--spec robots(reference_agents_robots:opts()) -> {ok, map()} | {error, term()}.
-robots(Opts) -> reference_agents_robots:run(Opts).
+-spec robots(reference_agents_lego_scenario:opts()) -> {ok, map()} | {error, term()}.
+robots(Opts) -> reference_agents_lego_scenario:run(Opts).
 
 %% @doc Runs the one-VA-per-room light control scenario until `until'
 %% (16:45 by default) and returns what happened.

@@ -127,11 +127,11 @@ run(robots, Keep) ->
             "The robots explore and anchor what they see, the coordinator builds a lexicon from "
             "their reports and shares it, then has them place every ball in its zone.",
             "Simulated time runs 40 times faster than real time."]),
-    {ok, S} = reference_agents_robots:start(#{print => true}),
-    Result = reference_agents_robots:run_to_end(S, 300000),
-    Outcome = reference_agents_robots:outcome(S),
+    {ok, S} = reference_agents_lego_scenario:start(#{print => true}),
+    Result = reference_agents_lego_scenario:run_to_end(S, 300000),
+    Outcome = reference_agents_lego_scenario:outcome(S),
     robots_summary(Result, Outcome),
-    finish(Keep, S, fun reference_agents_robots:stop/1).
+    finish(Keep, S, fun reference_agents_lego_scenario:stop/1).
 
 %% A kept house is for a VA of one's own (docs/clients.md): a pairing has
 %% one agent, so the house VA, its story told, leaves it.

@@ -67,10 +67,10 @@ percept_from_sensor_data_test() ->
 
 embodiment_plan_and_verdicts_test() ->
     T = lego_table(),
-    {ok, Mind} = reference_agents_robot:init(#{name => <<"va-1">>, body => body("lego_va.xml"),
+    {ok, Mind} = reference_agents_robot_mind:init(#{name => <<"va-1">>, body => body("lego_va.xml"),
                                                coordinator => <<"c">>}),
     {Test, Steps} = reference_agents_embodiment:start(
-                      T, fun(L) -> reference_agents_robot:probe(L, Mind) end),
+                      T, fun(L) -> reference_agents_robot_mind:probe(L, Mind) end),
     Requests = [Id || {request, Id, _, _, _} <- Steps],
     %% 12 bound consumers of the VA; GoTo is not tested by a request.
     ?assertEqual(11, length(Requests)),
@@ -249,47 +249,47 @@ strip({C, Acts}) -> {C, [A || A <- Acts, element(1, A) =/= narrate]}.
 
 waypoints_serpentine_test() ->
     ?assertEqual([{150, 150}, {1850, 150}, {1850, 350}, {150, 350}],
-                 reference_agents_robot:waypoints({300, 100, 0}, [150, 350], {150, 1850})),
+                 reference_agents_robot_mind:waypoints({300, 100, 0}, [150, 350], {150, 1850})),
     ?assertEqual([{1850, 350}, {150, 350}, {150, 150}, {1850, 150}],
-                 reference_agents_robot:waypoints({1700, 1200, 0}, [150, 350], {150, 1850})).
+                 reference_agents_robot_mind:waypoints({1700, 1200, 0}, [150, 350], {150, 1850})).
 
 placement_test() ->
-    {X, Y} = reference_agents_robot:placement({0, 0, 0}, {1000, 0}, 110),
+    {X, Y} = reference_agents_robot_mind:placement({0, 0, 0}, {1000, 0}, 110),
     ?assertEqual({890.0, 0.0}, {X, Y}),
-    ?assertEqual({10, 10}, reference_agents_robot:placement({0, 0, 0}, {10, 10}, 110)).
+    ?assertEqual({10, 10}, reference_agents_robot_mind:placement({0, 0, 0}, {10, 10}, 110)).
 
 %% A pick whose look finds no ball at the anchored point (the bumper met
 %% something else, or the sighting was off) is not repeated from the same
 %% place: the VA backs off and goes round, then approaches from another
 %% stand-off point.
 pick_retry_goes_round_test() ->
-    {ok, R0} = reference_agents_robot:init(#{name => <<"va-1">>, body => body("lego_va.xml"),
+    {ok, R0} = reference_agents_robot_mind:init(#{name => <<"va-1">>, body => body("lego_va.xml"),
                                              coordinator => <<"c">>}),
     Pose = fun(X, Y, H) -> [{<<"X">>, integer_to_binary(X)}, {<<"Y">>, integer_to_binary(Y)},
                             {<<"Heading">>, integer_to_binary(H)}] end,
-    {R1, _} = reference_agents_robot:choose({result, locate, {ok, Pose(1000, 500, 0)}}, 0, R0),
+    {R1, _} = reference_agents_robot_mind:choose({result, locate, {ok, Pose(1000, 500, 0)}}, 0, R0),
     Lexicon = [#{word => <<"blue-ball">>, colour => <<"blue">>, position => {1440, 773},
                  names => #{}}],
-    {R2, _} = reference_agents_robot:choose({message, <<"c">>, {lexicon, Lexicon}}, 0, R1),
-    {R3, Acts3} = reference_agents_robot:choose(
+    {R2, _} = reference_agents_robot_mind:choose({message, <<"c">>, {lexicon, Lexicon}}, 0, R1),
+    {R3, Acts3} = reference_agents_robot_mind:choose(
                     {message, <<"c">>, {pick_place, <<"blue-ball">>, <<"n">>, {1000, 1300}}}, 0, R2),
     [{request, approach, _, <<"GoTo">>, First}] = robot_requests(Acts3),
     %% The bumper touches something at the stand-off point; no ball is seen
     %% however the claw turns.
-    {R4, Acts4} = reference_agents_robot:choose(
+    {R4, Acts4} = reference_agents_robot_mind:choose(
                     {result, approach, {ok, [{<<"Result">>, <<"contact">>} | Pose(1280, 670, 33)]}},
                     1, R3),
     {R5, Next} = scan_nothing(robot_requests(Acts4), R4),
     [{request, {avoid, back, pick}, _, <<"Forward">>, [{<<"Distance">>, Back}]}] = Next,
     ?assert(binary_to_float(Back) < 0),
     {R6, [{request, {avoid, left, pick}, _, <<"Rotate">>, _}]} =
-        reqs(reference_agents_robot:choose({result, {avoid, back, pick}, {ok, Pose(1300, 580, 303)}},
+        reqs(reference_agents_robot_mind:choose({result, {avoid, back, pick}, {ok, Pose(1300, 580, 303)}},
                                            3, R5)),
     {R7, [{request, {avoid, ahead, pick}, _, <<"Forward">>, _}]} =
-        reqs(reference_agents_robot:choose({result, {avoid, left, pick}, {ok, Pose(1300, 580, 33)}},
+        reqs(reference_agents_robot_mind:choose({result, {avoid, left, pick}, {ok, Pose(1300, 580, 33)}},
                                            4, R6)),
     {_, [{request, approach, _, <<"GoTo">>, Second}]} =
-        reqs(reference_agents_robot:choose({result, {avoid, ahead, pick},
+        reqs(reference_agents_robot_mind:choose({result, {avoid, ahead, pick},
                                             {ok, [{<<"Result">>, <<"done">>} | Pose(1510, 716, 33)]}},
                                            5, R7)),
     XY = fun(Ps) -> [V || {K, V} <- Ps, K =:= <<"X">> orelse K =:= <<"Y">>] end,
@@ -302,10 +302,10 @@ reqs({R, Acts}) -> {R, robot_requests(Acts)}.
 %% Answers every look with the grey floor and every turn with done, until
 %% the VA asks for something else.
 scan_nothing([{request, {look, _, _} = Tag, _, <<"ReadLight">>, []}], R) ->
-    {R1, A} = reference_agents_robot:choose({result, Tag, {ok, [{<<"Colour">>, <<"grey">>}]}}, 2, R),
+    {R1, A} = reference_agents_robot_mind:choose({result, Tag, {ok, [{<<"Colour">>, <<"grey">>}]}}, 2, R),
     scan_nothing(robot_requests(A), R1);
 scan_nothing([{request, {turn, _, _} = Tag, _, <<"Rotate">>, _}], R) ->
-    {R1, A} = reference_agents_robot:choose({result, Tag, {ok, []}}, 2, R),
+    {R1, A} = reference_agents_robot_mind:choose({result, Tag, {ok, []}}, 2, R),
     scan_nothing(robot_requests(A), R1);
 scan_nothing(Other, R) ->
     {R, Other}.

@@ -17,7 +17,7 @@
 %% landed. A failed try (no ball at the claw, the claw closed on nothing,
 %% the wrong ball) is followed by going round and approaching again from
 %% another side, four tries in all.
--module(reference_agents_robot).
+-module(reference_agents_robot_mind).
 -behaviour(reference_agents_mind).
 
 -export([init/1, probe/2, choose/3, inspect/1]).

@@ -20,7 +20,7 @@
 %%                 |    {timer, retry_ask}, ask the alive peers again
 %%                 +--> nobody: {restore, NoneOn}, an election before serving
 %% '''
--module(evatar_ha_roles).
+-module(evatar_ha_role_machine).
 
 -export([start/4, starting/3]).
 -export([apply_events/4]).

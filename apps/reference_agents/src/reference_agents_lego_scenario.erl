@@ -4,7 +4,7 @@
 %% Avatar sends them to explore, builds the lexicon from what they anchored,
 %% distributes it, and has them pick every ball and place it at its target
 %% zone. VA-to-VA messages go directly between the Erlang processes.
--module(reference_agents_robots).
+-module(reference_agents_lego_scenario).
 
 -export([start/1, run_to_end/2, outcome/1, stop/1, run/1, default_targets/0]).
 -export([anchors/0]).
@@ -65,7 +65,7 @@ start(Opts) ->
                           Name = va_name(N),
                           Body = Lego#{entity_id := Name},
                           {Va, SAcc1} = reference_agents_scenario:start_va(
-                                          #{name => Name, mind => reference_agents_robot,
+                                          #{name => Name, mind => reference_agents_robot_mind,
                                             mind_args => #{name => Name, body => Body,
                                                            coordinator => ?COORDINATOR},
                                             body => Body, pairing => P, credential => VaCred,

@@ -5,7 +5,7 @@
 %% `evatar_cluster' calls these with what it observed. The decisions about
 %% one pairing's instances (votes, registrations, fencing, reconciling two
 %% instances) are in `evatar_ha_core' (docs/ha-design.md).
--module(evatar_ha_rules).
+-module(evatar_ha_membership).
 
 -export([standby_node/4, majority/2, stalled/3, own_pause/3, discount/3, check_timings/1]).
 
