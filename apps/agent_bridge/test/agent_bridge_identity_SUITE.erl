@@ -32,8 +32,12 @@ init_per_suite(Config) ->
     ok = evatar_test_node:start([]),
     %% The listener's guard (rate, failure delay, lockout) is tested by
     %% agent_bridge_attack_SUITE; here every refusal must come from the pairing.
+    %% A connection's read rate (max_read_rate, 1,000 frames/s by default) is
+    %% tested by agent_bridge_SUITE's paced_client_read_at_its_rate; here it
+    %% would only pace hold_100000_requests to 100 s.
     Addr = evatar_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
-                                                               linger => 100},
+                                                               linger => 100,
+                                                               max_read_rate => infinity},
                                                      handshake => #{rate => infinity,
                                                                     failure_delay => 0,
                                                                     max_failure_delay => 0,
@@ -167,7 +171,9 @@ forge_timeout_feedback(Config) ->
     ok = agent_bridge_client:close(Va).
 
 %% 100,000 requests to an Avatar that never answers: max_open_requests
-%% (1,024) stay open, every other one is refused with TooManyRequests.
+%% (1,024) stay open, every other one is refused with TooManyRequests, and
+%% each request is either forwarded to the Avatar or refused, exactly once.
+%% The requests go in batches of 1,000 frames per write.
 hold_100000_requests(Config) ->
     Pairing = ?config(pairing, Config),
     Va = joined_raw(Config, agent, <<"va">>, ?VA_CRED),
@@ -177,10 +183,20 @@ hold_100000_requests(Config) ->
     ok = evatar_test_wait:until(
            fun() -> {ok, #{bound := B}} = evatar:bindings(Pairing), B =/= [] end),
     %% Both sockets are read by processes of their own, so the bridge never
-    %% drops either as a slow consumer; the VA's counts the refusals.
+    %% drops either as a slow consumer; each reports the SignalIDs it saw:
+    %% the Avatar's the requests forwarded, the VA's the requests refused.
     N = 100000,
+    Open = 1024,
     Self = self(),
-    Mute = spawn_link(fun() -> receive go -> count_frames(S, 0) end end),
+    %% Both sockets carry raw bytes from here on, framed by hand, so that
+    %% one write to the VA's holds a batch of frames.
+    ok = inet:setopts(S, [{packet, raw}]),
+    ok = inet:setopts(Va, [{packet, raw}]),
+    Mute = spawn_link(fun() -> receive go -> ok end,
+                               Self ! {forwarded, ids(S, <<"SignalID">>,
+                                                      <<"RequestAwaitingFeedback">>, Open)},
+                               receive stop -> ok end
+                      end),
     ok = gen_tcp:controlling_process(S, Mute),
     Mute ! go,
     [Template] = [bil:encode_signal(
@@ -191,16 +207,28 @@ hold_100000_requests(Config) ->
     %% The reader owns the VA's socket: it stays until the end, or the
     %% socket would close with it and the VA leave the pairing.
     Reader = spawn_link(fun() -> receive go -> ok end,
-                                 Self ! {refused, count_refusals(Va, N - 1024, 0)},
+                                 Self ! {refused, ids(Va, <<"InReplyTo">>,
+                                                      <<"<ServiceType>TooManyRequests<">>,
+                                                      N - Open)},
                                  receive stop -> ok end
                         end),
     ok = gen_tcp:controlling_process(Va, Reader),
     Reader ! go,
-    [ok = gen_tcp:send(Va, [Head, integer_to_binary(I), Tail]) || I <- lists:seq(1, N)],
+    Frame = fun(I) ->
+                    Id = integer_to_binary(I),
+                    [<<(byte_size(Head) + byte_size(Id) + byte_size(Tail)):32>>, Head, Id, Tail]
+            end,
+    [ok = gen_tcp:send(Va, [Frame(I) || I <- lists:seq(B, min(N, B + 999))])
+     || B <- lists:seq(1, N, 1000)],
+    Forwarded = receive {forwarded, F} -> F end,
     Refused = receive {refused, R} -> R end,
-    ct:log("~b requests: ~b refused with TooManyRequests", [N, Refused]),
-    N = Refused + 1024,
-    {ok, #{pending := 1024, errors := #{<<"TooManyRequests">> := Refused}}} =
+    ct:log("~b requests: ~b forwarded, ~b refused with TooManyRequests",
+           [N, length(Forwarded), length(Refused)]),
+    %% Every request once, forwarded or refused; none twice.
+    All = lists:sort([binary_to_integer(I) || I <- Forwarded ++ Refused]),
+    All = lists:seq(1, N),
+    NRefused = N - Open,
+    {ok, #{pending := Open, errors := #{<<"TooManyRequests">> := NRefused}}} =
         evatar:stats(Pairing),
     [begin unlink(P), exit(P, kill) end || P <- [Mute, Reader]],
     ok.
@@ -249,28 +277,30 @@ attached(Pairing, Entity) ->
     {ok, Registry} = evatar:registry(Pairing),
     [true] =:= [A || #{entity := E, attached := A} <- Registry, E =:= Entity].
 
-count_frames(S, N) ->
-    case gen_tcp:recv(S, 0) of
-        {ok, _} -> count_frames(S, N + 1);
-        {error, _} -> N
-    end.
+%% The contents of the first Tag of each of the next Count frames on S that
+%% have one, checking that each of those contains Must; S is in `{packet,
+%% raw}' mode and its frames have 4-byte length headers. Frames without
+%% Tag (control documents: Binding reports) are skipped. Each frame is
+%% searched, not parsed (a reader that parses 100,000 frames falls behind).
+ids(S, Tag, Must, Count) ->
+    ids(S, {<<"<", Tag/binary, ">">>, <<"</", Tag/binary, ">">>, Must}, Count, <<>>, []).
 
-%% Counts the TooManyRequests error signals among the frames read, without
-%% parsing each (a reader that parses 100,000 frames falls behind).
-count_refusals(S, Left, N) ->
-    count_refusals(S, Left, N, <<>>).
-
-count_refusals(_S, 0, N, _Last) ->
-    N;
-count_refusals(S, Left, N, Last) ->
-    case gen_tcp:recv(S, 0, 60000) of
-        {ok, Frame} ->
-            case binary:match(Frame, <<"<ServiceType>TooManyRequests</ServiceType>">>) of
-                nomatch -> count_refusals(S, Left, N, Frame);
-                _ -> count_refusals(S, Left - 1, N + 1, Frame)
-            end;
-        {error, Why} ->
-            exit({va_connection, Why, N, Last})
+ids(_S, _Tags, 0, _Buf, Acc) ->
+    Acc;
+ids(S, {Open, Close, Must} = Tags, Count, <<Len:32, Frame:Len/binary, Rest/binary>>, Acc) ->
+    case binary:match(Frame, Open) of
+        {At, L} ->
+            From = At + L,
+            {To, _} = binary:match(Frame, Close, [{scope, {From, byte_size(Frame) - From}}]),
+            [exit({unexpected_frame, Frame}) || binary:match(Frame, Must) =:= nomatch],
+            ids(S, Tags, Count - 1, Rest, [binary:part(Frame, From, To - From) | Acc]);
+        nomatch ->
+            ids(S, Tags, Count, Rest, Acc)
+    end;
+ids(S, Tags, Count, Buf, Acc) ->
+    case gen_tcp:recv(S, 0, evatar_test_time:guard()) of
+        {ok, More} -> ids(S, Tags, Count, <<Buf/binary, More/binary>>, Acc);
+        {error, Why} -> exit({connection, Why, Count, length(Acc)})
     end.
 
 client(Config, Role, Entity, Cred) ->
