@@ -12,9 +12,14 @@
 %% guard (evatar_test_time:guard/0, 60 s at scale 1), the same for every
 %% suite, so that a wait's length never decides whether a case passes. A
 %% suite has no wait_until of its own: it calls this module.
+%%
+%% A case that checks that a process sent nothing more waits for the
+%% process to end, not for a quiet time: gone/1, then mailbox/1. A
+%% process's 'DOWN' comes after every message it sent to the monitoring
+%% process, so what is not in the mailbox then never comes.
 -module(evatar_test_wait).
 
--export([until/1, until/2, poll/1, poll/2, value/3, value/4]).
+-export([until/1, until/2, poll/1, poll/2, value/3, value/4, gone/1, mailbox/1]).
 -export_type([probe/0, opts/0, failure/0]).
 
 -type probe() :: fun(() -> boolean() | {false, term()}).
@@ -56,6 +61,29 @@ poll(Probe, Opts) ->
     Interval = maps:get(interval, Opts, ?INTERVAL),
     Start = erlang:monotonic_time(millisecond),
     loop(Probe, Start, Start + Timeout, Interval, 1, Opts).
+
+%% @doc ok once Pid has ended (at once if it has), within the hang guard:
+%% every message Pid sent to the caller is then in the caller's mailbox
+%% (for a Pid of another node, provided it was alive when gone/1 was called).
+-spec gone(pid()) -> ok.
+gone(Pid) ->
+    Ref = erlang:monitor(process, Pid),
+    receive
+        {'DOWN', Ref, process, Pid, _} -> ok
+    after evatar_test_time:guard() ->
+            erlang:demonitor(Ref, [flush]),
+            erlang:error({wait_timeout, #{what => {gone, Pid},
+                                          waited_ms => evatar_test_time:guard(),
+                                          last_seen => erlang:process_info(Pid, current_stacktrace),
+                                          polls => 1}})
+    end.
+
+%% @doc The messages now in the caller's mailbox that satisfy Pred, left
+%% where they are.
+-spec mailbox(fun((term()) -> boolean())) -> [term()].
+mailbox(Pred) ->
+    {messages, Ms} = erlang:process_info(self(), messages),
+    [M || M <- Ms, Pred(M)].
 
 %% @doc The value Fun returns once Pred holds for it, within the hang guard;
 %% otherwise raises failure() with the last value.
