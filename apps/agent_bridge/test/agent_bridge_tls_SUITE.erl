@@ -659,15 +659,14 @@ relay(Down, Up, Acc) ->
     end.
 
 relay(Down, Up, Acc, From) ->
-    %% Asked for the bytes: wait for the close that ends the session.
+    %% Asked for the bytes (the client has closed): wait for the close that
+    %% ends the session.
     receive
         {tcp, Down, Data} -> _ = gen_tcp:send(Up, Data), relay(Down, Up, [Acc, Data], From);
         {tcp, Up, Data} -> _ = gen_tcp:send(Down, Data), relay(Down, Up, [Acc, Data], From);
         {tcp_closed, _} -> From ! {relay_bytes, iolist_to_binary(Acc)}
-    after 2000 -> From ! {relay_bytes, iolist_to_binary(Acc)}
     end.
 
+%% Every case that starts a relay asks it for its bytes.
 relay_done(Acc) ->
-    receive {bytes, From} -> From ! {relay_bytes, iolist_to_binary(Acc)}
-    after 10000 -> ok
-    end.
+    receive {bytes, From} -> From ! {relay_bytes, iolist_to_binary(Acc)} end.
