@@ -575,7 +575,7 @@ keeping_up_never_passive(Config) ->
              [_] = collect_sensor(Va, 1, [])
          end || I <- lists:seq(1, N)],
     1 = erlang:trace(Conn, false, ['receive']),
-    Passive = count_passive(0),
+    Passive = count_passive(erlang:trace_delivered(Conn), 0),
     ct:log("passive notices while ~b frames were read: ~b", [N, Passive]),
     0 = Passive,
     ok = agent_bridge_client:close(Va),
@@ -612,11 +612,14 @@ paced_client_read_at_its_rate(Config) ->
     ok = agent_bridge_client:close(Va),
     ok = gen_tcp:close(S).
 
-count_passive(K) ->
+%% The trace's tcp_passive messages, all of them: trace_delivered's
+%% answer comes after every trace message of the traced process.
+count_passive(Ref, K) ->
     receive
-        {trace, _, 'receive', {tcp_passive, _}} -> count_passive(K + 1);
-        {trace, _, 'receive', _} -> count_passive(K)
-    after 500 -> K
+        {trace, _, 'receive', {tcp_passive, _}} -> count_passive(Ref, K + 1);
+        {trace, _, 'receive', _} -> count_passive(Ref, K);
+        {trace_delivered, _, Ref} -> K
+    after evatar_test_time:guard() -> ct:fail(trace_not_delivered)
     end.
 
 %% ---------------------------------------------------------------------------
@@ -937,7 +940,7 @@ bystander_round_trip(Config) ->
             ok;
         Other ->
             Holder ! {why_closed, self()},
-            Why = receive {why_closed, W} -> W after 5000 -> unknown end,
+            Why = receive {why_closed, W} -> W after evatar_test_time:guard() -> unknown end,
             ct:fail({bystander_round_trip, Other, {closed, Why}})
     end.
 
