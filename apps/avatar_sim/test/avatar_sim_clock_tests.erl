@@ -35,7 +35,9 @@ manual_test() ->
     ?assertEqual(1300, avatar_sim_clock:now(Clock)),
     ?assertEqual([1100, 1200, 1300], seen(A)),
     ?assertEqual(seen(A), seen(B)),
-    timer:sleep(50),
+    %% No tick is due: the machine is stopped, the one state without a
+    %% tick timer, so real time cannot move the clock.
+    ?assertMatch({stopped, _}, sys:get_state(Pid)),
     ?assertEqual(1300, avatar_sim_clock:now(Clock)),
     unlink(A), unlink(B), exit(A, kill), exit(B, kill),
     ok = avatar_sim_clock:advance(Clock, 100),
@@ -48,7 +50,8 @@ paced_test() ->
     {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => 50, tick => 100, start_ms => 0, paused => true}),
     A = recorder(Clock, self()),
     receive {subscribed, A} -> ok end,
-    timer:sleep(100),
+    %% Paused: stopped, no tick timer.
+    ?assertMatch({stopped, _}, sys:get_state(Pid)),
     ?assertEqual(0, avatar_sim_clock:now(Clock)),
     ok = avatar_sim_clock:resume(Clock),
     %% Until it has run ten ticks, however loaded the machine (a fixed
@@ -57,7 +60,7 @@ paced_test() ->
     ok = avatar_sim_clock:pause(Clock),
     Now = avatar_sim_clock:now(Clock),
     ?assert(Now >= 1000),
-    timer:sleep(100),
+    ?assertMatch({stopped, _}, sys:get_state(Pid)),
     ?assertEqual(Now, avatar_sim_clock:now(Clock)),
     Seen = seen(A),
     ?assertEqual(lists:seq(100, Now, 100), Seen),
