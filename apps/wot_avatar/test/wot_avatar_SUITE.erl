@@ -569,7 +569,7 @@ servient_line(Config, Line, Pred) ->
     {ok, Lines} = evatar_test_wait:value(
                     {servient_line, Line},
                     fun() -> R ! {lines, self()},
-                             receive {lines, R, Ls} -> {ok, Ls} after 5000 -> {ok, []} end
+                             receive {lines, R, Ls} -> {ok, Ls} after evatar_test_time:guard() -> {ok, []} end
                     end,
                     fun({ok, Ls}) -> lists:any(Pred, Ls) end),
     [Line | _] = lists:filter(Pred, Lines),
