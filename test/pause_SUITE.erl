@@ -159,7 +159,9 @@ long_pause_fails_over(Config) ->
 start(Config) ->
     ha_SUITE:start(Config).
 
-%% SIGSTOP of node I's OS process, SIGCONT Ms later.
+%% SIGSTOP of node I's OS process, SIGCONT Ms later. The pause's length is
+%% what the cases are about (under or over the lease, suspect_ms, the
+%% clients' heartbeats), so this sleep stays: no event marks its end.
 pause(C, I, Ms) ->
     ok = evatar_test_cluster:stall(C, I),
     timer:sleep(Ms),

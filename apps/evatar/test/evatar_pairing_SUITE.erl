@@ -199,6 +199,9 @@ progress_then_feedback(Id, Attempts) ->
 answer_in_time(_Av, _PrevSent, []) ->
     ok;
 answer_in_time(Av, PrevSent, [{Pause, SigId, Context} | Rest]) ->
+    %% The pause is the case's subject: real time must pass the feedback
+    %% timeout while the progress signals keep moving its deadline (the
+    %% pure rule is evatar_pairing_logic_tests' progress_extends_the_deadline).
     timer:sleep(Pause),
     Sent = erlang:monotonic_time(millisecond),
     ok = evatar:send(Av, ?E:signal(SigId, Context, ?LIGHT, ?EMU, <<"walk">>)),
