@@ -472,14 +472,12 @@ reconcile(S0) ->
     case ready(Peers, S) of
         false ->
             S;
-        true when S#s.pending =/= #{} ->
-            case write_pending(S) of
-                %% Again, with what was written among the entries.
-                #s{pending = Left} = S1 when Left =:= #{} -> reconcile(S1);
-                S1 -> start_owned(Entries, Local, Peers, S1)
-            end;
+        true when S#s.pending =:= #{} ->
+            start_owned(Entries, Local, Peers, S);
         true ->
-            start_owned(Entries, Local, Peers, S)
+            %% Read again: what was written is among the entries.
+            S1 = write_pending(S),
+            start_owned(entries(), Local, Peers, S1)
     end.
 
 %% Starts what this node owns of which no instance runs anywhere (once

@@ -74,7 +74,8 @@ gone(Pid) ->
             erlang:demonitor(Ref, [flush]),
             erlang:error({wait_timeout, #{what => {gone, Pid},
                                           waited_ms => evatar_test_time:guard(),
-                                          last_seen => erlang:process_info(Pid, current_stacktrace),
+                                          last_seen => [erlang:process_info(Pid, current_stacktrace)
+                                                        || node(Pid) =:= node()],
                                           polls => 1}})
     end.
 
