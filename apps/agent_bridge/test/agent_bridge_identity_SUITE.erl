@@ -188,8 +188,8 @@ hold_100000_requests(Config) ->
     N = 100000,
     Open = 1024,
     Self = self(),
-    %% Both sockets carry raw bytes from here on, framed by hand, so that
-    %% one write to the VA's holds a batch of frames.
+    %% Both sockets carry raw bytes from here on, framed by
+    %% agent_bridge_frame, so that one write to the VA's holds a batch.
     ok = inet:setopts(S, [{packet, raw}]),
     ok = inet:setopts(Va, [{packet, raw}]),
     Mute = spawn_link(fun() -> receive go -> ok end,
@@ -214,10 +214,7 @@ hold_100000_requests(Config) ->
                         end),
     ok = gen_tcp:controlling_process(Va, Reader),
     Reader ! go,
-    Frame = fun(I) ->
-                    Id = integer_to_binary(I),
-                    [<<(byte_size(Head) + byte_size(Id) + byte_size(Tail)):32>>, Head, Id, Tail]
-            end,
+    Frame = fun(I) -> agent_bridge_frame:encode([Head, integer_to_binary(I), Tail]) end,
     [ok = gen_tcp:send(Va, [Frame(I) || I <- lists:seq(B, min(N, B + 999))])
      || B <- lists:seq(1, N, 1000)],
     Forwarded = receive {forwarded, F} -> F end,
@@ -287,20 +284,25 @@ ids(S, Tag, Must, Count) ->
 
 ids(_S, _Tags, 0, _Buf, Acc) ->
     Acc;
-ids(S, {Open, Close, Must} = Tags, Count, <<Len:32, Frame:Len/binary, Rest/binary>>, Acc) ->
-    case binary:match(Frame, Open) of
-        {At, L} ->
-            From = At + L,
-            {To, _} = binary:match(Frame, Close, [{scope, {From, byte_size(Frame) - From}}]),
-            [exit({unexpected_frame, Frame}) || binary:match(Frame, Must) =:= nomatch],
-            ids(S, Tags, Count - 1, Rest, [binary:part(Frame, From, To - From) | Acc]);
-        nomatch ->
-            ids(S, Tags, Count, Rest, Acc)
-    end;
-ids(S, Tags, Count, Buf, Acc) ->
-    case gen_tcp:recv(S, 0, evatar_test_time:guard()) of
-        {ok, More} -> ids(S, Tags, Count, <<Buf/binary, More/binary>>, Acc);
-        {error, Why} -> exit({connection, Why, Count, length(Acc)})
+ids(S, {Open, Close, Must} = Tags, Count, Buf, Acc) ->
+    %% Any length the bridge may send (its frames here are a few KiB).
+    case agent_bridge_frame:decode(Buf, 16#1000000) of
+        {ok, Frame, Rest} ->
+            case binary:match(Frame, Open) of
+                {At, L} ->
+                    From = At + L,
+                    {To, _} = binary:match(Frame, Close,
+                                           [{scope, {From, byte_size(Frame) - From}}]),
+                    [exit({unexpected_frame, Frame}) || binary:match(Frame, Must) =:= nomatch],
+                    ids(S, Tags, Count - 1, Rest, [binary:part(Frame, From, To - From) | Acc]);
+                nomatch ->
+                    ids(S, Tags, Count, Rest, Acc)
+            end;
+        {more, _} ->
+            case gen_tcp:recv(S, 0, evatar_test_time:guard()) of
+                {ok, More} -> ids(S, Tags, Count, <<Buf/binary, More/binary>>, Acc);
+                {error, Why} -> exit({connection, Why, Count, length(Acc)})
+            end
     end.
 
 client(Config, Role, Entity, Cred) ->
