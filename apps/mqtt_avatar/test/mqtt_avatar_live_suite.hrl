@@ -10,7 +10,7 @@
 
 -compile([export_all, nowarn_export_all]).
 
--import(mqtt_avatar_test_setup, [remember/2, param/2]).
+-import(mqtt_avatar_test_setup, [remember/2]).
 
 -define(SETUP, mqtt_avatar_test_setup).
 

@@ -12,6 +12,7 @@
 -define(LIVE_LISTENER, mqtt_avatar_state_suite).
 -define(LIVE_CASE_PREFIX, "").
 -define(LIVE_FEEDBACK_MS, 1500).
+-import(mqtt_avatar_test_setup, [param/2]).
 -include("mqtt_avatar_live_suite.hrl").
 
 all() ->
