@@ -147,8 +147,10 @@ power_cut(Config) ->
     _ = [{ok, 1} = evatar_test_traffic:round_trip(P, ?FAILOVER_TIMEOUT) || P <- Pairs],
     ok = evatar_test_cluster:power_cut(C),
     Cut = erlang:monotonic_time(millisecond),
-    %% The clients queue signals while every node is down.
-    timer:sleep(1000),
+    %% The clients queue signals while every node is down: both entities
+    %% of every pair have sent one that no node acknowledged.
+    ok = evatar_test_wait:until(fun() -> evatar_test_traffic:queued(Pairs, Cut) end,
+                                #{what => signals_queued_while_down}),
     ok = evatar_test_cluster:restart_all(C),
     Started = erlang:monotonic_time(millisecond),
     ok = evatar_test_cluster:await(fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
@@ -332,6 +334,15 @@ partition(Config, Heal) ->
     ok = stop_watch(Watch),
     finish(Pair).
 
+%% Whether Id has its active on node A, synced, its one standby on node B
+%% and no other instance.
+standby_on(C, Id, A, B) ->
+    Statuses = evatar_test_pairing:statuses(C, Id),
+    case evatar_test_pairing:healthy(C, Id) andalso evatar_test_pairing:active(C, Id) of
+        {ok, A, #{standby_node := SN}} -> SN =:= evatar_test_cluster:node(C, B) orelse {false, Statuses};
+        _ -> {false, Statuses}
+    end.
+
 %% A partial (non-transitive) partition: only the link between the
 %% active's node and its standby's node is cut, the third node still
 %% reaches both. Each of the two has a majority with the third; still at
@@ -342,9 +353,13 @@ partial_partition(Config) ->
     {ok, 1, #{standby_node := SN}} = evatar_test_pairing:active(C, Id),
     S = evatar_test_cluster:index(C, SN),
     Watch = watch_actives(C, Id),
+    [T] = [I || I <- [2, 3], I =/= S],
     ok = evatar_test_cluster:cut(C, [{1, S}]),
-    %% Long enough for any suspicion, takeover and fencing to play out.
-    timer:sleep(evatar_test_time:cluster_ms(3000)),
+    %% The third node refuses the cut-off standby's takeover while it hears
+    %% the active, which stays, drops that standby and places a new one on
+    %% the third node (docs/ha.md section 6); the old standby stops.
+    ok = evatar_test_wait:until(fun() -> standby_on(C, Id, 1, T) end,
+                                #{what => {new_standby_on, T}}),
     {ok, _} = evatar_test_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
     ok = evatar_test_cluster:heal(C, flush),
     ok = evatar_test_cluster:await_formed(C, ?HEAL_TIMEOUT),

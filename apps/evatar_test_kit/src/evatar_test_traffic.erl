@@ -19,7 +19,8 @@
 
 -export([start_pair/3, start_entity/1, pairing_opts/0, stop_traffic/1, burst/2, dump/2, settle/2, settle/3, settle_accepted/2,
          history/1, close/1,
-         status/1, await_bound/2, round_trip/2, va_description/1, avatar_description/1]).
+         status/1, await_bound/2, round_trip/2, va_description/1, avatar_description/1,
+         since/2, carried/3, queued/2]).
 -export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2,
          terminate/2]).
 
@@ -162,6 +163,31 @@ history(Pair) -> histories(Pair).
 histories(#{va := Va, av := Av}) ->
     #{va => gen_server:call(Va, history, 30000), av => gen_server:call(Av, history, 30000)}.
 
+%% @doc What each entity of a pair did since the monotonic instant Since
+%% (ms of this node): how many signals it received from the other entity
+%% (each arrival counted), and how many it sent that no node acknowledged.
+-spec since(pair(), integer()) ->
+          #{va := #{received := non_neg_integer(), unacked := non_neg_integer()},
+            av := #{received := non_neg_integer(), unacked := non_neg_integer()}}.
+since(#{va := Va, av := Av}, Since) ->
+    #{va => gen_server:call(Va, {since, Since}, 30000), av => gen_server:call(Av, {since, Since}, 30000)}.
+
+%% @doc A probe for evatar_test_wait: every VA and every Avatar of Pairs
+%% received at least N signals since Since (the pairings carry traffic
+%% both ways); else {false, the counts}.
+-spec carried([pair()], integer(), non_neg_integer()) -> true | {false, [non_neg_integer()]}.
+carried(Pairs, Since, N) ->
+    Counts = [R || P <- Pairs, #{received := R} <- maps:values(since(P, Since))],
+    lists:all(fun(K) -> K >= N end, Counts) orelse {false, Counts}.
+
+%% @doc A probe for evatar_test_wait: every VA and every Avatar of Pairs
+%% holds a signal sent since Since that no node acknowledged (the clients
+%% queue while no node serves them); else {false, the counts}.
+-spec queued([pair()], integer()) -> true | {false, [non_neg_integer()]}.
+queued(Pairs, Since) ->
+    Counts = [U || P <- Pairs, #{unacked := U} <- maps:values(since(P, Since))],
+    lists:all(fun(K) -> K > 0 end, Counts) orelse {false, Counts}.
+
 %% @doc The Avatar entity sends N sensor signals at once (for throughput).
 -spec burst(pid(), pos_integer()) -> ok.
 burst(Avatar, N) -> gen_server:call(Avatar, {burst, N}, 120000).
@@ -256,6 +282,13 @@ handle_call(history, _From, S) ->
               accepted => lists:reverse(S#s.accepted),
               received => lists:reverse(S#s.received), mediator => lists:reverse(S#s.mediator),
               reconnects => lists:reverse(S#s.reconnects), closed => S#s.closed}, S};
+handle_call({since, Since}, _From, S) ->
+    Received = maps:fold(fun(_, Ats, N) -> N + length([At || At <- Ats, At >= Since]) end,
+                         0, S#s.received_at),
+    %% Newest first: only the signals sent since Since are looked at.
+    Recent = lists:takewhile(fun(Id) -> maps:get(Id, S#s.sent_at, Since) >= Since end, S#s.sent),
+    Unacked = length([Id || Id <- Recent, not is_map_key(Id, S#s.accepted_at)]),
+    {reply, #{received => Received, unacked => Unacked}, S};
 handle_call({burst, N}, _From, #s{role = avatar} = S) ->
     {reply, ok, lists:foldl(fun(_, Acc) -> send_sensor(Acc) end, S, lists:seq(1, N))};
 handle_call(status, _From, #s{client = C} = S) ->
