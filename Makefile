@@ -37,7 +37,7 @@ check: deps
 	@bash scripts/test.sh check
 
 ## Only the multi-node high-availability suites (real OS-process nodes, kill -9,
-## SIGSTOP, partitions through proxies, a 45 s nemesis); `make test` runs them too.
+## SIGSTOP, partitions through proxies, a nemesis of 16 faults); `make test` runs them too.
 test-ha: deps
 	$(REBAR) ct --dir test
 
