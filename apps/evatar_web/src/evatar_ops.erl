@@ -223,12 +223,7 @@ create(Id, Body) ->
         {ok, {ok, Opts}} ->
             case evatar:create_pairing(Id, Opts) of
                 {ok, _} -> created(Id);
-                {error, already_exists} ->
-                    err(409, <<"already_exists">>, <<"id">>,
-                        <<"a pairing with this id exists in the cluster">>);
-                {error, {disk_full, Dir}} -> disk_full(Dir);
-                {error, no_majority} -> no_majority();
-                {error, {bad_option, Bad}} -> bad_option(Bad)
+                {error, Why} -> refused(Id, Why)
             end;
         {{error, _} = Error, _} -> Error;
         {_, {error, _} = Error} -> Error
@@ -264,13 +259,10 @@ replace(Id, Opts) ->
         ok ->
             case evatar:delete_pairing(Id) of
                 ok -> recreate(Id, Opts, erlang:monotonic_time(millisecond) + ?RECREATE_WAIT_MS);
-                {error, {disk_full, Dir}} -> disk_full(Dir);
-                {error, no_majority} -> no_majority();
-                {error, not_found} -> not_found(Id);
-                {error, busy} -> busy(Id)
+                {error, Why} -> refused(Id, Why)
             end;
-        {error, {bad_option, Bad}} ->
-            bad_option(Bad)
+        {error, Why} ->
+            refused(Id, Why)
     end.
 
 %% The old instances go (the standby's node learns the deletion); until
@@ -286,13 +278,19 @@ recreate(Id, Opts, Deadline) ->
                              <<"the pairing was deleted but its old instances did not go in time; "
                                "create it again">>)
             end;
-        {error, {disk_full, Dir}} ->
-            disk_full(Dir);
-        {error, no_majority} ->
-            no_majority();
-        {error, {bad_option, Bad}} ->
-            bad_option(Bad)
+        {error, Why} ->
+            refused(Id, Why)
     end.
+
+%% What evatar's refusal of a change to pairing Id says over HTTP
+%% (docs/api.md, the error table).
+refused(_Id, already_exists) ->
+    err(409, <<"already_exists">>, <<"id">>, <<"a pairing with this id exists in the cluster">>);
+refused(_Id, {disk_full, Dir}) -> disk_full(Dir);
+refused(_Id, no_majority) -> no_majority();
+refused(_Id, {bad_option, Bad}) -> bad_option(Bad);
+refused(Id, not_found) -> not_found(Id);
+refused(Id, busy) -> busy(Id).
 
 %% A change this node cannot write: 507 Insufficient Storage.
 disk_full(Dir) ->
@@ -312,10 +310,7 @@ no_majority() ->
 delete(Id) ->
     case evatar:delete_pairing(Id) of
         ok -> ok;
-        {error, {disk_full, Dir}} -> disk_full(Dir);
-        {error, no_majority} -> no_majority();
-        {error, not_found} -> not_found(Id);
-        {error, busy} -> busy(Id)
+        {error, Why} -> refused(Id, Why)
     end.
 
 %% @doc Rotates one credential of a pairing: `{"role": "agent"|"avatar"}'
