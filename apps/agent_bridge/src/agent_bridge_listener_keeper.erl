@@ -64,11 +64,14 @@ status(Keeper) ->
 listener_sup(Keeper) ->
     gen_statem:call(Keeper, listener_sup, 15000).
 
+%% The states of the machine (the diagram above).
+-type state() :: waiting | running.
+
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
 -spec init({term(), agent_bridge:listener_opts(), first()}) ->
-          gen_statem:init_result(waiting | running) | {stop, term()}.
+          gen_statem:init_result(state()) | {stop, term()}.
 init({Name, Opts, First}) ->
     process_flag(trap_exit, true),
     logger:set_process_metadata(#{listener => Name, domain => [agent_bridge]}),
@@ -83,8 +86,8 @@ init({Name, Opts, First}) ->
             {ok, waiting, D2, [Retry]}
     end.
 
--spec handle_event(gen_statem:event_type(), term(), waiting | running, #d{}) ->
-          gen_statem:event_handler_result(waiting | running).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(state_timeout, start, waiting, D) ->
     case start(D) of
         {ok, D1} ->
@@ -111,7 +114,7 @@ handle_event({call, From}, status, State, D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), waiting | running, #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Reason, _State, #d{sup = undefined}) ->
     ok;
 terminate(_Reason, _State, #d{sup = Sup}) ->

@@ -46,18 +46,21 @@ start_link(Name, Opts) ->
 -spec runs(pid()) -> non_neg_integer().
 runs(Pid) -> gen_statem:call(Pid, runs).
 
+%% The states of the machine (the diagram above).
+-type state() :: running | backoff.
+
 -spec callback_mode() -> gen_statem:callback_mode_result().
 callback_mode() -> handle_event_function.
 
--spec init({term(), opts()}) -> gen_statem:init_result(backoff).
+-spec init({term(), opts()}) -> gen_statem:init_result(state()).
 init({Name, Opts}) ->
     process_flag(trap_exit, true),
     logger:update_process_metadata(#{port_connector => Name}),
     D = #d{name = Name, opts = Opts, delay = maps:get(backoff_min, Opts, 100)},
     {ok, backoff, D, [{state_timeout, 0, start}]}.
 
--spec handle_event(gen_statem:event_type(), term(), running | backoff, #d{}) ->
-          gen_statem:event_handler_result(running | backoff).
+-spec handle_event(gen_statem:event_type(), term(), state(), #d{}) ->
+          gen_statem:event_handler_result(state()).
 handle_event(state_timeout, start, backoff, D) ->
     {next_state, running, start_program(D)};
 handle_event({call, From}, runs, _State, #d{runs = N}) ->
@@ -77,7 +80,7 @@ handle_event(info, {'EXIT', Conn, Why}, running, #d{conn = Conn} = D) ->
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
--spec terminate(term(), running | backoff, #d{}) -> ok.
+-spec terminate(term(), state(), #d{}) -> ok.
 terminate(_Why, _State, #d{conn = Conn} = D) ->
     case Conn of
         undefined -> ok;
