@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # `make demo`: runs the demonstration on one embedded Erlang node, then exits;
 # it prints the address of the node's dashboard first (port 0: a free one).
-# Arguments are passed to reference_agents_demo:main/1 (see docs/scenarios.md).
+# Arguments are passed to evatar_demo:main/1 (see docs/scenarios.md).
 #
 # Stopping it (a kept node, --keep, too): Ctrl-C, or SIGTERM/SIGINT/SIGHUP to
-# this script or to the `make demo' that runs it, or reference_agents_demo:stop().
+# this script or to the `make demo' that runs it, or evatar_demo:stop().
 # from a remote shell. A signal asks the node to stop (init:stop/0) and kills
 # it if it has not stopped within 10 s.
 set -euo pipefail
@@ -23,7 +23,7 @@ usage: make demo [DEMO_ARGS="[home|mqtt|robots|rooms|bil] [--keep]" | DEMO_ARGS=
   spade    the holiday told with a SPADE agent (Python; installs SPADE in
            clients/python/.venv from PyPI; scripts/demo-spade.sh)
 Stop it (kept or not) with Ctrl-C, with `kill PID' (SIGTERM) of this script or
-of `make demo', or with reference_agents_demo:stop(). from a remote shell: the
+of `make demo', or with evatar_demo:stop(). from a remote shell: the
 node gets 10 s to stop cleanly, then it is killed.
 USAGE
     exit 0;;
@@ -50,7 +50,7 @@ erl -noshell -name "evatar_demo_$$@127.0.0.1" -kernel inet_dist_use_interface '{
            Other ->
              io:format(\"~nNo dashboard: ~tp~n\", [Other])
          end,
-         ok = reference_agents_demo:main($args), init:stop()." &
+         ok = evatar_demo:main($args), init:stop()." &
 node=$!
 # The node is a child, not exec'd, so a signal to this script (or make's
 # death) always reaches it: a kept node otherwise outlived a SIGTERM.

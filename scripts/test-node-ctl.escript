@@ -24,7 +24,7 @@
 %% --home starts the easy smart home (one gateway with every device) joined
 %% to PAIRING, on a clock at 17:55 on 2024-11-15 running at speed 2, with the
 %% holiday evening's script (an intruder at 21:40), as
-%% reference_agents_holiday does; --home-start YYYY-MM-DDTHH:MM starts the
+%% evatar_demo_holiday does; --home-start YYYY-MM-DDTHH:MM starts the
 %% clock at another date and time. --script chooses the people's script:
 %% holiday (the default), none, or a script file (docs/avatars.md section
 %% 4.3). --robots starts instead the LEGO arena with two robots, each
@@ -148,7 +148,7 @@ start_sim(#{home := Spec} = Opts, Endpoints) ->
     {ok, _} = application:ensure_all_started(avatar_sim),
     Clock = start_clock(Opts),
     Script = case maps:get(script, Opts, "holiday") of
-                 "holiday" -> #{script => reference_agents_holiday:default_script()};
+                 "holiday" -> #{script => evatar_demo_holiday:default_script()};
                  "none" -> #{script => []};
                  File -> #{script_file => File}
              end,
@@ -178,7 +178,7 @@ start_sim(_, _Endpoints) ->
     #{}.
 
 start_clock(Opts) ->
-    Start = maps:get(start, Opts, reference_agents_holiday:start_datetime()),
+    Start = maps:get(start, Opts, evatar_demo_holiday:start_datetime()),
     {ok, Clock} = avatar_sim:start_clock(#{speed => maps:get(speed, Opts, 2), tick => 500,
                                            start => Start,
                                            paused => maps:get(paused, Opts, false)}),

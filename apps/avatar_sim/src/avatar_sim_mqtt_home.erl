@@ -7,7 +7,7 @@
 %% and the devices' behaviour are avatar_sim's own home, reached through a
 %% private EVATAR pairing (the devices' "hardware"). That pairing is the
 %% caller's: a simulator does not drive the mediator, so the scenario's
-%% set-up creates it and deletes it (reference_agents_mqtt_home does both).
+%% set-up creates it and deletes it (evatar_demo_mqtt_home does both).
 %% docs/mqtt.md section 7.
 %%
 %% ```
@@ -90,7 +90,7 @@
 
 %% @doc Starts the MQTT home and returns once its MQTT Avatar has joined
 %% EVATAR (or, with `avatar => false', once every device is online). For
-%% `make demo' (reference_agents_mqtt_home:start/1 makes `hardware'):
+%% `make demo' (evatar_demo_mqtt_home:start/1 makes `hardware'):
 %% `avatar_sim_mqtt_home:start(#{mqtt => #{host => "127.0.0.1",
 %% port => 1883}, endpoints => [{{127,0,0,1}, 7400}], pairing => <<"home">>,
 %% credential => <<"...">>, hardware => #{pairing => <<"home-hw">>,

@@ -2,7 +2,7 @@
 %% simulated devices publishing Home Assistant discovery, the MQTT Avatar
 %% discovering them and joining EVATAR through a real bridge listener, and
 %% a VA whose body is smart_home_va.xml, unchanged, joined over TCP. The
-%% home starts through its scenario set-up (reference_agents_mqtt_home),
+%% home starts through its scenario set-up (evatar_demo_mqtt_home),
 %% which owns the private hardware pairing.
 -module(avatar_sim_mqtt_home_SUITE).
 
@@ -39,7 +39,7 @@ init_per_testcase(Case, Config) ->
 
 start_home(Config, Case, Pairing) ->
     Spool = filename:join(?config(priv_dir, Config), Case),
-    {ok, Home} = reference_agents_mqtt_home:start(
+    {ok, Home} = evatar_demo_mqtt_home:start(
                    #{mqtt => #{host => {127, 0, 0, 1}, port => maps:get(port, ?config(broker, Config))},
                      endpoints => [?config(addr, Config)],
                      pairing => Pairing, credential => ?AV_CRED,
@@ -52,7 +52,7 @@ start_home(Config, Case, Pairing) ->
 end_per_testcase(_Case, Config) ->
     _ = agent_bridge_client:close(?config(va, Config)),
     %% A case may have stopped it (and stopped the home it started).
-    _ = [ok = reference_agents_mqtt_home:stop(H) || H <- [?config(home, Config)], is_process_alive(H)],
+    _ = [ok = evatar_demo_mqtt_home:stop(H) || H <- [?config(home, Config)], is_process_alive(H)],
     _ = evatar:delete_pairing(?config(pairing, Config)),
     ok.
 
@@ -66,7 +66,7 @@ end_per_testcase(_Case, Config) ->
 %% that id, with this start's credentials, and the home works.
 stray_hardware_pairing_replaced(Config) ->
     Id = <<"mqtt-hardware-easy-home-mqtt">>,
-    ok = reference_agents_mqtt_home:stop(?config(home, Config)),
+    ok = evatar_demo_mqtt_home:stop(?config(home, Config)),
     [] = [I || I <- evatar:catalogued(), I =:= Id],
     %% What the killed start left: its pairing, with its credentials.
     {ok, _} = evatar:create_pairing(Id, #{agent_credential => <<"stale-agent">>,
@@ -83,7 +83,7 @@ stray_hardware_pairing_replaced(Config) ->
         [Id] = [I || I <- evatar:catalogued(), I =:= Id],
         {error, _} = evatar:join(Id, agent, <<"intruder">>, <<"stale-agent">>)
     after
-        ok = reference_agents_mqtt_home:stop(Home)
+        ok = evatar_demo_mqtt_home:stop(Home)
     end,
     [] = [I || I <- evatar:catalogued(), I =:= Id].
 

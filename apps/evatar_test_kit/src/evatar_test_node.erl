@@ -1,6 +1,6 @@
 %% @doc Test support, not a suite: the EVATAR node that the Common Test
-%% suites of several apps (agent_bridge, avatar_sim, evatar_web,
-%% mqtt_avatar, reference_agents) set up alike. Starts evatar, then
+%% suites of several apps (agent_bridge, avatar_sim, evatar_demo,
+%% evatar_web, mqtt_avatar, wot_avatar) set up alike. Starts evatar, then
 %% agent_bridge (in that order: see start/1), opens bridge listeners on
 %% 127.0.0.1 at a port the system picks, and runs a real mosquitto
 %% (evatar_test_mosquitto). The suites' credentials, pairings and other

@@ -2,7 +2,7 @@
 %% running on this node, for the dashboard's floor plan and arena
 %% (docs/dashboard.md). Any loaded application may name a function returning
 %% a list of JSON-ready scenes under its environment key `dashboard_scenes'
-%% (`{Module, Function, Args}'); avatar_sim and reference_agents do. So
+%% (`{Module, Function, Args}'); avatar_sim and evatar_demo do. So
 %% evatar_web depends on neither, and neither on evatar_web.
 -module(evatar_web_scenes).
 

@@ -323,11 +323,11 @@ start_worlds(Config) ->
 %% shows both entities, the bound edge, the unbound camera with its reason;
 %% a request sent by the VA appears in the live tail and flashes its edge;
 %% the graph's periodic redraw keeps the edge's count of signals. The
-%% simulated home's pairing (reference_agents_holiday) draws one edge per
+%% simulated home's pairing (evatar_demo_holiday) draws one edge per
 %% bound entry, no label under a box; the rooms show their whole device
 %% lists; the page fits a 390 px screen with a 400-character pairing id and
 %% entity id; the arena shows the names the robot VAs anchored (the robots
-%% story, started as `make demo' starts it, with reference_agents not
+%% story, started as `make demo' starts it, with evatar_demo not
 %% loaded); axe-core finds nothing serious or critical on any view, and each
 %% has a heading level one. Screenshots go to the logs.
 page_in_chromium(Config) ->
@@ -346,7 +346,7 @@ page_in_chromium(Config) ->
                                                avatar_credential => <<"lb">>,
                                                max_id_length => 512, join_timeout => 60000}),
     Long = start_long_avatar(Addr),
-    {ok, Holiday} = reference_agents_holiday:start(
+    {ok, Holiday} = evatar_demo_holiday:start(
                       #{print => false, spool => filename:join(Shots, "holiday-spool")}),
     Stories = #{holiday => Holiday, arena => Arena},
     try
@@ -365,8 +365,8 @@ page_in_chromium(Config) ->
         ok = Result
     after
         Left = case get(stories) of undefined -> Stories; S -> S end,
-        [ok = reference_agents_holiday:stop(H) || #{holiday := H} <- [Left]],
-        [ok = reference_agents_lego_scenario:stop(R) || #{robots := R} <- [Left]],
+        [ok = evatar_demo_holiday:stop(H) || #{holiday := H} <- [Left]],
+        [ok = evatar_demo_lego_scenario:stop(R) || #{robots := R} <- [Left]],
         [ok = avatar_sim:stop(A) || #{arena := A} <- [Left]],
         ok = avatar_sim:stop(Home),
         exit(Long, shutdown),
@@ -402,14 +402,14 @@ browser(Port, Va, Stories, Lines) ->
         {Port, {data, {eol, "robots"}}} ->
             ct:log("browser: robots; the holiday stops, the robots story starts"),
             #{holiday := H, arena := A} = Stories,
-            ok = reference_agents_holiday:stop(H),
+            ok = evatar_demo_holiday:stop(H),
             ok = avatar_sim:stop(A),
             %% As in `make demo': nothing has loaded the application.
-            case lists:keymember(reference_agents, 1, application:which_applications()) of
-                false -> _ = application:unload(reference_agents);
+            case lists:keymember(evatar_demo, 1, application:which_applications()) of
+                false -> _ = application:unload(evatar_demo);
                 true -> ok
             end,
-            {ok, R} = reference_agents_lego_scenario:start(#{print => false}),
+            {ok, R} = evatar_demo_lego_scenario:start(#{print => false}),
             browser(Port, Va, #{robots => R}, ["robots" | Lines]);
         {Port, {data, {eol, Line}}} ->
             ct:log("browser: ~ts", [Line]),

@@ -1,14 +1,19 @@
 %% @doc Public API of the reference Virtual Agents: Erlang VAs that join
 %% EVATAR through agent_bridge_client as any multi-agent system would, with
 %% sensor and actuator emulators built from their BIL body and an
-%% Observe-Choose-Act cycle around a pure mind (docs/scenarios.md). Also the
-%% paper's two scenarios, runnable on avatar_sim's simulated clock, and the
-%% rules file of the smart-home VAs (docs/rules.md).
+%% Observe-Choose-Act cycle around a pure mind (docs/scenarios.md), and the
+%% rules file of the smart-home VAs (docs/rules.md). The agents only: the
+%% scenarios that make listeners, pairings and simulated worlds for them are
+%% the demo's (evatar_demo), as a MAS of one's own brings its own set-up.
 -module(reference_agents).
 
 -export([start_va/1, stop_va/1, inspect/1, tell/3, introduce/2]).
 -export([parse_rules/1, rules_error/2]).
--export([holiday/1, robots/1, rooms/1]).
+-export([minute_of_day/1, lexicon_text/1, lexicons_agreed/1]).
+
+-export_type([va_opts/0]).
+
+-type va_opts() :: reference_agents_va:opts().
 
 %% @doc Starts a VA linked to the caller (see reference_agents_va:opts()):
 %% its name, its mind (a `reference_agents_mind' module and its arguments),
@@ -16,7 +21,7 @@
 %% and for an embodied VA the bridge endpoints, the pairing and the
 %% credential. The caller receives `{reference_agents, Name, Term}' for
 %% each `{notify, Term}' the mind chooses.
--spec start_va(reference_agents_va:opts()) -> {ok, pid()}.
+-spec start_va(va_opts()) -> {ok, pid()}.
 start_va(Opts) -> reference_agents_va:start_link(Opts).
 
 %% @doc Says Bye to EVATAR and stops the VA.
@@ -47,26 +52,16 @@ parse_rules(File) -> reference_agents_rules:parse_file(File).
 -spec rules_error(file:filename_all(), reference_agents_rules:error() | {file, term()}) -> binary().
 rules_error(File, Error) -> reference_agents_rules:format_error(File, Error).
 
-%% @doc Runs the smart-home scenario with one house VA (holiday policy and
-%% an intrusion by default) and returns what happened.
--spec holiday(reference_agents_holiday:opts()) -> {ok, map()} | {error, term()}.
-holiday(Opts) -> reference_agents_holiday:run(Opts).
+%% @doc The minute of the day `HH:MM' names (`HH:MM:SS' too), as the rules
+%% file reads times; `undefined' for anything else.
+-spec minute_of_day(binary()) -> 0..1439 | undefined.
+minute_of_day(HHMM) -> reference_agents_policy:minute(HHMM).
 
-%% @doc Runs the collaborative robots scenario to its end.
--spec robots(reference_agents_lego_scenario:opts()) -> {ok, map()} | {error, term()}.
-robots(Opts) -> reference_agents_lego_scenario:run(Opts).
+%% @doc A lexicon (a coordinator's or robot VA's `lexicon', from
+%% {@link inspect/1}) as one line for people.
+-spec lexicon_text(reference_agents_lexicon:lexicon()) -> iodata().
+lexicon_text(Lexicon) -> reference_agents_lexicon:encode(Lexicon).
 
-%% @doc Runs the one-VA-per-room light control scenario until `until'
-%% (16:45 by default) and returns what happened.
--spec rooms(reference_agents_rooms:opts()) -> {ok, map()} | {error, term()}.
-rooms(Opts) ->
-    case reference_agents_rooms:start(maps:remove(until, Opts)) of
-        {ok, S} ->
-            try
-                ok = reference_agents_rooms:run_until(S, maps:get(until, Opts, "16:45")),
-                {ok, reference_agents_rooms:outcome(S)}
-            after
-                reference_agents_rooms:stop(S)
-            end;
-        {error, _} = E -> E
-    end.
+%% @doc True when every lexicon given is the same one (and there is one).
+-spec lexicons_agreed([reference_agents_lexicon:lexicon()]) -> boolean().
+lexicons_agreed(Lexicons) -> reference_agents_lexicon:agreed(Lexicons).

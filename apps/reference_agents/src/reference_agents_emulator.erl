@@ -36,8 +36,9 @@
 new(#{entity_id := Entity} = Body) ->
     #t{entity = Entity, body = Body}.
 
-%% @doc Applies a Binding report (`evatar:binding_report()').
--spec bind(table(), evatar:binding_report()) -> table().
+%% @doc Applies a Binding report as the client receives it
+%% (`bil_control:binding_report()').
+-spec bind(table(), bil_control:binding_report()) -> table().
 bind(#t{entity = Me} = T, #{bound := Bound, unbound := Unbound}) ->
     Entries = entries(T#t.body),
     Links = [#{emulator => C, category => Cat, type => Type,

@@ -1,7 +1,8 @@
-%% @doc Internal. The narrator of a scenario: every VA tells it what it
-%% perceived, decided and did; it stamps each line with the simulated time,
-%% prints it when asked to (the demo) and keeps the whole story so tests can
-%% read it back ({@link events/1}).
+%% @doc The narrator of a scenario: every VA tells it what it perceived,
+%% decided and did; it stamps each line with the simulated time, prints it
+%% when asked to (the demo) and keeps the whole story so tests can read it
+%% back ({@link events/1}). Public (rebar.config's `Public'): the demo's
+%% scenarios (evatar_demo) start it, give it to their VAs and read it.
 -module(reference_agents_narrator).
 -behaviour(gen_server).
 

@@ -1,7 +1,7 @@
 """The AgentSpeak holiday VA (examples/holiday) against avatar_sim's
 simulated home joined to a real node (scripts/test-node-ctl.sh --home):
 the same outcome as the Erlang reference VA, checked as
-reference_agents_home_SUITE checks it (evening_light_schedule,
+evatar_demo_home_SUITE checks it (evening_light_schedule,
 intrusion_email_with_photos, and the sounds of intrusion_narrated)."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 two robot VAs embodied through EVATAR in robot1 and robot2 of
 ``scripts/sim-node.sh start robots``, talking in FIPA-ACL messages over
 SPADE's embedded XMPP server (conftest's ``xmpp``). Judged as
-reference_agents_lego_scenario_SUITE judges the Erlang agents: by the arena's
+evatar_demo_lego_scenario_SUITE judges the Erlang agents: by the arena's
 truth (every ball in its colour's zone, none held) and the lexicon all
 three hold; and by what the agents' XMPP clients received: every message
 a behaviour handled came through the server (the coordinator is in

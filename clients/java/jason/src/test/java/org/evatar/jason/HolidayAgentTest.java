@@ -23,7 +23,7 @@ import org.junit.jupiter.api.io.TempDir;
 
 /**
  * The Jason holiday agent against avatar_sim's simulated home on a real node:
- * the same evening and the same outcome as reference_agents_home_SUITE's
+ * the same evening and the same outcome as evatar_demo_home_SUITE's
  * holiday group (the evening light schedule; the intruder photographed,
  * reported by e-mail with the photos, warned off by the alarm and a message).
  */

@@ -6,7 +6,7 @@
 %% Failure cases: a device that never answers, a device that leaves and
 %% comes back, the whole gateway going away and back, a malformed rules
 %% file.
--module(reference_agents_home_SUITE).
+-module(evatar_demo_home_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -44,17 +44,17 @@ end_per_suite(_Config) ->
 %% One evening, shared by the cases of the group.
 init_per_group(holiday, Config) ->
     Spool = filename:join(?config(priv_dir, Config), "holiday-spool"),
-    {ok, Outcome} = reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool}),
+    {ok, Outcome} = evatar_demo_holiday:run(#{speed => ?SPEED, spool => Spool}),
     [{outcome, Outcome}, {spool, Spool} | Config];
 init_per_group(rooms, Config) ->
     Spool = filename:join(?config(priv_dir, Config), "rooms-spool"),
     %% Slower than the house alone: the hand-off is three VAs talking.
-    {ok, S} = reference_agents_rooms:start(#{speed => 1000, spool => Spool}),
+    {ok, S} = evatar_demo_rooms:start(#{speed => 1000, spool => Spool}),
     try
-        ok = reference_agents_rooms:run_until(S, "16:45"),
-        [{outcome, reference_agents_rooms:outcome(S)} | Config]
+        ok = evatar_demo_rooms:run_until(S, "16:45"),
+        [{outcome, evatar_demo_rooms:outcome(S)} | Config]
     after
-        reference_agents_rooms:stop(S)
+        evatar_demo_rooms:stop(S)
     end.
 
 end_per_group(_Group, _Config) ->
@@ -82,14 +82,14 @@ pairings() ->
 %% take photos and write an e-mail "INTRUSION" with them attached: a real
 %% MIME message in the spool, its PNG photos next to it.
 intrusion_email_with_photos(Config) ->
-    reference_agents_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
-                                                                ?config(spool, Config)).
+    evatar_demo_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
+                                                           ?config(spool, Config)).
 
 %% @doc The story tells, in order, the perceived activities, the complex
 %% activity, the decision of the policy and the actuations with their
 %% outcomes (the alarm sounded, the message played).
 intrusion_narrated(Config) ->
-    _ = reference_agents_holiday_checks:intrusion_narrated(?config(outcome, Config)),
+    _ = evatar_demo_holiday_checks:intrusion_narrated(?config(outcome, Config)),
     ok.
 
 %% @doc The holiday policy switches the lights as scheduled in the rules
@@ -97,15 +97,15 @@ intrusion_narrated(Config) ->
 %% before the next scheduled time (the VA hears the time once a simulated
 %% minute, and the clock runs far faster than the VA thinks).
 evening_light_schedule(Config) ->
-    reference_agents_holiday_checks:evening_light_schedule(?config(outcome, Config)).
+    evatar_demo_holiday_checks:evening_light_schedule(?config(outcome, Config)).
 
 %% @doc In June the sun sets after 21:00 in London: the 18:00 rule, which
 %% asks for darkness, does nothing.
 no_lights_in_daylight(Config) ->
     Spool = filename:join(?config(priv_dir, Config), "june"),
     {ok, #{home := #{light_log := Log}, va := #{mind := #{decisions := Decisions}}}} =
-        reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool,
-                                       start => {{2024, 6, 15}, {17, 55, 0}}, until => "18:10"}),
+        evatar_demo_holiday:run(#{speed => ?SPEED, spool => Spool,
+                                  start => {{2024, 6, 15}, {17, 55, 0}}, until => "18:10"}),
     ?assertEqual([], Log),
     ?assertEqual([], Decisions).
 
@@ -123,9 +123,9 @@ sleep_policy(Config) ->
               {{delay, 20000}, <<"intruder">>, {keypad, <<"1111">>}},
               {{at, "02:08"}, <<"intruder">>, {go, <<"outside">>}}],
     {ok, #{home := Home, va := #{mind := #{decisions := Decisions}}}} =
-        reference_agents_holiday:run(#{speed => ?SPEED div 4, spool => Spool, policy => <<"sleep">>,
-                                       start => {{2024, 11, 16}, {1, 55, 0}}, until => "02:10",
-                                       script => Script}),
+        evatar_demo_holiday:run(#{speed => ?SPEED div 4, spool => Spool, policy => <<"sleep">>,
+                                  start => {{2024, 11, 16}, {1, 55, 0}}, until => "02:10",
+                                  script => Script}),
     #{lights := Lights, sms := [#{text := <<"Intruder at home">>, file := SmsFile}],
       played := Played, photos := Photos, emails := []} = Home,
     ?assertEqual(#{<<"living">> => on, <<"kitchen">> => on, <<"bedroom">> => on}, Lights),
@@ -151,9 +151,9 @@ away_policy(Config) ->
               {{delay, 10000}, <<"intruder">>, {go, <<"hall">>}},
               {{delay, 60000}, <<"intruder">>, {go, <<"outside">>}}],
     {ok, #{home := Home}} =
-        reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool, policy => <<"away">>,
-                                       start => {{2024, 11, 15}, {17, 40, 0}}, until => "17:55",
-                                       script => Script}),
+        evatar_demo_holiday:run(#{speed => ?SPEED, spool => Spool, policy => <<"away">>,
+                                  start => {{2024, 11, 15}, {17, 40, 0}}, until => "17:55",
+                                  script => Script}),
     #{light_log := [#{room := <<"living">>, state := on}],
       emails := [#{subject := <<"INTRUSION">>, attachments := [_, _, _]}],
       sms := [#{text := <<"Intrusion at home: see your e-mail">>}]} = Home,
@@ -168,35 +168,35 @@ away_policy(Config) ->
 %% e-mail).
 device_never_answers(Config) ->
     Spool = filename:join(?config(priv_dir, Config), "mute"),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool,
-                                               start => {{2024, 11, 15}, {21, 35, 0}},
-                                               feedback_timeout =>
-                                                   evatar_test_time:ms(500)}),
+    {ok, S} = evatar_demo_holiday:start(#{speed => ?SPEED, spool => Spool,
+                                          start => {{2024, 11, 15}, {21, 35, 0}},
+                                          feedback_timeout =>
+                                              evatar_test_time:ms(500)}),
     try
-        Home = reference_agents_scenario:get(home, S),
+        Home = evatar_demo_scenario:get(home, S),
         ok = avatar_sim:mute(Home, <<"HallSpeaker01">>),
-        ok = reference_agents_holiday:run_until(S, "21:45"),
-        Va = reference_agents_scenario:get(va, S),
-        {ok, _} = reference_agents_scenario:await(
+        ok = evatar_demo_holiday:run_until(S, "21:45"),
+        Va = evatar_demo_scenario:get(va, S),
+        {ok, _} = evatar_demo_scenario:await(
                     fun() ->
-                            #{mind := #{outcomes := Os}} = reference_agents_va:inspect(Va),
+                            #{mind := #{outcomes := Os}} = reference_agents:inspect(Va),
                             Failed = [W || #{what := W, result := {failed, _}} <- Os],
                             case lists:sort(Failed) =:= [alarm, say] of
                                 true -> {true, Os};
                                 false -> false
                             end
                     end, 10000, speaker_timeouts),
-        #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+        #{mind := #{outcomes := Outcomes}} = reference_agents:inspect(Va),
         [<<"EVATAR Timeout", _/binary>>] =
             lists:usort([binary:part(W, 0, 14) || #{result := {failed, W}} <- Outcomes]),
         ?assertMatch([ok], [R || #{what := email, result := R} <- Outcomes]),
         #{emails := [#{attachments := [_, _, _]}], played := Played} = avatar_sim:state(Home),
         ?assertEqual([], [P || #{volume := V} = P <- Played, V > 0]),
-        Story = reference_agents_narrator:events(reference_agents_scenario:narrator(S)),
+        Story = reference_agents_narrator:events(evatar_demo_scenario:narrator(S)),
         ?assertMatch([_ | _], [T || #{text := T} <- Story,
                                     binary:match(T, <<"alarm FAILED: EVATAR Timeout">>) =/= nomatch])
     after
-        reference_agents_holiday:stop(S)
+        evatar_demo_holiday:stop(S)
     end.
 
 %% @doc The living room's light switch leaves the gateway: EVATAR rebinds,
@@ -213,8 +213,8 @@ detach_living_switch(S, Home, Va, Clock) ->
     ?assertMatch([_ | _], [E || {#{emulator := <<"LivingLightEmulator01">> = E}, _} <- Failed]),
     ok = avatar_sim:pause(Clock),
     ok = avatar_sim:set_speed(Clock, ?SPEED),
-    ok = reference_agents_holiday:run_until(S, "18:05"),
-    #{mind := #{outcomes := Outcomes}} = reference_agents_va:inspect(Va),
+    ok = evatar_demo_holiday:run_until(S, "18:05"),
+    #{mind := #{outcomes := Outcomes}} = reference_agents:inspect(Va),
     ?assertMatch([{failed, <<"TurnLightOn is not bound", _/binary>>}],
                  [R || #{tag := {light, <<"living">>, on, _}, result := R} <- Outcomes]),
     #{lights := #{<<"living">> := off}} = avatar_sim:state(Home),
@@ -222,14 +222,14 @@ detach_living_switch(S, Home, Va, Clock) ->
     ok = avatar_sim:resume(Clock),
     ok = avatar_sim:attach_device(Home, <<"LivingLightSwitch01">>),
     {ok, _} = await_verdict(Va, embodied),
-    {ok, _} = reference_agents_scenario:await(
+    {ok, _} = evatar_demo_scenario:await(
                 fun() ->
                         case avatar_sim:state(Home) of
                             #{lights := #{<<"living">> := on}} -> {true, on};
                             _ -> false
                         end
                 end, 10000, living_light_restored),
-    #{states := States} = reference_agents_va:inspect(Va),
+    #{states := States} = reference_agents:inspect(Va),
     ?assert(lists:suffix([testing, embodied, testing, embodied, testing, embodied],
                          dedupe([St || {St, _} <- States]))).
 
@@ -241,10 +241,10 @@ gateway_leaves_and_comes_back(Config) ->
 
 disconnect_gateway(_S, Home, Va, _Clock) ->
     ok = avatar_sim:disconnect(Home, <<"easy-home-01">>),
-    {ok, _} = reference_agents_scenario:await_va_state(Va, [observing], 10000, observing),
+    {ok, _} = evatar_demo_scenario:await_va_state(Va, [observing], 10000, observing),
     ok = avatar_sim:reconnect(Home, <<"easy-home-01">>),
     {ok, _} = await_verdict(Va, embodied),
-    #{states := States} = reference_agents_va:inspect(Va),
+    #{states := States} = reference_agents:inspect(Va),
     ?assert(lists:suffix([testing, embodied, observing, testing, embodied],
                          dedupe([St || {St, _} <- States]))).
 
@@ -259,7 +259,7 @@ malformed_rules_file(Config) ->
                                  "complex intruder when motion and failed within 2 min\n"
                                  "policy holiday on intruder do alarm\n"
                                  "policy holiday on intruder do explode\n">>),
-    {error, {rules, Message}} = reference_agents_holiday:start(
+    {error, {rules, Message}} = evatar_demo_holiday:start(
                                   #{rules => File, spool => ?config(priv_dir, Config)}),
     ct:log("~s", [Message]),
     Prefix = iolist_to_binary([File, ":7: unknown action explode"]),
@@ -340,29 +340,29 @@ no_room_light_before_dusk(Config) ->
 %% happens; the scenario is stopped whatever the outcome.
 live_evening(Config, Name, Case) ->
     Spool = filename:join(?config(priv_dir, Config), Name),
-    {ok, S} = reference_agents_holiday:start(#{speed => ?SPEED, spool => Spool}),
+    {ok, S} = evatar_demo_holiday:start(#{speed => ?SPEED, spool => Spool}),
     try
-        Home = reference_agents_scenario:get(home, S),
-        Va = reference_agents_scenario:get(va, S),
-        Clock = reference_agents_scenario:get(clock, S),
+        Home = evatar_demo_scenario:get(home, S),
+        Va = evatar_demo_scenario:get(va, S),
+        Clock = evatar_demo_scenario:get(clock, S),
         ok = avatar_sim:set_speed(Clock, 2),
         ok = avatar_sim:resume(Clock),
         Case(S, Home, Va, Clock)
     after
-        reference_agents_holiday:stop(S)
+        evatar_demo_holiday:stop(S)
     end.
 
 await_verdict(Va, Verdict) ->
-    reference_agents_scenario:await(
+    evatar_demo_scenario:await(
       fun() ->
-              case reference_agents_va:inspect(Va) of
+              case reference_agents:inspect(Va) of
                   #{state := embodied, embodiment := #{verdict := Verdict}} = I -> {true, I};
                   _ -> false
               end
       end, 15000, {verdict, Verdict}).
 
 minute(Ms) ->
-    reference_agents_holiday_checks:minute(Ms).
+    evatar_demo_holiday_checks:minute(Ms).
 
 %% Whether Wanted appear in Whats in this order (others may come between).
 in_order([], _Whats) -> true;

@@ -3,7 +3,7 @@
 %% themselves in them, a coordinator VA without an Avatar has them explore,
 %% builds and distributes the lexicon, and commands every ball to its zone.
 %% Checked against the simulated arena's truth.
--module(reference_agents_lego_scenario_SUITE).
+-module(evatar_demo_lego_scenario_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -19,7 +19,7 @@ all() ->
      every_ball_at_its_target, other_balls_other_targets].
 
 init_per_suite(Config) ->
-    {ok, Outcome} = reference_agents_lego_scenario:run(#{seed => 7, timeout => 90000}),
+    {ok, Outcome} = evatar_demo_lego_scenario:run(#{seed => 7, timeout => 90000}),
     [{outcome, Outcome} | Config].
 
 end_per_suite(_Config) ->
@@ -39,7 +39,7 @@ lexicon_agreed_by_all_three(Config) ->
     #{coordinator := #{mind := #{lexicon := L, phase := done}}, robots := Robots} =
         ?config(outcome, Config),
     Lexicons = [L | [maps:get(lexicon, maps:get(mind, R)) || R <- maps:values(Robots)]],
-    ?assert(reference_agents_lexicon:agreed(Lexicons)),
+    ?assert(reference_agents:lexicons_agreed(Lexicons)),
     ?assertEqual([<<"blue-ball">>, <<"green-ball">>, <<"red-ball">>],
                  reference_agents_lexicon:words(L)).
 
@@ -58,7 +58,7 @@ anchors_in_the_lexicon(Config) ->
 %% colour, and no robot holds one.
 every_ball_at_its_target(Config) ->
     #{arena := #{balls := Balls}, summary := #{given_up := GivenUp}} = ?config(outcome, Config),
-    Targets = reference_agents_lego_scenario:default_targets(),
+    Targets = evatar_demo_lego_scenario:default_targets(),
     ?assertEqual([], GivenUp),
     [?assertEqual({C, maps:get(C, Targets), none}, {C, Z, H})
      || #{colour := C, zone := Z, held_by := H} <- Balls].
@@ -68,5 +68,5 @@ every_ball_at_its_target(Config) ->
 other_balls_other_targets(_Config) ->
     Targets = #{<<"red">> => <<"nw">>, <<"green">> => <<"n">>, <<"blue">> => <<"se">>},
     {ok, #{arena := #{balls := Balls}}} =
-        reference_agents_lego_scenario:run(#{seed => 11, targets => Targets, timeout => 90000}),
+        evatar_demo_lego_scenario:run(#{seed => 11, targets => Targets, timeout => 90000}),
     [?assertEqual({C, maps:get(C, Targets)}, {C, Z}) || #{colour := C, zone := Z} <- Balls].

@@ -1,10 +1,10 @@
-%% @doc Runs the `make demo' narratives (reference_agents_demo:main/1) with
+%% @doc Runs the `make demo' narratives (evatar_demo:main/1) with
 %% their output captured, and checks that each tells the story it promises
 %% and cleans up after itself: the smart home on holiday (the default), the
 %% robots, and the BIL and EVATAR tour (the binding, the round trips, the
 %% timeout, the NotBound refusal, the operator's tables); `--keep' prints
 %% how to reach the node.
--module(reference_agents_demo_SUITE).
+-module(evatar_demo_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -49,7 +49,7 @@ end_per_testcase(_Case, _Config) ->
 demo_from_scratch(Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
-    {ok, Output} = reference_agents_demo_capture:run(["bil"]),
+    {ok, Output} = evatar_demo_capture:run(["bil"]),
     ok = check_story(Output),
     ?assertNot(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertNot(lists:keymember(evatar, 1, application:which_applications())),
@@ -63,7 +63,7 @@ demo_on_running_node(Config) ->
     Listeners = agent_bridge:listeners(),
     Pairings = [Id || #{id := Id} <- evatar:pairings()],
     true = lists:member(<<"bystander">>, Pairings),
-    {ok, Output} = reference_agents_demo_capture:run(["bil"]),
+    {ok, Output} = evatar_demo_capture:run(["bil"]),
     ok = check_story(Output),
     ?assert(lists:keymember(agent_bridge, 1, application:which_applications())),
     ?assertEqual(Pairings, [Id || #{id := Id} <- evatar:pairings()]),
@@ -77,7 +77,7 @@ demo_on_running_node(Config) ->
 home_demo(Config) ->
     _ = application:stop(agent_bridge),
     _ = application:stop(evatar),
-    {ok, Output} = reference_agents_demo_capture:run([]),
+    {ok, Output} = evatar_demo_capture:run([]),
     ct:log("~ts", [Output]),
     Patterns = ["\\[18:0[0-9]:[0-9]{2}\\] house-va +DECIDE +policy holiday at 18:00 if dark do light living on",
                 "\\[21:4[0-9]:[0-9]{2}\\] house-va +PERCEIVE +activity failed_authorisation in hall",
@@ -95,7 +95,7 @@ home_demo(Config) ->
 %% @doc `robots': the robots explore, the lexicon is agreed, every ball is
 %% placed, and the summary says so.
 robots_demo(_Config) ->
-    {ok, Output} = reference_agents_demo_capture:run(["robots"]),
+    {ok, Output} = evatar_demo_capture:run(["robots"]),
     ct:log("~ts", [Output]),
     Expected = ["coordinator", "every robot VA is embodied", "lexicon built: blue-ball (blue), "
                 "green-ball (green), red-ball (red)", "every ball is at its target",
@@ -104,18 +104,18 @@ robots_demo(_Config) ->
 
 %% @doc `--keep' leaves the node running after the demo, prints the node's
 %% name and the command to reach it from a remote shell, and returns once
-%% reference_agents_demo:stop/0 is called.
+%% evatar_demo:stop/0 is called.
 keep_prints_the_remote_shell_command(Config) ->
     Old = group_leader(),
-    Capture = reference_agents_demo_capture:start(),
+    Capture = evatar_demo_capture:start(),
     true = group_leader(Capture, self()),
     Self = self(),
-    Demo = spawn(fun() -> Self ! {result, self(), reference_agents_demo:main(["bil", "--keep"])} end),
+    Demo = spawn(fun() -> Self ! {result, self(), evatar_demo:main(["bil", "--keep"])} end),
     true = group_leader(Old, self()),
-    {ok, Text} = reference_agents_scenario:await(
+    {ok, Text} = evatar_demo_scenario:await(
                    fun() ->
-                           T = reference_agents_demo_capture:peek(Capture),
-                           case string:find(T, "reference_agents_demo:stop()") of
+                           T = evatar_demo_capture:peek(Capture),
+                           case string:find(T, "evatar_demo:stop()") of
                                nomatch -> false;
                                _ -> {true, T}
                            end
@@ -127,7 +127,7 @@ keep_prints_the_remote_shell_command(Config) ->
         nonode@nohost -> ok;
         Node -> ?assertNotEqual(nomatch, string:find(Text, "-remsh " ++ atom_to_list(Node)))
     end,
-    ok = reference_agents_demo:stop(),
+    ok = evatar_demo:stop(),
     receive {result, Demo, Result} -> ?assertEqual(ok, Result)
     after evatar_test_time:guard() -> ct:fail(demo_did_not_return)
     end,
@@ -178,6 +178,6 @@ check_story(Output) ->
 
 agent_bridge_address() ->
     case lists:keymember(agent_bridge, 1, application:which_applications()) of
-        true -> agent_bridge:address(reference_agents_tour);
+        true -> agent_bridge:address(evatar_demo_tour);
         false -> {error, not_found}
     end.

@@ -1,15 +1,23 @@
-%% @doc The `make demo' entry point (scripts/demo.sh calls {@link main/1}
-%% with the words of `DEMO_ARGS'). Without arguments it runs the smart-home
-%% holiday scenario with an intrusion and narrates every perceived
-%% activity, decision and actuation with its simulated time; `robots' runs
-%% the collaborative LEGO robots instead, `bil' the tour of BIL and EVATAR
-%% over TCP; `mqtt' runs the holiday with the house's devices on MQTT (a
-%% mosquitto of the demo's own). `--keep' leaves the node running for
-%% inspection from a remote shell. docs/scenarios.md says what a person
-%% sees.
--module(reference_agents_demo).
+%% @doc Public API of the demo: the wiring around the reference VAs
+%% (reference_agents) that gives them a world to live in, on one node that
+%% runs EVATAR: listeners, pairings, the simulated Avatars (avatar_sim), a
+%% mosquitto for the MQTT home, and the paper's scenarios
+%% (docs/scenarios.md). {@link holiday/1}, {@link robots/1} and
+%% {@link rooms/1} run a scenario to its end and return what happened.
+%%
+%% It is also the `make demo' entry point (scripts/demo.sh calls {@link
+%% main/1} with the words of `DEMO_ARGS'). Without arguments it runs the
+%% smart-home holiday scenario with an intrusion and narrates every
+%% perceived activity, decision and actuation with its simulated time;
+%% `robots' runs the collaborative LEGO robots instead, `bil' the tour of
+%% BIL and EVATAR over TCP; `mqtt' runs the holiday with the house's
+%% devices on MQTT (a mosquitto of the demo's own). `--keep' leaves the
+%% node running for inspection from a remote shell. docs/scenarios.md says
+%% what a person sees.
+-module(evatar_demo).
 
 -export([main/1, inspect/0, stop/0]).
+-export([holiday/1, robots/1, rooms/1]).
 
 -define(KEPT, {?MODULE, kept}).
 
@@ -64,7 +72,7 @@ quietly(Fun) ->
     end.
 
 run(bil, Keep) ->
-    ok = reference_agents_tour:main(),
+    ok = evatar_demo_tour:main(),
     keep(Keep, none);
 run(mqtt, Keep) ->
     header("The easy smart home on holiday, its devices on MQTT (paper, section 3.2)",
@@ -79,14 +87,14 @@ run(mqtt, Keep) ->
             "apps/reference_agents/priv/home.rules, lights on and off in the evening when it "
             "is dark, and at 21:40 somebody who does not know the code tries the door.",
             "Simulated time runs 1000 times faster than real time; each line starts with it."]),
-    case reference_agents_holiday:start(#{print => true, spool => "spool", mqtt => true}) of
+    case evatar_demo_holiday:start(#{print => true, spool => "spool", mqtt => true}) of
         {ok, S} ->
-            ok = reference_agents_holiday:run_until(S, "22:05"),
-            #{home := Home, va := Va} = Outcome = reference_agents_holiday:outcome(S),
+            ok = evatar_demo_holiday:run_until(S, "22:05"),
+            #{home := Home, va := Va} = Outcome = evatar_demo_holiday:outcome(S),
             mqtt_summary(Outcome, Keep),
             home_summary(Home, Va),
             ok = login_note(Keep, S),
-            finish(Keep, S, fun reference_agents_holiday:stop/1);
+            finish(Keep, S, fun evatar_demo_holiday:stop/1);
         {error, {broker, Message}} ->
             {error, Message};
         {error, Why} ->
@@ -101,25 +109,25 @@ run(home, Keep) ->
             "dark, so that the house looks inhabited; and at 21:40 somebody who does not know "
             "the code tries the door.",
             "Simulated time runs 1000 times faster than real time; each line starts with it."]),
-    {ok, S} = reference_agents_holiday:start(#{print => true, spool => "spool"}),
-    ok = reference_agents_holiday:run_until(S, "22:05"),
-    #{home := Home, va := Va} = reference_agents_holiday:outcome(S),
+    {ok, S} = evatar_demo_holiday:start(#{print => true, spool => "spool"}),
+    ok = evatar_demo_holiday:run_until(S, "22:05"),
+    #{home := Home, va := Va} = evatar_demo_holiday:outcome(S),
     home_summary(Home, Va),
     ok = login_note(Keep, S),
-    finish(Keep, S, fun reference_agents_holiday:stop/1);
+    finish(Keep, S, fun evatar_demo_holiday:stop/1);
 run(rooms, Keep) ->
     header("Light control, one VA per room (paper, section 3.2)",
            ["The living room, the kitchen and the bedroom each have their own VA, embodied in "
             "that room's devices. The resident comes home before sunset and walks about; the "
             "room VAs switch lights on when it is dark, hand the resident over to each other, "
             "and obey voice commands in the living room."]),
-    {ok, S} = reference_agents_rooms:start(#{print => true, spool => "spool"}),
-    ok = reference_agents_rooms:run_until(S, "16:45"),
-    #{home := #{light_log := Log}} = reference_agents_rooms:outcome(S),
+    {ok, S} = evatar_demo_rooms:start(#{print => true, spool => "spool"}),
+    ok = evatar_demo_rooms:run_until(S, "16:45"),
+    #{home := #{light_log := Log}} = evatar_demo_rooms:outcome(S),
     section("What the lights did"),
     [io:format("  ~s  ~-8s ~s~n", [reference_agents_narrator:format_time(T), Room, State])
      || #{time := T, room := Room, state := State} <- Log],
-    finish(Keep, S, fun reference_agents_rooms:stop/1);
+    finish(Keep, S, fun evatar_demo_rooms:stop/1);
 run(robots, Keep) ->
     header("Collaborative LEGO robots (paper, section 3.1)",
            ["Two simulated LEGO robots and three balls of unknown colours in a 2 x 1.5 m arena. "
@@ -127,20 +135,20 @@ run(robots, Keep) ->
             "The robots explore and anchor what they see, the coordinator builds a lexicon from "
             "their reports and shares it, then has them place every ball in its zone.",
             "Simulated time runs 40 times faster than real time."]),
-    {ok, S} = reference_agents_lego_scenario:start(#{print => true}),
-    Result = reference_agents_lego_scenario:run_to_end(S, 300000),
-    Outcome = reference_agents_lego_scenario:outcome(S),
+    {ok, S} = evatar_demo_lego_scenario:start(#{print => true}),
+    Result = evatar_demo_lego_scenario:run_to_end(S, 300000),
+    Outcome = evatar_demo_lego_scenario:outcome(S),
     robots_summary(Result, Outcome),
-    finish(Keep, S, fun reference_agents_lego_scenario:stop/1).
+    finish(Keep, S, fun evatar_demo_lego_scenario:stop/1).
 
 %% A kept house is for a VA of one's own (docs/clients.md): a pairing has
 %% one agent, so the house VA, its story told, leaves it.
 login_note(false, _S) ->
     ok;
 login_note(true, S) ->
-    ok = reference_agents_va:stop(reference_agents_scenario:get(va, S)),
+    ok = reference_agents:stop_va(evatar_demo_scenario:get(va, S)),
     #{endpoint := {Ip, Port}, pairing := Pairing, credential := Credential} =
-        reference_agents_holiday:login(S),
+        evatar_demo_holiday:login(S),
     section("Your own VA"),
     io:format("  The house VA has left the pairing: a VA of your own can take its place.~n"
               "  EVATAR listens on ~s:~b, pairing ~s, credential ~s (docs/clients.md).~n",
@@ -171,10 +179,10 @@ keep(true, S) ->
             io:format("  Node: ~s~n"
                       "  From another terminal:  erl ~s probe@~s -remsh ~s~n"
                       "  Then for example:       evatar:print_pairings().  "
-                      "reference_agents_demo:inspect().~n", [Node, NameFlag, Host, Node])
+                      "evatar_demo:inspect().~n", [Node, NameFlag, Host, Node])
     end,
     io:format("  Stop it with Ctrl-C here, a SIGTERM to make demo (scripts/demo.sh --help), "
-              "or reference_agents_demo:stop(). from the remote shell.~n"),
+              "or evatar_demo:stop(). from the remote shell.~n"),
     receive
         {?MODULE, stop} ->
             _ = persistent_term:erase(?KEPT),
@@ -201,13 +209,37 @@ inspect() ->
         {S, _Pid} ->
             Vas = lists:append([maps:values(X) || X <- [safe_get(room_vas, S), safe_get(robot_vas, S)]])
                 ++ [V || K <- [va, coordinator], V <- [safe_get(K, S)], is_pid(V)],
-            [io:format("~p~n", [reference_agents_va:inspect(Va)]) || Va <- Vas],
+            [io:format("~p~n", [reference_agents:inspect(Va)]) || Va <- Vas],
             ok
     end.
 
 safe_get(Key, S) ->
-    try reference_agents_scenario:get(Key, S)
+    try evatar_demo_scenario:get(Key, S)
     catch error:{badkey, _} -> #{}
+    end.
+
+%% @doc Runs the smart-home scenario with one house VA (holiday policy and
+%% an intrusion by default) and returns what happened.
+-spec holiday(evatar_demo_holiday:opts()) -> {ok, map()} | {error, term()}.
+holiday(Opts) -> evatar_demo_holiday:run(Opts).
+
+%% @doc Runs the collaborative robots scenario to its end.
+-spec robots(evatar_demo_lego_scenario:opts()) -> {ok, map()} | {error, term()}.
+robots(Opts) -> evatar_demo_lego_scenario:run(Opts).
+
+%% @doc Runs the one-VA-per-room light control scenario until `until'
+%% (16:45 by default) and returns what happened.
+-spec rooms(evatar_demo_rooms:opts()) -> {ok, map()} | {error, term()}.
+rooms(Opts) ->
+    case evatar_demo_rooms:start(maps:remove(until, Opts)) of
+        {ok, S} ->
+            try
+                ok = evatar_demo_rooms:run_until(S, maps:get(until, Opts, "16:45")),
+                {ok, evatar_demo_rooms:outcome(S)}
+            after
+                evatar_demo_rooms:stop(S)
+            end;
+        {error, _} = E -> E
     end.
 
 %% ---------------------------------------------------------------------------
@@ -284,10 +316,10 @@ robots_summary(Result, #{coordinator := #{mind := C}, robots := Robots,
     Lexicons = [maps:get(lexicon, C) | [maps:get(lexicon, maps:get(mind, R)) || R <- maps:values(Robots)]],
     io:format("  lexicon: ~s~n", [case maps:get(lexicon, C) of
                                       undefined -> "none";
-                                      L -> reference_agents_lexicon:encode(L)
+                                      L -> reference_agents:lexicon_text(L)
                                   end]),
     io:format("  held by all three VAs: ~s~n",
-              [case reference_agents_lexicon:agreed(Lexicons) of true -> "yes"; false -> "NO" end]),
+              [case reference_agents:lexicons_agreed(Lexicons) of true -> "yes"; false -> "NO" end]),
     [io:format("  ~s ball at (~b, ~b): ~s~n",
                [Col, round(X), round(Y), case Z of none -> "not in a zone"; _ -> ["zone ", Z] end])
      || #{colour := Col, x := X, y := Y, zone := Z} <- Balls],

@@ -4,13 +4,13 @@
 %% pairing. The resident walks from room to room after dusk and talks to
 %% the living room's microphone; the room VAs switch the lights and hand
 %% the user over to each other.
--module(reference_agents_rooms).
+-module(evatar_demo_rooms).
 
 -export([start/1, run_until/2, outcome/1, stop/1, default_script/0, rooms/0]).
 
 -export_type([opts/0]).
 
-%% `until' is for reference_agents:rooms/1 (start/1 ignores it).
+%% `until' is for evatar_demo:rooms/1 (start/1 ignores it).
 -type opts() :: #{speed => number(), tick => pos_integer(), seed => integer(),
                   start => calendar:datetime(), script => list(), until => string(),
                   spool => file:filename(), feedback_timeout => pos_integer(),
@@ -54,37 +54,37 @@ default_script() ->
 
 %% @doc Sets everything up; returns once every room VA is embodied, with
 %% the simulated clock paused.
--spec start(opts()) -> {ok, reference_agents_scenario:scenario()} | {error, term()}.
+-spec start(opts()) -> {ok, evatar_demo_scenario:scenario()} | {error, term()}.
 start(Opts) ->
-    {ok, S0} = reference_agents_scenario:start(
+    {ok, S0} = evatar_demo_scenario:start(
                  (maps:with([print, io], Opts))#{name => rooms,
                                                  clock => #{speed => 2, tick => maps:get(tick, Opts, 500),
                                                             start => maps:get(start, Opts,
                                                                               {{2024, 11, 15}, {15, 50, 0}})}}),
-    Clock = reference_agents_scenario:get(clock, S0),
-    {ok, Rules} = reference_agents_rules:parse_file(
-                    filename:join(reference_agents_scenario:priv_dir(), "home.rules")),
+    Clock = evatar_demo_scenario:get(clock, S0),
+    {ok, Rules} = reference_agents:parse_rules(
+                    filename:join(evatar_demo_scenario:priv_dir(), "home.rules")),
     Rooms = rooms(),
     Timeout = maps:get(feedback_timeout, Opts, 5000),
     S1 = lists:foldl(fun({Room, _, _}, Acc) ->
-                             reference_agents_scenario:pairing(
+                             evatar_demo_scenario:pairing(
                                pairing(Room), #{agent_credential => <<"va-", Room/binary>>,
                                                 avatar_credential => <<"gw-", Room/binary>>,
                                                 feedback_timeout => Timeout}, Acc)
                      end, S0, Rooms),
     {ok, Home} = avatar_sim:start_home(
                    #{clock => Clock, seed => maps:get(seed, Opts, 1),
-                     endpoints => [reference_agents_scenario:endpoint(S1)],
+                     endpoints => [evatar_demo_scenario:endpoint(S1)],
                      gateways => [#{pairing => pairing(Room), credential => <<"gw-", Room/binary>>,
                                     entity_id => <<"gateway-", Room/binary>>,
                                     components => Devices} || {Room, Devices, _} <- Rooms],
                      spool => maps:get(spool, Opts, "spool"),
                      script => maps:get(script, Opts, default_script())}),
-    S2 = reference_agents_scenario:add(home, Home,
-                                       reference_agents_scenario:add(avatars, [Home], S1)),
+    S2 = evatar_demo_scenario:add(home, Home,
+                                  evatar_demo_scenario:add(avatars, [Home], S1)),
     %% Each room's VA starts once its gateway has described the room's
     %% devices to EVATAR, so its first embodiment test is of the whole room.
-    Described = [reference_agents_scenario:await_described(pairing(Room), Devices, 30000)
+    Described = [evatar_demo_scenario:await_described(pairing(Room), Devices, 30000)
                  || {Room, Devices, _} <- Rooms],
     case [E || {error, _} = E <- Described] of
         [] ->
@@ -95,7 +95,7 @@ start(Opts) ->
     end.
 
 start_vas(Opts, Rules, Rooms, Clock, S2) ->
-    Full = reference_agents_scenario:body("smart_home_va.xml"),
+    Full = evatar_demo_scenario:body("smart_home_va.xml"),
     Names = [va(Room) || {Room, _, _} <- Rooms],
     %% The clock follows the VA with the time sensor, the living room's (the
     %% others hear nothing while their room is empty); as every VA sees the
@@ -104,10 +104,10 @@ start_vas(Opts, Rules, Rooms, Clock, S2) ->
     {Vas, S3} = lists:foldl(
                   fun({Room, _, Emulators}, {Acc, SAcc}) ->
                           Name = va(Room),
-                          Body = reference_agents_scenario:body_subset(Full, Name, Emulators),
+                          Body = evatar_demo_scenario:body_subset(Full, Name, Emulators),
                           Follow = maps:from_list([{seen, Seen} || lists:member(<<"TimeEmulator01">>,
                                                                                  Emulators)]),
-                          {Va, SAcc1} = reference_agents_scenario:start_va(
+                          {Va, SAcc1} = evatar_demo_scenario:start_va(
                                           Follow#{name => Name, mind => reference_agents_room,
                                                   mind_args => #{room => Room, body => Body, rules => Rules,
                                                                  peers => Names -- [Name]},
@@ -115,15 +115,15 @@ start_vas(Opts, Rules, Rooms, Clock, S2) ->
                                                   credential => <<"va-", Room/binary>>}, SAcc),
                           {Acc#{Name => Va}, SAcc1}
                   end, {#{}, S2}, Rooms),
-    _ = [reference_agents_va:introduce(Va, maps:remove(Name, Vas)) || {Name, Va} <- maps:to_list(Vas)],
-    S4 = reference_agents_scenario:add(room_vas, Vas, S3),
-    Embodied = [reference_agents_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
+    _ = [reference_agents:introduce(Va, maps:remove(Name, Vas)) || {Name, Va} <- maps:to_list(Vas)],
+    S4 = evatar_demo_scenario:add(room_vas, Vas, S3),
+    Embodied = [evatar_demo_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
                 || {Name, Va} <- maps:to_list(Vas)],
     case [E || {error, _} = E <- Embodied] of
         [] ->
             ok = avatar_sim:pause(Clock),
             ok = avatar_sim:set_speed(Clock, maps:get(speed, Opts, 1000)),
-            {ok, reference_agents_scenario:follow(S4, Seen)};
+            {ok, evatar_demo_scenario:follow(S4, Seen)};
         [E | _] ->
             ok = stop(S4),
             E
@@ -132,15 +132,15 @@ start_vas(Opts, Rules, Rooms, Clock, S2) ->
 pairing(Room) -> <<"home-", Room/binary>>.
 va(Room) -> <<Room/binary, "-va">>.
 
--spec run_until(reference_agents_scenario:scenario(), string()) -> ok | {error, term()}.
-run_until(S, HHMM) -> reference_agents_holiday:run_until(S, HHMM).
+-spec run_until(evatar_demo_scenario:scenario(), string()) -> ok | {error, term()}.
+run_until(S, HHMM) -> evatar_demo_holiday:run_until(S, HHMM).
 
--spec outcome(reference_agents_scenario:scenario()) -> map().
+-spec outcome(evatar_demo_scenario:scenario()) -> map().
 outcome(S) ->
-    Vas = reference_agents_scenario:get(room_vas, S),
-    #{vas => maps:map(fun(_, Va) -> reference_agents_va:inspect(Va) end, Vas),
-      home => avatar_sim:state(reference_agents_scenario:get(home, S)),
-      story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))}.
+    Vas = evatar_demo_scenario:get(room_vas, S),
+    #{vas => maps:map(fun(_, Va) -> reference_agents:inspect(Va) end, Vas),
+      home => avatar_sim:state(evatar_demo_scenario:get(home, S)),
+      story => reference_agents_narrator:events(evatar_demo_scenario:narrator(S))}.
 
--spec stop(reference_agents_scenario:scenario()) -> ok.
-stop(S) -> reference_agents_scenario:stop(S).
+-spec stop(evatar_demo_scenario:scenario()) -> ok.
+stop(S) -> evatar_demo_scenario:stop(S).

@@ -3,7 +3,7 @@
 %% default listener), a listener of its own on a free loopback port, the
 %% pairings, a narrator, the VAs, and the way to wait for things to happen
 %% and to clean everything up again.
--module(reference_agents_scenario).
+-module(evatar_demo_scenario).
 
 -export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, await_described/3, embodied/1,
          follow/2, settle/1,
@@ -27,7 +27,7 @@ start(#{name := Name, clock := ClockOpts} = Opts) ->
     {Started, Restore} = start_apps(),
     {ok, SimClock} = avatar_sim:start_clock(ClockOpts),
     Clock = fun() -> avatar_sim:now(SimClock) end,
-    Listener = {reference_agents, Name, erlang:unique_integer([positive])},
+    Listener = {evatar_demo, Name, erlang:unique_integer([positive])},
     {ok, _} = agent_bridge:start_listener(Listener, #{ip => {127, 0, 0, 1}, port => 0}),
     {ok, Endpoint} = agent_bridge:address(Listener),
     {ok, Narrator} = reference_agents_narrator:start_link((maps:with([print, io], Opts))#{clock => Clock}),
@@ -61,11 +61,11 @@ pairing(Id, Opts, #{pairings := Ps} = S) ->
     {ok, _} = evatar:create_pairing(Id, Opts),
     S#{pairings := [Id | Ps]}.
 
-%% @doc Starts a VA (reference_agents_va options; endpoints and narrator
+%% @doc Starts a VA (reference_agents:start_va/1 options; endpoints and narrator
 %% are filled in).
--spec start_va(reference_agents_va:opts(), scenario()) -> {pid(), scenario()}.
+-spec start_va(reference_agents:va_opts(), scenario()) -> {pid(), scenario()}.
 start_va(Opts, #{endpoint := E, narrator := N, vas := Vas} = S) ->
-    {ok, Pid} = reference_agents_va:start_link(
+    {ok, Pid} = reference_agents:start_va(
                   maps:merge(#{endpoints => [E], narrator => N}, Opts)),
     {Pid, S#{vas := [Pid | Vas]}}.
 
@@ -92,7 +92,7 @@ await_loop(Pred, Deadline, What) ->
           {ok, map()} | {error, {timeout, term()}}.
 await_va_state(Va, States, Ms, What) ->
     await(fun() ->
-                  #{state := St} = I = reference_agents_va:inspect(Va),
+                  #{state := St} = I = reference_agents:inspect(Va),
                   case lists:member(St, States) of
                       true -> {true, I};
                       false -> false
@@ -127,7 +127,7 @@ described(Id) ->
 %% @doc True when the VA's last embodiment test passed completely.
 -spec embodied(pid()) -> boolean().
 embodied(Va) ->
-    case reference_agents_va:inspect(Va) of
+    case reference_agents:inspect(Va) of
         #{state := embodied, embodiment := #{verdict := embodied}} -> true;
         _ -> false
     end.
@@ -159,7 +159,7 @@ settle(#{vas := Vas, extra := #{seen := Seen, home := Home}}) ->
                                 lists:keymember(<<"TimeOfDay">>, 1, Ps)]]),
     Settled = fun() ->
                       atomics:get(Seen, 1) >= Last andalso
-                          lists:all(fun(Va) -> maps:get(pending, reference_agents_va:inspect(Va)) =:= 0
+                          lists:all(fun(Va) -> maps:get(pending, reference_agents:inspect(Va)) =:= 0
                                     end, Vas)
                           andalso {true, ok}
               end,
@@ -199,7 +199,7 @@ say(#{narrator := N}, Kind, Text) ->
 -spec stop(scenario()) -> ok.
 stop(#{vas := Vas, pairings := Ps, listener := L, narrator := N, started := Started,
        restore := Restore, extra := X}) ->
-    lists:foreach(fun(Va) -> catch reference_agents_va:stop(Va) end, Vas),
+    lists:foreach(fun(Va) -> catch reference_agents:stop_va(Va) end, Vas),
     lists:foreach(fun(F) -> catch F() end, maps:get(on_stop, X, [])),
     lists:foreach(fun(A) -> catch avatar_sim:stop(A) end, maps:get(avatars, X, [])),
     case X of

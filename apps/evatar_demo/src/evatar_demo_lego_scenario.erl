@@ -4,7 +4,7 @@
 %% Avatar sends them to explore, builds the lexicon from what they anchored,
 %% distributes it, and has them pick every ball and place it at its target
 %% zone. VA-to-VA messages go directly between the Erlang processes.
--module(reference_agents_lego_scenario).
+-module(evatar_demo_lego_scenario).
 
 -export([start/1, run_to_end/2, outcome/1, stop/1, run/1, default_targets/0]).
 -export([anchors/0]).
@@ -24,47 +24,47 @@ default_targets() ->
 
 %% @doc Sets everything up and starts the story: the robots join, the VAs
 %% embody themselves, and the coordinator takes over.
--spec start(opts()) -> {ok, reference_agents_scenario:scenario()} | {error, term()}.
+-spec start(opts()) -> {ok, evatar_demo_scenario:scenario()} | {error, term()}.
 start(Opts) ->
     %% Slow while the VAs test their bodies, at full speed after.
-    {ok, S1} = reference_agents_scenario:start(
+    {ok, S1} = evatar_demo_scenario:start(
                  (maps:with([print, io], Opts))#{name => robots, clock => #{speed => 2}}),
-    Clock = reference_agents_scenario:get(clock, S1),
+    Clock = evatar_demo_scenario:get(clock, S1),
     Robots = [{N, <<"robot", (integer_to_binary(N))/binary>>,
                <<"robot-secret-", (integer_to_binary(N))/binary>>,
                <<"va-secret-", (integer_to_binary(N))/binary>>} || N <- [1, 2]],
     Timeout = maps:get(feedback_timeout, Opts, 5000),
     S2 = lists:foldl(fun({_, P, AvCred, VaCred}, Acc) ->
-                             reference_agents_scenario:pairing(
+                             evatar_demo_scenario:pairing(
                                P, #{agent_credential => VaCred, avatar_credential => AvCred,
                                     feedback_timeout => Timeout}, Acc)
                      end, S1, Robots),
     {ok, Arena} = avatar_sim:start_arena(
                     #{clock => Clock, seed => maps:get(seed, Opts, 1),
-                      endpoints => [reference_agents_scenario:endpoint(S2)],
+                      endpoints => [evatar_demo_scenario:endpoint(S2)],
                       robots => [#{pairing => P, credential => AvCred} || {_, P, AvCred, _} <- Robots]}),
-    S3 = reference_agents_scenario:add(arena, Arena,
-                                       reference_agents_scenario:add(avatars, [Arena], S2)),
+    S3 = evatar_demo_scenario:add(arena, Arena,
+                                  evatar_demo_scenario:add(avatars, [Arena], S2)),
     #{zones := Zones} = avatar_sim:state(Arena),
     Names = [va_name(N) || {N, _, _, _} <- Robots],
     Targets = maps:get(targets, Opts, default_targets()),
-    reference_agents_scenario:say(S3, info,
-                                  io_lib:format("two LEGO robots joined pairings robot1 and robot2; "
-                                                "task: ~s",
-                                                [lists:join(", ", [[C, " ball to zone ", Z]
-                                                                   || {C, Z} <- lists:sort(maps:to_list(Targets))])])),
-    {Coordinator, S4} = reference_agents_scenario:start_va(
+    evatar_demo_scenario:say(S3, info,
+                             io_lib:format("two LEGO robots joined pairings robot1 and robot2; "
+                                           "task: ~s",
+                                           [lists:join(", ", [[C, " ball to zone ", Z]
+                                                              || {C, Z} <- lists:sort(maps:to_list(Targets))])])),
+    {Coordinator, S4} = evatar_demo_scenario:start_va(
                           #{name => ?COORDINATOR, mind => reference_agents_coordinator,
                             mind_args => #{robots => Names, targets => Targets,
                                            zones => maps:from_list([{Z, {X, Y}} || #{name := Z, x := X, y := Y} <- Zones]),
                                            explore => maps:get(explore, Opts, 120)},
                             body => none}, S3),
-    Lego = reference_agents_scenario:body("lego_va.xml"),
+    Lego = evatar_demo_scenario:body("lego_va.xml"),
     {Vas, S5} = lists:foldl(
                   fun({N, P, _, VaCred}, {Acc, SAcc}) ->
                           Name = va_name(N),
                           Body = Lego#{entity_id := Name},
-                          {Va, SAcc1} = reference_agents_scenario:start_va(
+                          {Va, SAcc1} = evatar_demo_scenario:start_va(
                                           #{name => Name, mind => reference_agents_robot_mind,
                                             mind_args => #{name => Name, body => Body,
                                                            coordinator => ?COORDINATOR},
@@ -72,16 +72,16 @@ start(Opts) ->
                                             peers => #{?COORDINATOR => Coordinator}}, SAcc),
                           {Acc#{Name => Va}, SAcc1}
                   end, {#{}, S4}, Robots),
-    ok = reference_agents_va:introduce(Coordinator, Vas),
-    S6 = reference_agents_scenario:add(coordinator, Coordinator,
-                                       reference_agents_scenario:add(robot_vas, Vas, S5)),
+    ok = reference_agents:introduce(Coordinator, Vas),
+    S6 = evatar_demo_scenario:add(coordinator, Coordinator,
+                                  evatar_demo_scenario:add(robot_vas, Vas, S5)),
     %% For the dashboard (anchors/0): the robot VAs of the running story.
     %% evatar_web finds anchors/0 in this application's environment
     %% (dashboard_scenes), there only once the application is loaded: the
     %% demo calls this module without starting or loading it.
     ok = load_application(),
-    ok = application:set_env(reference_agents, robot_vas, Vas),
-    Embodied = [reference_agents_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
+    ok = application:set_env(evatar_demo, robot_vas, Vas),
+    Embodied = [evatar_demo_scenario:await_va_state(Va, [embodied], 20000, {embodied, Name})
                 || {Name, Va} <- maps:to_list(Vas)],
     case [E || {error, _} = E <- Embodied] of
         [] ->
@@ -93,15 +93,15 @@ start(Opts) ->
     end.
 
 load_application() ->
-    case application:load(reference_agents) of
+    case application:load(evatar_demo) of
         ok -> ok;
-        {error, {already_loaded, reference_agents}} -> ok
+        {error, {already_loaded, evatar_demo}} -> ok
     end.
 
 va_name(N) -> <<"golem-lego-va-0", (integer_to_binary(N))/binary>>.
 
 %% @doc Waits (real time) for the coordinator to say every ball is placed.
--spec run_to_end(reference_agents_scenario:scenario(), pos_integer()) ->
+-spec run_to_end(evatar_demo_scenario:scenario(), pos_integer()) ->
           {ok, map()} | {error, timeout}.
 run_to_end(_S, Timeout) ->
     receive
@@ -110,18 +110,18 @@ run_to_end(_S, Timeout) ->
     end.
 
 %% @doc The three VAs' views and the arena's truth.
--spec outcome(reference_agents_scenario:scenario()) -> map().
+-spec outcome(evatar_demo_scenario:scenario()) -> map().
 outcome(S) ->
-    Vas = reference_agents_scenario:get(robot_vas, S),
-    #{coordinator => reference_agents_va:inspect(reference_agents_scenario:get(coordinator, S)),
-      robots => maps:map(fun(_, Va) -> reference_agents_va:inspect(Va) end, Vas),
-      arena => avatar_sim:state(reference_agents_scenario:get(arena, S)),
-      story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))}.
+    Vas = evatar_demo_scenario:get(robot_vas, S),
+    #{coordinator => reference_agents:inspect(evatar_demo_scenario:get(coordinator, S)),
+      robots => maps:map(fun(_, Va) -> reference_agents:inspect(Va) end, Vas),
+      arena => avatar_sim:state(evatar_demo_scenario:get(arena, S)),
+      story => reference_agents_narrator:events(evatar_demo_scenario:narrator(S))}.
 
--spec stop(reference_agents_scenario:scenario()) -> ok.
+-spec stop(evatar_demo_scenario:scenario()) -> ok.
 stop(S) ->
-    ok = application:unset_env(reference_agents, robot_vas),
-    reference_agents_scenario:stop(S).
+    ok = application:unset_env(evatar_demo, robot_vas),
+    evatar_demo_scenario:stop(S).
 
 %% @doc The names the robot VAs of the running story anchored, as a scene
 %% for the dashboard (docs/dashboard.md; named in the application
@@ -129,7 +129,7 @@ stop(S) ->
 %% application): each VA's symbols with the colour and place it last saw.
 -spec anchors() -> [map()].
 anchors() ->
-    Vas = lists:sort(maps:to_list(application:get_env(reference_agents, robot_vas, #{}))),
+    Vas = lists:sort(maps:to_list(application:get_env(evatar_demo, robot_vas, #{}))),
     Agents = [#{name => Name,
                 anchors => [#{symbol => Sym, colour => C, x => X, y => Y, seen => N}
                             || #{symbol := Sym, colour := C, position := {X, Y}, seen := N}
@@ -141,7 +141,7 @@ anchors() ->
     end.
 
 inspect(Va) ->
-    try reference_agents_va:inspect(Va)
+    try reference_agents:inspect(Va)
     catch exit:_ -> #{}
     end.
 

@@ -1,5 +1,5 @@
 %% @doc Internal. The tour of BIL and EVATAR over TCP (`make demo
-%% DEMO_ARGS=bil'; reference_agents_demo dispatches to it).
+%% DEMO_ARGS=bil'; evatar_demo dispatches to it).
 %%
 %% Part one shows BIL at work on the shipped examples: every description and
 %% signal parsed, encoded and parsed back, the bodies of a LEGO robot and a
@@ -9,7 +9,7 @@
 %% TCP with agent_bridge_client, binding, requests with their round-trip
 %% times, a sensor stream, a feedback timeout, a NotBound refusal, a new
 %% description, and the operator's view of it all.
--module(reference_agents_tour).
+-module(evatar_demo_tour).
 
 -export([main/0]).
 
@@ -114,7 +114,7 @@ hostile({Name, Bin}) ->
 %% ---------------------------------------------------------------------------
 
 -define(PAIRING, <<"demo-lego">>).
--define(LISTENER, reference_agents_tour).
+-define(LISTENER, evatar_demo_tour).
 -define(VA_CRED, <<"demo-va-secret">>).
 -define(AV_CRED, <<"demo-avatar-secret">>).
 %% Short, so that the timeout step does not keep the reader waiting.

@@ -7,7 +7,7 @@
 %% `mqtt', the house's devices are MQTT devices on mosquitto instead
 %% (avatar_sim_mqtt_home), discovered and joined by an MQTT Avatar: the VA
 %% is the same.
--module(reference_agents_holiday).
+-module(evatar_demo_holiday).
 
 -export([start/1, run_until/2, outcome/1, stop/1, run/1, default_script/0,
          start_datetime/0, login/1]).
@@ -41,11 +41,11 @@ start_datetime() -> {{2024, 11, 15}, {17, 55, 0}}.
 %% @doc Where a VA of one's own joins the house of a running scenario: the
 %% scenario's listener, the pairing and the VAs' credential (a kept demo
 %% prints them; docs/clients.md).
--spec login(reference_agents_scenario:scenario()) ->
+-spec login(evatar_demo_scenario:scenario()) ->
           #{endpoint := {inet:ip_address(), inet:port_number()}, pairing := binary(),
             credential := binary()}.
 login(S) ->
-    #{endpoint => reference_agents_scenario:endpoint(S), pairing => ?PAIRING,
+    #{endpoint => evatar_demo_scenario:endpoint(S), pairing => ?PAIRING,
       credential => ?VA_CRED}.
 
 %% @doc The holiday evening: nobody home; at 21:40 an intruder types a
@@ -62,44 +62,44 @@ default_script() ->
 %% the simulated clock paused. The VA starts once EVATAR has every device of
 %% the house from its Avatars; `{error, {not_described, Pairing, Missing}}'
 %% if some are still missing after 30 s.
--spec start(opts()) -> {ok, reference_agents_scenario:scenario()} | {error, term()}.
+-spec start(opts()) -> {ok, evatar_demo_scenario:scenario()} | {error, term()}.
 start(Opts) ->
     Start = maps:get(start, Opts, start_datetime()),
     %% Slow while the VA tests its body (devices answer at clock ticks),
     %% paused once it is embodied, at full speed in run_until/2.
-    {ok, S0} = reference_agents_scenario:start(
+    {ok, S0} = evatar_demo_scenario:start(
                  (maps:with([print, io], Opts))#{name => holiday,
                                                  clock => #{speed => 2, start => Start,
                                                             tick => maps:get(tick, Opts, 500)}}),
-    Clock = reference_agents_scenario:get(clock, S0),
-    RulesFile = maps:get(rules, Opts, filename:join(reference_agents_scenario:priv_dir(),
+    Clock = evatar_demo_scenario:get(clock, S0),
+    RulesFile = maps:get(rules, Opts, filename:join(evatar_demo_scenario:priv_dir(),
                                                      "home.rules")),
-    case reference_agents_rules:parse_file(RulesFile) of
+    case reference_agents:parse_rules(RulesFile) of
         {ok, Rules} ->
             start(Opts, Clock, Rules, RulesFile, S0);
         {error, Reason} ->
-            ok = reference_agents_scenario:stop(S0),
-            {error, {rules, reference_agents_rules:format_error(RulesFile, Reason)}}
+            ok = evatar_demo_scenario:stop(S0),
+            {error, {rules, reference_agents:rules_error(RulesFile, Reason)}}
     end.
 
 start(Opts, Clock, Rules, RulesFile, S0) ->
     Policy = maps:get(policy, Opts, <<"holiday">>),
-    S1 = reference_agents_scenario:pairing(
+    S1 = evatar_demo_scenario:pairing(
            ?PAIRING, #{agent_credential => ?VA_CRED, avatar_credential => ?AV_CRED,
                        feedback_timeout => maps:get(feedback_timeout, Opts, 5000)}, S0),
     Spool = maps:get(spool, Opts, "spool"),
     HomeOpts = #{clock => Clock, seed => maps:get(seed, Opts, 1),
-                 endpoints => [reference_agents_scenario:endpoint(S1)],
+                 endpoints => [evatar_demo_scenario:endpoint(S1)],
                  spool => Spool, script => maps:get(script, Opts, default_script())},
     case start_home(maps:get(mqtt, Opts, false), HomeOpts, S1) of
         {ok, S2, Joined} ->
-            reference_agents_scenario:say(S2, info,
-                                          io_lib:format("~srules from ~s; policy ~s; spool ~s",
-                                                        [Joined, RulesFile, Policy,
-                                                         filename:absname(Spool)])),
+            evatar_demo_scenario:say(S2, info,
+                                     io_lib:format("~srules from ~s; policy ~s; spool ~s",
+                                                   [Joined, RulesFile, Policy,
+                                                    filename:absname(Spool)])),
             await_house(Opts, Rules, Policy, S2);
         {error, Why, S2} ->
-            ok = reference_agents_scenario:stop(S2),
+            ok = evatar_demo_scenario:stop(S2),
             {error, Why}
     end.
 
@@ -108,62 +108,62 @@ start(Opts, Clock, Rules, RulesFile, S0) ->
 %% not only their connections made), so its first embodiment test is of the
 %% whole house.
 await_house(Opts, Rules, Policy, S2) ->
-    #{components := Cs} = reference_agents_scenario:body("smart_home.xml"),
-    case reference_agents_scenario:await_described(?PAIRING, [Id || #{id := Id} <- Cs],
-                                                   ?DESCRIBED_TIMEOUT) of
+    #{components := Cs} = evatar_demo_scenario:body("smart_home.xml"),
+    case evatar_demo_scenario:await_described(?PAIRING, [Id || #{id := Id} <- Cs],
+                                              ?DESCRIBED_TIMEOUT) of
         ok ->
             start_va(Opts, Rules, Policy, S2);
         {error, _} = E ->
-            ok = reference_agents_scenario:stop(S2),
+            ok = evatar_demo_scenario:stop(S2),
             E
     end.
 
 start_va(Opts, Rules, Policy, S2) ->
-    Clock = reference_agents_scenario:get(clock, S2),
-    Body = (reference_agents_scenario:body("smart_home_va.xml"))#{entity_id := <<"house-va">>},
+    Clock = evatar_demo_scenario:get(clock, S2),
+    Body = (evatar_demo_scenario:body("smart_home_va.xml"))#{entity_id := <<"house-va">>},
     Seen = atomics:new(1, [{signed, true}]),
-    {Va, S3} = reference_agents_scenario:start_va(
+    {Va, S3} = evatar_demo_scenario:start_va(
                  #{name => <<"house-va">>, mind => reference_agents_home,
                    mind_args => #{body => Body, rules => Rules, policy => Policy},
                    body => Body, pairing => ?PAIRING, credential => ?VA_CRED, seen => Seen}, S2),
-    S4 = reference_agents_scenario:add(va, Va, S3),
-    case reference_agents_scenario:await_va_state(Va, [embodied], 20000, house_va_embodied) of
+    S4 = evatar_demo_scenario:add(va, Va, S3),
+    case evatar_demo_scenario:await_va_state(Va, [embodied], 20000, house_va_embodied) of
         {ok, _} ->
             ok = avatar_sim:pause(Clock),
             ok = avatar_sim:set_speed(Clock, maps:get(speed, Opts, 1000)),
-            {ok, reference_agents_scenario:follow(S4, Seen)};
-        {error, _} = E -> ok = reference_agents_scenario:stop(S4), E
+            {ok, evatar_demo_scenario:follow(S4, Seen)};
+        {error, _} = E -> ok = evatar_demo_scenario:stop(S4), E
     end.
 
 %% The house over TCP: one gateway Avatar with every device.
 start_home(false, HomeOpts, S1) ->
     {ok, Home} = avatar_sim:start_home(HomeOpts#{gateways => [#{pairing => ?PAIRING,
                                                                 credential => ?AV_CRED}]}),
-    S2 = reference_agents_scenario:add(home, Home,
-                                       reference_agents_scenario:add(avatars, [Home], S1)),
+    S2 = evatar_demo_scenario:add(home, Home,
+                                  evatar_demo_scenario:add(avatars, [Home], S1)),
     {ok, S2, ["the easy smart home joined pairing ", ?PAIRING, "; "]};
 %% The house over MQTT, on a broker of the scenario's own.
 start_home(true, HomeOpts, S1) ->
-    case reference_agents_broker:start_link(#{}) of
+    case evatar_demo_broker:start_link(#{}) of
         {ok, Broker} ->
-            S2 = reference_agents_scenario:on_stop(
-                   fun() -> reference_agents_broker:stop(Broker) end,
-                   reference_agents_scenario:add(broker, Broker, S1)),
-            start_home(reference_agents_broker:address(Broker), HomeOpts, S2);
+            S2 = evatar_demo_scenario:on_stop(
+                   fun() -> evatar_demo_broker:stop(Broker) end,
+                   evatar_demo_scenario:add(broker, Broker, S1)),
+            start_home(evatar_demo_broker:address(Broker), HomeOpts, S2);
         {error, Message} ->
             {error, {broker, Message}, S1}
     end;
 start_home(#{host := _, port := _} = Mqtt, HomeOpts, S1) ->
-    case reference_agents_mqtt_home:start(HomeOpts#{mqtt => Mqtt, pairing => ?PAIRING,
-                                                    credential => ?AV_CRED}) of
+    case evatar_demo_mqtt_home:start(HomeOpts#{mqtt => Mqtt, pairing => ?PAIRING,
+                                               credential => ?AV_CRED}) of
         {ok, MqttHome} ->
-            S2 = reference_agents_scenario:on_stop(
-                   fun() -> reference_agents_mqtt_home:stop(MqttHome) end,
-                   reference_agents_scenario:add(mqtt, Mqtt, S1)),
+            S2 = evatar_demo_scenario:on_stop(
+                   fun() -> evatar_demo_mqtt_home:stop(MqttHome) end,
+                   evatar_demo_scenario:add(mqtt, Mqtt, S1)),
             House = avatar_sim_mqtt_home:house(MqttHome),
-            S3 = reference_agents_scenario:add(mqtt_home, MqttHome,
-                                               reference_agents_scenario:add(home, House, S2)),
-            reference_agents_scenario:say(S3, info, mqtt_story(Mqtt, MqttHome)),
+            S3 = evatar_demo_scenario:add(mqtt_home, MqttHome,
+                                          evatar_demo_scenario:add(home, House, S2)),
+            evatar_demo_scenario:say(S3, info, mqtt_story(Mqtt, MqttHome)),
             {ok, S3, ""};
         {error, Why} ->
             {error, {mqtt_home, Why}, S1}
@@ -185,18 +185,18 @@ host(Host) -> Host.
 %% @doc Lets simulated time run until the house's clock shows `HHMM' (on
 %% the start day, or the next day if that time has passed), then pauses.
 %% The clock never runs more than two simulated minutes ahead of what the
-%% VA it follows has perceived (reference_agents_scenario:follow/2), and
+%% VA it follows has perceived (evatar_demo_scenario:follow/2), and
 %% this returns once the VAs have caught up (settle/1), however slow the
 %% machine.
--spec run_until(reference_agents_scenario:scenario(), string()) -> ok | {error, term()}.
+-spec run_until(evatar_demo_scenario:scenario(), string()) -> ok | {error, term()}.
 run_until(S, HHMM) ->
-    Clock = reference_agents_scenario:get(clock, S),
+    Clock = evatar_demo_scenario:get(clock, S),
     Target = target_ms(avatar_sim:now(Clock), HHMM),
     ok = avatar_sim:resume(Clock),
-    R = reference_agents_scenario:await(end_ok(Clock, Target), 600000, {clock, HHMM}),
+    R = evatar_demo_scenario:await(end_ok(Clock, Target), 600000, {clock, HHMM}),
     ok = avatar_sim:pause(Clock),
     case R of
-        {ok, _} -> reference_agents_scenario:settle(S);
+        {ok, _} -> evatar_demo_scenario:settle(S);
         Error -> Error
     end.
 
@@ -209,7 +209,7 @@ end_ok(Clock, Target) ->
     end.
 
 target_ms(NowMs, HHMM) ->
-    Minute = reference_agents_policy:minute(list_to_binary(HHMM)),
+    Minute = reference_agents:minute_of_day(list_to_binary(HHMM)),
     {Date, _} = calendar:system_time_to_universal_time(NowMs, millisecond),
     Day = (calendar:datetime_to_gregorian_seconds({Date, {0, 0, 0}})
            - calendar:datetime_to_gregorian_seconds({{1970, 1, 1}, {0, 0, 0}})) * 1000,
@@ -223,30 +223,30 @@ target_ms(NowMs, HHMM) ->
 %% e-mails), the house's (lights, e-mails, photos, sounds) and the story;
 %% over MQTT also the broker (`mqtt': host and port) and the MQTT Avatar's
 %% view (`mqtt_avatar': its status and problems).
--spec outcome(reference_agents_scenario:scenario()) -> map().
+-spec outcome(evatar_demo_scenario:scenario()) -> map().
 outcome(S) ->
-    Va = reference_agents_scenario:get(va, S),
-    Home = reference_agents_scenario:get(home, S),
-    Outcome = #{va => reference_agents_va:inspect(Va),
+    Va = evatar_demo_scenario:get(va, S),
+    Home = evatar_demo_scenario:get(home, S),
+    Outcome = #{va => reference_agents:inspect(Va),
                 home => avatar_sim:state(Home),
-                story => reference_agents_narrator:events(reference_agents_scenario:narrator(S))},
+                story => reference_agents_narrator:events(evatar_demo_scenario:narrator(S))},
     case mqtt_home(S) of
         none ->
             Outcome;
         MqttHome ->
             A = avatar_sim_mqtt_home:avatar(MqttHome),
-            Outcome#{mqtt => reference_agents_scenario:get(mqtt, S),
+            Outcome#{mqtt => evatar_demo_scenario:get(mqtt, S),
                      mqtt_avatar => #{status => mqtt_avatar:status(A),
                                       problems => mqtt_avatar:problems(A)}}
     end.
 
 mqtt_home(S) ->
-    try reference_agents_scenario:get(mqtt_home, S)
+    try evatar_demo_scenario:get(mqtt_home, S)
     catch error:{badkey, _} -> none
     end.
 
--spec stop(reference_agents_scenario:scenario()) -> ok.
-stop(S) -> reference_agents_scenario:stop(S).
+-spec stop(evatar_demo_scenario:scenario()) -> ok.
+stop(S) -> evatar_demo_scenario:stop(S).
 
 %% @doc Start, run until `until' (22:05 by default), outcome, stop.
 -spec run(opts()) -> {ok, map()} | {error, term()}.

@@ -1,8 +1,8 @@
 %% @doc Test support, not a suite: runs the `make demo' narratives
-%% (reference_agents_demo:main/1) with their output kept by a minimal I/O
+%% (evatar_demo:main/1) with their output kept by a minimal I/O
 %% server (it keeps what is written and refuses to read), for the suites
 %% that check what the demo tells.
--module(reference_agents_demo_capture).
+-module(evatar_demo_capture).
 
 -export([run/1, start/0, peek/1]).
 
@@ -14,7 +14,7 @@ run(Args) ->
     Old = group_leader(),
     Capture = start(),
     true = group_leader(Capture, self()),
-    Result = try reference_agents_demo:main(Args)
+    Result = try evatar_demo:main(Args)
              after true = group_leader(Old, self())
              end,
     ok = Result,

@@ -5,7 +5,7 @@
 %% pairing when the home stops. The simulator itself never drives the
 %% mediator (docs/architecture.md section 1); scenarios and tests start the
 %% home through here.
--module(reference_agents_mqtt_home).
+-module(evatar_demo_mqtt_home).
 
 -export([start/1, stop/1]).
 

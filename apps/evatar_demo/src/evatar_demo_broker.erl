@@ -9,7 +9,7 @@
 %%     |  mosquitto exited (port taken): launching again, 3 tries
 %%     +--exited 3 times, or not ready in 10 s--> failed (start/1 says why)
 %% '''
--module(reference_agents_broker).
+-module(evatar_demo_broker).
 -behaviour(gen_statem).
 
 -export([start_link/1, stop/1, address/1, log/1, executable/0]).
@@ -190,7 +190,7 @@ launch(#d{exe = Exe, dir = Dir, tries = Tries} = D) ->
     end.
 
 config(Port) ->
-    ["# written by reference_agents_broker for the EVATAR demo\n",
+    ["# written by evatar_demo_broker for the EVATAR demo\n",
      "listener ", integer_to_list(Port), " 127.0.0.1\n",
      "allow_anonymous true\n",
      "persistence false\n",

@@ -1,12 +1,12 @@
 %% @doc The holiday scenario with the house's devices on MQTT: a real
-%% mosquitto (started by the scenario, reference_agents_broker), the
+%% mosquitto (started by the scenario, evatar_demo_broker), the
 %% simulated devices found through Home Assistant discovery by the MQTT
 %% Avatar, and the house VA unchanged. It must come to the same outcomes as
-%% over TCP (reference_agents_home_SUITE): the intrusion e-mail with its
+%% over TCP (evatar_demo_home_SUITE): the intrusion e-mail with its
 %% photos in the spool, the evening light schedule, the alarm and the voice
 %% message. Also `make demo DEMO_ARGS=mqtt' and the broker's own errors.
 %% Skipped when mosquitto is not installed.
--module(reference_agents_mqtt_SUITE).
+-module(evatar_demo_mqtt_SUITE).
 
 -include_lib("common_test/include/ct.hrl").
 -include_lib("stdlib/include/assert.hrl").
@@ -37,7 +37,7 @@ groups() ->
                     devices_discovered_on_mosquitto, broker_stopped_with_the_scenario]}].
 
 init_per_suite(Config) ->
-    case reference_agents_broker:executable() of
+    case evatar_demo_broker:executable() of
         false ->
             {skip, "mosquitto is not installed (Debian package mosquitto): "
                    "the MQTT scenario needs a real broker"};
@@ -56,7 +56,7 @@ end_per_suite(Config) ->
 %% One evening over MQTT, shared by the cases of the group.
 init_per_group(holiday, Config) ->
     Spool = filename:join(?config(priv_dir, Config), "mqtt-spool"),
-    {ok, Outcome} = reference_agents_holiday:run(#{speed => ?SPEED, spool => Spool, mqtt => true}),
+    {ok, Outcome} = evatar_demo_holiday:run(#{speed => ?SPEED, spool => Spool, mqtt => true}),
     [{outcome, Outcome}, {spool, Spool} | Config].
 
 end_per_group(_Group, _Config) ->
@@ -92,15 +92,15 @@ pairings() ->
 %% the notifier write the e-mail "INTRUSION" with them attached: a MIME
 %% message in the spool, its PNG photos of the hall next to it.
 intrusion_email_with_photos(Config) ->
-    reference_agents_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
-                                                                ?config(spool, Config)).
+    evatar_demo_holiday_checks:intrusion_email_with_photos(?config(outcome, Config),
+                                                           ?config(spool, Config)).
 
 %% @doc The story tells, in order, the activities perceived from MQTT
 %% readings, the intruder, the policy's decision and the actuations with
 %% their outcomes; the MQTT speaker sounded the alarm, then played the
 %% message.
 intrusion_narrated(Config) ->
-    Texts = reference_agents_holiday_checks:intrusion_narrated(?config(outcome, Config)),
+    Texts = evatar_demo_holiday_checks:intrusion_narrated(?config(outcome, Config)),
     %% Nothing the VA asked of its MQTT body went unanswered.
     ?assertEqual([], [T || T <- Texts, binary:match(T, <<"FAILED">>) =/= nomatch]).
 
@@ -108,7 +108,7 @@ intrusion_narrated(Config) ->
 %% each and only those, each change at or after its time and before the
 %% next scheduled time, as over TCP.
 evening_light_schedule(Config) ->
-    reference_agents_holiday_checks:evening_light_schedule(?config(outcome, Config)).
+    evatar_demo_holiday_checks:evening_light_schedule(?config(outcome, Config)).
 
 %% @doc The devices were MQTT devices: the MQTT Avatar discovered every
 %% device of smart_home.xml but the notifier, without problems, and the
@@ -140,7 +140,7 @@ broker_stopped_with_the_scenario(Config) ->
 %% are and how many were discovered, then the holiday evening, and ends
 %% with where the e-mail and its photos landed.
 mqtt_demo(Config) ->
-    {ok, Output} = reference_agents_demo_capture:run(["mqtt"]),
+    {ok, Output} = evatar_demo_capture:run(["mqtt"]),
     ct:log("~ts", [Output]),
     Patterns = ["scenario +the easy smart home's 12 devices are on mosquitto at 127\\.0\\.0\\.1:[0-9]+; "
                 "the MQTT Avatar easy-home-mqtt discovered 12 of them through Home Assistant discovery",
@@ -164,7 +164,7 @@ mqtt_demo(Config) ->
 
 %% @doc Without mosquitto the broker says so, with the package to install.
 broker_not_installed(_Config) ->
-    {error, Message} = reference_agents_broker:start_link(#{executable => false}),
+    {error, Message} = evatar_demo_broker:start_link(#{executable => false}),
     ?assertNotEqual(nomatch, binary:match(Message, <<"mosquitto is not installed">>)),
     ?assertNotEqual(nomatch, binary:match(Message, <<"apt-get install mosquitto">>)).
 
@@ -173,13 +173,13 @@ broker_not_installed(_Config) ->
 broker_that_cannot_run(Config) ->
     Before = filelib:wildcard(filename:join(tmp(), "evatar-mosquitto-*")),
     Bogus = filename:join(?config(priv_dir, Config), "no-such-mosquitto"),
-    {error, Message} = reference_agents_broker:start_link(#{executable => Bogus}),
+    {error, Message} = evatar_demo_broker:start_link(#{executable => Bogus}),
     ct:log("~ts", [Message]),
     ?assertNotEqual(nomatch, binary:match(Message, <<"mosquitto exited at once">>)),
     ?assertNotEqual(nomatch, binary:match(Message, list_to_binary(Bogus))),
     ?assertEqual(Before, filelib:wildcard(filename:join(tmp(), "evatar-mosquitto-*"))),
     ?assertEqual([], [P || P <- processes(),
-                           {initial_call, {reference_agents_broker, init, 1}}
+                           {initial_call, {evatar_demo_broker, init, 1}}
                                =:= erlang:process_info(P, initial_call)]).
 
 %% ---------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 %% @doc Test support, not a suite: the checks of the holiday evening's
-%% outcome (reference_agents_holiday:run/1) that must hold whether the
-%% house's devices are on TCP (reference_agents_home_SUITE) or on MQTT
-%% (reference_agents_mqtt_SUITE), kept in one place so both assert the same.
--module(reference_agents_holiday_checks).
+%% outcome (evatar_demo_holiday:run/1) that must hold whether the
+%% house's devices are on TCP (evatar_demo_home_SUITE) or on MQTT
+%% (evatar_demo_mqtt_SUITE), kept in one place so both assert the same.
+-module(evatar_demo_holiday_checks).
 
 -include_lib("stdlib/include/assert.hrl").
 
