@@ -67,15 +67,16 @@ xref_queries_hold(_Config) ->
 %% @doc Modules that break each rule (compiled here, never shipped) make
 %% exactly the query of that rule answer with their calls: a call from a
 %% library, the core, an edge or a scenario to a higher layer, a simulator
-%% calling the mediator, an app calling the test kit, the language calling
-%% another app, a call into another app's internal module, and a module of
-%% no app.
+%% calling the mediator, an agent calling the demo that wires it up, an app
+%% calling the test kit, the language calling another app, a call into
+%% another app's internal module, and a module of no app.
 wrong_way_calls_are_caught(Config) ->
     Dir = ?config(priv_dir, Config),
     Fixtures = [{bil_wrong_way_fixture, "f() -> evatar:pairings()."},
                 {evatar_wrong_way_fixture, "f() -> agent_bridge:address(x)."},
                 {mqtt_avatar_wrong_way_fixture, "f() -> avatar_sim:now(x)."},
-                {reference_agents_wrong_way_fixture, "f() -> node_config:file()."},
+                {reference_agents_wrong_way_fixture,
+                 "f() -> node_config:file(). g() -> evatar_demo:stop()."},
                 {node_config_wrong_way_fixture, "f() -> evatar_test_wait:until(x)."},
                 {avatar_sim_wrong_way_fixture,
                  "f() -> evatar:pairings(). g() -> mqtt_avatar_z2m:parse(<<>>, <<>>)."},
@@ -97,6 +98,8 @@ wrong_way_calls_are_caught(Config) ->
                      [Call(node_config_wrong_way_fixture, f, {evatar_test_wait, until, 1})],
                  'DeviceSideCallsMediator' =>
                      [Call(avatar_sim_wrong_way_fixture, f, {evatar, pairings, 0})],
+                 'AgentsCallWiring' =>
+                     [Call(reference_agents_wrong_way_fixture, g, {evatar_demo, stop, 0})],
                  'CallsIntoOtherAppsInternals' =>
                      [Call(avatar_sim_wrong_way_fixture, g, {mqtt_avatar_z2m, parse, 2})],
                  'ModulesOfNoApp' => [wrong_way_fixture]},
