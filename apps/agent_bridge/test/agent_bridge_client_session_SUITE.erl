@@ -18,13 +18,15 @@
 
 -include_lib("common_test/include/ct.hrl").
 
--export([all/0, init_per_suite/1, end_per_suite/1]).
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([transcript_v1/1, transcript_v2/1, transcript_requests/1,
          a_changed_frame_is_caught/1]).
 
 -define(V, agent_bridge_vectors).
 -define(S, agent_bridge_client_session).
 -define(EP, {{127, 0, 0, 1}, 7400}).
+
+suite() -> [{timetrap, {minutes, 1}}].
 
 all() ->
     [transcript_v1, transcript_v2, transcript_requests, a_changed_frame_is_caught].

@@ -8,12 +8,14 @@
 
 -include_lib("common_test/include/ct.hrl").
 
--export([all/0, init_per_suite/1, end_per_suite/1]).
+-export([all/0, suite/0, init_per_suite/1, end_per_suite/1]).
 -export([index_is_well_formed/1, frames/1, documents/1, invalid/1,
          transcripts_decode/1, transcript_replay/1, errors_replay/1,
          a_changed_vector_is_caught/1]).
 
 -define(V, agent_bridge_vectors).
+
+suite() -> [{timetrap, {minutes, 2}}].
 
 all() ->
     [index_is_well_formed, frames, documents, invalid, transcripts_decode,

@@ -7,6 +7,8 @@
 
 -compile([export_all, nowarn_export_all]).
 
+suite() -> [{timetrap, {minutes, 1}}].
+
 all() -> [every_device_has_a_face, names, commands, push].
 
 ctx() -> #{prefix => <<"sim">>, discovery_prefix => <<"ha">>}.
