@@ -205,8 +205,6 @@ log(#{msg := {report, #{what := joined, peer_cert := PeerCert}}}, #{config := #{
 log(_, _) ->
     ok.
 
-%% A listener that requires client certificates refuses a client without
-%% one: the TLS alert certificate_required, and nobody joins.
 %% A pairing that lists the VA by its certificate's fingerprint (issue 15,
 %% section 3): the VA's certificate joins as `va' with any credential; the
 %% Avatar's certificate, or no certificate, with the right VA credential,
@@ -233,6 +231,8 @@ certificate_identity(Config) ->
         ok = evatar:delete_pairing(Pairing)
     end.
 
+%% A listener that requires client certificates refuses a client without
+%% one: the TLS alert certificate_required, and nobody joins.
 no_client_certificate(Config) ->
     {error, {unreachable, [{_, {tls_alert, {certificate_required, Text}}}]}} =
         connect(Config, mutual, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),

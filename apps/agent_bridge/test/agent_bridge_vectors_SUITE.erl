@@ -66,25 +66,36 @@ index_is_well_formed(Config) ->
     [] = Missing,
     {comment, io_lib:format("~b vectors, ~b files", [length(Vectors), length(Files)])}.
 
+%% 5.1: each frame decodes to its document and nothing else, encodes back
+%% to its bytes, and its document is canonical.
 frames(Config) ->
     each(Config, <<"frame">>, fun check_frame/2).
 
+%% 5.2: each signal, control and description means what it expects, has
+%% its kind, round trips through the encoder, and is byte-exact if canonical.
 documents(Config) ->
     N = each(Config, <<"signal">>, fun check_document/2),
     M = each(Config, <<"control">>, fun check_document/2),
     K = each(Config, <<"description">>, fun check_document/2),
     {comment, io_lib:format("~b signals, ~b controls, ~b descriptions", [N, M, K])}.
 
+%% 5.4: each invalid frame or document is refused with its class.
 invalid(Config) ->
     each(Config, <<"invalid">>, fun check_invalid/2).
 
+%% 5.5, offline: each transcript step is one frame whose meaning is the
+%% step's and whose document the encoder writes back byte for byte.
 transcripts_decode(Config) ->
     each(Config, <<"transcript">>, fun check_transcript/2).
 
+%% 5.5, against the suite's node over TCP: each transcript's client steps
+%% sent, its server steps read and compared, session ids followed.
 transcript_replay(Config) ->
     Port = ?config(port, Config),
     each(Config, <<"transcript">>, fun(C, V) -> replay(C, V, Port) end).
 
+%% 5.6, against the node: each error vector, after its setup, is answered
+%% with its error code, and closes the connection or not as recorded.
 errors_replay(Config) ->
     Port = ?config(port, Config),
     each(Config, <<"error">>, fun(C, V) -> check_error(C, V, Port) end).

@@ -434,8 +434,6 @@ public_description_binds(_Config) ->
 %% Properties
 %% ---------------------------------------------------------------------------
 
-%% @doc Discovery configs built from HA's keys with random values (and
-%% random topics) give an entity, a problem or `ignore', never an exception.
 %% @doc An empty topic next to a `~' base topic is a problem, not a crash
 %% (found by prop_discovery_never_crashes).
 empty_topic_with_base(_Config) ->
@@ -469,6 +467,9 @@ z2m_null_on_off(_Config) ->
      end || {Es, Want} <- Exposes],
     ok.
 
+%% @doc Discovery configs built from HA's keys with random values (and
+%% random topics) give an entity, a problem or `ignore', never an exception;
+%% so do random zigbee2mqtt device lists.
 prop_discovery_never_crashes(_Config) ->
     Keys = [<<"name">>, <<"unique_id">>, <<"state_topic">>, <<"command_topic">>, <<"stat_t">>,
             <<"cmd_t">>, <<"~">>, <<"availability_topic">>, <<"availability">>, <<"value_template">>,
