@@ -25,8 +25,16 @@
 %% Once this node has exchanged catalogues with every alive peer and hears
 %% a majority (in a cluster of two, also after `catalogue_alone_ms' alone),
 %% it starts the pairings it owns of which no instance runs anywhere, and
-%% stops local instances of deleted ones. Messages between nodes have the
-%% shape `{evatar_catalogue, 1, Body}' (introduced in 0.1.0).
+%% stops local instances of deleted ones. Every decision of that look
+%% (the reconcile loop: what stops, what is watched, when the node is
+%% ready, which waiting ensures are written, what is restored and after
+%% what back-off) is taken by evatar_catalogue_rules (look/2,
+%% room_checked/4, answered/4) from what this process read; the process
+%% carries out the effects (ask an instance to delete itself, monitor,
+%% write and send an entry, start a pairing, log) and answers the rules'
+%% two questions (is there room in the data directory, what do the
+%% connected peers run). Messages between nodes have the shape
+%% `{evatar_catalogue, 1, Body}' (introduced in 0.1.0).
 %%
 %% A full data directory (evatar_data_dir: no room for
 %% `data_dir_reserve_bytes'), found before each change and every
@@ -52,8 +60,6 @@
 
 -define(TABLE, evatar_catalogue).
 -define(TICK_MS, 500).
--define(RESTORE_BACKOFF_MIN, 1000).
--define(RESTORE_BACKOFF_MAX, 300000).
 -define(DISK_FULL, {?MODULE, disk_full}).
 
 -record(?TABLE, {id :: evatar:pairing_id(),
@@ -61,28 +67,17 @@
                  value :: evatar_catalogue_rules:value()}).
 
 -record(s, {durable :: boolean(),
-            started :: integer(),
             alive = [] :: [node()],
             synced = #{} :: #{node() => true},
             last_sync :: integer(),
-            backoff = #{} :: #{evatar:pairing_id() => {integer(), pos_integer()}},
-            stopping = #{} :: #{pid() => true},
-            %% Pairings that were active here: one that stopped here
-            %% without being deleted gave up (its restart limit), and is
-            %% not restored on this node until it restarts; unless it
-            %% stopped on purpose (stepped down for a newer instance, or
-            %% for a claim found stale), watched through `watched'.
-            ran = #{} :: #{evatar:pairing_id() => true},
             %% The data directory when it was found full, and what peers
             %% sent meanwhile (written once there is room).
             full = false :: false | file:filename(),
             held = [] :: [evatar_catalogue_rules:entry()],
-            %% Ensures asked while this node did not hear a majority:
-            %% written at the first reconcile that is ready, when absent.
-            pending = #{} :: #{evatar:pairing_id() => evatar_pairing_logic:config()},
             last_disk_check :: integer(),
-            %% Last: evatar_catalogue_SUITE reads it from the state.
-            watched = #{} :: #{pid() => evatar:pairing_id()}}).
+            %% What the reconcile loop remembers between looks (pending
+            %% ensures, back-offs, what ran here, what is watched).
+            memory :: evatar_catalogue_rules:memory()}).
 
 %% @doc Starts the catalogue process, registered as `evatar_catalogue'.
 -spec start_link() -> {ok, pid()} | {error, term()}.
@@ -191,7 +186,8 @@ init([]) ->
             Now = now_ms(),
             ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
             persistent_term:put(?DISK_FULL, false),
-            {ok, #s{durable = Durable, started = Now, last_sync = Now, last_disk_check = Now}}
+            {ok, #s{durable = Durable, last_sync = Now, last_disk_check = Now,
+                    memory = evatar_catalogue_rules:new(Now)}}
     end.
 
 ensure_data_dir() ->
@@ -284,17 +280,18 @@ handle_call({remove, Id, Running}, _From, S0) ->
 handle_call({ensure, Id, Config}, _From, S0) ->
     case {lookup(Id), may_change() andalso room(S0)} of
         {{ok, _}, _} ->
-            {reply, exists, reconcile(S0#s{ran = maps:remove(Id, S0#s.ran)})};
+            {reply, exists, reconcile(retry(Id, S0))};
         {none, false} ->
             ?LOG_NOTICE(#{what => pairing_ensure_pending, pairing => Id,
                           hint => "this node does not hear a majority of the cluster yet: "
                                   "the pairing is recorded once it does, if still absent"}),
-            {reply, pending, S0#s{pending = (S0#s.pending)#{Id => Config}}};
+            {reply, pending,
+             S0#s{memory = evatar_catalogue_rules:pend(Id, Config, S0#s.memory)}};
         {none, {{error, _} = Full, S}} ->
             {reply, Full, S};
         {none, {ok, S}} ->
             ok = write_new(Id, {live, Config, node()}, S),
-            {reply, created, reconcile(S#s{ran = maps:remove(Id, S#s.ran)})}
+            {reply, created, reconcile(retry(Id, S))}
     end;
 handle_call(durable, _From, S) ->
     {reply, S#s.durable, S};
@@ -340,21 +337,10 @@ handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S0)
                  S
          end,
     {noreply, reconcile(S1)};
-handle_info({'DOWN', _Ref, process, Pid, Reason}, #s{watched = Watched} = S) ->
-    case maps:take(Pid, Watched) of
-        {Id, Watched1} ->
-            S1 = S#s{watched = Watched1},
-            case evatar_catalogue_rules:gave_up(Reason) of
-                true ->
-                    {noreply, S1};
-                false ->
-                    %% It stepped down (a newer instance, a stale claim): if
-                    %% no instance is left anywhere, the pairing is restored
-                    %% as any other, else it would stay down for good.
-                    {noreply, reconcile(S1#s{ran = maps:remove(Id, S1#s.ran)})}
-            end;
-        error ->
-            {noreply, S}
+handle_info({'DOWN', _Ref, process, Pid, Reason}, S) ->
+    case evatar_catalogue_rules:down(Pid, Reason, S#s.memory) of
+        {true, M} -> {noreply, reconcile(S#s{memory = M})};
+        {false, M} -> {noreply, S#s{memory = M}}
     end;
 handle_info(_Msg, S) ->
     {noreply, S}.
@@ -367,16 +353,19 @@ handle_info(_Msg, S) ->
 look(S, Forced) ->
     reconcile(sync(check_disk(S, Forced), Forced)).
 
-write_new(Id, Value, #s{alive = Alive} = S) ->
+write_new(Id, Value, S) ->
     Current = case mnesia:dirty_read(?TABLE, Id) of
                   [#?TABLE{version = V}] -> V;
                   [] -> none
               end,
-    Entry = {Id, evatar_catalogue_rules:next_version(Current, erlang:system_time(millisecond),
-                                                     node()), Value},
+    publish({Id, evatar_catalogue_rules:next_version(Current, erlang:system_time(millisecond),
+                                                     node()), Value}, S).
+
+%% Written here, then sent to the peers alive or connected: one not yet
+%% heard (just started) would otherwise learn it only at the next full
+%% exchange.
+publish(Entry, #s{alive = Alive} = S) ->
     ok = write([Entry], S),
-    %% Connected peers too: one not yet heard (just started) would
-    %% otherwise learn this write only at the next full exchange.
     _ = [send(N, {entries, node(), [Entry], false}) || N <- lists:usort(Alive ++ connected())],
     ok.
 
@@ -455,159 +444,89 @@ send(Node, Body) ->
     _ = erlang:send({?MODULE, Node}, {?MODULE, 1, Body}, [noconnect]),
     ok.
 
-%% Starts what this node owns and nobody runs; stops what was deleted.
-reconcile(S0) ->
-    Entries = entries(),
-    Roles = evatar_registry:roles(),
-    Local = [Id || {Id, _, _, _} <- Roles],
-    Stopping = lists:foldl(fun stop_local/2,
-                           maps:with([P || {_, P, _, _} <- Roles], S0#s.stopping),
-                           evatar_catalogue_rules:to_stop(Entries, Local)),
-    Actives = [{Id, Pid} || {Id, Pid, R, _} <- Roles, R =:= active orelse R =:= fenced],
-    Ran = maps:merge(S0#s.ran, maps:from_list([{Id, true} || {Id, _} <- Actives])),
-    Watched = lists:foldl(fun({Id, Pid}, Acc) -> watch(Id, Pid, Acc) end, S0#s.watched, Actives),
-    Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
-    S = S0#s{stopping = Stopping, ran = Ran, watched = Watched},
-    Peers = lists:usort(Alive ++ connected()),
-    case ready(Peers, S) of
-        false ->
+%% A look of the reconcile loop (evatar_catalogue_rules:look/2): stops what
+%% was deleted, starts what this node owns and nobody runs. Each step's
+%% effects are carried out before the next step, which gets what it asked
+%% for: the room in the data directory, or what the connected peers run.
+reconcile(S) ->
+    Facts = facts(S),
+    step(evatar_catalogue_rules:look(Facts, S#s.memory), Facts, S).
+
+step({Effects, Next, M}, Facts, S0) ->
+    S = run(Effects, S0#s{memory = M}),
+    case Next of
+        done ->
             S;
-        true when S#s.pending =:= #{} ->
-            start_owned(Entries, Local, Peers, S);
-        true ->
-            %% Read again: what was written is among the entries.
-            S1 = write_pending(S),
-            start_owned(entries(), Local, Peers, S1)
+        room ->
+            {Room, S1} = room(S),
+            Checked = case Room of
+                          ok -> ok;
+                          {error, {disk_full, _}} -> full
+                      end,
+            %% Read again: the room found may have written what was held.
+            step(evatar_catalogue_rules:room_checked(Checked, entries(), Facts, S1#s.memory),
+                 Facts, S1);
+        {ask, Peers, Cont} ->
+            Answers = erpc:multicall(Peers, evatar_registry, roles, [], 2000),
+            step(evatar_catalogue_rules:answered(Answers, Cont, Facts, S#s.memory), Facts, S)
     end.
 
-%% Starts what this node owns of which no instance runs anywhere (once
-%% ready/2).
-start_owned(Entries, Local, Peers, #s{ran = Ran} = S) ->
-    %% A connected peer whose catalogue this node has (ready/2) runs and
-    %% starts what it owns, even before its heartbeats are heard: after a
-    %% power cut a home node not yet heard but restoring its pairings
-    %% would otherwise meet a second instance at the same epoch started
-    %% by the next node.
-    View = {evatar_cluster:configured(), [node() | Peers]},
-    case evatar_catalogue_rules:to_start(Entries, node(), View, Local) of
-        [] ->
-            S;
-        Candidates ->
-            Remote = running_on(connected()),
-            %% Running elsewhere: it did not give up here.
-            S1 = S#s{ran = maps:without(Remote, Ran)},
-            Missing = [C || {Id, _} = C <- Candidates, not lists:member(Id, Remote),
-                            not is_map_key(Id, S1#s.ran)],
-            lists:foldl(fun restore/2, S1, Missing)
-    end.
+facts(S) ->
+    #{self => node(), entries => entries(), roles => evatar_registry:roles(),
+      configured => evatar_cluster:configured(), alive => evatar_cluster:alive_nodes(),
+      connected => connected(), synced => maps:keys(S#s.synced),
+      majority => evatar_cluster:majority_now(), size => evatar_cluster:size(),
+      alone_ms => opt(catalogue_alone_ms), now_ms => now_ms(),
+      wall_ms => erlang:system_time(millisecond)}.
 
-%% The ensures that waited for a majority: each written when the pairing
-%% is still absent, now that this node is in sync with its peers. Kept
-%% while the data directory is full.
-write_pending(#s{pending = Pending} = S0) ->
-    case room(S0) of
-        {ok, S} ->
-            maps:foreach(fun(Id, Config) ->
-                                 case lookup(Id) of
-                                     none ->
-                                         ok = write_new(Id, {live, Config, node()}, S),
-                                         ?LOG_NOTICE(#{what => pairing_ensured, pairing => Id});
-                                     {ok, _} ->
-                                         ok
-                                 end
-                         end, Pending),
-            S#s{pending = #{}, ran = maps:without(maps:keys(Pending), S#s.ran)};
-        {{error, _}, S} ->
-            S
-    end.
+run(Effects, S) ->
+    lists:foldl(fun effect/2, S, Effects).
+
+effect({delete, Pid}, S) ->
+    %% Not from this process: the pairing may take a while.
+    _ = spawn(fun() ->
+                      try gen_statem:call(Pid, delete, 15000)
+                      catch exit:_ -> ok
+                      end
+              end),
+    S;
+effect({monitor, Pid}, S) ->
+    _ = erlang:monitor(process, Pid),
+    S;
+effect({write, Entry}, S) ->
+    ok = publish(Entry, S),
+    S;
+effect({restore, Id, Config, RetryAfterMs}, S) ->
+    Result = evatar_pairings_sup:start_pairing(Id, Config, restore),
+    ?LOG_NOTICE(#{what => pairing_restored, pairing => Id, result => element(1, Result),
+                  retry_after_ms => RetryAfterMs}),
+    case Result of
+        {ok, _} -> started_here(Id, S);
+        {error, _} -> S
+    end;
+effect({log, Level, Report}, S) ->
+    ?LOG(Level, Report),
+    S.
+
+%% A pairing this node started itself (created or restored here), with
+%% its process as found now (evatar_catalogue_rules:started/3).
+started_here(Id, S) ->
+    {Effects, M} = evatar_catalogue_rules:started(Id, evatar_registry:whereis_name(Id),
+                                                  S#s.memory),
+    run(Effects, S#s{memory = M}).
+
+retry(Id, S) ->
+    S#s{memory = evatar_catalogue_rules:retry(Id, S#s.memory)}.
 
 %% Whether this node may create or delete a pairing now.
 may_change() ->
     evatar_catalogue_rules:may_change(evatar_cluster:size(), evatar_cluster:majority_now()).
-
-%% In sync with every peer alive or connected, and either a majority is
-%% heard or, in a cluster of two, this node has been alone long enough.
-ready(Peers, #s{synced = Synced, started = Started}) ->
-    lists:all(fun(N) -> is_map_key(N, Synced) end, Peers)
-        andalso (evatar_cluster:majority_now()
-                 orelse (evatar_cluster:size() =< 2
-                         andalso now_ms() - Started >= opt(catalogue_alone_ms))).
 
 %% Every configured node connected, alive or not (a suspected node may
 %% only be slow, and may still hold an instance).
 connected() ->
     Connected = erlang:nodes(),
     [N || N <- evatar_cluster:configured(), lists:member(N, Connected)].
-
-running_on([]) ->
-    [];
-running_on(Peers) ->
-    Results = erpc:multicall(Peers, evatar_registry, roles, [], 2000),
-    lists:append([[Id || {Id, _, _, _} <- Roles] || {ok, Roles} <- Results])
-        %% A peer that did not answer may run anything: wait for it.
-        ++ case lists:all(fun({ok, _}) -> true; (_) -> false end, Results) of
-               true -> [];
-               false -> [Id || {Id, _, _} <- entries()]
-           end.
-
-%% A pairing restored again soon after its last restore (it keeps dying
-%% with both its instances) waits twice as long each time, up to 5 min.
-restore({Id, Config}, #s{backoff = Backoff} = S) ->
-    Now = now_ms(),
-    case maps:find(Id, Backoff) of
-        {ok, {Last, Delay}} when Now - Last < Delay ->
-            S;
-        Found ->
-            Next = case Found of
-                       {ok, {Last, Delay}} when Now - Last < 10 * Delay ->
-                           min(?RESTORE_BACKOFF_MAX, 2 * Delay);
-                       _ ->
-                           ?RESTORE_BACKOFF_MIN
-                   end,
-            Result = evatar_pairings_sup:start_pairing(Id, Config, restore),
-            ?LOG_NOTICE(#{what => pairing_restored, pairing => Id,
-                          result => element(1, Result), retry_after_ms => Next}),
-            S1 = S#s{backoff = Backoff#{Id => {Now, Next}}},
-            case Result of
-                {ok, _} -> started_here(Id, S1);
-                {error, _} -> S1
-            end
-    end.
-
-%% A pairing this node started itself (created or restored here) ran here
-%% from its first instant: one that crashes past its restart limit before
-%% the next reconcile (a tick) saw it active gave up all the same, and is
-%% not restored (evatar_pairing_SUITE crash_loop_gives_up found it back).
-%% Its process is watched like an active's, so that stepping down still
-%% leaves it to be restored; one gone already is left to the next look.
-started_here(Id, #s{ran = Ran, watched = Watched} = S) ->
-    case evatar_registry:whereis_name(Id) of
-        undefined -> S;
-        Pid -> S#s{ran = Ran#{Id => true}, watched = watch(Id, Pid, Watched)}
-    end.
-
-watch(Id, Pid, Watched) when is_map_key(Pid, Watched) ->
-    Watched#{Pid := Id};
-watch(Id, Pid, Watched) ->
-    _ = erlang:monitor(process, Pid),
-    Watched#{Pid => Id}.
-
-stop_local(Id, Stopping) ->
-    case evatar_registry:whereis_name(Id) of
-        undefined ->
-            Stopping;
-        Pid when is_map_key(Pid, Stopping) ->
-            Stopping;
-        Pid ->
-            ?LOG_NOTICE(#{what => pairing_deleted_elsewhere, pairing => Id}),
-            %% Not from this process: the pairing may take a while.
-            _ = spawn(fun() ->
-                              try gen_statem:call(Pid, delete, 15000)
-                              catch exit:_ -> ok
-                              end
-                      end),
-            Stopping#{Pid => true}
-    end.
 
 count_live() ->
     length([Id || {Id, _, {live, _, _}} <- entries()]).

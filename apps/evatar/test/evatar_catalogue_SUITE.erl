@@ -75,11 +75,12 @@ stepped_down_is_restored(Config) ->
                                   end, #{what => {restored, Id}})
                    end).
 
-%% Whether the catalogue monitors `Pid' (its state's `watched' map, the
-%% last field).
+%% Whether the catalogue monitors `Pid' (it watches it: its rules'
+%% started/3 or look/2 said so).
 watched(Peer, Pid) ->
-    State = peer:call(Peer, sys, get_state, [evatar_catalogue]),
-    maps:is_key(Pid, element(tuple_size(State), State)).
+    Catalogue = peer:call(Peer, erlang, whereis, [evatar_catalogue]),
+    {monitors, Monitors} = peer:call(Peer, erlang, process_info, [Catalogue, monitors]),
+    lists:member({process, Pid}, Monitors).
 
 with_node(Dir, Fun) ->
     Paths = lists:append([["-pa", P] || P <- code:get_path()]),

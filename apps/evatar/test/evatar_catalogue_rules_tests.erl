@@ -186,3 +186,264 @@ entry() ->
                                   1 -> {live, cfg(), N}
                               end}
       end, false).
+
+%% ---------------------------------------------------------------------------
+%% The reconcile loop
+%% ---------------------------------------------------------------------------
+
+pid(N) -> list_to_pid("<0." ++ integer_to_list(N) ++ ".0>").
+
+%% The facts of node a@h, in a cluster of a@h and b@h that hears a
+%% majority and has b@h's catalogue, at monotonic time 100000.
+facts(Entries, Roles) ->
+    #{self => a@h, entries => Entries, roles => Roles, configured => [a@h, b@h],
+      alive => [a@h, b@h], connected => [b@h], synced => [b@h], majority => true, size => 2,
+      alone_ms => 30000, now_ms => 100000, wall_ms => 7}.
+
+mine(Id) -> {Id, {1, 1, a@h}, {live, cfg(), a@h}}.
+
+%% One whole look: each step's effects, then the next step with the room
+%% (`ok' or `full') and the connected peers' answers (`Answers', given
+%% the nodes asked) as the process would get them; the effects of all
+%% steps, the questions asked, and the memory.
+run(Facts, M, Room, Answers) ->
+    run(?R:look(Facts, M), Facts, Room, Answers, [], []).
+
+run({Es, done, M}, _F, _Room, _Answers, Acc, Asked) ->
+    {Acc ++ Es, lists:reverse(Asked), M};
+run({Es, room, M}, #{entries := Entries} = F, Room, Answers, Acc, Asked) ->
+    run(?R:room_checked(Room, Entries, F, M), F, Room, Answers, Acc ++ Es, [room | Asked]);
+run({Es, {ask, Nodes, Cont}, M}, F, Room, Answers, Acc, Asked) ->
+    run(?R:answered(Answers(Nodes), Cont, F, M), F, Room, Answers, Acc ++ Es,
+        [{ask, Nodes} | Asked]).
+
+none_run(Nodes) -> [{ok, []} || _ <- Nodes].
+
+restores(Effects) -> [Id || {restore, Id, _, _} <- Effects].
+
+%% In sync with every peer alive or connected, and a majority heard; in
+%% a cluster of two, also alone once `catalogue_alone_ms' has passed since
+%% the start; never with a peer whose catalogue it does not have.
+ready_test() ->
+    F = facts([], []),
+    M = ?R:new(100000),
+    ?assert(?R:ready(F, M)),
+    ?assertNot(?R:ready(F#{synced := []}, M)),
+    %% Connected but not yet heard: its catalogue is waited for too.
+    ?assertNot(?R:ready(F#{alive := [a@h], synced := []}, M)),
+    Alone = F#{alive := [a@h], connected := [], synced := [], majority := false},
+    ?assertNot(?R:ready(Alone, M)),
+    ?assertNot(?R:ready(Alone#{now_ms := 129999}, M)),
+    ?assert(?R:ready(Alone#{now_ms := 130000}, M)),
+    %% Three nodes: alone is never enough.
+    ?assertNot(?R:ready(Alone#{size := 3, now_ms := 10000000}, M)),
+    %% Not ready: nothing is started, nothing asked.
+    ?assertMatch({[], [], _}, run(Alone, M, ok, fun none_run/1)).
+
+%% What this node owns and nobody runs is restored once the connected
+%% peers said what they run; not what runs here, there, or belongs to an
+%% alive peer; a peer that did not answer may run anything: nothing.
+restore_owned_test() ->
+    E = [mine(<<"p1">>), mine(<<"p2">>), mine(<<"p3">>),
+         {<<"theirs">>, {1, 1, b@h}, {live, cfg(), b@h}}],
+    F = facts(E, [{<<"p2">>, pid(2), standby, 1}]),
+    There = fun([b@h]) -> [{ok, [{<<"p3">>, pid(3), active, 1}]}] end,
+    {Effects, Asked, _} = run(F, ?R:new(0), ok, There),
+    ?assertEqual([{ask, [b@h]}], Asked),
+    ?assertEqual([{restore, <<"p1">>, cfg(), 1000}], Effects),
+    Silent = fun([b@h]) -> [{error, {erpc, timeout}}] end,
+    ?assertMatch({[], [{ask, [b@h]}], _}, run(F, ?R:new(0), ok, Silent)),
+    %% Nothing to start: nobody is asked.
+    ?assertMatch({[], [], _}, run(facts([lists:nth(4, E)], []), ?R:new(0), ok, Silent)),
+    %% No connected peer: no question, restored at once; b@h's too, whose
+    %% home is gone.
+    Lone = F#{alive := [a@h], connected := [], synced := []},
+    {Alone, [], _} = run(Lone, ?R:new(0), ok, Silent),
+    ?assertEqual([<<"p1">>, <<"p3">>, <<"theirs">>], restores(Alone)).
+
+%% 1 s, then twice as long each time it is restored again within ten
+%% times its wait, up to 5 min; never within its wait; back to 1 s after
+%% it lasted ten times its wait.
+restore_delay_test() ->
+    ?assertEqual(1000, ?R:restore_delay(none, 5)),
+    ?assertEqual(wait, ?R:restore_delay({0, 1000}, 999)),
+    ?assertEqual(2000, ?R:restore_delay({0, 1000}, 1000)),
+    ?assertEqual(2000, ?R:restore_delay({0, 1000}, 9999)),
+    ?assertEqual(1000, ?R:restore_delay({0, 1000}, 10000)),
+    ?assertEqual(300000, ?R:restore_delay({0, 200000}, 200000)),
+    ?assertEqual(300000, ?R:restore_delay({0, 300000}, 300000)),
+    ?assertEqual(wait, ?R:restore_delay({0, 300000}, 299999)),
+    %% Through the looks: a pairing that keeps dying is restored at 0,
+    %% 1000, 3000, 7000 (each wait doubled), not in between.
+    F = facts([mine(<<"p">>)], []),
+    Times = lists:seq(0, 8000, 250),
+    {Restored, _} = lists:foldl(
+                      fun(T, {Acc, M}) ->
+                              {Es, _, M1} = run(F#{now_ms := T}, M, ok, fun none_run/1),
+                              {Acc ++ [{T, Ms} || {restore, _, _, Ms} <- Es], M1}
+                      end, {[], ?R:new(-100000)}, Times),
+    ?assertEqual([{0, 1000}, {1000, 2000}, {3000, 4000}, {7000, 8000}], Restored).
+
+%% Each local instance of a deleted pairing is asked once to delete
+%% itself (said in the log); it is asked again only as another process.
+stop_deleted_test() ->
+    E = [{<<"gone">>, {2, 1, b@h}, deleted}, mine(<<"kept">>)],
+    Roles = [{<<"gone">>, pid(1), standby, 1}, {<<"kept">>, pid(2), standby, 1}],
+    F = facts(E, Roles),
+    {Es1, _, M1} = run(F, ?R:new(0), ok, fun none_run/1),
+    ?assertEqual([{log, notice, #{what => pairing_deleted_elsewhere, pairing => <<"gone">>}},
+                  {delete, pid(1)}], Es1),
+    ?assertMatch({[], _, _}, run(F, M1, ok, fun none_run/1)),
+    %% Gone, then a new instance: that one is asked.
+    {_, _, M2} = run(facts(E, []), M1, ok, fun none_run/1),
+    ?assertMatch({[_, {delete, _}], _, _}, run(F, M2, ok, fun none_run/1)).
+
+%% A local active (or fenced) instance is monitored once and counts as
+%% run here: after it crashed (it gave up), it is not restored here; one
+%% that stepped down is restored when no instance is left anywhere.
+gave_up_here_test() ->
+    E = [mine(<<"p">>)],
+    {Es1, _, M1} = run(facts(E, [{<<"p">>, pid(1), fenced, 1}]), ?R:new(0), ok,
+                       fun none_run/1),
+    ?assertEqual([{monitor, pid(1)}], Es1),
+    ?assertMatch({[], _, _}, run(facts(E, [{<<"p">>, pid(1), active, 1}]), M1, ok,
+                                 fun none_run/1)),
+    {false, Crashed} = ?R:down(pid(1), killed, M1),
+    ?assertMatch({[], [{ask, [b@h]}], _}, run(facts(E, []), Crashed, ok, fun none_run/1)),
+    {true, Stepped} = ?R:down(pid(1), {shutdown, stale_claim}, M1),
+    ?assertMatch({[{restore, <<"p">>, _, _}], _, _},
+                 run(facts(E, []), Stepped, ok, fun none_run/1)),
+    %% Not watched (any more): nothing to look at.
+    ?assertEqual({false, Crashed}, ?R:down(pid(1), normal, Crashed)),
+    %% Running elsewhere: it did not give up here.
+    Elsewhere = fun(_) -> [{ok, [{<<"p">>, pid(9), active, 2}]}] end,
+    {[], _, M2} = run(facts(E, []), Crashed, ok, Elsewhere),
+    ?assertMatch({[{restore, <<"p">>, _, _}], _, _}, run(facts(E, []), M2, ok, fun none_run/1)),
+    %% An ensure of it gives it another chance.
+    ?assertMatch({[{restore, <<"p">>, _, _}], _, _},
+                 run(facts(E, []), ?R:retry(<<"p">>, Crashed), ok, fun none_run/1)).
+
+%% A pairing started here (created, restored) ran here from its first
+%% instant, watched; one gone before it could be looked up is left to
+%% the next look.
+started_test() ->
+    E = [mine(<<"p">>)],
+    {[{restore, <<"p">>, _, _}], _, M1} = run(facts(E, []), ?R:new(0), ok, fun none_run/1),
+    ?assertEqual({[], M1}, ?R:started(<<"p">>, undefined, M1)),
+    {[{monitor, P}], M2} = ?R:started(<<"p">>, pid(5), M1),
+    ?assertEqual(pid(5), P),
+    %% Watched already: not monitored twice.
+    ?assertMatch({[], _}, ?R:started(<<"p">>, pid(5), M2)),
+    %% Crashed past its limit before any look saw it: not restored, even
+    %% once its back-off is over.
+    {false, M3} = ?R:down(pid(5), killed, M2),
+    ?assertMatch({[], _, _}, run((facts(E, []))#{now_ms := 10000000}, M3, ok, fun none_run/1)).
+
+%% An ensure that waited for a majority is written once a look is ready
+%% and only if the pairing is still absent (a tombstone is written over);
+%% kept while the data directory is full; then started as any other.
+pending_test() ->
+    M0 = ?R:pend(<<"new">>, cfg(), ?R:pend(<<"old">>, cfg(), ?R:new(0))),
+    Dead = {<<"new">>, {4, 1, b@h}, deleted},
+    Old = {<<"old">>, {1, 1, b@h}, {live, cfg(), b@h}},
+    F = facts([Dead, Old], []),
+    %% Not ready: not even the room is checked.
+    ?assertMatch({[], [], _}, run(F#{synced := []}, M0, ok, fun none_run/1)),
+    {[], [room], M1} = run(F, M0, full, fun none_run/1),
+    {Es, Asked, M2} = run(F, M1, ok, fun none_run/1),
+    Written = {<<"new">>, {5, 7, a@h}, {live, cfg(), a@h}},
+    ?assertEqual([{write, Written}, {log, notice, #{what => pairing_ensured, pairing => <<"new">>}},
+                  {restore, <<"new">>, cfg(), 1000}], Es),
+    ?assertEqual([room, {ask, [b@h]}], Asked),
+    %% Written once: no room asked for again.
+    ?assertMatch({[], [{ask, [b@h]}], _}, run(F#{entries := [Written, Old]}, M2, ok,
+                                              fun none_run/1)).
+
+%% Over any history of looks (local instances coming and going, peers
+%% running pairings or not answering, the disc full or not, ensures,
+%% instances crashing or stepping down, time passing), no pairing is
+%% restored that runs here or on a peer that answered, or while a peer
+%% did not answer, or before the node is ready, or within its back-off;
+%% an instance is asked to delete itself once; an ensure is written only
+%% when absent and with room.
+reconcile_safe_test() ->
+    ok = evatar_test_proper:check(prop_reconcile_safe(), 300).
+
+prop_reconcile_safe() ->
+    ?FORALL({Entries, Cmds}, {catalogue(), list(command())},
+            begin
+                {Ok, _} = lists:foldl(fun(Cmd, {true, St}) -> command(Cmd, Entries, St);
+                                         (_, Acc) -> Acc
+                                      end, {true, {?R:new(0), 0, #{}, #{}}}, Cmds),
+                Ok
+            end).
+
+ids() -> oneof([<<"p1">>, <<"p2">>, <<"p3">>]).
+
+command() ->
+    frequency([{6, {look, range(0, 3000), few({ids(), oneof([active, standby, fenced])}),
+                    oneof([ok, full]), frequency([{3, ok}, {1, silent}]), few(ids()),
+                    likely(), likely()}},
+               {1, {pend, ids()}},
+               {1, {started, ids(), boolean()}},
+               {2, {down, ids(), oneof([killed, {shutdown, stale_claim}])}}]).
+
+few(T) -> frequency([{2, []}, {2, [T]}, {1, [T, T]}]).
+
+likely() -> frequency([{3, true}, {1, false}]).
+
+%% The state: the rules' memory, the time, the last restore of each id
+%% ({At, RetryAfterMs}), the pids asked to delete themselves.
+command({pend, Id}, _Entries, {M, T, Last, Asked}) ->
+    {true, {?R:pend(Id, cfg(), M), T, Last, Asked}};
+command({started, Id, Found}, _Entries, {M, T, Last, Asked}) ->
+    {_, M1} = ?R:started(Id, case Found of true -> pid(id_n(Id)); false -> undefined end, M),
+    {true, {M1, T, Last, Asked}};
+command({down, Id, Reason}, _Entries, {M, T, Last, Asked}) ->
+    {_, M1} = ?R:down(pid(id_n(Id)), Reason, M),
+    {true, {M1, T, Last, Asked}};
+command({look, Dt, Local0, Room, Answer, There, Majority, Synced}, Entries0,
+        {M, T0, Last, Asked}) ->
+    T = T0 + Dt,
+    Local = maps:to_list(maps:from_list(Local0)),
+    Roles = [{Id, pid(id_n(Id)), Role, 1} || {Id, Role} <- Local],
+    %% Entries as catalogue() makes them, with homes on a@h or b@h.
+    Entries = [{Id, V, case Val of {live, C, _} -> {live, C, N}; D -> D end}
+               || {Id, {_, _, N} = V, Val} <- Entries0],
+    F = (facts(Entries, Roles))#{now_ms := T, majority := Majority,
+                                 synced := [b@h || Synced]},
+    Answers = fun(Nodes) ->
+                      case Answer of
+                          ok -> [{ok, [{Id, pid(90), active, 1} || Id <- There]} || _ <- Nodes];
+                          silent -> [{error, {erpc, timeout}} || _ <- Nodes]
+                      end
+              end,
+    {Es, _, M1} = run(F, M, Room, Answers),
+    Restored = restores(Es),
+    Deletes = [P || {delete, P} <- Es],
+    Written = [Id || {write, {Id, _, _}} <- Es],
+    Ready = ?R:ready(F, M),
+    Ok = lists:all(fun(Id) ->
+                           not lists:keymember(Id, 1, Local)
+                               andalso not lists:member(Id, There)
+                               andalso Answer =:= ok
+                               andalso Ready
+                               andalso case Last of
+                                           #{Id := {At, Wait}} -> T - At >= Wait;
+                                           #{} -> true
+                                       end
+                   end, Restored)
+        andalso lists:all(fun({restore, _, _, W}) -> W >= 1000 andalso W =< 300000;
+                             (_) -> true
+                          end, Es)
+        andalso [P || P <- Deletes, is_map_key(P, Asked)] =:= []
+        andalso (Written =:= [] orelse (Room =:= ok andalso Ready))
+        andalso [Id || Id <- Written, {I, _, {live, _, _}} <- Entries, I =:= Id] =:= [],
+    Last1 = maps:merge(Last, maps:from_list([{Id, {T, W}} || {restore, Id, _, W} <- Es])),
+    %% A pid gone from the roles may be asked again when it comes back
+    %% (a new instance would have another pid).
+    Asked1 = maps:merge(maps:with([P || {_, P, _, _} <- Roles], Asked),
+                        maps:from_list([{P, true} || P <- Deletes])),
+    {Ok, {M1, T, Last1, Asked1}}.
+
+id_n(<<"p", N/binary>>) -> binary_to_integer(N).
