@@ -28,13 +28,15 @@
 %% stops local instances of deleted ones. Every decision of that look
 %% (the reconcile loop: what stops, what is watched, when the node is
 %% ready, which waiting ensures are written, what is restored and after
-%% what back-off) is taken by evatar_catalogue_rules (look/2,
-%% room_checked/4, answered/4) from what this process read; the process
-%% carries out the effects (ask an instance to delete itself, monitor,
-%% write and send an entry, start a pairing, log) and answers the rules'
-%% two questions (is there room in the data directory, what do the
-%% connected peers run). Messages between nodes have the shape
-%% `{evatar_catalogue, 1, Body}' (introduced in 0.1.0).
+%% what back-off) and of the exchange (which peer gets the whole
+%% catalogue when) is taken by evatar_catalogue_rules (look/2,
+%% room_checked/4, answered/4; exchange/3, received/3) from what this
+%% process read; the process carries out the effects (send the whole
+%% catalogue, ask an instance to delete itself, monitor, write and send an
+%% entry, start a pairing, log) and answers the rules' two questions (is
+%% there room in the data directory, what do the connected peers run).
+%% Messages between nodes have the shape `{evatar_catalogue, 1, Body}'
+%% (introduced in 0.1.0).
 %%
 %% A full data directory (evatar_data_dir: no room for
 %% `data_dir_reserve_bytes'), found before each change and every
@@ -67,16 +69,14 @@
                  value :: evatar_catalogue_rules:value()}).
 
 -record(s, {durable :: boolean(),
-            alive = [] :: [node()],
-            synced = #{} :: #{node() => true},
-            last_sync :: integer(),
             %% The data directory when it was found full, and what peers
             %% sent meanwhile (written once there is room).
             full = false :: false | file:filename(),
             held = [] :: [evatar_catalogue_rules:entry()],
             last_disk_check :: integer(),
-            %% What the reconcile loop remembers between looks (pending
-            %% ensures, back-offs, what ran here, what is watched).
+            %% What the rules remember between looks (the exchange's
+            %% peers, pending ensures, back-offs, what ran here, what is
+            %% watched).
             memory :: evatar_catalogue_rules:memory()}).
 
 %% @doc Starts the catalogue process, registered as `evatar_catalogue'.
@@ -186,7 +186,7 @@ init([]) ->
             Now = now_ms(),
             ?LOG_INFO(#{what => catalogue_opened, durable => Durable, entries => count_live()}),
             persistent_term:put(?DISK_FULL, false),
-            {ok, #s{durable = Durable, last_sync = Now, last_disk_check = Now,
+            {ok, #s{durable = Durable, last_disk_check = Now,
                     memory = evatar_catalogue_rules:new(Now)}}
     end.
 
@@ -303,8 +303,7 @@ handle_call(_Request, _From, S) ->
 %% @private
 -spec handle_cast(term(), #s{}) -> {noreply, #s{}}.
 handle_cast(sync_now, S) ->
-    _ = [push(N, true) || N <- S#s.alive],
-    {noreply, S};
+    {noreply, run(evatar_catalogue_rules:sync_now(S#s.memory), S)};
 handle_cast(_Msg, S) ->
     {noreply, S}.
 
@@ -327,16 +326,8 @@ handle_info({?MODULE, 1, {entries, From, Entries, Full}}, S0)
         end,
     _ = [?LOG_INFO(#{what => catalogue_learned, pairing => Id, from => From,
                      deleted => Val =:= deleted}) || {Id, _, Val} <- Changed],
-    S1 = case Full of
-             true ->
-                 %% A peer we were not in sync with gets ours back: both
-                 %% sides are then in sync, whoever noticed the other first.
-                 _ = [push(From, true) || not is_map_key(From, S#s.synced)],
-                 S#s{synced = (S#s.synced)#{From => true}};
-             false ->
-                 S
-         end,
-    {noreply, reconcile(S1)};
+    {Effects, M} = evatar_catalogue_rules:received(From, Full, S#s.memory),
+    {noreply, reconcile(run(Effects, S#s{memory = M}))};
 handle_info({'DOWN', _Ref, process, Pid, Reason}, S) ->
     case evatar_catalogue_rules:down(Pid, Reason, S#s.memory) of
         {true, M} -> {noreply, reconcile(S#s{memory = M})};
@@ -364,9 +355,10 @@ write_new(Id, Value, S) ->
 %% Written here, then sent to the peers alive or connected: one not yet
 %% heard (just started) would otherwise learn it only at the next full
 %% exchange.
-publish(Entry, #s{alive = Alive} = S) ->
+publish(Entry, S) ->
     ok = write([Entry], S),
-    _ = [send(N, {entries, node(), [Entry], false}) || N <- lists:usort(Alive ++ connected())],
+    _ = [send(N, {entries, node(), [Entry], false})
+         || N <- evatar_catalogue_rules:recipients(connected(), S#s.memory)],
     ok.
 
 %% Committed, then the log forced to disc: a pairing the caller was told
@@ -422,22 +414,16 @@ check_disk(#s{durable = true, last_disk_check = Last} = S, Forced) ->
 check_disk(S, _Forced) ->
     S.
 
-%% Peers that became alive get the whole catalogue; so does every alive
-%% peer every `catalogue_sync_ms' (what a silent partition held back).
-sync(#s{alive = Old, synced = Synced, last_sync = Last} = S, Forced) ->
-    Alive = [N || N <- evatar_cluster:alive_nodes(), N =/= node()],
-    Now = now_ms(),
-    Periodic = Forced orelse Now - Last >= opt(catalogue_sync_ms),
-    Due = case Periodic of
-              true -> Alive;
-              false -> Alive -- Old
-          end,
-    _ = [push(N, true) || N <- Due],
-    S#s{alive = Alive, synced = maps:with(Alive, Synced),
-        last_sync = case Periodic of true -> Now; false -> Last end}.
+%% The exchange's round (evatar_catalogue_rules:exchange/3): the whole
+%% catalogue to the peers it says.
+sync(S, Forced) ->
+    {Effects, M} = evatar_catalogue_rules:exchange(
+                     #{self => node(), alive => evatar_cluster:alive_nodes(), now_ms => now_ms(),
+                       sync_ms => opt(catalogue_sync_ms)}, Forced, S#s.memory),
+    run(Effects, S#s{memory = M}).
 
-push(Node, Full) ->
-    send(Node, {entries, node(), entries(), Full}).
+push(Node) ->
+    send(Node, {entries, node(), entries(), true}).
 
 %% Never `nosuspend': a busy distribution buffer would drop the entry.
 send(Node, Body) ->
@@ -449,7 +435,7 @@ send(Node, Body) ->
 %% effects are carried out before the next step, which gets what it asked
 %% for: the room in the data directory, or what the connected peers run.
 reconcile(S) ->
-    Facts = facts(S),
+    Facts = facts(),
     step(evatar_catalogue_rules:look(Facts, S#s.memory), Facts, S).
 
 step({Effects, Next, M}, Facts, S0) ->
@@ -471,17 +457,19 @@ step({Effects, Next, M}, Facts, S0) ->
             step(evatar_catalogue_rules:answered(Answers, Cont, Facts, S#s.memory), Facts, S)
     end.
 
-facts(S) ->
+facts() ->
     #{self => node(), entries => entries(), roles => evatar_registry:roles(),
       configured => evatar_cluster:configured(), alive => evatar_cluster:alive_nodes(),
-      connected => connected(), synced => maps:keys(S#s.synced),
-      majority => evatar_cluster:majority_now(), size => evatar_cluster:size(),
-      alone_ms => opt(catalogue_alone_ms), now_ms => now_ms(),
+      connected => connected(), majority => evatar_cluster:majority_now(),
+      size => evatar_cluster:size(), alone_ms => opt(catalogue_alone_ms), now_ms => now_ms(),
       wall_ms => erlang:system_time(millisecond)}.
 
 run(Effects, S) ->
     lists:foldl(fun effect/2, S, Effects).
 
+effect({push, Node}, S) ->
+    ok = push(Node),
+    S;
 effect({delete, Pid}, S) ->
     %% Not from this process: the pairing may take a while.
     _ = spawn(fun() ->

@@ -1,11 +1,12 @@
 %% @doc Internal. The pure decisions of the pairings' catalogue
 %% (`evatar_catalogue', which reads, writes and sends, and decides
 %% nothing): which of two versions of an entry wins when two nodes'
-%% catalogues meet, who may change the catalogue, and the reconcile loop:
-%% which local instances stop, which are watched, when the node is ready,
-%% which waiting ensures are written, which pairings it restores and when
-%% (the back-off). No processes, no clock, no storage (docs/ha-design.md,
-%% section 11).
+%% catalogues meet, who may change the catalogue, which peer gets the
+%% whole catalogue when ({@link exchange/3}, {@link received/3}), and the
+%% reconcile loop: which local instances stop, which are watched, when
+%% the node is ready, which waiting ensures are written, which pairings it
+%% restores and when (the back-off). No processes, no clock, no storage
+%% (docs/ha-design.md, section 11).
 %%
 %% An entry is a register per pairing id: a live entry (the pairing's
 %% configuration and its home node) or a tombstone (it was deleted), with
@@ -47,9 +48,10 @@
          to_stop/2, gave_up/1]).
 -export([new/1, look/2, room_checked/4, answered/4, started/3, down/3, pend/3, retry/2,
          ready/2, restore_delay/2]).
+-export([exchange/3, received/3, sync_now/1, recipients/2]).
 
 -export_type([entry/0, version/0, value/0, facts/0, effect/0, next/0, memory/0, cont/0,
-              answer/0]).
+              answer/0, round/0]).
 
 -type version() :: {Counter :: non_neg_integer(), WallMs :: integer(), node()}.
 -type value() :: {live, evatar_pairing_logic:config(), Home :: node()} | deleted.
@@ -58,7 +60,6 @@
 %% What the process reads before a look: its catalogue, its instances
 %% (evatar_registry:roles/0), the cluster as evatar_cluster sees it (alive
 %% includes this node; connected: the configured peers connected now), the
-%% peers whose catalogue it has received since they became alive, the
 %% setting `catalogue_alone_ms', and the monotonic and wall clocks.
 -type facts() :: #{self := node(),
                    entries := [entry()],
@@ -66,17 +67,22 @@
                    configured := [node()],
                    alive := [node()],
                    connected := [node()],
-                   synced := [node()],
                    majority := boolean(),
                    size := pos_integer(),
                    alone_ms := non_neg_integer(),
                    now_ms := integer(),
                    wall_ms := integer()}.
-%% What the process does: ask a local instance of a deleted pairing to
-%% delete itself (from another process: it may take a while), monitor an
-%% instance, write an entry and send it to the peers, start a pairing from
-%% the catalogue (and log `pairing_restored' with the outcome), log.
--type effect() :: {delete, pid()}
+%% What the process reads before an exchange round: the alive nodes (this
+%% one included), the monotonic clock and the setting `catalogue_sync_ms'.
+-type round() :: #{self := node(), alive := [node()], now_ms := integer(),
+                   sync_ms := pos_integer()}.
+%% What the process does: send its whole catalogue to a peer, ask a local
+%% instance of a deleted pairing to delete itself (from another process:
+%% it may take a while), monitor an instance, write an entry and send it
+%% to the peers, start a pairing from the catalogue (and log
+%% `pairing_restored' with the outcome), log.
+-type effect() :: {push, node()}
+                | {delete, pid()}
                 | {monitor, pid()}
                 | {write, entry()}
                 | {restore, evatar:pairing_id(), evatar_pairing_logic:config(),
@@ -92,6 +98,12 @@
 -opaque cont() :: {[entry()], [{evatar:pairing_id(), evatar_pairing_logic:config()}]}.
 
 -record(mem, {started :: integer(),
+              %% The exchange: the peers alive at the last round, those
+              %% whose whole catalogue this node received since, and when
+              %% every alive peer was last sent the whole catalogue.
+              alive = [] :: [node()],
+              synced = #{} :: #{node() => true},
+              last_sync :: integer(),
               %% Per pairing: when this node last restored it, and how
               %% long the next restore waits.
               backoff = #{} :: #{evatar:pairing_id() => {integer(), pos_integer()}},
@@ -219,7 +231,7 @@ gave_up(_Crash) -> true.
 %% @doc The memory of a catalogue started at monotonic time `NowMs'.
 -spec new(NowMs :: integer()) -> memory().
 new(NowMs) ->
-    #mem{started = NowMs}.
+    #mem{started = NowMs, last_sync = NowMs}.
 
 %% @doc The first step of a look: each local instance of a deleted pairing
 %% is asked once to delete itself, the local actives (and fenced) are
@@ -258,9 +270,9 @@ watch(Id, Pid, Watched) -> {[{monitor, Pid}], Watched#{Pid => Id}}.
 %% every peer alive or connected, and either hears a majority or, in a
 %% cluster of two, has been alone for `alone_ms' since its start.
 -spec ready(facts(), memory()) -> boolean().
-ready(#{synced := Synced, majority := Majority, size := Size, alone_ms := AloneMs,
-        now_ms := Now} = F, #mem{started = Started}) ->
-    lists:all(fun(N) -> lists:member(N, Synced) end, peers(F))
+ready(#{majority := Majority, size := Size, alone_ms := AloneMs, now_ms := Now} = F,
+      #mem{started = Started, synced = Synced}) ->
+    lists:all(fun(N) -> is_map_key(N, Synced) end, peers(F))
         andalso (Majority orelse (Size =< 2 andalso Now - Started >= AloneMs)).
 
 peers(#{self := Self, alive := Alive, connected := Connected}) ->
@@ -393,3 +405,50 @@ pend(Id, Config, #mem{pending = Pending} = M) ->
 -spec retry(evatar:pairing_id(), memory()) -> memory().
 retry(Id, #mem{ran = Ran} = M) ->
     M#mem{ran = maps:remove(Id, Ran)}.
+
+%% ---------------------------------------------------------------------------
+%% The exchange
+%% ---------------------------------------------------------------------------
+
+%% @doc An exchange round (every look; `Forced': as if its timer were due):
+%% a peer that became alive gets the whole catalogue, and so does every
+%% alive peer every `sync_ms' (what a silent partition held back). A peer
+%% no longer alive must send its catalogue again before this node is
+%% {@link ready/2}.
+-spec exchange(round(), Forced :: boolean(), memory()) -> {[effect()], memory()}.
+exchange(#{self := Self, alive := Alive0, now_ms := Now, sync_ms := SyncMs}, Forced,
+         #mem{alive = Old, synced = Synced, last_sync = Last} = M) ->
+    Alive = [N || N <- Alive0, N =/= Self],
+    Periodic = Forced orelse Now - Last >= SyncMs,
+    Due = case Periodic of
+              true -> Alive;
+              false -> Alive -- Old
+          end,
+    {[{push, N} || N <- Due],
+     M#mem{alive = Alive, synced = maps:with(Alive, Synced),
+           last_sync = case Periodic of
+                           true -> Now;
+                           false -> Last
+                       end}}.
+
+%% @doc A peer's entries arrived, its whole catalogue (`Full') or one
+%% write: after a whole one this node is in sync with `From', and a peer
+%% it was not in sync with gets its own back, so both sides are, whoever
+%% noticed the other first.
+-spec received(node(), Full :: boolean(), memory()) -> {[effect()], memory()}.
+received(_From, false, M) ->
+    {[], M};
+received(From, true, #mem{synced = Synced} = M) ->
+    {[{push, From} || not is_map_key(From, Synced)], M#mem{synced = Synced#{From => true}}}.
+
+%% @doc The whole catalogue now to every peer alive at the last round.
+-spec sync_now(memory()) -> [effect()].
+sync_now(#mem{alive = Alive}) ->
+    [{push, N} || N <- Alive].
+
+%% @doc Who learns a write at once: the peers alive at the last round and
+%% the `Connected' ones (one just started, not yet heard, would otherwise
+%% learn it only at the next whole exchange).
+-spec recipients(Connected :: [node()], memory()) -> [node()].
+recipients(Connected, #mem{alive = Alive}) ->
+    lists:usort(Alive ++ Connected).

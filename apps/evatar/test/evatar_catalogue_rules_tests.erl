@@ -194,11 +194,16 @@ entry() ->
 pid(N) -> list_to_pid("<0." ++ integer_to_list(N) ++ ".0>").
 
 %% The facts of node a@h, in a cluster of a@h and b@h that hears a
-%% majority and has b@h's catalogue, at monotonic time 100000.
+%% majority, at monotonic time 100000.
 facts(Entries, Roles) ->
     #{self => a@h, entries => Entries, roles => Roles, configured => [a@h, b@h],
-      alive => [a@h, b@h], connected => [b@h], synced => [b@h], majority => true, size => 2,
+      alive => [a@h, b@h], connected => [b@h], majority => true, size => 2,
       alone_ms => 30000, now_ms => 100000, wall_ms => 7}.
+
+%% The memory of a@h started at `Started', which has b@h's catalogue.
+mem(Started) ->
+    {[{push, b@h}], M} = ?R:received(b@h, true, ?R:new(Started)),
+    M.
 
 mine(Id) -> {Id, {1, 1, a@h}, {live, cfg(), a@h}}.
 
@@ -226,12 +231,12 @@ restores(Effects) -> [Id || {restore, Id, _, _} <- Effects].
 %% the start; never with a peer whose catalogue it does not have.
 ready_test() ->
     F = facts([], []),
-    M = ?R:new(100000),
+    M = mem(100000),
     ?assert(?R:ready(F, M)),
-    ?assertNot(?R:ready(F#{synced := []}, M)),
+    ?assertNot(?R:ready(F, ?R:new(100000))),
     %% Connected but not yet heard: its catalogue is waited for too.
-    ?assertNot(?R:ready(F#{alive := [a@h], synced := []}, M)),
-    Alone = F#{alive := [a@h], connected := [], synced := [], majority := false},
+    ?assertNot(?R:ready(F#{alive := [a@h]}, ?R:new(100000))),
+    Alone = F#{alive := [a@h], connected := [], majority := false},
     ?assertNot(?R:ready(Alone, M)),
     ?assertNot(?R:ready(Alone#{now_ms := 129999}, M)),
     ?assert(?R:ready(Alone#{now_ms := 130000}, M)),
@@ -248,17 +253,17 @@ restore_owned_test() ->
          {<<"theirs">>, {1, 1, b@h}, {live, cfg(), b@h}}],
     F = facts(E, [{<<"p2">>, pid(2), standby, 1}]),
     There = fun([b@h]) -> [{ok, [{<<"p3">>, pid(3), active, 1}]}] end,
-    {Effects, Asked, _} = run(F, ?R:new(0), ok, There),
+    {Effects, Asked, _} = run(F, mem(0), ok, There),
     ?assertEqual([{ask, [b@h]}], Asked),
     ?assertEqual([{restore, <<"p1">>, cfg(), 1000}], Effects),
     Silent = fun([b@h]) -> [{error, {erpc, timeout}}] end,
-    ?assertMatch({[], [{ask, [b@h]}], _}, run(F, ?R:new(0), ok, Silent)),
+    ?assertMatch({[], [{ask, [b@h]}], _}, run(F, mem(0), ok, Silent)),
     %% Nothing to start: nobody is asked.
-    ?assertMatch({[], [], _}, run(facts([lists:nth(4, E)], []), ?R:new(0), ok, Silent)),
+    ?assertMatch({[], [], _}, run(facts([lists:nth(4, E)], []), mem(0), ok, Silent)),
     %% No connected peer: no question, restored at once; b@h's too, whose
     %% home is gone.
-    Lone = F#{alive := [a@h], connected := [], synced := []},
-    {Alone, [], _} = run(Lone, ?R:new(0), ok, Silent),
+    Lone = F#{alive := [a@h], connected := []},
+    {Alone, [], _} = run(Lone, mem(0), ok, Silent),
     ?assertEqual([<<"p1">>, <<"p3">>, <<"theirs">>], restores(Alone)).
 
 %% 1 s, then twice as long each time it is restored again within ten
@@ -281,7 +286,7 @@ restore_delay_test() ->
                       fun(T, {Acc, M}) ->
                               {Es, _, M1} = run(F#{now_ms := T}, M, ok, fun none_run/1),
                               {Acc ++ [{T, Ms} || {restore, _, _, Ms} <- Es], M1}
-                      end, {[], ?R:new(-100000)}, Times),
+                      end, {[], mem(-100000)}, Times),
     ?assertEqual([{0, 1000}, {1000, 2000}, {3000, 4000}, {7000, 8000}], Restored).
 
 %% Each local instance of a deleted pairing is asked once to delete
@@ -290,7 +295,7 @@ stop_deleted_test() ->
     E = [{<<"gone">>, {2, 1, b@h}, deleted}, mine(<<"kept">>)],
     Roles = [{<<"gone">>, pid(1), standby, 1}, {<<"kept">>, pid(2), standby, 1}],
     F = facts(E, Roles),
-    {Es1, _, M1} = run(F, ?R:new(0), ok, fun none_run/1),
+    {Es1, _, M1} = run(F, mem(0), ok, fun none_run/1),
     ?assertEqual([{log, notice, #{what => pairing_deleted_elsewhere, pairing => <<"gone">>}},
                   {delete, pid(1)}], Es1),
     ?assertMatch({[], _, _}, run(F, M1, ok, fun none_run/1)),
@@ -303,7 +308,7 @@ stop_deleted_test() ->
 %% that stepped down is restored when no instance is left anywhere.
 gave_up_here_test() ->
     E = [mine(<<"p">>)],
-    {Es1, _, M1} = run(facts(E, [{<<"p">>, pid(1), fenced, 1}]), ?R:new(0), ok,
+    {Es1, _, M1} = run(facts(E, [{<<"p">>, pid(1), fenced, 1}]), mem(0), ok,
                        fun none_run/1),
     ?assertEqual([{monitor, pid(1)}], Es1),
     ?assertMatch({[], _, _}, run(facts(E, [{<<"p">>, pid(1), active, 1}]), M1, ok,
@@ -328,7 +333,7 @@ gave_up_here_test() ->
 %% the next look.
 started_test() ->
     E = [mine(<<"p">>)],
-    {[{restore, <<"p">>, _, _}], _, M1} = run(facts(E, []), ?R:new(0), ok, fun none_run/1),
+    {[{restore, <<"p">>, _, _}], _, M1} = run(facts(E, []), mem(0), ok, fun none_run/1),
     ?assertEqual({[], M1}, ?R:started(<<"p">>, undefined, M1)),
     {[{monitor, P}], M2} = ?R:started(<<"p">>, pid(5), M1),
     ?assertEqual(pid(5), P),
@@ -343,12 +348,13 @@ started_test() ->
 %% and only if the pairing is still absent (a tombstone is written over);
 %% kept while the data directory is full; then started as any other.
 pending_test() ->
-    M0 = ?R:pend(<<"new">>, cfg(), ?R:pend(<<"old">>, cfg(), ?R:new(0))),
+    M0 = ?R:pend(<<"new">>, cfg(), ?R:pend(<<"old">>, cfg(), mem(0))),
     Dead = {<<"new">>, {4, 1, b@h}, deleted},
     Old = {<<"old">>, {1, 1, b@h}, {live, cfg(), b@h}},
     F = facts([Dead, Old], []),
     %% Not ready: not even the room is checked.
-    ?assertMatch({[], [], _}, run(F#{synced := []}, M0, ok, fun none_run/1)),
+    ?assertMatch({[], [], _}, run(F, ?R:pend(<<"new">>, cfg(), ?R:new(0)), ok,
+                                  fun none_run/1)),
     {[], [room], M1} = run(F, M0, full, fun none_run/1),
     {Es, Asked, M2} = run(F, M1, ok, fun none_run/1),
     Written = {<<"new">>, {5, 7, a@h}, {live, cfg(), a@h}},
@@ -359,6 +365,33 @@ pending_test() ->
     ?assertMatch({[], [{ask, [b@h]}], _}, run(F#{entries := [Written, Old]}, M2, ok,
                                               fun none_run/1)).
 
+%% A peer that becomes alive gets the whole catalogue, every alive peer
+%% every `catalogue_sync_ms' or when forced; one that sent its whole
+%% catalogue first gets this node's back, once; a peer gone must send its
+%% catalogue again before the node is ready.
+exchange_test() ->
+    Round = fun(T, Alive) -> #{self => a@h, alive => Alive, now_ms => T, sync_ms => 10000} end,
+    {[{push, b@h}], M1} = ?R:exchange(Round(100, [a@h, b@h]), false, ?R:new(0)),
+    {[], M2} = ?R:exchange(Round(200, [a@h, b@h]), false, M1),
+    ?assertMatch({[{push, b@h}], _}, ?R:exchange(Round(200, [a@h, b@h]), true, M2)),
+    ?assertMatch({[{push, b@h}], _}, ?R:exchange(Round(10000, [a@h, b@h]), false, M2)),
+    {[{push, b@h}], M3} = ?R:exchange(Round(10000, [b@h, a@h]), false, M2),
+    {[], _} = ?R:exchange(Round(19999, [a@h, b@h]), false, M3),
+    ?assertEqual([{push, b@h}], ?R:sync_now(M3)),
+    ?assertEqual([b@h, c@h], ?R:recipients([c@h], M3)),
+    %% b@h's whole catalogue: ours goes back once, and a@h is ready.
+    F = facts([], []),
+    ?assertNot(?R:ready(F, M3)),
+    {[], M3} = ?R:received(b@h, false, M3),
+    {[{push, b@h}], M4} = ?R:received(b@h, true, M3),
+    {[], M4} = ?R:received(b@h, true, M4),
+    ?assert(?R:ready(F, M4)),
+    %% b@h gone, then back: not ready until it sent its catalogue again.
+    {[], M5} = ?R:exchange(Round(20000, [a@h]), false, M4),
+    ?assertEqual([], ?R:sync_now(M5)),
+    {[{push, b@h}], M6} = ?R:exchange(Round(20100, [a@h, b@h]), false, M5),
+    ?assertNot(?R:ready(F, M6)).
+
 %% Over any history of looks (local instances coming and going, peers
 %% running pairings or not answering, the disc full or not, ensures,
 %% instances crashing or stepping down, time passing), no pairing is
@@ -367,14 +400,14 @@ pending_test() ->
 %% an instance is asked to delete itself once; an ensure is written only
 %% when absent and with room.
 reconcile_safe_test() ->
-    ok = evatar_test_proper:check(prop_reconcile_safe(), 300).
+    ok = evatar_test_proper:check(prop_reconcile_safe(), 500).
 
 prop_reconcile_safe() ->
     ?FORALL({Entries, Cmds}, {catalogue(), list(command())},
             begin
                 {Ok, _} = lists:foldl(fun(Cmd, {true, St}) -> command(Cmd, Entries, St);
                                          (_, Acc) -> Acc
-                                      end, {true, {?R:new(0), 0, #{}, #{}}}, Cmds),
+                                      end, {true, {mem(0), 0, #{}, #{}}}, Cmds),
                 Ok
             end).
 
@@ -383,7 +416,11 @@ ids() -> oneof([<<"p1">>, <<"p2">>, <<"p3">>]).
 command() ->
     frequency([{6, {look, range(0, 3000), few({ids(), oneof([active, standby, fenced])}),
                     oneof([ok, full]), frequency([{3, ok}, {1, silent}]), few(ids()),
-                    likely(), likely()}},
+                    likely()}},
+               %% A round with b@h alive or not; b@h's whole catalogue or
+               %% one write from it.
+               {1, {exchange, likely()}},
+               {1, {received, likely()}},
                {1, {pend, ids()}},
                {1, {started, ids(), boolean()}},
                {2, {down, ids(), oneof([killed, {shutdown, stale_claim}])}}]).
@@ -394,6 +431,13 @@ likely() -> frequency([{3, true}, {1, false}]).
 
 %% The state: the rules' memory, the time, the last restore of each id
 %% ({At, RetryAfterMs}), the pids asked to delete themselves.
+command({exchange, Alive}, _Entries, {M, T, Last, Asked}) ->
+    {_, M1} = ?R:exchange(#{self => a@h, alive => [a@h | [b@h || Alive]], now_ms => T,
+                            sync_ms => 10000}, false, M),
+    {true, {M1, T, Last, Asked}};
+command({received, Full}, _Entries, {M, T, Last, Asked}) ->
+    {_, M1} = ?R:received(b@h, Full, M),
+    {true, {M1, T, Last, Asked}};
 command({pend, Id}, _Entries, {M, T, Last, Asked}) ->
     {true, {?R:pend(Id, cfg(), M), T, Last, Asked}};
 command({started, Id, Found}, _Entries, {M, T, Last, Asked}) ->
@@ -402,7 +446,7 @@ command({started, Id, Found}, _Entries, {M, T, Last, Asked}) ->
 command({down, Id, Reason}, _Entries, {M, T, Last, Asked}) ->
     {_, M1} = ?R:down(pid(id_n(Id)), Reason, M),
     {true, {M1, T, Last, Asked}};
-command({look, Dt, Local0, Room, Answer, There, Majority, Synced}, Entries0,
+command({look, Dt, Local0, Room, Answer, There, Majority}, Entries0,
         {M, T0, Last, Asked}) ->
     T = T0 + Dt,
     Local = maps:to_list(maps:from_list(Local0)),
@@ -410,8 +454,7 @@ command({look, Dt, Local0, Room, Answer, There, Majority, Synced}, Entries0,
     %% Entries as catalogue() makes them, with homes on a@h or b@h.
     Entries = [{Id, V, case Val of {live, C, _} -> {live, C, N}; D -> D end}
                || {Id, {_, _, N} = V, Val} <- Entries0],
-    F = (facts(Entries, Roles))#{now_ms := T, majority := Majority,
-                                 synced := [b@h || Synced]},
+    F = (facts(Entries, Roles))#{now_ms := T, majority := Majority},
     Answers = fun(Nodes) ->
                       case Answer of
                           ok -> [{ok, [{Id, pid(90), active, 1} || Id <- There]} || _ <- Nodes];
