@@ -330,21 +330,20 @@ owned(Effects, Entries, #{self := Self, configured := Configured, roles := Roles
 %% may run anything: nothing starts, and every id counts as running
 %% elsewhere.
 -spec answered([answer()], cont(), facts(), memory()) -> {[effect()], done, memory()}.
-answered(Answers, {Entries, Candidates}, #{now_ms := Now}, #mem{ran = Ran0} = M0) ->
-    Remote = maps:from_list([{Id, true} || Id <- running_elsewhere(Answers, Entries)]),
+answered(Answers, {_Entries, Candidates}, #{now_ms := Now}, #mem{ran = Ran0} = M0) ->
+    %% Seen running on a peer: it did not give up here. A peer that did not
+    %% answer may run anything: nothing is restored this look, and what
+    %% this node remembers of the pairings that gave up here is kept.
+    Remote = maps:from_list([{Id, true} || {ok, Roles} <- Answers, {Id, _, _, _} <- Roles]),
     Ran = maps:without(maps:keys(Remote), Ran0),
-    Missing = [C || {Id, _} = C <- Candidates, not is_map_key(Id, Remote),
-                    not is_map_key(Id, Ran)],
+    Missing = case lists:all(fun({ok, _}) -> true; (_) -> false end, Answers) of
+                  true -> [C || {Id, _} = C <- Candidates, not is_map_key(Id, Remote),
+                                not is_map_key(Id, Ran)];
+                  false -> []
+              end,
     {Effects, M} = lists:foldl(fun(C, {Es, Mi}) -> restore(C, Now, Es, Mi) end,
                                {[], M0#mem{ran = Ran}}, Missing),
     {lists:reverse(Effects), done, M}.
-
-running_elsewhere(Answers, Entries) ->
-    [Id || {ok, Roles} <- Answers, {Id, _, _, _} <- Roles]
-        ++ case lists:all(fun({ok, _}) -> true; (_) -> false end, Answers) of
-               true -> [];
-               false -> [Id || {Id, _, _} <- Entries]
-           end.
 
 restore({Id, Config}, Now, Es, #mem{backoff = Backoff} = M) ->
     case restore_delay(maps:get(Id, Backoff, none), Now) of

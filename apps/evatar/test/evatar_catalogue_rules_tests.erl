@@ -324,6 +324,11 @@ gave_up_here_test() ->
     Elsewhere = fun(_) -> [{ok, [{<<"p">>, pid(9), active, 2}]}] end,
     {[], _, M2} = run(facts(E, []), Crashed, ok, Elsewhere),
     ?assertMatch({[{restore, <<"p">>, _, _}], _, _}, run(facts(E, []), M2, ok, fun none_run/1)),
+    %% A peer that did not answer says nothing of where it runs: it still
+    %% gave up here, and is not restored when the peer answers again.
+    Silent = fun(_) -> [{error, {erpc, timeout}}] end,
+    {[], _, M3} = run(facts(E, []), Crashed, ok, Silent),
+    ?assertMatch({[], _, _}, run(facts(E, []), M3, ok, fun none_run/1)),
     %% An ensure of it gives it another chance.
     ?assertMatch({[{restore, <<"p">>, _, _}], _, _},
                  run(facts(E, []), ?R:retry(<<"p">>, Crashed), ok, fun none_run/1)).
