@@ -652,16 +652,17 @@ send(Doc, D) ->
         overflow -> slow_consumer(D)
     end.
 
-enqueue(Doc, #d{outq = Q} = D) ->
-    case agent_bridge_outq:push(Doc, Q) of
-        {ok, Q1} ->
-            try_flush(D#d{outq = Q1, sent = true});
-        {error, overflow} ->
-            overflow
+enqueue(Doc, #d{outq = Q, transport = T} = D) ->
+    case agent_bridge_outq:write(agent_bridge_transport:send_fun(T), Doc, Q) of
+        {error, overflow} -> overflow;
+        Flushed -> flushed(Flushed, D#d{sent = true})
     end.
 
 try_flush(#d{outq = Q, transport = T} = D) ->
-    case agent_bridge_outq:flush(agent_bridge_transport:send_fun(T), Q) of
+    flushed(agent_bridge_outq:flush(agent_bridge_transport:send_fun(T), Q), D).
+
+flushed(Flushed, D) ->
+    case Flushed of
         {empty, Q1} ->
             {ok, D#d{outq = Q1}, []};
         {busy, Q1} when D#d.flushing ->

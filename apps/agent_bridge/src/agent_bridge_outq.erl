@@ -4,7 +4,7 @@
 %% byte and a frame limit (docs/protocol.md, "Backpressure").
 -module(agent_bridge_outq).
 
--export([new/2, push/2, flush/2, is_empty/1, size/1]).
+-export([new/2, push/2, flush/2, write/3, is_empty/1, size/1]).
 
 -export_type([outq/0, send_fun/0]).
 
@@ -43,6 +43,27 @@ flush(Send, #outq{frames = Q, bytes = B, count = C} = O) ->
                                            count = C - 1});
                 false -> {busy, O}
             end
+    end.
+
+%% @doc Queues one frame and flushes (push/2, then flush/2). With nothing
+%% queued, a frame Send takes at once never enters the queue.
+-spec write(send_fun(), iodata(), outq()) -> {empty | busy, outq()} | {error, overflow}.
+write(Send, Frame, #outq{count = 0, max_bytes = MB} = O) ->
+    case iolist_size(Frame) =< MB andalso Send(Frame) of
+        true ->
+            {empty, O};
+        false ->
+            %% Over the limit (overflow), or refused by a busy transport:
+            %% queued, without asking it again at once.
+            case push(Frame, O) of
+                {ok, O1} -> {busy, O1};
+                {error, overflow} = Error -> Error
+            end
+    end;
+write(Send, Frame, O) ->
+    case push(Frame, O) of
+        {ok, O1} -> flush(Send, O1);
+        {error, overflow} = Error -> Error
     end.
 
 -spec is_empty(outq()) -> boolean().
