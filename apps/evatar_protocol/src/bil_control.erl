@@ -100,6 +100,11 @@ tag(_, {error, _} = Error) -> Error.
 %% processing instructions. `error' when that is not enough; the full
 %% parser then says exactly what is wrong.
 -spec root_name(binary()) -> {ok, binary()} | error.
+%% How bil:encode_signal/1 and the SDKs begin every signal, named without
+%% a scan (the parser checks the rest).
+root_name(<<"<?xml version=\"1.0\" encoding=\"UTF-8\"?><bil:Envelope", C, _/binary>>)
+  when C =:= $\s; C =:= $\t; C =:= $\r; C =:= $\n; C =:= $/; C =:= $> ->
+    {ok, <<"Envelope">>};
 root_name(<<16#EF, 16#BB, 16#BF, Rest/binary>>) -> prolog(Rest);
 root_name(Bin) -> prolog(Bin).
 
