@@ -103,7 +103,12 @@ step(Event, Mode, #data{logic = Logic, commit = C, pids = Pids} = Data) ->
                    [] -> [];
                    W -> evatar_tap:emit(Data#data.id, Event, Effects, Now, W)
                end,
-    Conns = maps:map(fun(_, {Pid, _}) -> Pid end, Pids),
+    %% Only held effects are bound to a connection (evatar_ha_commit:step/6):
+    %% a pairing without a standby does not rebuild the map for each signal.
+    Conns = case Mode of
+                direct -> #{};
+                _ -> maps:map(fun(_, {Pid, _}) -> Pid end, Pids)
+            end,
     {Reply, Out, C1} = evatar_ha_commit:step(Event, Now, Effects, Conns, Mode, C),
     {Reply, execute(Out, Data#data{logic = Logic1, commit = C1, watchers = Watchers})}.
 
