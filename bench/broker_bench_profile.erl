@@ -9,7 +9,8 @@
 %% statistics (reductions, process switches, bytes through its ports) and
 %% micro-state accounting of its threads (emulator, gc, port, check_io,
 %% other, sleep); every message each kind of process receives (trace
-%% `receive': the process hops); eprof over every process, its calls and
+%% `receive': the process hops); the events its state machines handle
+%% (call_count of their handle_event/4); eprof over every process, its calls and
 %% time per round trip (timers, sends, codec). How to read it:
 %% bench/README.md, "Where a round trip's CPU goes".
 %%
@@ -25,6 +26,7 @@
 -export([count_receives/1, receive_counts/1]).
 
 -define(TIMEOUT_MS, 600000).
+-define(EVENT_HANDLERS, [{agent_bridge_conn, handle_event, 4}, {evatar_pairing, handle_event, 4}]).
 -define(SYSCALLS, [read, readv, recvfrom, recvmsg, write, writev, sendto, sendmsg,
                    epoll_wait, epoll_pwait, epoll_ctl, futex, nanosleep, sched_yield,
                    poll, ppoll, pselect6, getrusage, clock_nanosleep, timerfd_settime]).
@@ -218,8 +220,36 @@ node_figures(Node, Count, K, KT) ->
     io:format("   messages received per round trip: ~s~n",
               [string:join([io_lib:format("~s ~.2f", [Kind, V])
                             || #{kind := Kind, per_rt := V} <- maps:get(top, Hops)], ", ")]),
+    Events = events_window(Node, Count, KT),
+    io:format("   events handled per round trip: ~s~n", [events_text(Events)]),
     Eprof = eprof_window(Node, Count, KT),
-    #{stats => Stats, msacc => Msacc, hops => Hops, eprof => Eprof}.
+    #{stats => Stats, msacc => Msacc, hops => Hops, events => Events, eprof => Eprof}.
+
+%% The events the state machines handle (calls of their handle_event/4,
+%% counted by call_count): a message taken from a mailbox elsewhere, as
+%% the connection takes the inet driver's write reply, is no event.
+events_window(Node, Count, KT) ->
+    _ = [erpc:call(Node, erlang, trace_pattern, [MFA, true, [call_count]]) || MFA <- ?EVENT_HANDLERS],
+    Snap = fun() -> [{M, call_count(Node, MFA)} || {M, _, _} = MFA <- ?EVENT_HANDLERS] end,
+    Events = window(Count, KT, Snap,
+                    fun(C0, C1) ->
+                            fun(Done, _Secs) ->
+                                    maps:from_list([{M, (N1 - proplists:get_value(M, C0)) / max(1, Done)}
+                                                    || {M, N1} <- C1])
+                            end
+                    end),
+    _ = [erpc:call(Node, erlang, trace_pattern, [MFA, false, [call_count]]) || MFA <- ?EVENT_HANDLERS],
+    Events.
+
+call_count(Node, MFA) ->
+    case erpc:call(Node, erlang, trace_info, [MFA, call_count]) of
+        {call_count, N} when is_integer(N) -> N;
+        _ -> 0
+    end.
+
+events_text(Events) ->
+    string:join([io_lib:format("~s ~.2f", [M, V]) || {M, V} <- lists:sort(maps:to_list(Events))],
+                ", ").
 
 %% Runs in the EVATAR node.
 node_stats() ->
@@ -430,6 +460,8 @@ markdown(Rows, Cfg, Load0, Load1) ->
                       string:join([io_lib:format("~s ~.2f", [K, V])
                                    || #{kind := K, per_rt := V} <- maps:get(top, H)],
                                   ", ")]),
+       io_lib:format("- events handled per round trip (handle_event/4 calls): ~s~n",
+                     [events_text(maps:get(events, Nd, #{}))]),
        io_lib:format("- eprof: ~.1f us of Erlang code per round trip while traced; by group: ~s~n",
                      [maps:get(us_per_rt_traced, E),
                       string:join([io_lib:format("~s ~b%", [G, round(S * 100)])
@@ -444,4 +476,4 @@ markdown(Rows, Cfg, Load0, Load1) ->
                                     [[binary_to_list(Fn), F2(Cl), F2(U)]
                                      || #{function := Fn, calls_per_rt := Cl, us_per_rt := U}
                                             <- maps:get(top, E)])]
-      || #{n := N, node := #{stats := St, msacc := Ms, hops := H, eprof := E}} <- Ev]].
+      || #{n := N, node := #{stats := St, msacc := Ms, hops := H, eprof := E} = Nd} <- Ev]].
