@@ -3,7 +3,9 @@
 %% dropped, duplicated, delayed; nodes crashed (their memory lost, their
 %% disc kept) and restarted, paused and resumed; links cut and healed; the
 %% pairing restored by a node whose view says nobody runs it, as after a
-%% partial restart) for two and three instances of one pairing
+%% partial restart; clocks that start at offsets of their own and run up
+%% to 10 % fast or slow, `{skew, N, Rate}' changing one's rate) for two
+%% and three instances of one pairing
 %% in `evatar_ha_sim', which runs them through the node's own role machine
 %% (`evatar_ha_instance', with `evatar_ha_serving', `evatar_ha_core',
 %% `evatar_ha_role_machine') and output commit (`evatar_ha_commit') and checks after every command that at most one
@@ -15,7 +17,8 @@
 %% paused nodes run again, and a crashed node boots again or stays down with
 %% a majority up; then within 6 x suspect_ms exactly one instance serves,
 %% holding every accepted signal, and a signal sent then is accepted and
-%% routed once within a standby's offer timeout (?LIVE_BOUNDS), or no
+%% routed once within a standby's offer timeout (?LIVE_BOUNDS, on the
+%% nodes' clocks: with clocks 10 % slow, 1/0.9 of it in real time), or no
 %% instance is left, the catalogue restores the pairing and the restored
 %% instance wins its election and serves. `make test' runs
 %% the safety properties, the liveness properties and the fixed cases below
@@ -36,13 +39,17 @@
 %% and a signal sent then is accepted within 5 x suspect_ms + 2 s (a
 %% standby's offer timeout) + suspect_ms.
 -define(LIVE_BOUNDS, {6 * 250, 5 * 250 + 2000 + 250}).
+%% A clock's rate in thousandths of real time: within 10 %.
+-define(RATE_MIN, 900).
+-define(RATE_MAX, 1100).
 -export([three_nodes/1, two_nodes/1, stale_promise_freeze/1, active_node_back_without_it/1,
          reelection_after_registered/1, two_nodes_winner_gone/1, paused_active_stale_claim/1,
          fenced_rewin_keeps_standby/1, reelected_after_pause_keeps_standby/1,
          epoch_won_twice_after_vote_loss/1, epoch_won_twice_then_old_standby_serves/1,
          old_epoch_served_after_vote_loss/1, two_restorers/1,
+         clock_offsets/1,
          live_three_nodes/1, live_two_nodes/1]).
--export([prop_model/2, prop_live/2]).
+-export([prop_model/2, prop_live/2, prop_offsets/1]).
 
 %% @private
 suite() -> [{timetrap, {minutes, 5}}].
@@ -52,7 +59,7 @@ all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_re
           two_nodes_winner_gone, paused_active_stale_claim, fenced_rewin_keeps_standby,
           reelected_after_pause_keeps_standby, epoch_won_twice_after_vote_loss,
           epoch_won_twice_then_old_standby_serves, old_epoch_served_after_vote_loss,
-          two_restorers,
+          two_restorers, clock_offsets,
           three_nodes, two_nodes,
           live_three_nodes, live_two_nodes].
 
@@ -244,6 +251,12 @@ two_restorers(_Config) ->
     [_] = evatar_ha_sim:serving(W1),
     [] = maps:get(violations, W1).
 
+%% @doc Offsets do not matter: 300 schedules (three nodes, every fault,
+%% clocks within the bound), each run from two seeds, so every clock, at
+%% every boot, starts elsewhere; both runs end alike.
+clock_offsets(_Config) ->
+    ok = evatar_test_proper:check(prop_offsets(3), 300).
+
 %% @doc Liveness, three nodes: 5000 schedules of at most two faults, then
 %% the heal (docs/ha.md section 6).
 live_three_nodes(_Config) ->
@@ -260,10 +273,10 @@ live_two_nodes(_Config) ->
 %% (see the module doc), run it by hand.
 -spec prop_model(2 | 3, safety | liveness) -> proper:test().
 prop_model(N, Mode) ->
-    ?FORALL(Cmds, schedule(N),
+    ?FORALL({Clocks, Cmds}, {clocks(N), schedule(N)},
             begin
                 {Live, Violations} =
-                    try evatar_ha_sim:settle(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N))) of
+                    try evatar_ha_sim:settle(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N, Clocks))) of
                         {L, W1} -> {L, maps:get(violations, W1)}
                     catch
                         Class:Reason:Stack -> {false, [{Class, Reason, Stack}]}
@@ -280,6 +293,31 @@ schedule(N) ->
     Nodes = lists:sublist([n1, n2, n3], N),
     list(fault_or_tick(N, Nodes, drop)).
 
+%% Every clock starts at an offset of its own (a seed picks them) and runs
+%% at a rate within the bound.
+clocks(N) ->
+    ?LET({Seed, Rates}, {integer(), vector(N, rate())},
+         #{seed => Seed, rates => maps:from_list(lists:zip(lists:sublist([n1, n2, n3], N), Rates))}).
+
+rate() -> range(?RATE_MIN, ?RATE_MAX).
+
+%% @private
+%% The same schedule and rates from two seeds: the same outcome (who
+%% serves, at which epoch, with what state; what each client got; every
+%% violation), though every clock reads otherwise.
+-spec prop_offsets(2 | 3) -> proper:test().
+prop_offsets(N) ->
+    ?FORALL({Clocks, Other, Cmds}, {clocks(N), integer(), schedule(N)},
+            begin
+                [A, B] = [outcome(evatar_ha_sim:settle(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N, C))))
+                          || C <- [Clocks, Clocks#{seed := Other}]],
+                ?WHENFAIL(io:format("~p~n~p~n", [A, B]), A =:= B)
+            end).
+
+outcome({Live, W}) ->
+    {Live, maps:with([now, violations, sender, receiver, winners], W),
+     lists:sort([maps:with([ref, role, epoch, state], I) || I <- maps:values(maps:get(insts, W))])}.
+
 fault_or_tick(N, Nodes, Drop) ->
     Node = oneof(Nodes),
     Always = [{10, {tick, range(10, 400)}},
@@ -287,7 +325,8 @@ fault_or_tick(N, Nodes, Drop) ->
               {1, {pause, Node}}, {2, {resume, Node}},
               {1, {crash, Node}}, {2, {restart, Node}}, {1, {restore, Node}},
               {1, {dup, range(0, 20)}},
-              {1, {delay, Node, range(50, 600)}}]
+              {1, {delay, Node, range(50, 600)}},
+              {1, {skew, Node, rate()}}]
         ++ [{1, {drop, range(0, 20)}} || Drop =:= drop],
     Cuts = [{1, {cut, Node, Node}}, {1, {isolate, Node}}, {2, heal}],
     frequency(case N of
@@ -298,15 +337,18 @@ fault_or_tick(N, Nodes, Drop) ->
 %% @private
 %% Liveness after the faults stop (docs/ha.md section 6): any schedule, then
 %% every link heals and paused nodes run again; a crashed node boots again,
-%% or (three nodes) stays down with a majority up. Within `BoundMs' of that
+%% or (three nodes) stays down with a majority up. Within `Bounds' of that
 %% exactly one instance serves, holding every accepted signal, and a signal
-%% sent then is accepted and routed once; safety holds all along.
+%% sent then is accepted and routed once; safety holds all along. The
+%% bounds are counted on the nodes' clocks: in real time they are as much
+%% longer as the slowest clock may be slow.
 -spec prop_live(2 | 3, {pos_integer(), pos_integer()}) -> proper:test().
-prop_live(N, Bounds) ->
-    ?FORALL({Cmds, Restart}, {live_schedule(N), restart(N)},
+prop_live(N, {ServeMs, AcceptMs}) ->
+    Bounds = {ServeMs * 1000 div ?RATE_MIN, AcceptMs * 1000 div ?RATE_MIN},
+    ?FORALL({Clocks, Cmds, Restart}, {clocks(N), live_schedule(N), restart(N)},
             begin
                 {Result, Safety} =
-                    try evatar_ha_sim:live(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N)),
+                    try evatar_ha_sim:live(evatar_ha_sim:run(Cmds, evatar_ha_sim:new(N, Clocks)),
                                            Restart, Bounds) of
                         {R, W} -> {R, [V || V <- maps:get(violations, W),
                                             element(1, V) =/= not_serving]}
@@ -326,7 +368,8 @@ prop_live(N, Bounds) ->
 %% to a paused node, then the crash of the node that won, leaves no node
 %% remembering the epoch its clients saw).
 %% With three nodes at most two faults (a crash, a pause, an isolation or
-%% a cut; heals, restarts, resumes, duplicated and delayed messages are
+%% a cut; heals, restarts, resumes, duplicated and delayed messages, and
+%% clocks that change their rate within the bound, are
 %% free): what docs/ha.md promises liveness after. With two nodes one: a
 %% pause of each is a partition, outside
 %% the guarantee (docs/ha.md section 6, "Two nodes").

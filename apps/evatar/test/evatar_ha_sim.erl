@@ -21,6 +21,19 @@
 %% `ask' as evatar_cluster does. One sender
 %% client and one receiver client reach every running node.
 %%
+%% Clocks: everything the HA code times (heartbeats, suspicion, the lease,
+%% the pause a node finds it had, every timer an instance arms) is read on
+%% its own node's monotonic clock, as evatar_cluster and evatar_pairing
+%% read erlang:monotonic_time/1. Each node's clock starts at an offset of
+%% its own (from the `seed' of {@link new/2}; again at each boot), so a
+%% decision that compared readings of two nodes, or a reading with a
+%% constant, would show; and runs at its own rate (`rates', in thousandths
+%% of real time, or the command `{skew, N, Rate}' from then on): node N's
+%% timers fire after Ms x 1000 / Rate of simulated real time, and its
+%% suspicion and lease take as long. Heartbeats are taken as continuous
+%% (every node hears every running, connected node at every step of at
+%% most a heartbeat), whatever the sender's rate.
+%%
 %% Checked after every command ({@link check/1}):
 %% <ul>
 %% <li>at most one instance serves at the highest epoch (role active, not
@@ -42,7 +55,8 @@
 %% the others for long enough, some instance serves.
 -module(evatar_ha_sim).
 
--export([new/1, run/2, step/2, check/1, settle/1, serving/1, live/3]).
+-export([new/1, new/2, run/2, step/2, check/1, settle/1, serving/1, live/3]).
+-export_type([clocks/0]).
 
 -define(HB, 50).
 -define(SUSPECT, 250).
@@ -53,21 +67,48 @@
 %% The world
 %% ---------------------------------------------------------------------------
 
-%% @doc A cluster of `N' nodes (2 or 3) with the pairing active on the first.
+%% How each node's monotonic clock runs: `seed' picks the offset every
+%% node's clock starts at (again at each boot), `rates' how fast it runs, in
+%% thousandths of real time (1000 by default; 900 is 10 % slow).
+-type clocks() :: #{seed => integer(), rates => #{atom() => pos_integer()}}.
+
+%% @doc A cluster of `N' nodes (2 or 3) with the pairing active on the
+%% first, every clock at the true rate from an offset of its own.
 -spec new(2 | 3) -> map().
 new(N) ->
+    new(N, #{}).
+
+%% @doc {@link new/1} with the clocks `Clocks' gives.
+-spec new(2 | 3, clocks()) -> map().
+new(N, Clocks) ->
     Nodes = lists:sublist([n1, n2, n3], N),
-    W0 = #{now => 0, nodes => maps:from_list([{Nd, node0(Nodes)} || Nd <- Nodes]),
-           names => Nodes, insts => #{}, next_ref => 1, msgs => [], seq => 0, cut => [],
+    Seed = maps:get(seed, Clocks, 0),
+    Rates = maps:merge(maps:from_list([{Nd, 1000} || Nd <- Nodes]), maps:get(rates, Clocks, #{})),
+    W0 = #{now => 0, names => Nodes, insts => #{}, next_ref => 1, msgs => [], seq => 0, cut => [],
            sender => #{next => 1, sent => [], acked => [], degraded => [], epoch => 0},
            receiver => #{got => #{}, epoch => 0, excused => #{}}, violations => [],
-           last_change => 0},
-    start_active(n1, W0).
+           last_change => 0, seed => Seed, rates => Rates, boots => 0},
+    W1 = W0#{nodes => maps:from_list([{Nd, node0(Nodes, clock0(Nd, W0))} || Nd <- Nodes])},
+    start_active(n1, W1).
 
-node0(Nodes) ->
+node0(Nodes, {_, L, _} = Clock) ->
     #{status => up, voter => evatar_ha_core:new_record(), disk => evatar_ha_core:new_record(),
-      heard => maps:from_list([{N, 0} || N <- Nodes]), alive => maps:from_list([{N, true} || N <- Nodes]),
-      quorum => true, inst => undefined, paused_at => undefined}.
+      heard => maps:from_list([{N, L} || N <- Nodes]), alive => maps:from_list([{N, true} || N <- Nodes]),
+      quorum => true, inst => undefined, paused_at => undefined, down_at => undefined,
+      clock => Clock}.
+
+%% A node's monotonic clock, as erlang:monotonic_time/1 gives it: it starts
+%% anywhere (each boot of the VM at an offset of its own, which nothing may
+%% depend on: only differences of one node's readings are used) and runs at
+%% its node's rate. `{RealMs, LocalMs, Rate}': it read LocalMs at RealMs.
+clock0(N, #{now := Now, seed := Seed, boots := Boots, rates := Rates}) ->
+    Offset = erlang:phash2({Seed, N, Boots}, 1 bsl 32) * 1000 - (1 bsl 41),
+    {Now, Offset, maps:get(N, Rates)}.
+
+%% What node N's clock reads now (milliseconds).
+local(N, #{nodes := Nodes, now := Now}) ->
+    {R0, L0, Rate} = maps:get(clock, maps:get(N, Nodes)),
+    L0 + (Now - R0) * Rate div 1000.
 
 %% @doc Runs a list of commands, checking after each; returns the world.
 -spec run([term()], map()) -> map().
@@ -81,6 +122,7 @@ step({signal, N}, W) -> client_send(N, W);
 step({drop, _} = C, W) -> fault(C, W);
 step({dup, _} = C, W) -> fault(C, W);
 step({delay, _, _} = C, W) -> fault(C, W);
+step({skew, _, _} = C, W) -> fault(C, W);
 step(C, #{now := Now} = W) -> count_fault(C, W, fault(C, W#{last_change := Now})).
 
 %% The guarantee holds while no more than one of the two instances fails
@@ -153,6 +195,11 @@ fault({delay, N, D}, #{msgs := Ms} = W) ->
                _ -> {At, S, To, Msg}
            end || {At, S, To, Msg} <- Ms],
     W#{msgs := lists:sort(Ms1), floor => Floor#{N => maps:get(N, Floor, 0) + D}};
+fault({skew, N, Rate}, #{nodes := Nodes, rates := Rates} = W) when Rate > 0 ->
+    %% From now on node N's clock runs at Rate: its timers, its suspicion
+    %% and its lease take 1000 / Rate times as long in real time.
+    Nd = maps:get(N, Nodes),
+    W#{rates := Rates#{N := Rate}, nodes := Nodes#{N := Nd#{clock := {maps:get(now, W), local(N, W), Rate}}}};
 fault(_Cmd, W) -> W.
 
 link(A, B) when A < B -> {A, B};
@@ -231,9 +278,14 @@ take_sender(S, W) ->
 %% use, after those sent before it: its node counts as heard now, even
 %% when it was delayed and its node is down since (evatar_cluster stamps a
 %% heartbeat when it arrives).
-heard_by(N, From, #{nodes := Nodes, now := Now} = W) when From =/= undefined, From =/= N ->
+heard_by(N, From, #{nodes := Nodes} = W) when From =/= undefined, From =/= N ->
     #{heard := Heard} = Nd = maps:get(N, Nodes),
-    W#{nodes := Nodes#{N := Nd#{heard := Heard#{From := max(Now, maps:get(From, Heard))}}}};
+    Now = local(N, W),
+    At = case maps:get(From, Heard) of
+             undefined -> Now;
+             T -> max(Now, T)
+         end,
+    W#{nodes := Nodes#{N := Nd#{heard := Heard#{From := At}}}};
 heard_by(_N, _From, W) ->
     W.
 
@@ -245,19 +297,20 @@ requeue(To, Msg, W) -> W#{paused_q => [{To, Msg}]}.
 %% Failure detection: each node's view, as evatar_cluster keeps it
 %% ---------------------------------------------------------------------------
 
-detect(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
+%% In node N's time; `undefined': not heard since its nodedown.
+detect(N, #{nodes := Nodes, names := Names} = W) ->
     case maps:get(N, Nodes) of
         #{status := up, heard := Heard0, alive := Alive0} = Nd ->
+            Now = local(N, W),
             Heard = maps:map(fun(M, T) ->
                                      case M =:= N orelse (running(M, W) andalso connected(N, M, W)) of
                                          true -> Now;
                                          false -> T
                                      end
                              end, Heard0),
-            Alive = maps:map(fun(M, _) -> M =:= N orelse Now - maps:get(M, Heard) =< ?SUSPECT end,
-                             Heard),
+            Alive = maps:map(fun(M, T) -> M =:= N orelse within(Now, T, ?SUSPECT) end, Heard),
             Q = evatar_ha_membership:majority(Names, [M || {M, T} <- maps:to_list(Heard),
-                                                     Now - T =< ?LEASE]),
+                                                     within(Now, T, ?LEASE)]),
             W1 = W#{nodes := Nodes#{N := Nd#{heard := Heard, alive := Alive, quorum := Q}}},
             Lost = [M || M <- Names, maps:get(M, Alive0), not maps:get(M, Alive)],
             Back = [M || M <- Names, not maps:get(M, Alive0), maps:get(M, Alive)],
@@ -285,26 +338,32 @@ node_back(N, M, W) ->
             send(N, {node, M}, {inventory, Ref, Shown, E}, W1)
     end.
 
-heard_within(N, M, Ms, #{nodes := Nodes, now := Now}) ->
-    Now - maps:get(M, maps:get(heard, maps:get(N, Nodes))) =< Ms.
+heard_within(N, M, Ms, #{nodes := Nodes} = W) ->
+    within(local(N, W), maps:get(M, maps:get(heard, maps:get(N, Nodes))), Ms).
+
+within(_Now, undefined, _Ms) -> false;
+within(Now, T, Ms) -> Now - T =< Ms.
 
 majority_now(N, #{names := Names} = W) ->
     evatar_ha_membership:majority(Names, [M || M <- Names, heard_within(N, M, ?LEASE, W)]).
 
-pause(N, #{nodes := Nodes, now := Now} = W) ->
+pause(N, #{nodes := Nodes} = W) ->
     case maps:get(N, Nodes) of
-        #{status := up} = Nd -> W#{nodes := Nodes#{N := Nd#{status := paused, paused_at := Now}}};
+        #{status := up} = Nd -> W#{nodes := Nodes#{N := Nd#{status := paused, paused_at := local(N, W)}}};
         #{} -> W
     end.
 
 %% The node finds it was paused itself: its peers' silence meanwhile says
 %% nothing about them (evatar_ha_membership:discount/3), and an active asks the
 %% cluster again (evatar_ha_core's `paused').
-resume(N, #{nodes := Nodes, now := Now} = W) ->
+resume(N, #{nodes := Nodes} = W) ->
     case maps:get(N, Nodes) of
         #{status := paused, paused_at := At, heard := Heard} = Nd ->
+            Now = local(N, W),
             Paused = Now - At,
-            Heard1 = maps:map(fun(_, T) -> evatar_ha_membership:discount(T, Paused, Now) end, Heard),
+            Heard1 = maps:map(fun(_, undefined) -> undefined;
+                                 (_, T) -> evatar_ha_membership:discount(T, Paused, Now)
+                              end, Heard),
             W1 = W#{nodes := Nodes#{N := Nd#{status := up, heard := Heard1}}},
             Q = maps:get(paused_q, W1, []),
             {Mine, Others} = lists:partition(fun({To, _}) -> to_node(To, W1) =:= N end, Q),
@@ -324,7 +383,7 @@ crash(N, #{nodes := Nodes, names := Names} = W) ->
     Down = [M || M <- Names, maps:get(status, maps:get(M, Nodes)) =:= down],
     case maps:get(N, Nodes) of
         #{status := S} = Nd when S =/= down, Down =:= [] ->
-            W0 = W#{nodes := Nodes#{N := Nd#{status := down, paused_at := maps:get(now, W),
+            W0 = W#{nodes := Nodes#{N := Nd#{status := down, down_at := maps:get(now, W),
                                              voter := lost}}},
             W1 = case Nd of
                      #{inst := undefined} -> W0;
@@ -356,13 +415,14 @@ crash(N, #{nodes := Nodes, names := Names} = W) ->
 %% back come now.
 restart(N, #{nodes := Nodes, names := Names, now := Now} = W) ->
     case maps:get(N, Nodes) of
-        #{status := down, paused_at := At, disk := Disk} when Now - At >= 1000 ->
+        #{status := down, down_at := At, disk := Disk} when Now - At >= 1000 ->
             {Mine, Others} = lists:partition(fun({M, _, _}) -> M =:= N end,
                                              maps:get(pending, W, [])),
             W1 = lists:foldl(fun({_, To, Msg}, Acc) -> enqueue_at(Now, To, Msg, Acc) end,
                              W#{pending => Others}, Mine),
-            Heard = maps:from_list([{M, Now} || M <- Names]),
-            W1#{nodes := Nodes#{N := (node0(Names))#{heard := Heard, voter := Disk, disk := Disk}}};
+            %% A new VM: its monotonic clock starts at another offset.
+            W2 = W1#{boots := maps:get(boots, W1) + 1},
+            W2#{nodes := Nodes#{N := (node0(Names, clock0(N, W2)))#{voter := Disk, disk := Disk}}};
         #{} ->
             W
     end.
@@ -441,7 +501,7 @@ down_later(Ref, Event, #{now := Now} = W) ->
 
 start_active(N, W) ->
     {I, W1} = new_inst(N, W),
-    handle({start, create, none}, I#{now => maps:get(now, W)}, W1).
+    handle({start, create, none}, I, W1).
 
 %% The catalogue of node N restores the pairing: N runs no instance of it
 %% and, from its view, no connected node does (evatar_catalogue). Views
@@ -451,7 +511,7 @@ restore(N, W) ->
     case running(N, W) andalso inst_on(N, W) of
         undefined ->
             {I, W1} = new_inst(N, W),
-            handle({start, restore, none}, I#{now => maps:get(now, W)}, W1);
+            handle({start, restore, none}, I, W1);
         _ ->
             W
     end.
@@ -466,7 +526,7 @@ inst_event_ref(Ref, Event, #{insts := Insts} = W) ->
     case Insts of
         #{Ref := #{node := N} = I} ->
             case maps:get(status, maps:get(N, maps:get(nodes, W))) of
-                up -> handle(Event, I#{now => maps:get(now, W)}, W);
+                up -> handle(Event, I, W);
                 paused -> requeue({inst, Ref}, {event, Event}, W);
                 down -> W
             end;
@@ -478,11 +538,13 @@ receive_msg({node, N}, Msg, W) -> voter(N, Msg, W);
 receive_msg({inst, Ref}, {event, Event}, W) -> inst_event_ref(Ref, Event, W);
 receive_msg({inst, Ref}, Msg, W) -> inst_event_ref(Ref, {msg, Msg}, W).
 
-fire_timers(#{insts := Insts, now := Now} = W) ->
+%% A timer is due when its node's clock reads its time.
+fire_timers(#{insts := Insts} = W) ->
     lists:foldl(
       fun(#{ref := Ref, timers := Ts, node := N}, Acc) ->
               Due = case running(N, Acc) of
-                        true -> lists:sort([{At, K} || {K, At} <- maps:to_list(Ts), At =< Now]);
+                        true -> Now = local(N, Acc),
+                                lists:sort([{At, K} || {K, At} <- maps:to_list(Ts), At =< Now]);
                         false -> []  % a paused node's clock stands still
                     end,
               lists:foldl(fun({_, K}, A2) ->
@@ -536,7 +598,7 @@ voter(N, {register, {E, Seq} = Claim, From}, #{nodes := Nodes} = W) ->
                   fun(Result) -> {From, {register_reply, p, Claim, N, Result}} end, W);
 voter(N, {nodedown, M}, #{nodes := Nodes} = W) ->
     #{alive := Alive, heard := Heard} = Nd = maps:get(N, Nodes),
-    W1 = W#{nodes := Nodes#{N := Nd#{alive := Alive#{M := false}, heard := Heard#{M := -?SUSPECT}}}},
+    W1 = W#{nodes := Nodes#{N := Nd#{alive := Alive#{M := false}, heard := Heard#{M := undefined}}}},
     case maps:get(M, Alive) of
         true -> inst_event(N, {node_suspected, M}, W1);
         false -> W1
@@ -547,7 +609,7 @@ voter(N, {start_standby, Active}, #{insts := Insts} = W) ->
     case inst_on(N, W) of
         undefined when is_map_key(Active, Insts) ->
             {I, W1} = new_inst(N, W),
-            handle({start, {standby_for, Active}, none}, I#{now => maps:get(now, W)}, W1);
+            handle({start, {standby_for, Active}, none}, I, W1);
         #{ref := Ref} when Ref =/= Active ->
             %% evatar_cluster tells the instance it holds about the active
             %% asking (the two compare epochs).
@@ -653,11 +715,11 @@ ha_effect({monitor, Which, To}, #{mons := Mons} = I, #{insts := Insts} = W) ->
 ha_effect({demonitor, Which}, #{mons := Mons} = I, W) ->
     put_inst(I#{mons := maps:remove(Which, Mons)}, W);
 ha_effect({timer, K, Ms}, I, W) ->
-    put_inst(timer(K, Ms, I), W);
+    put_inst(timer(K, Ms, I, W), W);
 ha_effect({ensure_timer, K, Ms}, #{timers := Ts} = I, W) ->
     case Ts of
         #{K := _} -> W;
-        #{} -> put_inst(timer(K, Ms, I), W)
+        #{} -> put_inst(timer(K, Ms, I, W), W)
     end;
 ha_effect({cancel_timer, K}, #{timers := Ts} = I, W) ->
     put_inst(I#{timers := maps:remove(K, Ts)}, W);
@@ -754,8 +816,8 @@ apply_events(Events, #{commit := C0, state := S0, active := A} = I, W) ->
           end,
     send(node_of(I), {inst, A}, Msg, put_inst(I1, W)).
 
-timer(K, Ms, #{timers := Ts, now := Now} = I) ->
-    I#{timers := Ts#{K => Now + Ms}}.
+timer(K, Ms, #{timers := Ts, node := N} = I, W) ->
+    I#{timers := Ts#{K => local(N, W) + Ms}}.
 
 ref(#{ref := R}) -> R.
 node_of(#{node := N}) -> N.
@@ -790,7 +852,7 @@ signal_event(Event, #{inst := Inst} = I, W) ->
 logic_step(Event, Mode, #{state := S, commit := C} = I, W0) ->
     W = won(Event, ref(I), W0),
     {S1, Effects} = logic(Event, S),
-    {_Reply, Out, C1} = evatar_ha_commit:step(Event, maps:get(now, W), Effects,
+    {_Reply, Out, C1} = evatar_ha_commit:step(Event, local(node_of(I), W), Effects,
                                               #{sender => sender, receiver => receiver}, Mode, C),
     I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
     effects(Out, I1, note_degraded(Mode, Effects, W)).
