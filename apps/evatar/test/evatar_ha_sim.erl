@@ -34,6 +34,16 @@
 %% (every node hears every running, connected node at every step of at
 %% most a heartbeat), whatever the sender's rate.
 %%
+%% The drift the design tolerates: an active cut off stops serving when
+%% lease_ms (150) has passed on its clock without a majority, checked every
+%% heartbeat (50); a voter grants the pairing to another once suspect_ms
+%% (250) passed on its clock without hearing it. So the active's clock may
+%% run no slower than (lease_ms + heartbeat_ms) / suspect_ms = 0.8 of any
+%% voter's. The schedules' rates are within 10 % of real time (900 to
+%% 1100: two clocks within 0.82 of each other), a hundred times the drift
+%% of a quartz clock (about 100 ppm) and ten times the 1 % by which
+%% Erlang's time correction may change the rate of the monotonic clock.
+%%
 %% Checked after every command ({@link check/1}):
 %% <ul>
 %% <li>at most one instance serves at the highest epoch (role active, not
@@ -48,7 +58,13 @@
 %% later gets no routing but those it had when it was covered again;</li>
 %% <li>with three nodes, no epoch is won by two instances (a promise
 %% outlives a crash of its node; a cluster of two decides alone, and its
-%% epochs are checked by what its clients see).</li>
+%% epochs are checked by what its clients see);</li>
+%% <li>with three nodes, the lease: no two instances serve at once, at any
+%% epochs, while no more than one failure happened and the pairing was not
+%% restored from a view that missed an instance; except an active whose
+%% node was paused for no longer than suspect_ms on its own clock, which
+%% goes on while a peer with a faster clock may have let a standby take
+%% over (known, not prevented: counted in `quiet_overlaps').</li>
 %% </ul>
 %% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
 %% 6), or by {@link settle/1}, a looser form: once every node runs and hears
@@ -131,7 +147,7 @@ step(C, #{now := Now} = W) -> count_fault(C, W, fault(C, W#{last_change := Now})
 %% what was accepted until then outside it. The crash of a node without an
 %% instance is not one: its voter's promises are on its disc (the liveness
 %% schedules, docs/ha.md section 6, count every crash).
-count_fault(C, #{insts := Insts}, #{sender := #{acked := Acked} = Snd} = W) ->
+count_fault(C, #{insts := Insts}, W) ->
     Homes = [N || #{node := N} <- maps:values(Insts)],
     Hit = case C of
               {crash, N} -> lists:member(N, Homes);
@@ -148,6 +164,19 @@ count_fault(C, #{insts := Insts}, #{sender := #{acked := Acked} = Snd} = W) ->
                                     holds_state(I)] =/= [];
               _ -> false
           end,
+    W1 = case {Hit, C} of
+             {true, {restore, R}} ->
+                 %% Only a restore that started an instance.
+                 case inst_on(R, W) of
+                     #{ref := Ref} when not is_map_key(Ref, Insts) -> W#{restored_wrong => true};
+                     _ -> W
+                 end;
+             _ ->
+                 W
+         end,
+    count_hit(Hit, W1).
+
+count_hit(Hit, #{sender := #{acked := Acked} = Snd} = W) ->
     case {Hit, maps:get(faults, W, 0)} of
         {false, _} -> W;
         {true, 0} -> W#{faults => 1};
@@ -371,10 +400,21 @@ resume(N, #{nodes := Nodes} = W) ->
                              W1#{paused_q => Others}, Mine),
             case Paused > ?SUSPECT of
                 true -> inst_event(N, stalled, W2);
-                false -> W2
+                false -> quiet_pause(N, W2)
             end;
         #{} ->
             W
+    end.
+
+%% A pause the node did not count as a stall (not longer than suspect_ms on
+%% its own clock): a peer whose clock runs faster may have measured more
+%% than suspect_ms of silence, and a standby may have taken over, while
+%% this active goes on without asking the cluster again. The lease check
+%% ({@link check/1}) excuses that instance, and counts what it excused.
+quiet_pause(N, W) ->
+    case inst_on(N, W) of
+        undefined -> W;
+        I -> put_inst(I#{quiet_pause => true}, W)
     end.
 
 %% kill -9 of the node: its instance and its memory go; its disc, with the
@@ -974,11 +1014,39 @@ check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
     V5 = [{not_serving, maps:get(now, W)} || stuck(W)],
     V6 = [{won_twice, E, Refs} || length(maps:get(names, W)) >= 3,
                                   {E, [_, _ | _] = Refs} <- maps:to_list(maps:get(winners, W, #{}))],
-    Seen = maps:get(violations, W),
-    case V1 ++ V2 ++ V3 ++ V4 ++ V5 ++ [V || V <- V6, not lists:member(V, Seen)] of
-        [] -> W;
-        Vs -> W#{violations := Seen ++ Vs}
+    {V7, W1} = lease(W),
+    Seen = maps:get(violations, W1),
+    case V1 ++ V2 ++ V3 ++ V4 ++ V5 ++ V7 ++ [V || V <- V6, not lists:member(V, Seen)] of
+        [] -> W1;
+        Vs -> W1#{violations := Seen ++ Vs}
     end.
+
+%% The lease (docs/ha-design.md section 5): with three nodes, an active cut
+%% off has fenced before a majority stops hearing it for suspect_ms and
+%% grants the pairing to another, so two instances never serve at once,
+%% whatever their epochs, while no more than one failure happened (the
+%% `faults' of the guarantee) and no restore from a view that missed an
+%% instance holding the pairing's state (not promised: count_fault/3 counts
+%% it; an old active, paused with its registration's acceptances in its
+%% mailbox, may act on them before it sees it was paused, beside the
+%% restored one). It rests on the clocks' drift staying
+%% within the bound of the module doc. One exception is known and counted
+%% in `quiet_overlaps' instead: an active whose node's pause it did not
+%% count as a stall (quiet_pause/2).
+lease(#{names := Names} = W) when length(Names) >= 3 ->
+    Serving = serving(W),
+    Pairs = [{R, E} || #{ref := R, epoch := E} <- Serving],
+    case maps:get(faults, W, 0) < 2 andalso length(Serving) > 1
+        andalso not maps:get(restored_wrong, W, false) of
+        false -> {[], W};
+        true ->
+            case [I || I <- Serving, not maps:get(quiet_pause, I, false)] of
+                [_, _ | _] -> {[{lease_overlap, Pairs}], W};
+                _ -> {[], W#{quiet_overlaps => lists:usort([Pairs | maps:get(quiet_overlaps, W, [])])}}
+            end
+    end;
+lease(W) ->
+    {[], W}.
 
 %% A signal never degraded gets one routing; one covered again gets none
 %% but those excused when it was (excuse/3).
@@ -1110,10 +1178,18 @@ until_one_serves(Deadline, W) ->
     end.
 
 %% Exactly one instance serves, and it holds every accepted signal that the
-%% guarantee covers.
+%% guarantee covers. An active left serving beside another by a pause its
+%% clock did not count (quiet_pause/2) is not waited for: it steps down at
+%% the first event it ships, which signal_accepted/3 gives it.
 one_serves(#{sender := #{acked := Acked, degraded := Degraded}} = W) ->
-    case serving(W) of
-        [#{state := #{applied := A}}] -> [] =:= [Sid || Sid <- Acked -- Degraded,
-                                                       not lists:keymember(Sid, 1, A)];
+    Serving = serving(W),
+    case [I || I <- Serving, not maps:get(quiet_pause, I, false)] of
+        [] -> one_holds(Serving, Acked -- Degraded);
+        Loud -> one_holds(Loud, Acked -- Degraded)
+    end.
+
+one_holds(Serving, Covered) ->
+    case Serving of
+        [#{state := #{applied := A}}] -> [] =:= [Sid || Sid <- Covered, not lists:keymember(Sid, 1, A)];
         _ -> false
     end.
