@@ -169,8 +169,10 @@ stall_gen() ->
 -spec unstalled(non_neg_integer()) -> boolean().
 unstalled(Gen) ->
     Overdue = case ets:lookup(?TABLE, last_tick) of
-                  [{_, T}] -> evatar_ha_membership:stalled(T, erlang:monotonic_time(millisecond),
-                                                      opt(suspect_ms) + opt(heartbeat_ms));
+                  [{_, T}] -> evatar_ha_membership:stalled(
+                                T, erlang:monotonic_time(millisecond),
+                                evatar_ha_membership:stall_ms(opt(heartbeat_ms), opt(lease_ms))
+                                + opt(heartbeat_ms));
                   [] -> false
               end,
     not Overdue andalso stall_gen() =:= Gen.
@@ -471,10 +473,12 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
     Connected = erlang:nodes(),
     Peers = [N || N <- Nodes, N =/= node()],
     S0 = discount(evatar_ha_membership:own_pause(Last, Now, opt(heartbeat_ms)), Now, S),
-    _ = case evatar_ha_membership:stalled(Last, Now, Suspect) of
+    Stall = evatar_ha_membership:stall_ms(opt(heartbeat_ms), opt(lease_ms)),
+    _ = case evatar_ha_membership:stalled(Last, Now, Stall) of
             true ->
-                %% Long enough for the others to have suspected this node:
-                %% its actives ask the cluster again (evatar_pairing).
+                %% Long enough for the others to have suspected this node,
+                %% whatever their clocks within the drift bound: its
+                %% actives ask the cluster again (evatar_pairing).
                 true = ets:insert(?TABLE, {stall_gen, stall_gen() + 1}),
                 broadcast(stalled);
             false ->

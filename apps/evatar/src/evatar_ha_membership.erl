@@ -7,7 +7,8 @@
 %% instances) are in `evatar_ha_core' (docs/ha-design.md).
 -module(evatar_ha_membership).
 
--export([standby_node/4, majority/2, stalled/3, own_pause/3, discount/3, check_timings/1]).
+-export([standby_node/4, majority/2, stalled/3, stall_ms/2, own_pause/3, discount/3,
+         check_timings/1]).
 
 %% @doc The node for a standby of a pairing active on `Self': `Preferred'
 %% when it is alive, else the first alive node after `Self' in the sorted
@@ -35,12 +36,28 @@ majority(Configured, Heard) ->
     Votes * 2 > length(lists:usort(Configured)).
 
 %% @doc Whether this node itself was stopped or starved: the last tick came
-%% much later than planned. Then silence from the others is not their fault,
-%% and they are given a fresh start instead of being suspected.
--spec stalled(LastTickMs :: integer(), NowMs :: integer(), SuspectMs :: pos_integer()) ->
+%% more than `StallMs' ({@link stall_ms/2}) after the one before. Then
+%% silence from the others is not their fault, and they are given a fresh
+%% start instead of being suspected; its actives ask the cluster again.
+-spec stalled(LastTickMs :: integer(), NowMs :: integer(), StallMs :: pos_integer()) ->
           boolean().
-stalled(LastTick, Now, SuspectMs) ->
-    Now - LastTick > SuspectMs.
+stalled(LastTick, Now, StallMs) ->
+    Now - LastTick > StallMs.
+
+%% @doc How long a gap between two ticks counts as a stall: `lease_ms' +
+%% `heartbeat_ms', which check_timings/1 keeps at most `suspect_ms'. The
+%% peers suspect this node after `suspect_ms' of silence on their clocks;
+%% this node measures its pause on its own. Counted against suspect_ms, a
+%% pause the peers measured as just over it (their clocks a little faster)
+%% would go unnoticed here, and a standby could take over while this
+%% node's active served on without asking anyone. Counted against
+%% lease + heartbeat, every pause a peer could have suspected is noticed as
+%% long as this node's clock runs at no less than (lease + heartbeat) /
+%% suspect of theirs: the same bound the lease itself needs (docs/ha.md
+%% section 6, "Clock drift").
+-spec stall_ms(HeartbeatMs :: pos_integer(), LeaseMs :: pos_integer()) -> pos_integer().
+stall_ms(HeartbeatMs, LeaseMs) ->
+    LeaseMs + HeartbeatMs.
 
 %% @doc How long this node was itself paused before a tick: how much later
 %% than planned (`HeartbeatMs' after the last one) the tick came. The

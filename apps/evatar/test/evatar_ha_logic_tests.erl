@@ -334,6 +334,21 @@ stalled_test() ->
     ?assert(evatar_ha_membership:stalled(0, 1000, 250)),
     ?assertNot(evatar_ha_membership:stalled(0, 60, 250)).
 
+%% A pause counts as a stall past lease + heartbeat (200 ms with the
+%% release's 50/250/150): one that a peer whose clock runs up to 1 / 0.8
+%% as fast measured as just over suspect_ms (250 ms) is noticed.
+stall_ms_test() ->
+    Stall = evatar_ha_membership:stall_ms(50, 150),
+    ?assertEqual(200, Stall),
+    ?assert(evatar_ha_membership:stalled(0, 216, Stall)),
+    ?assertNot(evatar_ha_membership:stalled(0, 200, Stall)),
+    ?assertEqual(ok, evatar_ha_membership:check_timings(#{heartbeat_ms => 50, suspect_ms => 250,
+                                                          lease_ms => 150})),
+    %% Never past suspect_ms: the timings that would put it there are refused.
+    ?assertMatch({error, _}, evatar_ha_membership:check_timings(#{heartbeat_ms => 50,
+                                                                 suspect_ms => 250,
+                                                                 lease_ms => 250})).
+
 %% A pause never fences by itself: a lone node keeps serving (nobody else
 %% holds the state), a node of a cluster asks the others again, or awaits
 %% the answer to a registration already under way.

@@ -52,7 +52,7 @@
          fenced_rewin_keeps_standby/1, reelected_after_pause_keeps_standby/1,
          epoch_won_twice_after_vote_loss/1, epoch_won_twice_then_old_standby_serves/1,
          old_epoch_served_after_vote_loss/1, two_restorers/1,
-         lease_past_drift_bound/1, pause_unnoticed_by_slow_clock/1, clock_offsets/1,
+         lease_past_drift_bound/1, slow_clock_pause_noticed/1, clock_offsets/1,
          live_three_nodes/1, live_two_nodes/1]).
 -export([prop_model/2, prop_live/2, prop_offsets/1]).
 
@@ -64,7 +64,7 @@ all() -> [stale_promise_freeze, active_node_back_without_it, reelection_after_re
           two_nodes_winner_gone, paused_active_stale_claim, fenced_rewin_keeps_standby,
           reelected_after_pause_keeps_standby, epoch_won_twice_after_vote_loss,
           epoch_won_twice_then_old_standby_serves, old_epoch_served_after_vote_loss,
-          two_restorers, lease_past_drift_bound, pause_unnoticed_by_slow_clock, clock_offsets,
+          two_restorers, lease_past_drift_bound, slow_clock_pause_noticed, clock_offsets,
           three_nodes, two_nodes,
           live_three_nodes, live_two_nodes].
 
@@ -277,20 +277,18 @@ lease_past_drift_bound(_Config) ->
     [#{ref := {n2, _}, epoch := 2}] = evatar_ha_sim:serving(Within).
 
 %% @doc Found by the model with clocks 10 % apart (within the bound): a
-%% node that finds it was paused for longer than suspect_ms asks the
-%% cluster to confirm its actives, and its peers suspect it after the same
-%% suspect_ms of silence, each on its own clock, with no margin between the
-%% two. n1's clock runs slow: paused 240 ms, it measures 216 ms and goes
-%% on, while n2 and n3 measured 264 ms, granted epoch 2 to the standby,
-%% which serves. The woken n1 keeps its majority (its pause is not its
-%% peers' silence) and serves at epoch 1 beside it, until it ships its next
-%% event and is told `stale'; idle, for ever. Nothing accepted is lost or
-%% routed twice (its standby is the new active: it confirms nothing). A
-%% drift of 1 %, what Erlang's time correction may apply, opens the same
-%% window for a pause of 250 ms; with equal clocks neither pause lets a
-%% standby take over. Not prevented: the lease check counts it in
-%% `quiet_overlaps'.
-pause_unnoticed_by_slow_clock(_Config) ->
+%% woken node counted its pause as a stall only past suspect_ms on its own
+%% clock, while its peers suspect it after suspect_ms of silence on theirs,
+%% with no margin between the two. n1's clock runs slow: paused 240 ms, it
+%% measured 216 ms and went on, while n2 and n3 measured 264 ms and granted
+%% epoch 2 to the standby; n1 served on at epoch 1 beside it, idle, for
+%% ever (a drift of 1 % and a pause of 250 ms did the same). A pause now
+%% counts as a stall past lease + heartbeat (200 ms,
+%% evatar_ha_membership:stall_ms/2): n1 asks the cluster again, is told
+%% its epoch is stale and fences; the new active alone serves, nothing is
+%% lost. With equal clocks neither pause lets a standby take over: n1,
+%% confirmed, serves on.
+slow_clock_pause_noticed(_Config) ->
     Run = fun(Rates, PauseMs) ->
                   evatar_ha_sim:run([{tick, 100}, {signal, n1}, {tick, 100}, {pause, n1},
                                      {tick, PauseMs}, {resume, n1}, {tick, 500}],
@@ -300,16 +298,12 @@ pause_unnoticed_by_slow_clock(_Config) ->
       fun({Rates, PauseMs}) ->
               W = Run(Rates, PauseMs),
               [] = maps:get(violations, W),
-              [{n1, _}, {n2, _}] = lists:sort([R || #{ref := R} <- evatar_ha_sim:serving(W)]),
-              [[{{n1, _}, 1}, {{n2, _}, 2}]] = maps:get(quiet_overlaps, W),
-              W1 = evatar_ha_sim:run([{signal, n1}, {tick, 100}], W),
-              [#{ref := {n2, _}, epoch := 2}] = evatar_ha_sim:serving(W1),
-              {true, W2} = evatar_ha_sim:settle(W1),
-              [] = maps:get(violations, W2),
-              %% The same pause with equal clocks: no takeover.
+              [#{ref := {n2, _}, epoch := 2}] = evatar_ha_sim:serving(W),
+              {true, W1} = evatar_ha_sim:settle(evatar_ha_sim:run([{signal, n1}, {tick, 100}], W)),
+              [] = maps:get(violations, W1),
               Equal = Run(#{}, PauseMs),
-              [#{ref := {n1, _}, epoch := 1}] = evatar_ha_sim:serving(Equal),
-              false = maps:is_key(quiet_overlaps, Equal)
+              [] = maps:get(violations, Equal),
+              [#{ref := {n1, _}, epoch := 1}] = evatar_ha_sim:serving(Equal)
       end, [{#{n1 => ?RATE_MIN, n2 => ?RATE_MAX, n3 => ?RATE_MAX}, 240},
             {#{n1 => 990, n2 => 1010, n3 => 1010}, 250}]).
 

@@ -61,10 +61,10 @@
 %% epochs are checked by what its clients see);</li>
 %% <li>with three nodes, the lease: no two instances serve at once, at any
 %% epochs, while no more than one failure happened and the pairing was not
-%% restored from a view that missed an instance; except an active whose
-%% node was paused for no longer than suspect_ms on its own clock, which
-%% goes on while a peer with a faster clock may have let a standby take
-%% over (known, not prevented: counted in `quiet_overlaps').</li>
+%% restored from a view that missed an instance (a woken node counts its
+%% pause as a stall past lease + heartbeat on its own clock,
+%% evatar_ha_membership:stall_ms/2, so every pause a peer within the drift
+%% bound could have suspected is noticed).</li>
 %% </ul>
 %% and, by {@link live/3}, liveness once the faults stop (docs/ha.md section
 %% 6), or by {@link settle/1}, a looser form: once every node runs and hears
@@ -398,23 +398,12 @@ resume(N, #{nodes := Nodes} = W) ->
             {Mine, Others} = lists:partition(fun({To, _}) -> to_node(To, W1) =:= N end, Q),
             W2 = lists:foldl(fun({To, Msg}, Acc) -> receive_msg(To, Msg, Acc) end,
                              W1#{paused_q => Others}, Mine),
-            case Paused > ?SUSPECT of
+            case Paused > evatar_ha_membership:stall_ms(?HB, ?LEASE) of
                 true -> inst_event(N, stalled, W2);
-                false -> quiet_pause(N, W2)
+                false -> W2
             end;
         #{} ->
             W
-    end.
-
-%% A pause the node did not count as a stall (not longer than suspect_ms on
-%% its own clock): a peer whose clock runs faster may have measured more
-%% than suspect_ms of silence, and a standby may have taken over, while
-%% this active goes on without asking the cluster again. The lease check
-%% ({@link check/1}) excuses that instance, and counts what it excused.
-quiet_pause(N, W) ->
-    case inst_on(N, W) of
-        undefined -> W;
-        I -> put_inst(I#{quiet_pause => true}, W)
     end.
 
 %% kill -9 of the node: its instance and its memory go; its disc, with the
@@ -1030,9 +1019,7 @@ check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
 %% it; an old active, paused with its registration's acceptances in its
 %% mailbox, may act on them before it sees it was paused, beside the
 %% restored one). It rests on the clocks' drift staying
-%% within the bound of the module doc. One exception is known and counted
-%% in `quiet_overlaps' instead: an active whose node's pause it did not
-%% count as a stall (quiet_pause/2).
+%% within the bound of the module doc.
 lease(#{names := Names} = W) when length(Names) >= 3 ->
     Serving = serving(W),
     Pairs = [{R, E} || #{ref := R, epoch := E} <- Serving],
@@ -1040,10 +1027,7 @@ lease(#{names := Names} = W) when length(Names) >= 3 ->
         andalso not maps:get(restored_wrong, W, false) of
         false -> {[], W};
         true ->
-            case [I || I <- Serving, not maps:get(quiet_pause, I, false)] of
-                [_, _ | _] -> {[{lease_overlap, Pairs}], W};
-                _ -> {[], W#{quiet_overlaps => lists:usort([Pairs | maps:get(quiet_overlaps, W, [])])}}
-            end
+            {[{lease_overlap, Pairs}], W}
     end;
 lease(W) ->
     {[], W}.
@@ -1178,15 +1162,9 @@ until_one_serves(Deadline, W) ->
     end.
 
 %% Exactly one instance serves, and it holds every accepted signal that the
-%% guarantee covers. An active left serving beside another by a pause its
-%% clock did not count (quiet_pause/2) is not waited for: it steps down at
-%% the first event it ships, which signal_accepted/3 gives it.
+%% guarantee covers.
 one_serves(#{sender := #{acked := Acked, degraded := Degraded}} = W) ->
-    Serving = serving(W),
-    case [I || I <- Serving, not maps:get(quiet_pause, I, false)] of
-        [] -> one_holds(Serving, Acked -- Degraded);
-        Loud -> one_holds(Loud, Acked -- Degraded)
-    end.
+    one_holds(serving(W), Acked -- Degraded).
 
 one_holds(Serving, Covered) ->
     case Serving of
