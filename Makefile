@@ -31,7 +31,8 @@ test: deps
 
 ## The quick tier, for every change: xref, dialyzer, EUnit and the Common Test
 ## suites of apps/*/test that run on one node (all but those starting a cluster;
-## the pure properties among them), without cover. Not the multi-node and
+## the pure properties among them, each at a quarter of its count:
+## EVATAR_PROPER_FACTOR=1 for the full one), without cover. Not the multi-node and
 ## release suites of test/, nor the client suites. The same last line.
 check: deps
 	@bash scripts/test.sh check
