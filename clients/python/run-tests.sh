@@ -4,8 +4,9 @@
 # (`rebar3 compile`; REBAR_BASE_DIR is honoured, default _build).
 #
 # Creates (or reuses) a virtual environment, EVATAR_PY_VENV or
-# clients/python/.venv, installs this package, pytest, agentspeak and SPADE
-# from PyPI into it, runs pytest, and prints as its last line
+# clients/python/.venv, installs into it from PyPI what it lacks of pytest,
+# agentspeak and SPADE (pinned: spade-requirements.txt), installs this
+# package again when its source changed, runs pytest, and prints as its last line
 #   N passed, N failed
 # exiting non-zero when a test failed or could not run.
 # Needs python3 (3.8 or later) with the venv module (Debian: python3-venv).
@@ -23,13 +24,46 @@ if [ ! -x "$VENV/bin/python" ]; then
   python3 -m venv "$VENV" >&2 || fail "cannot create a venv in $VENV (install python3-venv)"
 fi
 PY="$VENV/bin/python"
-"$PY" -m pip install --quiet --disable-pip-version-check pytest agentspeak >&2 \
+# Each pip step below costs seconds and a trip to PyPI even when it has
+# nothing to do, so it runs only when the venv lacks what it installs.
+# have REQUIREMENT...: every NAME is installed, at VERSION for NAME==VERSION.
+# A line it cannot read counts as missing: the check may only cause an
+# install, never skip one that was needed.
+have() {
+  "$PY" - "$@" <<'PYEOF'
+import re
+import sys
+from importlib import metadata
+for req in sys.argv[1:]:
+    m = re.fullmatch(r"([A-Za-z0-9._-]+)(?:==([A-Za-z0-9.+!-]+))?", req)
+    if m is None:
+        sys.exit(1)
+    try:
+        got = metadata.version(m.group(1))
+    except metadata.PackageNotFoundError:
+        sys.exit(1)
+    if m.group(2) is not None and got != m.group(2):
+        sys.exit(1)
+PYEOF
+}
+have pytest agentspeak \
+  || "$PY" -m pip install --quiet --disable-pip-version-check pytest agentspeak >&2 \
   || fail "cannot install pytest and agentspeak from PyPI"
 # SPADE for tests/test_spade.py (evatar.spade), pinned to versions known to work.
-"$PY" -m pip install --quiet --disable-pip-version-check -r "$HERE/spade-requirements.txt" >&2 \
+SPADE_REQS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' -e '/^$/d' "$HERE/spade-requirements.txt")
+# shellcheck disable=SC2086 # one requirement a word
+have $SPADE_REQS \
+  || "$PY" -m pip install --quiet --disable-pip-version-check -r "$HERE/spade-requirements.txt" >&2 \
   || fail "cannot install SPADE ($HERE/spade-requirements.txt) from PyPI"
-"$PY" -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps "$HERE" >&2 \
-  || fail "cannot install the evatar package"
+# This package, again whenever its source differs from what was installed
+# last (the digest of pyproject.toml, README.md and src/evatar, kept in the venv).
+SRC_DIGEST=$(cd "$HERE" && find pyproject.toml README.md src/evatar -type f ! -name '*.pyc' -print0 \
+  | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
+if ! have evatar || [ "$(cat "$VENV/evatar-src.sha256" 2>/dev/null)" != "$SRC_DIGEST" ]; then
+  "$PY" -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps "$HERE" >&2 \
+    || fail "cannot install the evatar package"
+  echo "$SRC_DIGEST" > "$VENV/evatar-src.sha256"
+fi
 ls "$REBAR_BASE_DIR"/default/lib/agent_bridge/ebin/*.beam >/dev/null 2>&1 \
   || fail "the Erlang code is not compiled in $REBAR_BASE_DIR (run rebar3 compile)"
 
