@@ -6,8 +6,9 @@
 # on stdout once it accepts connections, and halts when its stdin closes, so
 # a test fixture that dies takes the node with it.
 #
-# Usage: scripts/test-node.sh PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL...
+# Usage: scripts/test-node.sh PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL[:FEEDBACK_TIMEOUT_MS]...
 #   e.g. scripts/test-node.sh home:va-secret:avatar-secret
+# A pairing without FEEDBACK_TIMEOUT_MS has the default feedback timeout (5 s).
 # Honours REBAR_BASE_DIR (default _build); the code must be compiled
 # (`rebar3 compile`).
 # With EVATAR_TLS_DIR set to a directory made by scripts/gen-bridge-certs.sh
@@ -29,12 +30,14 @@ export ERL_LIBS="$PWD/_deps${ERL_LIBS:+:$ERL_LIBS}"
 PORT=${EVATAR_PORT:-0}
 specs=""
 for arg in "$@"; do
-  IFS=: read -r id agent avatar <<<"$arg"
-  if [ -z "${id:-}" ] || [ -z "${agent:-}" ] || [ -z "${avatar:-}" ]; then
-    echo "test-node.sh: bad pairing '$arg', want PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL" >&2
+  IFS=: read -r id agent avatar fto <<<"$arg"
+  if [ -z "${id:-}" ] || [ -z "${agent:-}" ] || [ -z "${avatar:-}" ] \
+     || ! [[ "${fto:-}" =~ ^([1-9][0-9]*)?$ ]]; then
+    echo "test-node.sh: bad pairing '$arg', want PAIRING:AGENT_CREDENTIAL:AVATAR_CREDENTIAL[:FEEDBACK_TIMEOUT_MS]" >&2
     exit 2
   fi
-  specs="$specs{<<\"$id\">>, <<\"$agent\">>, <<\"$avatar\">>},"
+  extra=${fto:+", feedback_timeout => $fto"}
+  specs="$specs{<<\"$id\">>, #{agent_credential => <<\"$agent\">>, avatar_credential => <<\"$avatar\">>$extra}},"
 done
 specs="[${specs%,}]"
 TLS_DIR=${EVATAR_TLS_DIR:-}
@@ -49,8 +52,7 @@ exec erl -noshell -kernel logger_level warning \
   -eval "
     {ok, _} = application:ensure_all_started(evatar),
     {ok, _} = application:ensure_all_started(agent_bridge),
-    [{ok, _} = evatar:create_pairing(Id, #{agent_credential => A, avatar_credential => V})
-     || {Id, A, V} <- $specs],
+    [{ok, _} = evatar:create_pairing(Id, Opts) || {Id, Opts} <- $specs],
     %% Heartbeat 500 (not the default): the value in the shared vectors'
     %% Welcome, which the SDKs' transcript tests replay against this node.
     Hb500 = #{heartbeat => 500},

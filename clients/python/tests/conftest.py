@@ -14,8 +14,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[3]
 
+#: ``timeouts`` answers for a silent device after 2 s, not the default 5 s:
+#: test_feedback_timeouts waits for that answer.
 PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
-            "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar",
+            "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar:2000",
             "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret",
             "artifacts:art-va:art-avatar"]
 

@@ -217,7 +217,7 @@ def test_feedback_timeouts(endpoint) -> None:  # type: ignore[no-untyped-def]
         # The client's own deadline.
         with pytest.raises(FeedbackTimeout):
             await light.act("TurnLightOn", {"Light": "yes"}, timeout=0.3)
-        # EVATAR's: the pairing's feedback timeout (5 s) answers for the device.
+        # EVATAR's: the pairing's feedback timeout (2 s, conftest's PAIRINGS) answers for the device.
         fb = await light.act("TurnLightOn", {"Light": "yes"}, timeout=10)
         assert fb.is_evatar_timeout and fb.param("Message")
         never.set()

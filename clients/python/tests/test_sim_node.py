@@ -225,7 +225,8 @@ def test_paused_start_night_watch_binding(tmp_path: Path) -> None:
 
 
 def test_robots_from_the_shell(tmp_path: Path) -> None:
-    node, control = start(tmp_path, "robots")
+    # The feedback timeout answers for the muted motor below: 2 s, not 5.
+    node, control = start(tmp_path, "robots", "--feedback-timeout", "2000")
     try:
         assert [l for l in node.lines if l.startswith("EVATAR_PAIRING=")] == [
             "EVATAR_PAIRING=robot1", "EVATAR_PAIRING=robot2"]
