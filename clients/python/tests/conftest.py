@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[3]
 PAIRINGS = ["kitchen:va-secret:avatar-secret", "lab:lab-va:lab-avatar",
             "ha:ha-va:ha-avatar", "sensing:s-va:s-avatar", "timeouts:t-va:t-avatar:2000",
             "dropped:d-va:d-avatar", "sync:y-va:y-avatar", "vectors:va-secret:avatar-secret",
-            "artifacts:art-va:art-avatar"]
+            "artifacts:art-va:art-avatar", "porch:va-secret:avatar-secret"]
 
 
 class Node:

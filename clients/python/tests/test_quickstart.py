@@ -28,8 +28,8 @@ def test_examples_are_the_documented_code() -> None:
     assert (HERE / "avatar.py").read_text() == blocks[1]
 
 
-def test_quickstart_va_and_avatar(tmp_path: Path) -> None:
-    node = Node("test-node.sh", ["porch:va-secret:avatar-secret"])
+def test_quickstart_va_and_avatar(node: Node, tmp_path: Path) -> None:
+    """On the session's node, whose ``porch`` pairing no other test uses."""
     port = str(node.port)
     for name in ("va.py", "avatar.py"):
         code = (HERE / name).read_text()
@@ -50,4 +50,3 @@ def test_quickstart_va_and_avatar(tmp_path: Path) -> None:
     finally:
         va.kill()
         va.wait()
-        node.stop()
