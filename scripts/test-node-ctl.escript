@@ -36,11 +36,12 @@
 %% open the socket can drive the simulation); --no-stdin stops reading
 %% stdin, so the node runs until the `stop' command. Answers go back on the
 %% connection that asked. scripts/sim-node.sh wraps both for users;
-%% `test-node-ctl.sh --send SOCKET COMMAND...' is its client: it prints the
-%% answer's lines and exits 0 on OK, 1 on ERROR (printed to stderr), 3 when
-%% nothing answers on SOCKET. When the answer has no lines it prints a short
-%% confirmation instead (`ok muted LivingLightSwitch01'; `outcome' with
-%% nothing to show says so), so every command prints something.
+%% `test-node-ctl.sh --send SOCKET COMMAND...' is its client
+%% (scripts/test-node-ctl-send.escript): it prints the answer's lines and
+%% exits 0 on OK, 1 on ERROR (printed to stderr), 3 when nothing answers on
+%% SOCKET. When the answer has no lines it prints a short confirmation
+%% instead (`ok muted LivingLightSwitch01'; `outcome' with nothing to show
+%% says so), so every command prints something.
 %%
 %% Commands:
 %%   port NAME PROGRAM [ARG...]   start PROGRAM under a port connector
@@ -65,8 +66,6 @@
 %%   stop                         answers OK, then halts the node
 -mode(compile).
 
-main(["--send", Path | Words]) ->
-    send(Path, Words);
 main(Args0) ->
     %% Stdout carries the command protocol (lines up to OK or ERROR); log
     %% reports, such as a killed peer's, go to stderr so a reader never
@@ -352,48 +351,6 @@ hook("reconnect", A, E, []) -> avatar_sim:reconnect(A, E);
 hook("detach", A, C, []) -> avatar_sim:detach_device(A, C);
 hook("attach", A, C, []) -> avatar_sim:attach_device(A, C);
 hook(_, _, _, _) -> {error, too_many_arguments}.
-
-%% The client of the control socket (sim-node.sh COMMAND).
-send(Path, Words) ->
-    case gen_tcp:connect({local, Path}, 0, [local, binary, {packet, line}, {active, false}],
-                         5000) of
-        {ok, S} ->
-            ok = gen_tcp:send(S, [lists:join(" ", Words), $\n]),
-            answer(S, Words, false);
-        {error, Why} ->
-            io:format(standard_error, "no simulated node answers on ~s (~0p): start one with "
-                      "scripts/sim-node.sh start~n", [Path, Why]),
-            halt(3)
-    end.
-
-answer(S, Words, Printed) ->
-    case gen_tcp:recv(S, 0) of
-        {ok, <<"OK\n">>} ->
-            _ = [io:format("~s~n", [confirmation(Words)]) || not Printed],
-            halt(0);
-        {ok, <<"ERROR", _/binary>> = E} -> io:format(standard_error, "~s", [E]), halt(1);
-        {ok, Line} -> io:format("~s", [Line]), answer(S, Words, true);
-        {error, Why} ->
-            io:format(standard_error, "the node closed the connection (~0p)~n", [Why]),
-            halt(1)
-    end.
-
-%% What `sim-node.sh COMMAND' prints when the node's answer has no lines.
-confirmation(["mute", C]) -> ["ok muted ", C, " (it swallows requests until unmute)"];
-confirmation(["unmute", C]) -> ["ok unmuted ", C];
-confirmation(["disconnect", E]) -> ["ok disconnected ", E, " (away until reconnect)"];
-confirmation(["disconnect", E, Ms]) -> ["ok disconnected ", E, " for ", Ms, " ms"];
-confirmation(["reconnect", E]) -> ["ok reconnecting ", E, " (see links)"];
-confirmation(["detach", C]) -> ["ok detached ", C];
-confirmation(["attach", C]) -> ["ok attached ", C];
-confirmation(["pause"]) -> "ok clock paused (resume starts it)";
-confirmation(["resume"]) -> "ok clock running";
-confirmation(["speed", N]) -> ["ok speed ", N, ", clock paused (resume starts it)"];
-confirmation(["run_until", T]) -> ["ok clock ran to ", T, " and is paused (resume starts it)"];
-confirmation(["outcome"]) -> "no outcome yet: no light change, e-mail, photo or sound";
-confirmation(["links"]) -> "no links";
-confirmation(["stop"]) -> "ok stopped";
-confirmation(Words) -> ["ok " | lists:join(" ", Words)].
 
 stop() ->
     _ = [file:delete(Path) || Path <- [get(control)], Path =/= undefined],
