@@ -5,10 +5,16 @@
 #
 # Creates (or reuses) a virtual environment, EVATAR_PY_VENV or
 # clients/python/.venv, installs into it from PyPI what it lacks of pytest,
-# agentspeak and SPADE (pinned: spade-requirements.txt), installs this
-# package again when its source changed, runs pytest, and prints as its last line
+# pytest-xdist, agentspeak and SPADE (pinned: spade-requirements.txt),
+# installs this package again when its source changed, runs pytest, and
+# prints as its last line
 #   N passed, N failed
 # exiting non-zero when a test failed or could not run.
+# The test files run three at a time (pytest-xdist: -n 3 --dist loadfile, so
+# a file's tests and its module fixtures stay in one process, each process
+# with its own session node): most of the suite's time is spent waiting on
+# simulated clocks and timeouts, not on the CPU. Arguments go to pytest after
+# those: `-n 0` runs the files one after another.
 # Needs python3 (3.8 or later) with the venv module (Debian: python3-venv).
 set -uo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
@@ -46,9 +52,11 @@ for req in sys.argv[1:]:
         sys.exit(1)
 PYEOF
 }
-have pytest agentspeak \
-  || "$PY" -m pip install --quiet --disable-pip-version-check pytest agentspeak >&2 \
-  || fail "cannot install pytest and agentspeak from PyPI"
+TEST_REQS="pytest pytest-xdist==3.8.0 agentspeak"
+# shellcheck disable=SC2086 # one requirement a word
+have $TEST_REQS \
+  || "$PY" -m pip install --quiet --disable-pip-version-check $TEST_REQS >&2 \
+  || fail "cannot install $TEST_REQS from PyPI"
 # SPADE for tests/test_spade.py (evatar.spade), pinned to versions known to work.
 SPADE_REQS=$(sed -e 's/#.*//' -e 's/[[:space:]]//g' -e '/^$/d' "$HERE/spade-requirements.txt")
 # shellcheck disable=SC2086 # one requirement a word
@@ -70,7 +78,8 @@ ls "$REBAR_BASE_DIR"/default/lib/agent_bridge/ebin/*.beam >/dev/null 2>&1 \
 REPORT=$(mktemp /tmp/evatar-py-junit.XXXXXX)
 trap 'rm -f "$REPORT"' EXIT
 # Run from tests/ so the installed package, not src/, is what is tested.
-(cd "$HERE/tests" && "$PY" -m pytest -q -p no:cacheprovider --junitxml="$REPORT" "$@" .) >&2
+(cd "$HERE/tests" && "$PY" -m pytest -q -p no:cacheprovider --junitxml="$REPORT" \
+  -n 3 --dist loadfile "$@" .) >&2
 STATUS=$?
 COUNTS=$("$PY" - "$REPORT" <<'PYEOF'
 import sys
