@@ -28,8 +28,12 @@ class NodeClientTest {
 
     @BeforeAll
     static void startNode() throws IOException {
-        node = LocalNode.start(Pairings.specs("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied",
-                "getbinding"));
+        String[] specs = Pairings.specs("join", "req", "timeout", "stream", "cred", "resume", "errors", "occupied",
+                "getbinding");
+        // "timeout" answers for a silent device after 2 s, not the default 5 s:
+        // feedbackTimeoutComesFromEvatar waits for that answer.
+        specs[2] += ":2000";
+        node = LocalNode.start(specs);
     }
 
     @AfterAll
