@@ -96,10 +96,9 @@ count_cases() {
 # The clients in other languages (clients/*, docs/clients.md) run their own
 # suites against real nodes started from the default profile's build, which
 # xref has just compiled. Each script ends with the same `N passed, N
-# failed' line, which is added in. They run one after the other in the
-# background while dialyzer and EUnit run (those read _build/default and
-# build _build/test; the clients' nodes only read _build/default, on free
-# ports), and are counted once both are done.
+# failed' line, which is added in. They run one after the other once
+# dialyzer and EUnit are done, with nothing else beside them, so that no
+# check loads the machine under another's timeouts.
 clients_run() {
   local script name
   for script in clients/*/run-tests.sh; do
@@ -116,7 +115,7 @@ clients_count() {
   for script in clients/*/run-tests.sh; do
     name="clients-$(basename "$(dirname "$script")")"
     echo
-    echo "== $name: bash $script (run beside dialyzer and EUnit)"
+    echo "== $name: bash $script"
     cat "$REPORT/$name.log" 2>/dev/null
     read -r rc took < "$REPORT/$name.status" 2>/dev/null || { rc=1; took=?; }
     echo "== $name took $took s"
@@ -203,26 +202,18 @@ fi
 # suites' nodes start from.
 build_once release EVATAR_REL _build/default/rel/evatar rebar3 release
 
-clients_pid=
-if ls clients/*/run-tests.sh >/dev/null 2>&1; then
-  rm -f "$REPORT"/clients-*.status
-  if step compile rebar3 compile; then
-    clients_run &
-    clients_pid=$!
-  else
-    failed=$((failed + 1)); note "compile for the client suites: FAILED (see $REPORT/compile.log)"
-  fi
-fi
-
 check dialyzer rebar3 dialyzer
 
 step eunit rebar3 eunit --cover; count_cases eunit $?
 
-if [ -n "$clients_pid" ]; then
-  t0=$SECONDS
-  wait "$clients_pid"
-  echo "== waited $((SECONDS - t0)) s for the client suites"
-  clients_count
+if ls clients/*/run-tests.sh >/dev/null 2>&1; then
+  rm -f "$REPORT"/clients-*.status
+  if step compile rebar3 compile; then
+    clients_run
+    clients_count
+  else
+    failed=$((failed + 1)); note "compile for the client suites: FAILED (see $REPORT/compile.log)"
+  fi
 fi
 
 step ct rebar3 ct --cover; count_cases ct $?
