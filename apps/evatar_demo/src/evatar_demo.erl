@@ -18,6 +18,7 @@
 
 -export([main/1, inspect/0, stop/0]).
 -export([holiday/1, robots/1, rooms/1]).
+-export([quietly/1]).
 
 -define(KEPT, {?MODULE, kept}).
 
@@ -62,8 +63,11 @@ usage() ->
     "  --keep   keep the node running afterwards, for a remote shell; Ctrl-C or a SIGTERM\n"
     "           to make demo stops it (scripts/demo.sh --help)\n".
 
-%% Pairings log a warning for every feedback timeout, and application
-%% starts their info reports: only errors get through while the demo runs.
+%% @doc Internal (the demo's modules). Runs Fun with the logger at `error':
+%% pairings log a warning for every feedback timeout (the tour provokes
+%% one on purpose), and application starts and joins their info reports,
+%% which would bury the narration. The level is restored however Fun ends.
+-spec quietly(fun(() -> T)) -> T.
 quietly(Fun) ->
     #{level := Level} = logger:get_primary_config(),
     ok = logger:set_primary_config(level, error),

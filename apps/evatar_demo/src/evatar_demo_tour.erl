@@ -16,7 +16,7 @@
 %% @doc Runs the tour, printing as it goes.
 -spec main() -> ok.
 main() ->
-    quietly(fun run/0).
+    evatar_demo:quietly(fun run/0).
 
 run() ->
     {ok, _} = application:ensure_all_started(bil),
@@ -119,17 +119,6 @@ hostile({Name, Bin}) ->
 -define(AV_CRED, <<"demo-avatar-secret">>).
 %% Short, so that the timeout step does not keep the reader waiting.
 -define(FEEDBACK_TIMEOUT, 400).
-
-%% Pairings log a warning for every feedback timeout, and the demo provokes
-%% one on purpose; the node's info reports (application starts, joins) would
-%% bury the narration too. Only errors get through while the demo runs, and
-%% the level is restored however it ends.
-quietly(Fun) ->
-    #{level := Level} = logger:get_primary_config(),
-    ok = logger:set_primary_config(level, error),
-    try Fun()
-    after ok = logger:set_primary_config(level, Level)
-    end.
 
 live(Docs) ->
     {_, Va0} = lists:keyfind("lego_va.xml", 1, Docs),

@@ -40,7 +40,7 @@ init_per_testcase(node_wot_mqtt_lamp, Config) ->
     Config;
 init_per_testcase(_Case, Config) ->
     {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
-    Port = free_port(),
+    Port = hd(evatar_test_cluster:free_ports(1)),
     Servient = servient(Config, Port),
     [{port, Port}, {servient, Servient} | Config].
 
@@ -197,7 +197,7 @@ killed_avatar_restarts_with_backoff(Config) ->
 %% order, node_config first): its keeper runs the WoT Avatar, which joins
 %% the file's pairing on the file's listener; a VA there invokes the lamp.
 node_config_embodies_a_thing(Config) ->
-    Listener = free_port(),
+    Listener = hd(evatar_test_cluster:free_ports(1)),
     Td = ["http://127.0.0.1:", integer_to_list(?config(port, Config)), "/lamp"],
     Text = io_lib:format(
              "%% written by wot_avatar_SUITE\n"
@@ -487,12 +487,6 @@ forget(Kind) ->
         undefined -> [];
         L -> L
     end.
-
-free_port() ->
-    {ok, S} = gen_tcp:listen(0, [{ip, {127, 0, 0, 1}}]),
-    {ok, Port} = inet:port(S),
-    ok = gen_tcp:close(S),
-    Port.
 
 %% ---------------------------------------------------------------------------
 %% The servient: an OS process, its output lines kept by a reader process
