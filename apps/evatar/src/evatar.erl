@@ -3,7 +3,7 @@
 %% with a credential, describe themselves in BIL and exchange BIL signals
 %% routed through the pairing's Body Mapping Registry. Also the operator's
 %% inspection functions for a remote shell (`pairings/0', `bindings/1',
-%% `registry/1', `stats/1' and their `print_*' forms), and the
+%% `registry/1', `stats/1', `traffic/1' and the `print_*' forms), and the
 %% high-availability view (`ha_status/1', `ha_locate/1', `cluster_status/0').
 %% For tests, timers fired now: a pairing's (`expire_timer/2') and the
 %% node's periodic rounds (`run_now/1').
@@ -37,7 +37,7 @@
 -export([check_data_dir/0, check_pairing_opts/1, pairing_option_ranges/0, create_pairing/2, ensure_pairing/2, delete_pairing/1, join/4,
          join/5, resume/5, describe/2, leave_async/1,
          send/2, ack/2, report_binding/1, leave/1, session_pid/1, session_info/1]).
--export([pairings/0, bindings/1, registry/1, stats/1,
+-export([pairings/0, bindings/1, registry/1, stats/1, traffic/1,
          print_pairings/0, print_bindings/1, print_registry/1, print_stats/1]).
 -export([ha_status/1, ha_locate/1, cluster_status/0, catalogued/0, stored_options/1]).
 -export([expire_timer/2, run_now/1]).
@@ -558,6 +558,14 @@ registry(PairingId) -> inspect(PairingId, registry).
 %% within the call timeout.
 -spec stats(pairing_id()) -> {ok, map()} | {error, not_found | busy}.
 stats(PairingId) -> inspect(PairingId, stats).
+
+%% @doc How many signals each joined entity has sent the pairing and been
+%% delivered by it (its Sequence), and how many requests are open
+%% (evatar_pairing_logic:traffic/1): a simulation that also counts what its
+%% entities sent and handled knows from it when nothing is in flight. A
+%% cheap read: no description is copied.
+-spec traffic(pairing_id()) -> {ok, evatar_pairing_logic:traffic()} | {error, not_found | busy}.
+traffic(PairingId) -> inspect(PairingId, traffic).
 
 inspect(PairingId, What) ->
     case evatar_registry:whereis_name(PairingId) of

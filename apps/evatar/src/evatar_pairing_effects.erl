@@ -28,6 +28,7 @@ inspect(What, State, #data{logic = Logic, commit = C} = Data) ->
         bindings -> evatar_pairing_logic:bindings(Logic);
         registry -> evatar_pairing_logic:registration_list(Logic);
         stats -> evatar_pairing_logic:stats(Logic);
+        traffic -> evatar_pairing_logic:traffic(Logic);
         watchers -> length(Data#data.watchers);
         state -> Logic;
         %% One read of both: a state compared with another instance's

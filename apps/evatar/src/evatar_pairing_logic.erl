@@ -32,7 +32,8 @@
 %% pairing, waiting for a new agent. Delivered signals get a Sequence per
 %% receiving entity (EVATAR's own signals counted) and the epoch.
 %% `request_no_feedback', `sensor_data' and `event' open no pending entry
-%% and no timer: a sensor stream costs two map lookups, a counter and the
+%% and no timer: a sensor stream costs two map lookups, two counters (the
+%% routed context and the sender's `received', traffic/1) and the
 %% stamp per signal. Every event costs at most n log n in the pairing's
 %% open requests, entities and components (bench/COMPLEXITY.md); voiding
 %% the open requests of a provider that went gathers their effects in one
@@ -42,11 +43,11 @@
 -module(evatar_pairing_logic).
 
 -export([config/1, option_ranges/0, new/2, handle/3]).
--export([phase/1, summary/1, bindings/1, registration_list/1, stats/1,
+-export([phase/1, summary/1, bindings/1, registration_list/1, stats/1, traffic/1,
          timers/2, pairing_id/1, epoch/1, entity_ids/1, config_of/1,
          unacked_since/1, attached_ids/1, last_accepted/2]).
 
--export_type([state/0, config/0, event/0, effect/0, timer_key/0, phase/0]).
+-export_type([state/0, config/0, event/0, effect/0, timer_key/0, phase/0, traffic/0]).
 
 -define(MEDIATOR, <<"EVATAR">>).
 
@@ -149,6 +150,10 @@
                 | {cancel_timer, timer_key()}
                 | {log, logger:level(), logger:report()}.
 -type phase() :: waiting | bound.
+%% {@link traffic/1}: signals in and out per joined entity, open requests.
+-type traffic() :: #{pending := non_neg_integer(),
+                     entities := #{binary() => #{received := non_neg_integer(),
+                                                 delivered := non_neg_integer()}}}.
 
 -define(DEFAULTS, #{join_timeout => 5000, feedback_timeout => 5000, max_avatars => 64,
                    resume_timeout => 10000, dedup_window => 1024, max_unacked_out => 8192,
@@ -242,7 +247,7 @@ handle(Event, Now, St) ->
     end.
 
 handle1({signal, EntityId, Signal}, Now, St) ->
-    route(EntityId, Signal, Now, St);
+    route(EntityId, Signal, Now, received(EntityId, St));
 handle1({join, Role, EntityId, Credential}, Now, St) ->
     join(Role, EntityId, Credential, undefined, Now, St);
 handle1({join, Role, EntityId, Credential, SessionId}, Now, St) when is_binary(SessionId) ->
@@ -597,7 +602,8 @@ remove_entity(EntityId, Now, #st{entities = Entities} = St) ->
                  pending = Others,
                  open = maps:remove(EntityId, St#st.open),
                  charges = maps:remove(EntityId, St#st.charges),
-                 charged = St#st.charged - maps:get(EntityId, St#st.charges, 0)},
+                 charged = St#st.charged - maps:get(EntityId, St#st.charges, 0),
+                 counters = maps:remove({received, EntityId}, St1#st.counters)},
     JoinTimer = case Description of
                     undefined -> [{cancel_timer, {join, EntityId}}];
                     _ -> []
@@ -1061,6 +1067,13 @@ drop_overflow([], _Now, St, Effects) ->
 count(Key, #st{counters = Counters} = St) ->
     St#st{counters = maps:update_with(Key, fun(N) -> N + 1 end, 1, Counters)}.
 
+%% Every signal a joined entity sends counts, refused or not. Kept among the
+%% counters, not in the entity record, so a snapshot keeps its shape.
+received(EntityId, #st{entities = Entities} = St) when is_map_key(EntityId, Entities) ->
+    count({received, EntityId}, St);
+received(_EntityId, St) ->
+    St.
+
 %% ---------------------------------------------------------------------------
 %% Queries
 %% ---------------------------------------------------------------------------
@@ -1135,6 +1148,18 @@ stats(#st{counters = C, pending = Pending}) ->
       duplicates => maps:get(duplicates, C, 0),
       resumed => maps:get(resumed, C, 0),
       pending => map_size(Pending)}.
+
+%% @doc Per joined entity, how many signals it has sent the pairing
+%% (`received', refused ones too) and how many the pairing has delivered to
+%% it (`delivered', its last Sequence), and the requests open: what a
+%% simulation compares with its own counts to know that nothing is in
+%% flight. Costs a pass over the entities, no description is copied.
+-spec traffic(state()) -> traffic().
+traffic(#st{entities = Entities, counters = C, pending = Pending}) ->
+    #{pending => map_size(Pending),
+      entities => maps:map(fun(Id, #entity{seq = Seq}) ->
+                                   #{received => maps:get({received, Id}, C, 0), delivered => Seq}
+                           end, Entities)}.
 
 %% @doc The timers the state needs at time `Now', with their remaining time:
 %% what a process taking over this state (issue 5) arms before going on.

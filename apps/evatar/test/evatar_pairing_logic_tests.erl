@@ -270,6 +270,23 @@ request_feedback_round_trip_test() ->
     ?assertMatch(#{pending := 0, routed := #{request := 1, feedback := 1}},
                  evatar_pairing_logic:stats(St2)).
 
+%% traffic/1 counts each entity's signals in (refused ones too) and out,
+%% and the open requests; an entity that leaves takes its count with it.
+traffic_counts_signals_in_and_out_test() ->
+    Req = signal(<<"r1">>, request, ?EMU, ?LIGHT),
+    {St1, _} = h({signal, ?VA, Req}, bound()),
+    ?assertMatch(#{pending := 1, entities := #{?VA := #{received := 1, delivered := 0},
+                                               ?AV := #{received := 0, delivered := 1}}},
+                 evatar_pairing_logic:traffic(St1)),
+    Refused = signal(<<"s1">>, sensor_data, ?THERMO, ?EMU),
+    {St2, _} = h({signal, ?AV, Refused}, St1),
+    {St3, _} = h({signal, ?AV, signal(<<"f1">>, feedback, ?LIGHT, ?EMU, <<"r1">>)}, St2),
+    ?assertMatch(#{pending := 0, entities := #{?VA := #{received := 1, delivered := 1},
+                                               ?AV := #{received := 2, delivered := 2}}},
+                 evatar_pairing_logic:traffic(St3)),
+    {St4, _} = h({leave, ?VA, left}, St3),
+    ?assertEqual([?AV], maps:keys(maps:get(entities, evatar_pairing_logic:traffic(St4)))).
+
 sensor_stream_is_sequenced_without_timers_test() ->
     Send = fun(N, {St, Acc}) ->
                    S = signal(integer_to_binary(N), sensor_data, ?THERMO, ?SINK),
