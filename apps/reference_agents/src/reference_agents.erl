@@ -7,7 +7,7 @@
 %% the demo's (evatar_demo), as a MAS of one's own brings its own set-up.
 -module(reference_agents).
 
--export([start_va/1, stop_va/1, inspect/1, tell/3, introduce/2]).
+-export([start_va/1, stop_va/1, inspect/1, traffic/1, tell/3, introduce/2]).
 -export([parse_rules/1, rules_error/2]).
 -export([minute_of_day/1, lexicon_text/1, lexicons_agreed/1]).
 
@@ -33,6 +33,11 @@ stop_va(Va) -> reference_agents_va:stop(Va).
 %% states it went through.
 -spec inspect(pid()) -> map().
 inspect(Va) -> reference_agents_va:inspect(Va).
+
+%% @doc What a VA has handled and sent (reference_agents_va:traffic/1):
+%% a few integers, for a clock that runs in lockstep with it.
+-spec traffic(pid()) -> reference_agents_va:traffic().
+traffic(Va) -> reference_agents_va:traffic(Va).
 
 %% @doc A MAS message to a VA, from the VA named `From'.
 -spec tell(pid(), binary(), term()) -> ok.

@@ -6,7 +6,7 @@
 -module(reference_agents_narrator).
 -behaviour(gen_server).
 
--export([start_link/1, stop/1, event/4, events/1, format_time/1]).
+-export([start_link/1, stop/1, event/4, events/1, count/1, format_time/1]).
 -export([init/1, handle_call/3, handle_cast/2]).
 
 -export_type([event/0, opts/0, kind/0]).
@@ -41,6 +41,11 @@ event(N, Who, Kind, Text) ->
 -spec events(pid()) -> [event()].
 events(N) -> gen_server:call(N, events).
 
+%% @doc How many events so far: a cheap call, and once it returns every
+%% event the caller (or a process it heard from) sent before is stamped.
+-spec count(pid()) -> non_neg_integer().
+count(N) -> gen_server:call(N, count).
+
 %% @doc `18:02:13' for a time in ms since 1970 (UTC: the simulated houses
 %% keep their clock in UTC).
 -spec format_time(integer()) -> string().
@@ -52,9 +57,12 @@ format_time(Ms) ->
 init(#{clock := Clock, io := Io} = Opts) ->
     {ok, #s{clock = Clock, print = maps:get(print, Opts, false), io = Io}}.
 
--spec handle_call(events, gen_server:from(), #s{}) -> {reply, [event()], #s{}}.
+-spec handle_call(events | count, gen_server:from(), #s{}) ->
+          {reply, [event()] | non_neg_integer(), #s{}}.
 handle_call(events, _From, #s{events = Es} = S) ->
-    {reply, lists:reverse(Es), S}.
+    {reply, lists:reverse(Es), S};
+handle_call(count, _From, #s{events = Es} = S) ->
+    {reply, length(Es), S}.
 
 -spec handle_cast({event, binary(), kind(), binary()}, #s{}) -> {noreply, #s{}}.
 handle_cast({event, Who, Kind, Text}, #s{clock = Clock} = S) ->

@@ -22,10 +22,14 @@
 -module(reference_agents_va).
 -behaviour(gen_statem).
 
--export([start_link/1, stop/1, inspect/1, tell/3, introduce/2]).
+-export([start_link/1, stop/1, inspect/1, traffic/1, tell/3, introduce/2]).
 -export([init/1, callback_mode/0, handle_event/4, terminate/3]).
 
--export_type([opts/0]).
+-export_type([opts/0, traffic/0]).
+
+-type traffic() :: #{state := atom(), entity := binary() | undefined,
+                     in := non_neg_integer(), out := non_neg_integer(),
+                     told := non_neg_integer(), heard := non_neg_integer()}.
 
 %% `body' is the VA's BIL description, or `none' for a VA without an
 %% Avatar. `peers' maps the names of other VAs to their pids (MAS
@@ -33,7 +37,8 @@
 %% is an atomics array (`atomics:new(1, [{signed, true}])') whose first
 %% element the VA keeps at the latest simulated time its Avatars' signals
 %% carried (0 until the first), so a simulation clock can follow it
-%% (avatar_sim:follow/3).
+%% (avatar_sim:follow/3). What it has handled and sent on its connection
+%% (traffic/1) lets a simulation clock run in lockstep with it.
 -type opts() :: #{name := binary(),
                   mind := module(),
                   mind_args => term(),
@@ -68,6 +73,12 @@
             %% The Timestamp of the last signal from the Avatar: the VA's idea
             %% of physical time (simulated time with avatar_sim).
             last_time :: integer() | undefined,
+            %% On this connection: the Sequence of the last signal handled,
+            %% signals sent; MAS messages told and heard since the start.
+            in = 0 :: non_neg_integer(),
+            out = 0 :: non_neg_integer(),
+            told = 0 :: non_neg_integer(),
+            heard = 0 :: non_neg_integer(),
             history = [] :: [{state(), integer()}]}).
 
 %% ---------------------------------------------------------------------------
@@ -89,6 +100,14 @@ stop(Va) -> gen_statem:stop(Va).
                           mind := map(), states := [{state(), integer()}],
                           pending := non_neg_integer()}.
 inspect(Va) -> gen_statem:call(Va, inspect).
+
+%% @doc A cheap read of the VA's traffic: its state, the entity it joined
+%% as, the Sequence of the last signal from EVATAR it has handled and how
+%% many signals it has sent on its current connection (`in', `out': what
+%% evatar:traffic/1 counts on the pairing's side), and the MAS messages it
+%% has told other VAs and heard from them.
+-spec traffic(pid()) -> traffic().
+traffic(Va) -> gen_statem:call(Va, traffic).
 
 %% @doc Delivers a MAS message from `From' (a VA name) to the VA.
 -spec tell(pid(), binary(), term()) -> ok.
@@ -139,7 +158,7 @@ handle_event(state_timeout, connect, connecting, #d{opts = Opts} = D) ->
             D1 = narrate(D, info, ["joined pairing ", Pairing, " over TCP and described its body (",
                                    integer_to_binary(length(maps:get(components, Body))),
                                    " emulators); observing EVATAR for a binding"]),
-            {next_state, observing, D1#d{client = Client,
+            {next_state, observing, D1#d{client = Client, in = 0, out = 0,
                                          table = reference_agents_emulator:new(Body)}};
         {error, Why} ->
             D1 = narrate(D, info, io_lib:format("cannot join ~s: ~0p; trying again", [Pairing, Why])),
@@ -177,7 +196,7 @@ handle_event(info, {agent_bridge, C, {binding, Report}}, State, #d{client = C} =
 handle_event(info, {agent_bridge, C, {signal, S}}, testing, #d{client = C} = D0) ->
     D = seen(S, D0),
     case test_signal(S, D) of
-        {handled, D1} -> maybe_tested(D1);
+        {handled, D1} -> maybe_tested(handled(S, D1));
         not_test -> {keep_state_and_data, [postpone]}
     end;
 handle_event({timeout, test}, Gen, testing, #d{test_gen = Gen} = D) ->
@@ -187,12 +206,12 @@ handle_event({timeout, test}, _OldGen, _State, _D) ->
 
 %% Embodied (or observing, or without a body): observe, choose, act.
 handle_event(info, {agent_bridge, C, {signal, S}}, _State, #d{client = C} = D) ->
-    {keep_state, signal(S, seen(S, D))};
+    {keep_state, signal(S, seen(S, handled(S, D)))};
 handle_event(info, {reference_agents, message, From, _Message}, testing, _D)
   when is_binary(From) ->
     {keep_state_and_data, [postpone]};
 handle_event(info, {reference_agents, message, From, Message}, _State, D) when is_binary(From) ->
-    {keep_state, observe({message, From, Message}, D)};
+    {keep_state, observe({message, From, Message}, D#d{heard = D#d.heard + 1})};
 handle_event(cast, {peers, Peers}, _State, D) ->
     {keep_state, D#d{peers = maps:merge(D#d.peers, Peers)}};
 
@@ -210,6 +229,10 @@ handle_event({call, From}, inspect, State, #d{mind = Mind} = D) ->
                       mind => Mind:inspect(D#d.mind_state),
                       states => lists:reverse(D#d.history),
                       pending => map_size(D#d.pending)}}]};
+handle_event({call, From}, traffic, State, D) ->
+    {keep_state_and_data,
+     [{reply, From, #{state => State, entity => entity_id(D), in => D#d.in, out => D#d.out,
+                      told => D#d.told, heard => D#d.heard}}]};
 handle_event(info, _Other, _State, _D) ->
     keep_state_and_data.
 
@@ -349,7 +372,7 @@ act({send, Emulator, Service, Params}, D) ->
     end;
 act({tell, To, Message}, #d{peers = Peers, name = Me} = D) ->
     case Peers of
-        #{To := Pid} -> ok = tell(Pid, Me, Message), D;
+        #{To := Pid} -> ok = tell(Pid, Me, Message), D#d{told = D#d.told + 1};
         _ -> narrate(D, info, ["no VA called ", To, " to tell"])
     end;
 act({narrate, Kind, Text}, D) ->
@@ -369,8 +392,11 @@ request_signal(Emulator, Service, Params, #d{table = Table}) ->
 send_signal(Signal, #d{client = C, counter = N, name = Name} = D) ->
     Id = <<Name/binary, "-", (integer_to_binary(N + 1))/binary>>,
     %% A closed connection shows up as a {closed, _} message just after.
-    _ = agent_bridge_client:send(C, Signal#{id => Id, timestamp => now(D)}),
-    {Id, D#d{counter = N + 1}}.
+    Out = case agent_bridge_client:send(C, Signal#{id => Id, timestamp => now(D)}) of
+              ok -> D#d.out + 1;
+              {error, _} -> D#d.out
+          end,
+    {Id, D#d{counter = N + 1, out = Out}}.
 
 %% Feedback from EVATAR itself (Timeout, ProviderGone) and error signals
 %% are failures; a device's feedback saying Done=no or Status=failed too.
@@ -404,6 +430,14 @@ param(Name, Ps, Default) ->
 key(B) -> reference_agents_activity:keyword(B).
 
 body(#d{opts = #{body := Body}}) -> Body.
+
+entity_id(#d{opts = #{body := #{entity_id := Id}}}) -> Id;
+entity_id(#d{}) -> undefined.
+
+%% The Sequence EVATAR stamped on the last signal handled (signals come in
+%% order on a connection).
+handled(#{seq := Seq}, D) when is_integer(Seq) -> D#d{in = Seq};
+handled(_S, D) -> D.
 
 %% Every signal from the Avatar tells the time; EVATAR's own carry real time.
 seen(#{sender := From, timestamp := T}, #d{last_time = Last} = D)
