@@ -7,7 +7,7 @@
 -module(avatar_sim).
 
 -export([start_clock/1, stop_clock/1, now/1, advance/2, pause/1, resume/1, set_speed/2,
-         clock_info/1, follow/3]).
+         clock_info/1, follow/3, lockstep/2]).
 -export([start_arena/1, start_home/1, stop/1, state/1, log/1, links/1, clock/1,
          act/3, place_ball/4]).
 -export([mute/2, unmute/2, disconnect/2, disconnect/3, reconnect/2, detach_device/2,
@@ -80,6 +80,12 @@ clock_info(Clock) -> avatar_sim_clock:info(Clock).
 %% while it has perceived nothing); `none' stops following.
 -spec follow(clock(), avatar_sim_clock:seen() | none, non_neg_integer()) -> ok.
 follow(Clock, Seen, LeadMs) -> avatar_sim_clock:follow(Clock, Seen, LeadMs).
+
+%% @doc Runs the clock in lockstep (docs/avatars.md section 2): a paced tick
+%% starts only once `Quiet()' says that everything the last ones set going
+%% has been handled; `none' stops it. Replaces a {@link follow/3}.
+-spec lockstep(clock(), avatar_sim_clock:quiet() | none) -> ok.
+lockstep(Clock, Quiet) -> avatar_sim_clock:lockstep(Clock, Quiet).
 
 %% ---------------------------------------------------------------------------
 %% Avatars

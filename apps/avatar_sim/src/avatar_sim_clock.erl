@@ -12,17 +12,37 @@
 %%      +----- pause / manual / advance done ------------+
 %% '''
 %% `now/1' reads an atomics cell, never the process, so a world may call it
-%% while it is handling a tick. A clock may also follow an observer
-%% (`follow/3'): paced ticks then wait while simulated time is more than a
-%% lead ahead of what the observer has perceived.
+%% while it is handling a tick.
+%%
+%% Paced ticks (not `advance/2') can be gated, one way at a time:
+%% <ul>
+%% <li>`lockstep/2': a tick starts only when a quiet predicate holds, on
+%% top of every world having acked the last one. The caller's predicate
+%% says that nothing set going by the simulation is still on its way or
+%% being handled (evatar_demo_scenario: the VAs have handled every signal
+%% sent to them, the pairings have everything their entities sent, the
+%% worlds every request), so what the VAs perceive and do lands at the same
+%% tick whatever the machine's load: the outcome of a run is the same on an
+%% idle and on a busy machine, only its real time differs.</li>
+%% <li>`follow/3': ticks wait while simulated time is more than a lead ahead
+%% of what an observer has perceived: for an observer that cannot be counted
+%% (a VA of an SDK, a house on MQTT), which keeps real pace.</li>
+%% </ul>
+%% The clock asks the gate when a tick is due and, while it says no, again
+%% every ?GATE_POLL real ms. That short poll is deliberate: what the gate
+%% reads lives in the mediator's pairings, which must not call the
+%% scenarios (rebar.config's xref layers), and in the VAs, agents as a real
+%% MAS would run them, which know nothing of a clock; so nothing can tell
+%% the clock that it went quiet. The gate is read only at tick boundaries,
+%% never while a tick runs.
 -module(avatar_sim_clock).
 -behaviour(gen_statem).
 
 -export([start_link/1, now/1, advance/2, pause/1, resume/1, set_speed/2, subscribe/2,
-         ack/2, info/1, pid/1, stop/1, tick_length/1, follow/3]).
+         ack/2, info/1, pid/1, stop/1, tick_length/1, follow/3, lockstep/2]).
 -export([init/1, callback_mode/0, handle_event/4]).
 
--export_type([clock/0, opts/0, speed/0, seen/0]).
+-export_type([clock/0, opts/0, speed/0, seen/0, quiet/0]).
 
 %% The states of the machine (the diagram above).
 -type state() :: stopped | running | ticking.
@@ -33,6 +53,9 @@
 %% What an observer has perceived of simulated time (ms since 1970), or
 %% `undefined' before it has perceived anything.
 -type seen() :: fun(() -> integer() | undefined).
+%% Whether everything the simulation set going has been handled: the next
+%% tick may start.
+-type quiet() :: fun(() -> boolean()).
 -type opts() :: #{speed => speed(),
                   tick => pos_integer(),
                   start => calendar:datetime(),
@@ -40,8 +63,8 @@
                   paused => boolean()}.
 
 -define(DEFAULT_START, {{2024, 11, 15}, {17, 0, 0}}).
-%% How often (real ms) a clock held by the observer it follows looks again.
--define(FOLLOW_POLL, 5).
+%% How often (real ms) a clock held by its gate asks again.
+-define(GATE_POLL, 2).
 
 -record(d, {cell :: atomics:atomics_ref(),
             tick :: pos_integer(),
@@ -53,8 +76,9 @@
             subs = #{} :: #{pid() => reference()},
             waiting = [] :: [pid()],
             tick_ref :: reference() | undefined,
-            %% The observer followed and the lead allowed, in simulated ms.
-            follow = none :: none | {seen(), non_neg_integer()},
+            %% What paced ticks wait for: an observer followed with the lead
+            %% allowed (simulated ms), or a quiet predicate (lockstep).
+            gate = none :: none | {lead, seen(), non_neg_integer()} | {quiet, quiet()},
             %% Ticks still to run for advance/2, and who to answer.
             advance = none :: none | {non_neg_integer(), gen_statem:from()}}).
 
@@ -107,10 +131,19 @@ info(#clock{pid = Pid}) -> gen_statem:call(Pid, info).
 %% `Seen()', what an observer (a VA) has perceived; `none' stops following.
 %% The simulation stays the same tick by tick; only its pace changes, so an
 %% observer that reacts in real time is never further behind than that.
+%% Replaces the gate of a {@link lockstep/2}.
 -spec follow(clock(), seen() | none, non_neg_integer()) -> ok.
 follow(#clock{pid = Pid}, Seen, LeadMs)
   when (Seen =:= none orelse is_function(Seen, 0)), is_integer(LeadMs), LeadMs >= 0 ->
     gen_statem:call(Pid, {follow, Seen, LeadMs}).
+
+%% @doc Paced ticks from now on start only when `Quiet()' is true (and every
+%% world acked the last tick); `none' stops it. Replaces the gate of a {@link follow/3}.
+%% `Quiet' runs in the clock's process at each tick boundary and, while it is
+%% false, every few real ms: keep it a handful of calls.
+-spec lockstep(clock(), quiet() | none) -> ok.
+lockstep(#clock{pid = Pid}, Quiet) when Quiet =:= none; is_function(Quiet, 0) ->
+    gen_statem:call(Pid, {lockstep, Quiet}).
 
 -spec pid(clock()) -> pid().
 pid(#clock{pid = Pid}) -> Pid.
@@ -150,7 +183,7 @@ handle_event(state_timeout, tick, running, D) ->
     case held(D) of
         %% Re-anchored while held, so time does not rush to catch up after.
         true -> {keep_state, D#d{anchor = {real_now(), D#d.now}},
-                 [{state_timeout, ?FOLLOW_POLL, tick}]};
+                 [{state_timeout, ?GATE_POLL, tick}]};
         false -> start_tick(D)
     end;
 handle_event(cast, {ack, Pid, Ref}, ticking, #d{tick_ref = Ref} = D) ->
@@ -194,9 +227,13 @@ handle_event({call, From}, resume, _State, D) ->
 handle_event({call, From}, {speed, Speed}, _State, D) ->
     continue(D#d{speed = Speed}, [{reply, From, ok}]);
 handle_event({call, From}, {follow, none, _LeadMs}, _State, D) ->
-    continue(D#d{follow = none}, [{reply, From, ok}]);
+    continue(D#d{gate = none}, [{reply, From, ok}]);
 handle_event({call, From}, {follow, Seen, LeadMs}, _State, D) ->
-    continue(D#d{follow = {Seen, LeadMs}}, [{reply, From, ok}]).
+    continue(D#d{gate = {lead, Seen, LeadMs}}, [{reply, From, ok}]);
+handle_event({call, From}, {lockstep, none}, _State, D) ->
+    continue(D#d{gate = none}, [{reply, From, ok}]);
+handle_event({call, From}, {lockstep, Quiet}, _State, D) ->
+    continue(D#d{gate = {quiet, Quiet}}, [{reply, From, ok}]).
 
 %% ---------------------------------------------------------------------------
 %% Internals
@@ -236,14 +273,17 @@ continue(D, Actions) ->
 
 running(#d{speed = Speed, paused = Paused}) -> Speed =/= manual andalso not Paused.
 
-%% The observer followed is too far behind for the next tick.
-held(#d{follow = none}) ->
+%% The gate holds the next tick: the observer followed is too far behind,
+%% or what the simulation set going is not all handled yet.
+held(#d{gate = none}) ->
     false;
-held(#d{follow = {Seen, Lead}, now = Now, tick = Tick}) ->
+held(#d{gate = {lead, Seen, Lead}, now = Now, tick = Tick}) ->
     case Seen() of
         T when is_integer(T) -> Now + Tick > T + Lead;
         undefined -> false
-    end.
+    end;
+held(#d{gate = {quiet, Quiet}}) ->
+    not Quiet().
 
 next_due(#d{anchor = {Real0, Sim0}, now = Now, tick = Tick, speed = Speed}) ->
     Due = Real0 + (Now + Tick - Sim0) / Speed,

@@ -45,7 +45,11 @@
             detached = [] :: [binary()],
             backoff :: pos_integer(),
             sent = 0 :: non_neg_integer(),
-            unrouted = 0 :: non_neg_integer()}).
+            unrouted = 0 :: non_neg_integer(),
+            %% On this connection: the Sequence of the last signal passed to
+            %% the world (or swallowed), and signals sent.
+            in = 0 :: non_neg_integer(),
+            out = 0 :: non_neg_integer()}).
 
 %% ---------------------------------------------------------------------------
 %% API
@@ -76,6 +80,9 @@ reconnect(Link) -> gen_statem:call(Link, reconnect, ?CALL).
 -spec detach(pid(), binary(), boolean()) -> ok.
 detach(Link, Component, On) -> gen_statem:call(Link, {detach, Component, On}, ?CALL).
 
+%% @doc The link's state and counts; `in' (the Sequence of the last signal
+%% from EVATAR taken) and `out' (signals sent) are of the current
+%% connection, what evatar:traffic/1 counts on the pairing's side.
 -spec info(pid()) -> map().
 info(Link) -> gen_statem:call(Link, info, ?CALL).
 
@@ -111,7 +118,8 @@ handle_event(internal, connect, connecting, #d{opts = Opts, entity = Entity} = D
                 ok ->
                     logger:info(#{what => avatar_connected, entity => Entity}),
                     {next_state, connected,
-                     D#d{client = Client, routes = #{}, backoff = maps:get(retry, Opts, 200)}};
+                     D#d{client = Client, routes = #{}, backoff = maps:get(retry, Opts, 200),
+                         in = 0, out = 0}};
                 {error, closed} ->
                     retry(connect_closed, D)
             end;
@@ -125,10 +133,13 @@ handle_event(state_timeout, back, away, D) ->
 
 handle_event(info, {agent_bridge, C, {signal, Signal}}, connected, #d{client = C} = D) ->
     case lists:member(maps:get(receiver, Signal), D#d.muted) of
-        true -> keep_state_and_data;
-        false -> avatar_sim_world:incoming(D#d.world, D#d.entity, Signal),
-                 keep_state_and_data
-    end;
+        true -> ok;
+        false -> avatar_sim_world:incoming(D#d.world, D#d.entity, Signal)
+    end,
+    {keep_state, D#d{in = case Signal of
+                              #{seq := Seq} when is_integer(Seq) -> Seq;
+                              #{} -> D#d.in
+                          end}};
 handle_event(info, {agent_bridge, C, {binding, Report}}, connected, #d{client = C} = D) ->
     Routes = routes(Report, D#d.entity),
     New = [Key || Key <- maps:keys(Routes), not maps:is_key(Key, D#d.routes)],
@@ -149,8 +160,10 @@ handle_event(info, {'DOWN', _, process, _, _}, _State, _D) ->
 handle_event(cast, {emit, Kind, Signal}, connected, D) ->
     case receiver(Kind, Signal, D) of
         {ok, Receiver} ->
-            _ = agent_bridge_client:send(D#d.client, Signal#{receiver => Receiver}),
-            {keep_state, D#d{sent = D#d.sent + 1}};
+            case agent_bridge_client:send(D#d.client, Signal#{receiver => Receiver}) of
+                ok -> {keep_state, D#d{sent = D#d.sent + 1, out = D#d.out + 1}};
+                {error, _} -> {keep_state, D#d{sent = D#d.sent + 1}}
+            end;
         none ->
             {keep_state, D#d{unrouted = D#d.unrouted + 1}}
     end;
@@ -183,7 +196,7 @@ handle_event({call, From}, {detach, Component, On}, State, D) ->
 handle_event({call, From}, info, State, D) ->
     Info = #{entity => D#d.entity, pairing => maps:get(pairing, D#d.opts, undefined),
              state => State, muted => D#d.muted, detached => D#d.detached,
-             sent => D#d.sent, unrouted => D#d.unrouted,
+             sent => D#d.sent, unrouted => D#d.unrouted, in => D#d.in, out => D#d.out,
              routes => maps:size(D#d.routes)},
     {keep_state_and_data, [{reply, From, Info}]}.
 

@@ -104,3 +104,53 @@ follow_test() ->
     ?assertEqual(lists:seq(100, avatar_sim_clock:now(Clock), 100), seen(A)),
     unlink(A), exit(A, kill), unlink(Pid),
     ok = avatar_sim_clock:stop(Clock).
+
+%% In lockstep a paced tick starts only when the quiet predicate says so,
+%% asked at tick boundaries once every world has acked: with the predicate
+%% saying yes three times, the clock runs exactly three ticks at any speed
+%% and is then held, asking again; advance/2 is not held; `none' runs on.
+lockstep_test() ->
+    {ok, Pid, Clock} = avatar_sim_clock:start_link(#{speed => 1000000, tick => 100, start_ms => 0,
+                                                     paused => true}),
+    A = recorder(Clock, self()),
+    receive {subscribed, A} -> ok end,
+    Parent = self(),
+    Budget = atomics:new(1, [{signed, true}]),
+    Quiet = fun() ->
+                    %% Asked only between ticks: the world has acked the last one.
+                    Now = avatar_sim_clock:now(Clock),
+                    true = lists:last([0 | seen(A)]) =:= Now,
+                    Yes = atomics:sub_get(Budget, 1, 1) >= 0,
+                    Parent ! {asked, Now, Yes},
+                    Yes
+            end,
+    ok = avatar_sim_clock:lockstep(Clock, Quiet),
+    ok = avatar_sim_clock:resume(Clock),
+    %% Not quiet: asked, no tick.
+    {0, false} = asked(),
+    ok = atomics:put(Budget, 1, 3),
+    %% Three yes (asked at 0, 100, 200), then held at 300.
+    ok = asked_until(300, false),
+    ?assertEqual(300, avatar_sim_clock:now(Clock)),
+    ?assertEqual([100, 200, 300], seen(A)),
+    %% Held, it asks again, and time stays.
+    {300, false} = asked(),
+    ok = avatar_sim_clock:advance(Clock, 200),
+    ?assertEqual(500, avatar_sim_clock:now(Clock)),
+    ok = avatar_sim_clock:lockstep(Clock, none),
+    ok = evatar_test_wait:until(fun() -> avatar_sim_clock:now(Clock) >= 2000 end),
+    ok = avatar_sim_clock:pause(Clock),
+    ?assertEqual(lists:seq(100, avatar_sim_clock:now(Clock), 100), seen(A)),
+    unlink(A), exit(A, kill), unlink(Pid),
+    ok = avatar_sim_clock:stop(Clock).
+
+%% The next answer of the quiet predicate, and the time it was asked at.
+asked() ->
+    receive {asked, Now, Yes} -> {Now, Yes} end.
+
+%% Reads answers until the predicate said Yes at time Now.
+asked_until(Now, Yes) ->
+    case asked() of
+        {Now, Yes} -> ok;
+        _ -> asked_until(Now, Yes)
+    end.
