@@ -97,9 +97,9 @@ start(Opts) ->
 start_vas(Opts, Rules, Rooms, Clock, S2) ->
     Full = evatar_demo_scenario:body("smart_home_va.xml"),
     Names = [va(Room) || {Room, _, _} <- Rooms],
-    %% The clock follows the VA with the time sensor, the living room's (the
-    %% others hear nothing while their room is empty); as every VA sees the
-    %% same machine's load, none runs far behind.
+    %% The clock runs in lockstep with every room VA; settle/1 waits for the
+    %% one with the time sensor, the living room's, to have read the last
+    %% time.
     Seen = atomics:new(1, [{signed, true}]),
     {Vas, S3} = lists:foldl(
                   fun({Room, _, Emulators}, {Acc, SAcc}) ->
@@ -123,7 +123,7 @@ start_vas(Opts, Rules, Rooms, Clock, S2) ->
         [] ->
             ok = avatar_sim:pause(Clock),
             ok = avatar_sim:set_speed(Clock, maps:get(speed, Opts, 1000)),
-            {ok, evatar_demo_scenario:follow(S4, Seen)};
+            {ok, evatar_demo_scenario:lockstep(S4, Seen)};
         [E | _] ->
             ok = stop(S4),
             E

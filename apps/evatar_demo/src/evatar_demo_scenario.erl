@@ -6,7 +6,7 @@
 -module(evatar_demo_scenario).
 
 -export([start/1, pairing/3, start_va/2, await/3, await_va_state/4, await_described/3, embodied/1,
-         follow/2, settle/1,
+         follow/2, lockstep/2, quiet/1, settle/1,
          narrator/1, endpoint/1, stop/1, examples_dir/0, priv_dir/0, body/1,
          body_subset/3, add/3, get/2, say/3, on_stop/2]).
 
@@ -141,9 +141,10 @@ endpoint(#{endpoint := E}) -> E.
 %% @doc The scenario's clock follows a VA started with option `seen =>
 %% Seen' (reference_agents_va): it never runs more than two simulated
 %% minutes (two of the time sensor's periods) ahead of the latest time the
-%% VA has perceived (avatar_sim:follow/3). The VAs act in real time on a
-%% clock a thousand times faster: without this a loaded machine let the
-%% evening pass before a VA had read 21:40.
+%% VA has perceived (avatar_sim:follow/3). For a house whose traffic the
+%% scenario cannot count (its devices on MQTT); the VAs act in real time on
+%% a clock a thousand times faster, so how far behind the clock a VA acts
+%% depends on the machine's load. {@link lockstep/2} does not.
 -spec follow(scenario(), atomics:atomics_ref()) -> scenario().
 follow(#{extra := #{clock := Clock}} = S, Seen) ->
     ok = avatar_sim:follow(Clock, fun() -> perceived(Seen) end, 120000),
@@ -169,6 +170,74 @@ settle(#{vas := Vas, extra := #{seen := Seen, home := Home}}) ->
     end;
 settle(#{}) ->
     ok.
+
+%% @doc The scenario's clock runs in lockstep with its VAs, its pairings
+%% and its simulated worlds (avatar_sim:lockstep/2): a tick starts only
+%% when {@link quiet/1} holds. What a VA perceives and does then lands at
+%% the same tick however slow the machine, so the run's outcome is the same
+%% on an idle and on a busy one. `Seen' is kept for settle/1, as with
+%% follow/2.
+-spec lockstep(scenario(), atomics:atomics_ref()) -> scenario().
+lockstep(#{extra := #{clock := Clock}} = S, Seen) ->
+    ok = avatar_sim:lockstep(Clock, fun() -> quiet(S) end),
+    add(seen, Seen, S).
+
+%% @doc Whether nothing the simulation set going is on its way or being
+%% handled: every embodied VA has handled every signal its pairing has
+%% delivered to it and every MAS message told to it, its pairing has every
+%% signal it sent, and likewise for each connected link of the worlds
+%% (avatar_sim:links/1), whose world has handled every request passed to it.
+%% Counts are read receiving side first, then sending side, so equal counts
+%% mean that at one moment between the two reads nothing was in flight nor
+%% being handled (a message counts as received once handled, and what it
+%% made its receiver send is counted before that). Requests the worlds are
+%% still carrying out (a photo burst, a robot's GoTo) hold nothing: they
+%% answer at a later tick. A VA that is not embodied (testing its body,
+%% which has real-time timeouts) and entities the scenario does not run
+%% (an MQTT Avatar) are not counted. The narrator has stamped, before the
+%% next tick, every event told it so far.
+-spec quiet(scenario()) -> boolean().
+quiet(#{pairings := Ps, vas := Vas, narrator := N, extra := X}) ->
+    Worlds = maps:get(avatars, X, []),
+    Received = traffic(Ps, received),
+    VasIn = va_traffic(Vas),
+    LinksIn = link_traffic(Worlds),
+    %% avatar_sim:links/1 asks each world first: it has then handled every
+    %% request its links passed it before they answered above, and the links
+    %% answer next with what it emitted counted.
+    LinksOut = link_traffic(Worlds),
+    VasOut = va_traffic(Vas),
+    Delivered = traffic(Ps, delivered),
+    %% The story is stamped with the tick its tellers acted in.
+    _ = reference_agents_narrator:count(N),
+    maps:keys(VasIn) =:= maps:keys(VasOut) andalso
+        maps:keys(LinksIn) =:= maps:keys(LinksOut) andalso
+        lists:sum([H || {_, _, {H, _}} <- maps:values(VasIn)])
+        =:= lists:sum([T || {_, _, {_, T}} <- maps:values(VasOut)]) andalso
+        lists:all(fun({E, {In, _, _}}) -> maps:get(E, Delivered, 0) =:= In end,
+                  maps:to_list(maps:merge(LinksIn, VasIn))) andalso
+        lists:all(fun({E, {_, Out, _}}) -> maps:get(E, Received, 0) =:= Out end,
+                  maps:to_list(maps:merge(LinksOut, VasOut))).
+
+%% Entity -> the count `Key' of the pairings' traffic (evatar:traffic/1).
+traffic(Ps, Key) ->
+    maps:from_list([{E, maps:get(Key, C)} || P <- Ps, {ok, #{entities := Es}} <- [evatar:traffic(P)],
+                                             {E, C} <- maps:to_list(Es)]).
+
+%% Entity -> {In, Out, {Heard, Told}} of the embodied VAs that are alive.
+va_traffic(Vas) ->
+    Heard = fun(#{heard := H}) -> H end,
+    Told = fun(#{told := T}) -> T end,
+    maps:from_list([{E, {In, Out, {Heard(T), Told(T)}}}
+                    || Va <- Vas, is_process_alive(Va),
+                       #{state := embodied, entity := E, in := In, out := Out} = T
+                           <- [reference_agents:traffic(Va)]]).
+
+%% Entity -> {In, Out, {0, 0}} of the connected links of the worlds.
+link_traffic(Worlds) ->
+    maps:from_list([{E, {In, Out, {0, 0}}}
+                    || W <- Worlds, #{state := connected, entity := E, in := In, out := Out}
+                                        <- avatar_sim:links(W)]).
 
 perceived(Seen) ->
     case atomics:get(Seen, 1) of
@@ -199,6 +268,9 @@ say(#{narrator := N}, Kind, Text) ->
 -spec stop(scenario()) -> ok.
 stop(#{vas := Vas, pairings := Ps, listener := L, narrator := N, started := Started,
        restore := Restore, extra := X}) ->
+    %% Time stands still while the scenario goes (a clock in lockstep reads
+    %% the VAs and worlds stopped next).
+    _ = [catch avatar_sim:pause(C) || #{clock := C} <- [X]],
     lists:foreach(fun(Va) -> catch reference_agents:stop_va(Va) end, Vas),
     lists:foreach(fun(F) -> catch F() end, maps:get(on_stop, X, [])),
     lists:foreach(fun(A) -> catch avatar_sim:stop(A) end, maps:get(avatars, X, [])),
