@@ -9,6 +9,8 @@ PKGS=(erlang-nox erlang-dev erlang-xmerl erlang-common-test erlang-proper
       erlang-proper-dev erlang-dialyzer erlang-jiffy rebar3 mosquitto libxml2-utils python3 openssl make git
       python3-venv python3-pip openjdk-17-jdk-headless maven
       python3-prometheus-client strace
+      # scripts/test-under-load.sh: make test while every core is busy.
+      stress-ng
       # The dashboard's browser test (evatar_web_dash_SUITE): Debian's
       # chromium, driven by playwright-core from npm.
       chromium nodejs)
