@@ -14,6 +14,14 @@
 
 -export([install/0, install/1, install_mqtt/0, node_env/1, run/3]).
 
+%% `npm ci' into $1 of the project in $2 with npm $3, under flock(1) of
+%% $1/.install.lock, unless the lock file there says it is done.
+-define(INSTALL, "set -e; exec 9>\"$1/.install.lock\"; flock 9; "
+                 "if cmp -s \"$2/package-lock.json\" \"$1/lock.installed\"; then exit 0; fi; "
+                 "cp \"$2/package.json\" \"$2/package-lock.json\" \"$1/\"; "
+                 "\"$3\" ci --no-audit --no-fund --prefix \"$1\"; "
+                 "cp \"$2/package-lock.json\" \"$1/lock.installed\"").
+
 %% @doc Installs the packages if the lock file changed since; their
 %% directory. Raises when npm is missing or fails.
 -spec install() -> file:filename().
@@ -51,19 +59,19 @@ install(Data, Dir) ->
     Npm = os:find_executable("npm"),
     Npm =/= false orelse error({npm_not_installed, "Debian: npm"}),
     {ok, Lock} = file:read_file(filename:join(Data, "package-lock.json")),
-    Marker = filename:join(Dir, "lock.installed"),
-    case file:read_file(Marker) of
+    case file:read_file(filename:join(Dir, "lock.installed")) of
         {ok, Lock} ->
             ok;
         _ ->
             ok = filelib:ensure_dir(filename:join(Dir, "x")),
-            _ = [{ok, _} = file:copy(filename:join(Data, F), filename:join(Dir, F))
-                 || F <- ["package.json", "package-lock.json"]],
-            case run(Npm, ["ci", "--no-audit", "--no-fund", "--prefix", Dir], []) of
+            %% Two suites running at once (make check's two halves) may both
+            %% find the packages missing: under the directory's lock the
+            %% second finds them installed, instead of emptying
+            %% node_modules under the first one's scripts.
+            case run("/bin/sh", ["-c", ?INSTALL, "sh", Dir, Data, Npm], []) of
                 {0, _} -> ok;
                 {S, Out} -> error({cannot_install_npm_packages, S, Out})
-            end,
-            ok = file:write_file(Marker, Lock)
+            end
     end,
     Dir.
 
