@@ -222,11 +222,15 @@ cluster_sh_shares_one_cookie(Config) ->
         {ok, #file_info{mode = Mode}} = file:read_file_info(filename:join(Home, ".erlang.cookie")),
         ?assertEqual(8#400, Mode band 8#777),
         [] = filelib:wildcard(filename:join([Dir, "cluster", "**", "*cookie*"])),
+        %% cluster.sh start returns once both daemons are launched, not
+        %% once they run: until node 1 answers, its status is not yet.
         Status = fun() ->
-                         {0, S} = run(Config, Env, "bash",
-                                      ["-c", "eval \"$(bash " ++ Script ++ " env 1)\" && "
-                                       "\"$EVATAR_REL/bin/evatar\" eval 'evatar:cluster_status().'"]),
-                         S
+                         case run(Config, Env, "bash",
+                                  ["-c", "eval \"$(bash " ++ Script ++ " env 1)\" && "
+                                   "\"$EVATAR_REL/bin/evatar\" eval 'evatar:cluster_status().'"]) of
+                             {0, S} -> S;
+                             {_, NotYet} -> NotYet
+                         end
                  end,
         ok = evatar_test_cluster:await(fun() -> string:find(Status(), "quorum => true") =/= nomatch end,
                                        ?WAIT, cluster_formed),
