@@ -83,10 +83,23 @@ run(C, Shell, N, SensorMs) ->
                                   receive {Go, T0} -> ok end,
                                   Me ! {served, P, served(P, T0, maps:get(Id, Before))}
                           end) || #{pairing := Id} = P <- Pairs],
+    %% What the storm costs: CPU of each OS process (the two nodes left and
+    %% this one, which holds the 2N clients) and reductions by kind of
+    %% process, from the kill until every pair was served.
+    Survivors = [{K, evatar_test_cluster:node(C, K), evatar_test_cluster:os_pid(C, K)} || K <- [2, 3]],
+    Procs = [{"node " ++ integer_to_list(K), Pid} || {K, _, Pid} <- Survivors]
+        ++ [{"clients", os:getpid()}],
+    Cpu0 = [{Name, cpu_ms(Pid)} || {Name, Pid} <- Procs],
+    Reds0 = [{K, reductions(Node)} || {K, Node, _} <- Survivors],
+    Samplers = [{K, sampler(Node)} || {K, Node, _} <- Survivors],
     T0 = erlang:monotonic_time(microsecond),
     true = port_command(Shell, ["kill -KILL ", evatar_test_cluster:os_pid(C, 1), "\n"]),
     _ = [R ! {Go, T0} || R <- Runners],
     Served = [receive {served, P, S} -> S end || P <- Pairs],
+    ServedMs = (erlang:monotonic_time(microsecond) - T0) / 1000,
+    Queues = [{K, stop_sampler(Sampler)} || {K, Sampler} <- Samplers],
+    Cpu = [{Name, cpu_ms(Pid) - proplists:get_value(Name, Cpu0)} || {Name, Pid} <- Procs],
+    Reds = [{K, diff(reductions(Node), proplists:get_value(K, Reds0))} || {K, Node, _} <- Survivors],
     ok = evatar_test_cluster:await(
            fun() -> lists:all(fun(Id) -> evatar_test_pairing:healthy(C, Id) end, Ids) end,
            600000, all_synced),
@@ -97,7 +110,73 @@ run(C, Shell, N, SensorMs) ->
     Check = evatar_test_checker:check_pairs([evatar_test_traffic:history(P) || P <- Pairs]),
     _ = [evatar_test_traffic:close(P) || P <- Pairs],
     #{n => N, on_node1 => length(OnNode1), served => Served, synced_ms => SyncedMs,
-      check => Check}.
+      check => Check, cost => {ServedMs, Cpu, Reds, Queues}}.
+
+%% On Node, every 10 ms until stopped: the longest message queue of its
+%% evatar_cluster process (heartbeats, votes and standby starts share it)
+%% and the longest run queue of its schedulers.
+sampler(Node) ->
+    {Mod, Bin, File} = code:get_object_code(?MODULE),
+    {module, Mod} = erpc:call(Node, code, load_binary, [Mod, File, Bin]),
+    Me = self(),
+    spawn(Node, fun() -> sample(Me, whereis(evatar_cluster), 0, 0) end).
+
+sample(To, Cluster, MaxQ, MaxRun) ->
+    receive
+        stop -> To ! {self(), MaxQ, MaxRun}
+    after 10 ->
+            {message_queue_len, Q} = erlang:process_info(Cluster, message_queue_len),
+            Run = lists:max(erlang:statistics(run_queue_lengths)),
+            sample(To, Cluster, max(MaxQ, Q), max(MaxRun, Run))
+    end.
+
+stop_sampler(Pid) ->
+    Pid ! stop,
+    receive {Pid, MaxQ, MaxRun} -> {MaxQ, MaxRun} after 30000 -> {timeout, timeout} end.
+
+
+%% CPU time (user + system, ms) an OS process has used, from /proc.
+cpu_ms(OsPid) ->
+    {ok, Stat} = file:read_file(["/proc/", OsPid, "/stat"]),
+    %% The command name (field 2) may hold spaces; the fields after it do not.
+    [_, After] = binary:split(Stat, <<") ">>),
+    Fields = binary:split(After, <<" ">>, [global]),
+    Ticks = binary_to_integer(lists:nth(12, Fields)) + binary_to_integer(lists:nth(13, Fields)),
+    Ticks * 1000 div clock_ticks().
+
+clock_ticks() ->
+    list_to_integer(string:trim(os:cmd("getconf CLK_TCK"))).
+
+%% A node's reductions by kind of process: the module of its proc_lib
+%% initial call (or of its plain initial call), summed.
+reductions(Node) ->
+    %% The fun below is this module's: the node must have its code.
+    {Mod, Bin, File} = code:get_object_code(?MODULE),
+    {module, Mod} = erpc:call(Node, code, load_binary, [Mod, File, Bin]),
+    erpc:call(Node, fun() ->
+                            lists:foldl(fun(P, Acc) ->
+                                                case kind_reds(P) of
+                                                    {K, R} -> maps:update_with(K, fun(X) -> X + R end, R, Acc);
+                                                    none -> Acc
+                                                end
+                                        end, #{}, erlang:processes())
+                    end, 30000).
+
+kind_reds(P) ->
+    case erlang:process_info(P, [dictionary, initial_call, reductions]) of
+        [{dictionary, D}, {initial_call, {M0, _, _}}, {reductions, R}] ->
+            case proplists:get_value('$initial_call', D) of
+                {M, _, _} -> {M, R};
+                undefined -> {M0, R}
+            end;
+        undefined ->
+            none
+    end.
+
+%% Reductions of each kind since Before (processes born since count whole;
+%% processes gone since are not counted).
+diff(After, Before) ->
+    maps:map(fun(K, R) -> R - maps:get(K, Before, 0) end, After).
 
 %% Ms from the kill until P's round trip is answered above the epoch it
 %% had on node 1 (one more try when the first was answered by node 1
@@ -130,6 +209,7 @@ print(Rows) ->
          end || #{n := N, on_node1 := On, served := S, synced_ms := Synced, check := Check} <- Rows],
     _ = [io:format("~n  checker, N = ~b:~n~s~n", [N, evatar_test_checker:format(Check)])
          || #{n := N, check := Check} <- Rows],
+    _ = [print_cost(N, Cost) || #{n := N, cost := Cost} <- Rows],
     io:format("~n  goals: all 1,000 served within 1 s, all 5,000 within 3 s; lost and dup 0~n"),
     ok.
 
@@ -145,3 +225,23 @@ last(L) -> lists:last(L).
 fmt(undefined) -> "-";
 fmt(X) -> io_lib:format("~.1f", [X]).
 
+%% CPU from the kill until every pair was served, per process and per
+%% pairing, and where the survivors' reductions went (the top kinds).
+print_cost(N, {ServedMs, Cpu, Reds, Queues}) ->
+    io:format("~n  cost, N = ~b, the ~.1f ms from the kill until every pair was served "
+              "(~b schedulers here):~n", [N, ServedMs, erlang:system_info(schedulers_online)]),
+    _ = [io:format("    ~-8s CPU ~7b ms  (~.2f ms a pairing, ~b % of one core)~n",
+                   [Name, Ms, Ms / N, round(100 * Ms / max(1.0, ServedMs))]) || {Name, Ms} <- Cpu],
+    Total = lists:sum([Ms || {_, Ms} <- Cpu]),
+    io:format("    all      CPU ~7b ms  (~.2f ms a pairing)~n", [Total, Total / N]),
+    _ = [begin
+             Sum = lists:sum(maps:values(R)),
+             Top = lists:sublist(lists:reverse(lists:keysort(2, maps:to_list(R))), 8),
+             io:format("    node ~b reductions ~b (~b a pairing): ~s~n",
+                       [K, Sum, Sum div N,
+                        lists:join(", ", [io_lib:format("~s ~.1f %", [M, 100 * V / max(1, Sum)])
+                                          || {M, V} <- Top])])
+         end || {K, R} <- Reds],
+    _ = [io:format("    node ~b at most ~p messages waiting for evatar_cluster, ~p processes "
+                   "in a scheduler's run queue~n", [K, Q, Run]) || {K, {Q, Run}} <- Queues],
+    ok.
