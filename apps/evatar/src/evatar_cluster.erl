@@ -14,15 +14,15 @@
 %% process. Decisions are in `evatar_ha_membership' (membership) and `evatar_ha_core'
 %% (votes and registrations).
 %%
-%% It is the node's voter too: it answers the pairings' vote and
-%% registration requests with `evatar_ha_core:answer/2' and keeps what it
-%% promised in `evatar_ha_promises', on disc when the node has a data
-%% directory (read back at boot, before any request is answered). A grant
-%% is sent only once its record is on the device: requests that wait in the
-%% mailbox are answered together, with one fdatasync (a takeover storm
-%% asks for hundreds at once). A record that cannot be written (a full
-%% disk) grants nothing; the node says `promise_not_persisted' once, and
-%% `promises_persisted' when writes succeed again.
+%% Every node's instances address it (`evatar_ha_proto_v1'), and it hands
+%% on at once what takes time: vote and registration requests to the
+%% node's voter (`evatar_ha_voter', which writes promises to disc) and
+%% standbys to start to `evatar_ha_starter'. It runs at high priority and
+%% does little else, so that a takeover storm (hundreds of elections, a
+%% run queue of hundreds of pairing processes) delays neither its
+%% heartbeats nor its ticks: a late tick is taken for a pause of the whole
+%% node (its actives then ask the cluster again), so it must be late only
+%% when the node was.
 %%
 %% Its evaluation every `heartbeat_ms' runs now through {@link
 %% refresh_now/0} (tests, through `evatar:run_now(cluster)'): an evaluation
@@ -34,27 +34,19 @@
 -export([start_link/0, opt/1, configured/0, size/0, alive/1, alive_now/1, alive_nodes/0,
          quorum/0, majority_now/0, heard_within/2, heard_after/2,
          place_standby/1, status/0, quorum_size/0, stall_gen/0, unstalled/1, refresh_now/0]).
--export([init/1, handle_continue/2, handle_call/3, handle_cast/2, handle_info/2]).
+-export([init/1, handle_call/3, handle_cast/2, handle_info/2]).
 
 -include_lib("kernel/include/logger.hrl").
 
 -define(TABLE, evatar_cluster_view).
-%% This node's votes: {PairingId, evatar_ha_core:record()}.
--define(VOTES, evatar_cluster_votes).
 -define(RECONNECT_MS, 500).
-%% Requests answered with one write at most.
--define(BATCH, 512).
 
 -record(s, {nodes :: [node()],
             alive = #{} :: #{node() => true},
             heard = #{} :: #{node() => integer()},
             quorum = true :: boolean(),
             last_tick :: integer(),
-            attempts = #{} :: #{node() => integer()},
-            %% The promises on disc; undefined while they could not be read.
-            promises :: evatar_ha_promises:log() | undefined,
-            %% Why the last write (or read) of promises failed, if it did.
-            unwritable = false :: false | term()}).
+            attempts = #{} :: #{node() => integer()}}).
 
 -type event() :: {node_suspected, node()} | {node_down, node()} | {node_alive, node()}
                | {quorum, boolean()} | stalled.
@@ -219,7 +211,6 @@ init([]) ->
 
 init_view() ->
     _ = ets:new(?TABLE, [named_table, protected, set, {read_concurrency, true}]),
-    _ = ets:new(?VOTES, [named_table, protected, set]),
     Nodes = lists:usort([node() | configured_nodes()]),
     true = ets:insert(?TABLE, [{configured, Nodes}, {quorum, true}, {stall_gen, 0},
                                {last_tick, erlang:monotonic_time(millisecond)}]),
@@ -227,24 +218,11 @@ init_view() ->
             true -> net_kernel:monitor_nodes(true);
             false -> ok
         end,
+    %% Ahead of the pairings in the run queue (see the module doc).
+    _ = process_flag(priority, high),
     Now = now_ms(),
     self() ! tick,
-    {ok, #s{nodes = Nodes, last_tick = Now}, {continue, load_promises}}.
-
-%% @private
--spec handle_continue(load_promises, #s{}) -> {noreply, #s{}}.
-handle_continue(load_promises, S) ->
-    {noreply, load_promises(S)}.
-
-load_promises(S) ->
-    Dir = evatar_ha_promises:dir(),
-    case evatar_ha_promises:open(Dir) of
-        {ok, Log, Entries} ->
-            true = ets:insert(?VOTES, Entries),
-            S#s{promises = Log};
-        {error, Reason} ->
-            unwritable(Reason, 0, S)
-    end.
+    {ok, #s{nodes = Nodes, last_tick = Now}}.
 
 configured_nodes() ->
     case application:get_env(evatar, cluster) of
@@ -290,17 +268,17 @@ handle_info({evatar_ha, 1, {inventory, _Node, Instances}}, S) ->
 handle_info({evatar_ha, 1, {ask, Id, ReplyTo}}, S) ->
     ok = evatar_ha_proto_v1:instance(ReplyTo, Id, node(), evatar_registry:role(Id)),
     {noreply, S};
-handle_info({evatar_ha, 1, {vote, Id, Ec, Cand, _Claim, _Active, _Dead}} = Msg, S)
-  when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
-    {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
-handle_info({evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}} = Msg, S)
-  when is_binary(Id), is_integer(Ec), is_pid(Cand), is_list(NoneOn) ->
-    {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
-handle_info({evatar_ha, 1, {register, Id, E, Seq, From}} = Msg, S)
-  when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
-    {noreply, answer([Msg | more_requests(?BATCH - 1)], S)};
-handle_info({evatar_ha, 1, {start_standby, Id, Config, Active, Epoch}}, S) ->
-    ok = start_standby(Id, Config, Active, Epoch),
+handle_info({evatar_ha, 1, {vote, _, _, _, _, _, _}} = Msg, S) ->
+    ok = hand_on(evatar_ha_voter, Msg),
+    {noreply, S};
+handle_info({evatar_ha, 1, {restore_vote, _, _, _, _}} = Msg, S) ->
+    ok = hand_on(evatar_ha_voter, Msg),
+    {noreply, S};
+handle_info({evatar_ha, 1, {register, _, _, _, _}} = Msg, S) ->
+    ok = hand_on(evatar_ha_voter, Msg),
+    {noreply, S};
+handle_info({evatar_ha, 1, {start_standby, _, _, _, _}} = Msg, S) ->
+    ok = hand_on(evatar_ha_starter, Msg),
     {noreply, S};
 handle_info({nodedown, Node}, #s{alive = Alive, heard = Heard} = S) ->
     true = ets:delete(?TABLE, {heard, Node}),
@@ -318,150 +296,14 @@ handle_info({nodeup, _Node}, S) ->
 handle_info(_Msg, S) ->
     {noreply, S}.
 
-%% ---------------------------------------------------------------------------
-%% The voter
-%% ---------------------------------------------------------------------------
-
-%% The requests waiting behind the first, answered with it.
-more_requests(0) ->
-    [];
-more_requests(N) ->
-    receive
-        {evatar_ha, 1, {vote, Id, Ec, Cand, _, _, _}} = Msg
-          when is_binary(Id), is_integer(Ec), is_pid(Cand) ->
-            [Msg | more_requests(N - 1)];
-        {evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}} = Msg
-          when is_binary(Id), is_integer(Ec), is_pid(Cand), is_list(NoneOn) ->
-            [Msg | more_requests(N - 1)];
-        {evatar_ha, 1, {register, Id, E, Seq, From}} = Msg
-          when is_binary(Id), is_integer(E), is_integer(Seq), is_pid(From) ->
-            [Msg | more_requests(N - 1)]
-    after 0 ->
-            []
+%% A request for the voter or the starter, as it came. Dropped while that
+%% process is restarting, as a lost message is: the instance that asked
+%% decides without this node's answer, or places its standby again.
+hand_on(Name, Msg) ->
+    case whereis(Name) of
+        undefined -> ok;
+        Pid -> Pid ! Msg, ok
     end.
-
-%% Decides every request in order (each against the records the ones
-%% before changed), writes the changed records, then replies: a grant of a
-%% pairing whose record changed in this batch only once that is durable.
-answer(Msgs, S0) ->
-    S = case S0#s.promises of
-            undefined -> load_promises(S0);
-            _ -> S0
-        end,
-    {Changed, Replies} = lists:foldl(fun decide/2, {#{}, []}, Msgs),
-    case write(maps:to_list(Changed), S) of
-        {ok, S1} ->
-            _ = [reply(R) || {_Durable, R} <- lists:reverse(Replies)],
-            S1;
-        {error, Reason, S1} ->
-            Lost = [R || {true, R} <- Replies],
-            _ = [reply(R) || {false, R} <- lists:reverse(Replies)],
-            unwritable(Reason, length(Lost), S1)
-    end.
-
-decide({evatar_ha, 1, {vote, Id, Ec, Cand, Claim, Active, Dead}}, {Changed, Replies}) ->
-    Record = record(Id, Changed),
-    Blocked = lists:any(fun serving/1, [P || P <- evatar_ha_core:blockers(Record, Cand, Active,
-                                                                          Dead),
-                                             is_pid(P)]),
-    Effects = evatar_ha_core:answer({vote, Ec, Cand, Claim, Blocked}, Record),
-    effects(Effects, Id, {vote_reply, Cand, Id, Ec}, Changed, Replies);
-decide({evatar_ha, 1, {restore_vote, Id, Ec, Cand, NoneOn}}, {Changed, Replies}) ->
-    Record = record(Id, Changed),
-    Blocked = lists:any(fun serving/1,
-                        [P || P <- evatar_ha_core:restore_blockers(
-                                          Record, Cand, NoneOn, fun node_of/1,
-                                          local_instance(Id)),
-                              is_pid(P)]),
-    Effects = evatar_ha_core:answer({restore_vote, Ec, Cand, Blocked}, Record),
-    effects(Effects, Id, {vote_reply, Cand, Id, Ec}, Changed, Replies);
-decide({evatar_ha, 1, {register, Id, E, Seq, From}}, {Changed, Replies}) ->
-    Effects = evatar_ha_core:answer({register, E, Seq, From}, record(Id, Changed)),
-    effects(Effects, Id, {register_reply, From, Id, {E, Seq}}, Changed, Replies).
-
-effects([{persist, R} | Rest], Id, To, Changed, Replies) ->
-    effects(Rest, Id, To, Changed#{Id => R}, Replies);
-effects([{reply, {refused, _} = Refused}], _Id, To, Changed, Replies) ->
-    {Changed, [{false, {To, Refused}} | Replies]};
-effects([{reply, Yes}], Id, To, Changed, Replies) ->
-    {Changed, [{is_map_key(Id, Changed), {To, Yes}} | Replies]}.
-
-reply({{vote_reply, Cand, Id, Ec}, Result}) ->
-    ok = evatar_ha_proto_v1:vote_reply(Cand, Id, Ec, node(), Result);
-reply({{register_reply, From, Id, Claim}, Result}) ->
-    ok = evatar_ha_proto_v1:register_reply(From, Id, Claim, node(), Result).
-
-write([], S) ->
-    {ok, S};
-write(_Entries, #s{promises = undefined, unwritable = Reason} = S) ->
-    {error, Reason, S};
-write(Entries, #s{promises = Log} = S) ->
-    case evatar_ha_promises:write(Log, Entries) of
-        {ok, Log1} ->
-            true = ets:insert(?VOTES, Entries),
-            _ = case S#s.unwritable of
-                    false -> ok;
-                    Was -> ?LOG_NOTICE(#{what => promises_persisted, after_error => Was})
-                end,
-            {ok, compact(S#s{promises = Log1, unwritable = false})};
-        {error, Reason, Log1} ->
-            {error, Reason, S#s{promises = Log1}}
-    end.
-
-compact(#s{promises = Log} = S) ->
-    case evatar_ha_promises:needs_compaction(Log, ets:info(?VOTES, size)) of
-        true ->
-            case evatar_ha_promises:compact(Log, ets:tab2list(?VOTES)) of
-                {ok, Log1} ->
-                    S#s{promises = Log1};
-                {error, Reason, Log1} ->
-                    ?LOG_WARNING(#{what => promises_not_compacted, reason => Reason}),
-                    S#s{promises = Log1}
-            end;
-        false ->
-            S
-    end.
-
-%% Said once, until writes succeed again.
-unwritable(Reason, Lost, #s{unwritable = false} = S) ->
-    ?LOG_ERROR(#{what => promise_not_persisted, dir => evatar_ha_promises:dir(),
-                 reason => Reason, not_granted => Lost,
-                 hint => "this node grants no vote and accepts no registration until it can "
-                         "write to EVATAR_DATA_DIR again; the others decide without it"}),
-    S#s{unwritable = Reason};
-unwritable(_Reason, _Lost, S) ->
-    S.
-
-record(Id, Changed) ->
-    case Changed of
-        #{Id := R} -> R;
-        #{} -> record(Id)
-    end.
-
-record(Id) ->
-    case ets:lookup(?VOTES, Id) of
-        [{_, R}] -> R;
-        [] -> evatar_ha_core:new_record()
-    end.
-
-local_instance(Id) ->
-    case evatar_registry:role(Id) of
-        #{pid := Pid, role := Role} -> {Pid, Role};
-        none ->
-            %% Not published yet: starting.
-            case evatar_registry:whereis_name(Id) of
-                undefined -> undefined;
-                Pid -> {Pid, starting}
-            end
-    end.
-
-node_of(Pid) when is_pid(Pid) -> node(Pid);
-node_of(_) -> undefined.
-
-%% Whether an instance may still be serving, as far as this node can tell:
-%% a local process that is alive, or a remote one whose node is heard.
-serving(Pid) when node(Pid) =:= node() -> is_process_alive(Pid);
-serving(Pid) -> alive_now(node(Pid)).
 
 %% ---------------------------------------------------------------------------
 %% The periodic evaluation
@@ -544,22 +386,6 @@ quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old} = S) ->
 
 broadcast(Event) ->
     _ = [Pid ! {evatar_cluster, Event} || {_Id, Pid} <- evatar_registry:all()],
-    ok.
-
-start_standby(Id, Config, Active, Epoch) when is_binary(Id), is_pid(Active) ->
-    case evatar_registry:whereis_name(Id) of
-        undefined ->
-            case evatar_pairings_sup:start_pairing(Id, Config, {standby_for, Active}) of
-                {ok, _} -> ok;
-                {error, Reason} ->
-                    logger:notice(#{what => standby_not_started, pairing => Id,
-                                    reason => Reason}),
-                    ok
-            end;
-        Local ->
-            evatar_ha_proto_v1:peer_instance(Local, {Active, active, Epoch})
-    end;
-start_standby(_Id, _Config, _Active, _Epoch) ->
     ok.
 
 now_ms() -> erlang:monotonic_time(millisecond).

@@ -1,6 +1,8 @@
 %% @doc Internal. The top supervisor of evatar: the owner of the per-pairing
-%% metrics (evatar_metrics), the pairing registry, the
-%% cluster membership process, the supervisor of all pairings, then the
+%% metrics (evatar_metrics), the pairing registry, the node's voter
+%% (evatar_ha_voter) and standby starter (evatar_ha_starter), which the
+%% membership process hands requests to, the cluster membership process,
+%% the supervisor of all pairings, then the
 %% catalogue of pairings (which starts pairings, so it comes after their
 %% supervisor; its own crash restarts only itself), and the rebalancer
 %% (which moves them; likewise).
@@ -28,6 +30,16 @@ init([]) ->
                   type => worker},
                 #{id => evatar_registry,
                   start => {evatar_registry, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_ha_voter,
+                  start => {evatar_ha_voter, start_link, []},
+                  restart => permanent,
+                  shutdown => 5000,
+                  type => worker},
+                #{id => evatar_ha_starter,
+                  start => {evatar_ha_starter, start_link, []},
                   restart => permanent,
                   shutdown => 5000,
                   type => worker},

@@ -242,7 +242,7 @@ current_placement(Net, Id) ->
 %% keeps (its table is readable by any process of its node).
 promise(Net, S, P) ->
     {ok, _, #{epoch := E}} = evatar_test_pairing:active(Net, P),
-    Promised = case evatar_test_cluster:call(Net, S, ets, lookup, [evatar_cluster_votes, P]) of
+    Promised = case evatar_test_cluster:call(Net, S, ets, lookup, [evatar_ha_votes, P]) of
                    [{P, #{promised := Pr}}] -> Pr;
                    _ -> 0
                end,
