@@ -1,20 +1,25 @@
-%% @doc Internal. The role machine of one instance of a pairing, pure: what
-%% an instance does on each message of another instance, each event of the
-%% cluster, the loss of its peer instance, each of its timers and each
-%% decision of `evatar_ha_core' (take over, step down, fence, place a
-%% standby, hand over). {@link handle/3} maps an event, a snapshot of the
-%% cluster and of the instance's own state ({@link view()}) to the new
-%% state and a list of effects, in the manner of rabbitmq/ra's `ra_server';
-%% `evatar_pairing' executes them on pids, monitors and timers, and the
-%% model (`evatar_ha_sim') on its simulated nodes. An instance (`me',
-%% `active', `standby') is any term: a pid in the node, `{Node, Ref}' in
-%% the model. The pairing's rules, their state and the output commit stay
-%% with the caller: effects name what to do with them (`{logic, ..}',
-%% `{release, V}', `{flush, Mode}', `{snapshot, To, Claim}', ...). This
-%% module takes every event and decides starting, the messages between
-%% instances and the cluster's events; `evatar_ha_serving' what each
-%% outcome of `evatar_ha_core' means and what only a serving active does
-%% (placement, fencing, silent links, handover, the rebalancer's moves).
+%% @doc Internal. One instance of a pairing, pure: its role, the
+%% pairing's rules (`evatar_pairing_logic') and the output commit
+%% (`evatar_ha_commit') in one state. {@link handle/3} maps an event of
+%% another instance, of the cluster, of the peer's monitor or of a timer,
+%% with a snapshot of the cluster ({@link view()}), to the new state and
+%% effects that are all I/O (send, monitor, timer, tell a client, log,
+%% the registry), in the manner of rabbitmq/ra's `ra_server'; the client
+%% traffic of an active comes through {@link rules/3}, {@link reply/3},
+%% {@link report_binding/3} and {@link flush_maybe/2}. `evatar_pairing'
+%% executes the effects on pids, monitors and timers, the model
+%% (`evatar_ha_sim') on its simulated nodes: both run this code, rules
+%% included. An instance (`me', `active', `standby') is any term: a pid in
+%% the node, `{Node, Ref}' in the model; a client's connection
+%% (`conns') too.
+%%
+%% Inside, the role machine decides first ({@link decide/3}: starting, the
+%% messages between instances and the cluster's events here,
+%% `evatar_ha_serving' what each outcome of `evatar_ha_core' means and
+%% what only a serving active does); its decisions that mean "run the
+%% rules or the commit" (`{logic, ..}', `{release, V}', `{flush, Mode}',
+%% `{snapshot, To, Claim}', ...) are carried out here, in order, and only
+%% their I/O leaves (docs/ha-design.md, section 12).
 %%
 %% ```
 %%  starting --start/4, answers--> active | (offer) --snapshot--> standby
@@ -26,65 +31,107 @@
 %% '''
 -module(evatar_ha_instance).
 
--export([new/3, handle/3]).
+-export([new/3, handle/3, rules/3, reply/3, report_binding/3, flush_maybe/2, flush/1]).
+-export([decide/3]).
 -export([role/1, active/1, standby/1, core/1, mode/1, electing/1, reconfirming/1,
-         silent_poll_ms/1, node_of/1]).
+         logic/1, epoch/1, version/1, synced/1, silent_poll_ms/1, node_of/1]).
 
--export_type([state/0, role/0, view/0, event/0, effect/0, peer_msg/0]).
+-export_type([state/0, role/0, view/0, ctx/0, event/0, effect/0, decision/0, peer_msg/0,
+              timer_key/0]).
 
 -type role() :: starting | active | handing_over | standby | fenced.
 -type peer() :: term().
 
 %% What the caller sees when an event comes: the cluster (configured
 %% nodes, alive nodes, whether it hears a majority and which nodes it heard
-%% within the lease), the options, and its own state's epoch, version,
-%% highest version confirmed by the standby and whether that one is synced.
-%% Confirmations and event batches need only the options and the state.
+%% within the lease), the options, the time for the rules (`now', system
+%% milliseconds), the clients' connections (`conns', entity id to
+%% connection: held effects are bound to them) and how many messages wait
+%% (`queue_len', 0 if absent: batches go out when none waits).
+%% Confirmations and event batches need only the options, the time and
+%% the connections. {@link handle/3} adds the state's epoch, version,
+%% highest version confirmed by the standby and whether that one is synced
+%% (what {@link decide/3} reads).
 -type view() :: #{nodes := [node()], heartbeat_ms := pos_integer(),
-                  suspect_ms := pos_integer(), epoch := non_neg_integer(),
-                  version := non_neg_integer(), confirmed := non_neg_integer(),
-                  synced := boolean(),
+                  suspect_ms := pos_integer(), now := integer(), conns := conns(),
+                  queue_len => non_neg_integer(),
+                  epoch => non_neg_integer(),
+                  version => non_neg_integer(), confirmed => non_neg_integer(),
+                  synced => boolean(),
                   alive => [node()], majority => boolean(), heard => [node()],
                   standby_opt => boolean(), client_ack_timeout => pos_integer(),
                   handover_on_silent_link => boolean(), self => node()}.
+-type conns() :: #{binary() => term()}.
+%% What a client's event needs: the time and the connections.
+-type ctx() :: #{now := integer(), conns := conns(), _ => _}.
+%% The role machine's timers are `{ha, Key}'; the rules' are their own keys.
+-type timer_key() :: {ha, atom()} | evatar_pairing_logic:timer_key().
 
 -type event() :: {start, evatar_pairing:mode(), Previous :: term()}
                | {instance, node(), evatar_ha_proto_v1:instance_info()}
                | {msg, tuple()}
                | {cluster, term()}
                | {down, active | standby, Why :: term()}
-               | {timeout, atom()}
-               | {silent, [{binary(), integer()}], NowMs :: integer()}
+               | {timeout, timer_key()}
                | paused.
 
 %% A message to another instance (evatar_ha_proto_v1 in the node).
 -type peer_msg() :: {offer, non_neg_integer()} | dismiss | {resync, non_neg_integer()}
                   | {confirm, non_neg_integer()} | {stale, non_neg_integer()}
                   | {handover, non_neg_integer()}
-                  | {handover_done, pos_integer(), evatar_ha_core:claim()}.
+                  | {handover_done, pos_integer(), evatar_ha_core:claim()}
+                  | {events, [evatar_ha_commit:repl_event()]}
+                  | {snapshot, non_neg_integer(), evatar_pairing_logic:state(),
+                     evatar_ha_core:claim()}.
 
--type effect() :: {send, peer(), peer_msg()}
-                | {ask, [node()]}
-                | {start_standby, node()}
-                | {vote, node(), pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
-                | {restore_vote, node(), pos_integer(), [node()]}
-                | {register, node(), evatar_ha_core:claim()}
-                | {monitor, active | standby, peer()} | {demonitor, active | standby}
-                | {timer, atom(), non_neg_integer()} | {ensure_timer, atom(), non_neg_integer()}
-                | {cancel_timer, atom()}
-                | new_logic | {install, non_neg_integer(), term()} | {apply, [term()]}
-                | {logic, term(), evatar_ha_commit:mode()}
-                | arm_logic_timers | cancel_logic_timers
-                | {release, non_neg_integer()} | release_all | {flush, evatar_ha_commit:mode()}
-                | {flush_maybe, evatar_ha_commit:mode()}
-                | unsync | {synced_at, non_neg_integer()} | reset_commit
-                | {snapshot, peer(), evatar_ha_core:claim()}
-                | {drop, binary(), silent_link, binary()}
-                | {disconnect_all, atom(), binary()}
-                | {standby_node, node()}
-                | serving | pause_seen | publish | reconfirmed | reply_held | serve_held
-                | {metric, atom()} | {metric, atom(), term()} | {log, logger:level(), map()}
-                | postpone | {stop, term()}.
+%% What the executor does, in order: all I/O. `{tell, EntityId, Msg}':
+%% to the entity's current connection; `{to_conn, Conn, Msg}': to the
+%% connection it had when the effect was made (one of `conns'); `{drop,
+%% ..}': tell it and forget its connection; `{stepped, ..}': the rules ran
+%% an event (metrics and the live tail watch it); `flush_later': call
+%% {@link flush/1} once the messages waiting are handled;
+%% `cancel_rule_timers': every timer but the `{ha, _}' ones.
+-type effect() :: peer_io()
+                | {timer, timer_key(), non_neg_integer()}
+                | {ensure_timer, timer_key(), non_neg_integer()}
+                | {cancel_timer, timer_key()} | cancel_rule_timers
+                | {tell, binary(), term()} | {to_conn, term(), term()}
+                | {drop, binary(), atom(), binary()}
+                | {reply_to, term(), term()}
+                | {acks, #{binary() => binary()}} | flush_later
+                | {stepped, evatar_pairing_logic:event(), [evatar_pairing_logic:effect()],
+                   integer()}
+                | shell_io().
+
+%% What the role machine decides ({@link decide/3}): I/O, and what to do
+%% with the rules and the commit, which {@link handle/3} does.
+-type decision() :: peer_io()
+                  | {timer, atom(), non_neg_integer()} | {ensure_timer, atom(), non_neg_integer()}
+                  | {cancel_timer, atom()}
+                  | new_logic | {install, non_neg_integer(), term()} | {apply, [term()]}
+                  | {logic, term(), evatar_ha_commit:mode()}
+                  | arm_logic_timers | cancel_logic_timers
+                  | {release, non_neg_integer()} | release_all | {flush, evatar_ha_commit:mode()}
+                  | {flush_maybe, evatar_ha_commit:mode()}
+                  | unsync | {synced_at, non_neg_integer()} | reset_commit
+                  | {snapshot, peer(), evatar_ha_core:claim()}
+                  | {drop, binary(), silent_link, binary()}
+                  | shell_io().
+
+%% The other instance, the cluster's nodes and the monitors.
+-type peer_io() :: {send, peer(), peer_msg()}
+                 | {ask, [node()]}
+                 | {start_standby, node()}
+                 | {vote, node(), pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
+                 | {restore_vote, node(), pos_integer(), [node()]}
+                 | {register, node(), evatar_ha_core:claim()}
+                 | {monitor, active | standby, peer()} | {demonitor, active | standby}.
+%% The clients, the registry, the held calls, logs and metrics, the process.
+-type shell_io() :: {disconnect_all, atom(), binary()}
+                  | {standby_node, node()}
+                  | serving | pause_seen | publish | reconfirmed | reply_held | serve_held
+                  | {metric, atom()} | {metric, atom(), term()} | {log, logger:level(), map()}
+                  | postpone | {stop, term()}.
 
 -include("evatar_ha_instance.hrl").
 
@@ -95,10 +142,13 @@
 
 -opaque state() :: #inst{}.
 
-%% @doc A starting instance `Me' of pairing `Id', which prefers to place
-%% its standby on `StandbyNode' (the pairing option, or undefined).
--spec new(term(), peer(), node() | undefined) -> state().
-new(Id, Me, StandbyNode) -> #inst{id = Id, me = Me, standby_node = StandbyNode}.
+%% @doc A starting instance `Me' of pairing `Id' with the rules'
+%% configuration `Config' (its `standby_node', if any, is where it prefers
+%% to place its standby).
+-spec new(term(), peer(), evatar_pairing_logic:config()) -> state().
+new(Id, Me, Config) ->
+    #inst{id = Id, me = Me, config = Config,
+          standby_node = maps:get(standby_node, Config, undefined)}.
 
 -spec role(state()) -> role().
 role(#inst{role = R}) -> R.
@@ -128,34 +178,212 @@ silent_poll_ms(Timeout) -> evatar_ha_serving:silent_poll_ms(Timeout).
 -spec node_of(peer()) -> node() | undefined.
 node_of(Peer) -> evatar_ha_serving:node_of(Peer).
 
-%% @doc One event; see {@link event()} and {@link effect()}.
+%% @doc The rules' state (undefined while starting).
+-spec logic(state()) -> evatar_pairing_logic:state() | undefined.
+logic(#inst{logic = L}) -> L.
+%% @doc The pairing's epoch (0 while starting).
+-spec epoch(state()) -> non_neg_integer().
+epoch(#inst{logic = undefined}) -> 0;
+epoch(#inst{logic = L}) -> evatar_pairing_logic:epoch(L).
+%% @doc The version of the last event applied.
+-spec version(state()) -> non_neg_integer().
+version(#inst{commit = C}) -> evatar_ha_commit:version(C).
+%% @doc Whether the standby confirmed anything since its snapshot.
+-spec synced(state()) -> boolean().
+synced(#inst{commit = C}) -> evatar_ha_commit:synced(C).
+
+%% ---------------------------------------------------------------------------
+%% Events: the role machine decides, the rules and the commit run here
+%% ---------------------------------------------------------------------------
+
+%% @doc One event; see {@link event()} and {@link effect()}. A rules'
+%% timer runs the rules on an active, waits while fenced or handing over
+%% (`postpone'), and is dropped otherwise.
 -spec handle(event(), view(), state()) -> {state(), [effect()]}.
-handle(Event, View, #inst{role = starting} = S) ->
+handle(Event, View, S) ->
+    V = full_view(View, S),
+    case Event of
+        {timeout, {ha, silent}} when S#inst.role =:= active ->
+            Unacked = evatar_pairing_logic:unacked_since(S#inst.logic),
+            carry_out(decide({silent, Unacked, now(V)}, V, S), V);
+        {timeout, {ha, Key}} ->
+            carry_out(decide({timeout, Key}, V, S), V);
+        {timeout, Key} ->
+            rule_timeout(Key, V, S);
+        _ ->
+            carry_out(decide(Event, V, S), V)
+    end.
+
+full_view(View, #inst{commit = C} = S) ->
+    View#{epoch => epoch(S), version => evatar_ha_commit:version(C),
+          confirmed => evatar_ha_commit:confirmed(C), synced => evatar_ha_commit:synced(C)}.
+
+rule_timeout(Key, V, #inst{role = active} = S) ->
+    {_Reply, S1, Out} = step({timeout, Key}, mode(S), V, S),
+    {S2, Flush} = flush_maybe(queue_len(V), S1),
+    {S2, Out ++ Flush};
+rule_timeout(_Key, _V, #inst{role = Role} = S) when Role =:= fenced; Role =:= handing_over ->
+    {S, [postpone]};
+rule_timeout(_Key, _V, S) ->
+    {S, []}.
+
+%% @doc An event of an active's client (a join, a signal, an Ack, a
+%% leave, a detach): the rules' reply (`ok' for events without one) and
+%% what goes out now, or waits for the standby or the cluster.
+-spec rules(evatar_pairing_logic:event(), ctx(), state()) -> {term(), state(), [effect()]}.
+rules(Event, Ctx, S) ->
+    step(Event, mode(S), Ctx, S).
+
+%% @doc A call's reply: now without a standby, else after what is held.
+-spec reply(term(), term(), state()) -> {state(), [effect()]}.
+reply(From, Reply, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:reply(From, Reply, mode(S), C), S).
+
+%% @doc A GetBinding (docs/protocol.md section 2): the current report, to
+%% that entity only, behind what is held. It changes no state, so it is not
+%% shipped to the standby.
+-spec report_binding(binary(), conns(), state()) -> {state(), [effect()]}.
+report_binding(EntityId, Conns, #inst{logic = L, commit = C} = S) ->
+    {_, Effects} = evatar_pairing_logic:handle({report_binding, EntityId}, 0, L),
+    Sends = [{send, Conn, {bound, R}} || {report, E, R} <- Effects, {ok, Conn} <- [maps:find(E, Conns)]],
+    commit(evatar_ha_commit:report(Sends, mode(S), C), S).
+
+%% @doc The batch goes out if no message waits (`QueueLen' 0) or enough
+%% events were applied; else `flush_later'.
+-spec flush_maybe(non_neg_integer(), state()) -> {state(), [effect()]}.
+flush_maybe(QueueLen, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:flush_maybe(QueueLen, mode(S), C), S).
+
+%% @doc The batch goes out: the events to the standby, or the Acks.
+-spec flush(state()) -> {state(), [effect()]}.
+flush(#inst{commit = C} = S) ->
+    commit(evatar_ha_commit:flush(mode(S), C), S).
+
+%% The role machine's decisions, in order: those about the rules and the
+%% commit are carried out here, the rest is I/O already.
+carry_out({S, Decisions}, V) ->
+    carry_out(Decisions, V, S, []).
+
+carry_out([D | Rest], V, S, Acc) ->
+    {S1, Out} = carry_out1(D, V, S),
+    carry_out(Rest, V, S1, lists:reverse(Out, Acc));
+carry_out([], _V, S, Acc) ->
+    {S, lists:reverse(Acc)}.
+
+carry_out1(new_logic, _V, #inst{id = Id, config = Config} = S) ->
+    {S#inst{logic = evatar_pairing_logic:new(Id, Config)}, []};
+carry_out1({install, Version, Logic}, _V, #inst{commit = C} = S) ->
+    {S#inst{logic = Logic, commit = evatar_ha_commit:applied(Version, C)}, []};
+carry_out1({apply, Events}, _V, S) ->
+    apply_events(Events, S);
+carry_out1({logic, Event, Mode}, V, S) ->
+    {_Reply, S1, Out} = step(Event, Mode, V, S),
+    {S1, Out};
+carry_out1(arm_logic_timers, V, #inst{logic = L} = S) ->
+    %% A takeover: the rules' deadlines, from the state, on this node's timers.
+    {S, [cancel_rule_timers | [{timer, K, Ms} || {K, Ms} <- evatar_pairing_logic:timers(L, now(V))]]};
+carry_out1(cancel_logic_timers, _V, S) ->
+    {S, [cancel_rule_timers]};
+carry_out1({release, Version}, _V, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:confirm(Version, C), S);
+carry_out1(release_all, _V, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:release_all(C), S);
+carry_out1({flush, Mode}, _V, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:flush(Mode, C), S);
+carry_out1({flush_maybe, Mode}, V, #inst{commit = C} = S) ->
+    commit(evatar_ha_commit:flush_maybe(queue_len(V), Mode, C), S);
+carry_out1(unsync, _V, #inst{commit = C} = S) ->
+    {S#inst{commit = evatar_ha_commit:unsync(C)}, []};
+carry_out1({synced_at, Version}, _V, #inst{commit = C} = S) ->
+    {S#inst{commit = evatar_ha_commit:synced_at(Version, C)}, []};
+carry_out1(reset_commit, _V, #inst{commit = C} = S) ->
+    {S#inst{commit = evatar_ha_commit:reset(C)}, []};
+carry_out1({snapshot, To, Claim}, _V, #inst{logic = L, commit = C} = S) ->
+    {S#inst{commit = evatar_ha_commit:shipped(C)},
+     [{send, To, {snapshot, evatar_ha_commit:version(C), L, Claim}}]};
+carry_out1({drop, EntityId, _Code, _Reason} = Drop, V, S) ->
+    %% A silent link: its connection goes, and the entity is detached (kept
+    %% for a resume), held effects bound to the connections left.
+    Ctx = V#{conns := maps:remove(EntityId, conns(V))},
+    {_Reply, S1, Out} = step({detach, EntityId}, mode(S), Ctx, S),
+    {S1, [Drop | Out]};
+carry_out1({timer, Key, Ms}, _V, S) ->
+    {S, [{timer, {ha, Key}, Ms}]};
+carry_out1({ensure_timer, Key, Ms}, _V, S) ->
+    {S, [{ensure_timer, {ha, Key}, Ms}]};
+carry_out1({cancel_timer, Key}, _V, S) ->
+    {S, [{cancel_timer, {ha, Key}}]};
+carry_out1(Effect, _V, S) ->
+    {S, [Effect]}.
+
+%% One event through the rules; the commit says what of their effects goes
+%% out now and what waits.
+step(Event, Mode, Ctx, #inst{logic = L, commit = C} = S) ->
+    Now = now(Ctx),
+    {L1, Effects} = evatar_pairing_logic:handle(Event, Now, L),
+    {Reply, Out, C1} = evatar_ha_commit:step(Event, Now, Effects, conns(Ctx), Mode, C),
+    S1 = S#inst{logic = L1, commit = C1},
+    {Reply, S1, [{stepped, Event, Effects, Now} | io(Out, S1)]}.
+
+commit({Out, C}, S) ->
+    S1 = S#inst{commit = C},
+    {S1, io(Out, S1)}.
+
+%% The commit's effects, as I/O.
+io(Out, S) ->
+    [E || Effect <- Out, E <- io1(Effect, S)].
+
+io1({deliver, EntityId, Signal}, _S) -> [{tell, EntityId, {signal, Signal}}];
+io1({report, EntityId, Report}, _S) -> [{tell, EntityId, {bound, Report}}];
+io1({send, Conn, Msg}, _S) -> [{to_conn, Conn, Msg}];
+io1({start_timer, Key, Ms}, _S) -> [{timer, Key, Ms}];
+io1({ship, Events}, #inst{standby = Sb}) -> [{send, Sb, {events, Events}} || Sb =/= undefined];
+io1(Effect, _S) -> [Effect].   % drop, cancel_timer, log, reply_to, acks, flush_later
+
+%% The standby applies the active's batch with the rules
+%% (evatar_ha_role_machine), and confirms it or asks again.
+apply_events(Events, #inst{logic = L0, commit = C0, active = A} = S) ->
+    Apply = fun(Event, Now, L) -> element(1, evatar_pairing_logic:handle(Event, Now, L)) end,
+    {L, C, Answer} = evatar_ha_role_machine:apply_events(Events, Apply, L0, C0),
+    S1 = S#inst{logic = L, commit = C},
+    Publish = [publish || evatar_pairing_logic:epoch(L) =/= evatar_pairing_logic:epoch(L0)],
+    {S1, [{send, A, Answer} | Publish]}.
+
+now(#{now := Now}) -> Now.
+conns(#{conns := Conns}) -> Conns.
+queue_len(V) -> maps:get(queue_len, V, 0).
+
+%% @doc The role machine alone: the decisions for one event, given the
+%% whole view (with the state's epoch, version, confirmed and synced).
+%% Tests use it; {@link handle/3} carries them out.
+-spec decide(event() | {silent, [{binary(), integer()}], integer()}, view(), state()) ->
+          {state(), [decision()]}.
+decide(Event, View, #inst{role = starting} = S) ->
     starting(Event, View, S);
-handle({instance, Node, Info}, View, #inst{role = fenced} = S) ->
+decide({instance, Node, Info}, View, #inst{role = fenced} = S) ->
     %% A restorer asked a node heard again (an instance there is met
     %% through the inventories).
     case evatar_ha_role_machine:runs_none(Info) of
         true -> core({runs_none, Node}, View, S);
         false -> {S, []}
     end;
-handle({msg, Msg}, View, S) ->
+decide({msg, Msg}, View, S) ->
     msg(Msg, View, S);
-handle({cluster, Event}, View, S) ->
+decide({cluster, Event}, View, S) ->
     cluster(Event, View, S);
-handle({down, standby, Why}, View, S) ->
+decide({down, standby, Why}, View, S) ->
     standby_down(Why, View, S);
-handle({down, active, Why}, View, #inst{role = standby} = S) ->
+decide({down, active, Why}, View, #inst{role = standby} = S) ->
     active_down(Why, View, S#inst{watching = false});
-handle({down, active, _Why}, _View, S) ->
+decide({down, active, _Why}, _View, S) ->
     {S#inst{watching = false}, []};
-handle({timeout, Key}, View, S) ->
+decide({timeout, Key}, View, S) ->
     timeout(Key, View, S);
-handle({silent, Unacked, Now}, View, #inst{role = active} = S) ->
+decide({silent, Unacked, Now}, View, #inst{role = active} = S) ->
     silent(Unacked, Now, View, S);
-handle(paused, View, #inst{role = active} = S) ->
+decide(paused, View, #inst{role = active} = S) ->
     paused(View, S);
-handle(_Event, _View, S) ->
+decide(_Event, _View, S) ->
     {S, []}.
 
 %% ---------------------------------------------------------------------------
@@ -188,7 +416,7 @@ started({St, Effects}, V, S) ->
 
 start_effects([{offer, Active} | _], V, S, Acc) ->
     {S#inst{active = Active, watching = true},
-     lists:reverse(Acc, [{monitor, active, Active}, {send, Active, {offer, version(V)}},
+     lists:reverse(Acc, [{monitor, active, Active}, {send, Active, {offer, v(version, V)}},
                          {timer, offered, 5 * suspect(V) + 2000}])};
 start_effects([become_active | _], #{nodes := Nodes} = V, #inst{core = Core} = S, Acc) ->
     %% A new pairing: every node records its first configuration (nothing
@@ -253,7 +481,7 @@ msg({confirm, Sb, E, Version}, V, #inst{standby = Sb, role = active, claiming = 
     %% Won again after a fence: a confirmation at the new epoch comes after
     %% the snapshot with the new claim (older ones carry the old epoch), so
     %% the cluster may record that claim now.
-    case E =:= epoch(V) of
+    case E =:= v(epoch, V) of
         true ->
             {S1, Effects} = core(standby_claimed, V, S#inst{claiming = false}),
             {S1, [{release, Version} | Effects]};
@@ -263,7 +491,7 @@ msg({confirm, Sb, E, Version}, V, #inst{standby = Sb, role = active, claiming = 
 msg({confirm, Sb, _E, Version}, V, #inst{standby = Sb, role = Role} = S) ->
     case Role of
         handing_over ->
-            {S1, Effects} = send_handover(V#{confirmed := max(Version, confirmed(V))}, S),
+            {S1, Effects} = send_handover(V#{confirmed := max(Version, v(confirmed, V))}, S),
             {S1, [{release, Version} | Effects]};
         _ ->
             {S, [{release, Version}]}
@@ -274,7 +502,7 @@ msg({rebalance, Move}, V, #inst{role = active, standby = Sb, core = Core} = S)
   when Sb =/= undefined ->
     %% Only with a synced standby and no registration or election under
     %% way; else the rebalancer's next round plans again.
-    case synced(V) andalso not evatar_ha_core:holding(Core)
+    case v(synced, V) andalso not evatar_ha_core:holding(Core)
         andalso not evatar_ha_core:electing(Core) of
         true -> rebalance(Move, V, S);
         false -> {S, []}
@@ -285,7 +513,7 @@ msg({rebalance, Move}, V, #inst{role = active, standby = Sb, core = Core} = S)
 msg({snapshot, A, _E, Version, State, Claim}, V, #inst{role = standby, active = A} = S) ->
     %% Never back to an older state than the one confirmed (a snapshot
     %% delivered twice would undo what the active released since).
-    case Version < version(V) of
+    case Version < v(version, V) of
         true -> {S, []};
         false -> become_standby(Version, State, Claim, V, S)
     end;
@@ -298,7 +526,7 @@ msg({events, From, E, _}, V, S) ->
 msg({dismiss, A}, _V, #inst{role = standby, active = A} = S) ->
     stop(dismissed, S, []);
 msg({handover, A, E, Version}, V, #inst{role = standby, active = A} = S) ->
-    case {epoch(V), version(V)} of
+    case {v(epoch, V), v(version, V)} of
         {E, Version} -> core({handover_asked}, V, S#inst{active_lost = true});
         _ -> {S, []}
     end;
@@ -346,14 +574,14 @@ other_instance(Pid, Role, E, V, #inst{role = R, me = Me} = S) ->
                          fenced -> {fenced, S#inst.standby};
                          _ -> {active, S#inst.standby}
                      end,
-    Mine = #{role => MyRole, epoch => epoch(V), node => node_of(Me), pid => Me, peer => Peer},
+    Mine = #{role => MyRole, epoch => v(epoch, V), node => node_of(Me), pid => Me, peer => Peer},
     Other = #{role => Role, epoch => E, node => node_of(Pid), pid => Pid},
     Why = {newer_instance, node_of(Pid), E},
     case evatar_ha_role_machine:meet(Mine, Other) of
         step_down -> step_down(Why, S, [{send, P, dismiss} || P <- [S#inst.standby],
                                                               P =/= undefined, P =/= Pid]);
         stop -> stop(Why, S, []);
-        tell_stale -> {S, [{send, Pid, {stale, epoch(V)}}]};
+        tell_stale -> {S, [{send, Pid, {stale, v(epoch, V)}}]};
         keep -> {S, []}
     end.
 
@@ -381,7 +609,7 @@ cluster({node_alive, Node}, V, #inst{role = standby, active = A, active_lost = t
             %% The active's node is back: pick up the replication again (an
             %% election under way goes on: the nodes decide).
             {S1, Watch} = watch_active(S),
-            {S1, [{send, A, {resync, version(V)}} | Watch]};
+            {S1, [{send, A, {resync, v(version, V)}} | Watch]};
         _ ->
             {S, []}
     end;
@@ -460,7 +688,5 @@ peers(#{alive := Alive}, #inst{me = Me}) ->
     [N || N <- Alive, N =/= node_of(Me)].
 
 suspect(#{suspect_ms := Ms}) -> Ms.
-epoch(#{epoch := E}) -> E.
-version(#{version := Ver}) -> Ver.
-confirmed(#{confirmed := C}) -> C.
-synced(#{synced := Synced}) -> Synced.
+%% What the view says of the state (handle/3 put it there).
+v(Key, V) -> maps:get(Key, V).

@@ -1,6 +1,10 @@
-%% The state of evatar_ha_instance (private to it and evatar_ha_serving).
+%% The state of evatar_ha_instance (private to it and evatar_ha_serving):
+%% the role, the pairing's rules and the output commit.
 -record(inst, {id :: term(),
                me :: term(),
+               config :: evatar_pairing_logic:config(),
+               logic :: evatar_pairing_logic:state() | undefined,
+               commit = evatar_ha_commit:new(0) :: evatar_ha_commit:state(),
                role = starting :: starting | active | handing_over | standby | fenced,
                %% Standby and starting: its active; active: its standby.
                active :: term(),

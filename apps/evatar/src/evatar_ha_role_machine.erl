@@ -5,9 +5,9 @@
 %% standby applies the active's events, and when a resume held by a
 %% standby is answered NotActive. Like `evatar_ha_core' it holds no
 %% process, timer or clock. `evatar_ha_instance' calls start/4, starting/3
-%% and meet/2 and turns their results into its effects; `evatar_pairing'
-%% calls held_due/3; `evatar_pairing_effects' and `evatar_ha_sim' apply
-%% events with apply_events/4 (docs/ha-design.md, sections 7 and 12).
+%% and meet/2 and turns their results into its effects, and applies a
+%% standby's events with apply_events/4; `evatar_pairing' calls held_due/3
+%% (docs/ha-design.md, sections 7 and 12).
 %%
 %% ```
 %%  start/4 --> become_active                   a new pairing

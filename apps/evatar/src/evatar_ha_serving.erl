@@ -4,7 +4,7 @@
 %% only a serving active does (place its standby, fence without a majority,
 %% drop silent client links and hand the pairing over, carry out the
 %% rebalancer's moves). Called by `evatar_ha_instance' only, with the same
-%% view and effects (docs/ha-design.md, section 12).
+%% view and decisions (docs/ha-design.md, section 12).
 -module(evatar_ha_serving).
 
 -export([core/3, core_ctx/2, step_down/3, stop/3, forget_standby/1, place/2, place_soon/2,
@@ -16,7 +16,7 @@
 -define(PLACE_RETRY_MS, 1000).
 
 -type view() :: evatar_ha_instance:view().
--type effects() :: [evatar_ha_instance:effect()].
+-type effects() :: [evatar_ha_instance:decision()].
 
 %% ---------------------------------------------------------------------------
 %% Elections and registrations: evatar_ha_core decides, this says what

@@ -1,12 +1,11 @@
-%% @doc Internal. The process of one instance of a pairing: a shell that
-%% runs pure modules and executes their effects. `evatar_pairing_logic'
-%% decides the pairing's rules, `evatar_ha_commit' which effects go out
-%% now and which wait for the standby or the cluster, `evatar_ha_instance'
-%% the instance's role (with `evatar_ha_serving' for what a serving active
-%% does, `evatar_ha_core' for elections and registrations and
-%% `evatar_ha_role_machine' for starting and the standby's apply;
-%% docs/ha-design.md, section 12). Start reading at
-%% handle_event/4 here, then `evatar_ha_instance:handle/3' and
+%% @doc Internal. The process of one instance of a pairing: a shell around
+%% one pure state, `evatar_ha_instance''s, which holds the instance's role
+%% (with `evatar_ha_serving', `evatar_ha_core' and
+%% `evatar_ha_role_machine'), the pairing's rules (`evatar_pairing_logic')
+%% and the output commit (`evatar_ha_commit': which effects go out now and
+%% which wait for the standby or the cluster), and returns only I/O;
+%% docs/ha-design.md, section 12. Start reading at handle_event/4 here,
+%% then `evatar_ha_instance:handle/3' and
 %% `evatar_pairing_effects:effect/2'. This process owns what
 %% cannot be replicated: the pids of the entities' processes and of the
 %% other instance, their monitors, one map of timers keyed by what they are
@@ -66,9 +65,9 @@
 -include("evatar_pairing.hrl").
 
 %% The executor of this process's effects.
--import(evatar_pairing_effects, [effect/2, effects/3, flush/2, flush_maybe/1, forget/2, ha_status/1,
-                                 inspect/3, mode/1, next/2, reply/3, reply_held/1,
-                                 report_binding/2, run/2, step/2, timer/3]).
+-import(evatar_pairing_effects, [effect/2, effects/3, epoch/1, flush/1, flush_maybe/1, forget/2,
+                                 ha_status/1, inspect/3, next/2, reply/3, reply_held/1,
+                                 report_binding/2, rules/2, run/2, timer/3]).
 
 %% @doc Starts a new pairing (the active), registered as
 %% `{via, evatar_registry, PairingId}'.
@@ -95,7 +94,7 @@ callback_mode() -> handle_event_function.
           gen_statem:init_result(state()).
 init({PairingId, Config, Mode}) ->
     logger:set_process_metadata(#{pairing => PairingId, domain => [evatar, pairing]}),
-    Inst = evatar_ha_instance:new(PairingId, self(), maps:get(standby_node, Config, undefined)),
+    Inst = evatar_ha_instance:new(PairingId, self(), Config),
     {ok, starting, #data{id = PairingId, config = Config, mode = Mode, inst = Inst},
      [{next_event, internal, load}]}.
 
@@ -124,7 +123,7 @@ handle_event({call, From}, {inspect, ha}, starting, Data) ->
 handle_event(_Type, _Event, starting, _Data) ->
     {keep_state_and_data, [postpone]};
 handle_event(info, evatar_flush, _State, Data) ->
-    {keep_state, flush(mode(Data), Data)};
+    {keep_state, flush(Data)};
 handle_event(info, {evatar_tap_ack, Ref, N}, _State, #data{watchers = Watchers} = Data)
   when is_integer(N), N >= 0 ->
     {keep_state, Data#data{watchers = evatar_tap:acked(Ref, N, Watchers)}};
@@ -152,22 +151,15 @@ handle_event(Type, Event, _State, #data{id = Id}) ->
 %% Timers: one map, keyed by what each is for
 %% ---------------------------------------------------------------------------
 
-timeout({ha, Key}, State, #data{timers = Timers} = Data0) ->
-    Data = Data0#data{timers = maps:remove({ha, Key}, Timers)},
-    case Key of
-        held when State =:= standby ->
-            {keep_state, check_held(Data)};
-        silent when State =:= waiting; State =:= bound ->
-            Unacked = evatar_pairing_logic:unacked_since(Data#data.logic),
-            ha({silent, Unacked, erlang:system_time(millisecond)}, Data);
-        _ ->
-            ha({timeout, Key}, Data)
-    end;
+timeout({ha, held}, standby, #data{timers = Timers} = Data) ->
+    {keep_state, check_held(Data#data{timers = maps:remove({ha, held}, Timers)})};
+timeout({ha, _} = Key, _State, #data{timers = Timers} = Data) ->
+    ha({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)});
 timeout(Key, State, #data{timers = Timers} = Data) when State =:= waiting; State =:= bound ->
-    Data1 = run({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)}),
-    next(flush_maybe(Data1), []);
+    ha({timeout, Key}, Data#data{timers = maps:remove(Key, Timers)});
 timeout(_Key, State, _Data) when State =:= fenced; State =:= handing_over ->
-    %% Runs if this instance serves again (a handover aborted).
+    %% Runs if this instance serves again (a handover aborted): the timer
+    %% stays in the map, so that its message is still taken then.
     {keep_state_and_data, [postpone]};
 timeout(_Key, _State, _Data) ->
     keep_state_and_data.
@@ -270,7 +262,7 @@ active_cast({report_binding, EntityId}, Data) when is_binary(EntityId) ->
     {keep_state, report_binding(EntityId, Data)};
 active_cast({leave, EntityId}, Data) when is_binary(EntityId) ->
     %% evatar:leave_async/1: a closing connection that needs no answer.
-    {ok, Data1} = step({leave, EntityId, left}, Data),
+    {ok, Data1} = rules({leave, EntityId, left}, Data),
     next(flush_maybe(forget(EntityId, Data1)), []);
 active_cast(Request, #data{id = Id}) ->
     ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => cast, event => Request}),
@@ -286,10 +278,10 @@ active_call({resume, Role, EntityId, Credential, Pid,
   when is_binary(S), is_integer(R), R >= 0, is_integer(E), E >= 0 ->
     join({resume, Role, EntityId, Credential, S, R, E}, EntityId, Pid, From, Data);
 active_call({describe, EntityId, Description}, From, Data) ->
-    {Reply, Data1} = step({describe, EntityId, Description}, Data),
+    {Reply, Data1} = rules({describe, EntityId, Description}, Data),
     next(flush_maybe(reply(From, Reply, Data1)), []);
 active_call({leave, EntityId}, From, Data) ->
-    {ok, Data1} = step({leave, EntityId, left}, Data),
+    {ok, Data1} = rules({leave, EntityId, left}, Data),
     next(flush_maybe(reply(From, ok, forget(EntityId, Data1))), []);
 active_call(Request, _From, #data{id = Id}) ->
     ?LOG_NOTICE(#{what => unexpected_event, pairing => Id, type => call, event => Request}),
@@ -304,7 +296,7 @@ down(Ref, Why, State, #data{mons = Mons, refs = Refs} = Data) ->
         #{} ->
             case Refs of
                 #{Ref := EntityId} ->
-                    {_, Data1} = step({detach, EntityId}, forget(EntityId, Data)),
+                    {_, Data1} = rules({detach, EntityId}, forget(EntityId, Data)),
                     next(flush_maybe(Data1), []);
                 #{} ->
                     keep_state_and_data
@@ -320,7 +312,7 @@ join(Event, EntityId, Pid, From, #data{pids = Pids0} = Data0) ->
     Ref = erlang:monitor(process, Pid),
     Data1 = Data#data{pids = Pids0#{EntityId => {Pid, Ref}},
                       refs = (Data#data.refs)#{Ref => EntityId}},
-    case step(Event, Data1) of
+    case rules(Event, Data1) of
         {Ok, Data2} when Ok =:= ok; element(1, Ok) =:= ok ->
             ok = evatar_metrics:pairing_inc(Data2#data.metrics, evatar_pairing_joins_total, none),
             joined(Event, Pid, From, Old, Ok, Data2);
@@ -353,7 +345,7 @@ joined(Event, Pid, From, Old, Ok, #data{config = Config} = Data1) ->
                           ok -> {false, <<>>}
                       end,
     Info = #{join_timeout => maps:get(join_timeout, Config),
-             epoch => evatar_pairing_logic:epoch(Data2#data.logic),
+             epoch => epoch(Data2),
              resumed => Resumed, last_accepted => Last,
              dedup_window => maps:get(dedup_window, Config)},
     Data3 = case Event of
@@ -370,20 +362,24 @@ ha(Event, #data{inst = Inst} = Data) ->
     {Inst1, Effects} = evatar_ha_instance:handle(Event, view(Event, Data), Inst),
     effects(Effects, Data#data{inst = Inst1}, []).
 
-%% A snapshot of what the instance needs to know of the cluster and of its
-%% own state. The replication's messages need only the options and the state.
-view(Event, #data{logic = Logic, commit = C}) ->
+%% A snapshot of what the instance needs to know of the cluster, the time
+%% and the clients' connections. The replication's messages and the rules'
+%% timers need only the options.
+view(Event, #data{pids = Pids}) ->
     Nodes = evatar_cluster:configured(),
     Base = #{nodes => Nodes, heartbeat_ms => opt(heartbeat_ms), suspect_ms => opt(suspect_ms),
-             self => node(),
-             epoch => epoch(Logic), version => evatar_ha_commit:version(C),
-             confirmed => evatar_ha_commit:confirmed(C), synced => evatar_ha_commit:synced(C)},
+             self => node(), now => erlang:system_time(millisecond), conns => Pids},
     case Event of
         {msg, {Replication, _, _, _}} when Replication =:= confirm; Replication =:= events ->
             Base;
+        {timeout, Key} when element(1, Key) =/= ha ->
+            {message_queue_len, N} = erlang:process_info(self(), message_queue_len),
+            Base#{queue_len => N};
         _ ->
             Lease = opt(lease_ms),
-            Base#{alive => evatar_cluster:alive_nodes(), majority => evatar_cluster:majority_now(),
+            {message_queue_len, Waiting} = erlang:process_info(self(), message_queue_len),
+            Base#{queue_len => Waiting, alive => evatar_cluster:alive_nodes(),
+                  majority => evatar_cluster:majority_now(),
                   heard => [N || N <- Nodes, evatar_cluster:heard_within(N, Lease)],
                   standby_opt => opt(standby) =:= true,
                   client_ack_timeout => opt(client_ack_timeout),
@@ -429,15 +425,13 @@ check_held(#data{held = Held, inst = Inst} = Data) ->
     end.
 
 arm_silent(Data) ->
-    effect({ensure_timer, silent, evatar_ha_instance:silent_poll_ms(opt(client_ack_timeout))},
+    effect({ensure_timer, {ha, silent},
+            evatar_ha_instance:silent_poll_ms(opt(client_ack_timeout))},
            Data).
 
 %% ---------------------------------------------------------------------------
 
 opt(Key) -> evatar_cluster:opt(Key).
-
-epoch(undefined) -> 0;
-epoch(Logic) -> evatar_pairing_logic:epoch(Logic).
 
 node_of(Pid) -> evatar_ha_instance:node_of(Pid).
 

@@ -3,9 +3,8 @@
 -record(data, {id :: evatar:pairing_id(),
                config :: evatar_pairing_logic:config(),
                mode :: evatar_pairing:mode(),
+               %% The role, the rules and the output commit: pure.
                inst :: evatar_ha_instance:state(),
-               logic :: evatar_pairing_logic:state() | undefined,
-               commit = evatar_ha_commit:new(0) :: evatar_ha_commit:state(),
                pids = #{} :: #{binary() => {pid(), reference()}},
                refs = #{} :: #{reference() => binary()},
                timers = #{} :: #{evatar_pairing_logic:timer_key() | {ha, atom()} => reference()},

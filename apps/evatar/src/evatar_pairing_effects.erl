@@ -1,15 +1,14 @@
-%% @doc Internal. The effect executor of `evatar_pairing''s process: runs
-%% an event through the pairing's rules (`evatar_pairing_logic') and the
-%% output commit (`evatar_ha_commit'), and carries out what they and the
-%% role machine (`evatar_ha_instance') decided, on the entities' processes,
-%% the other instance, the monitors and the one map of timers held in the
-%% process's state (docs/ha-design.md, section 12). It decides nothing.
+%% @doc Internal. The effect executor of `evatar_pairing''s process: carries
+%% out the I/O that the pure instance (`evatar_ha_instance': the role, the
+%% pairing's rules and the output commit in one state) returns, on the
+%% entities' processes, the other instance, the monitors and the one map
+%% of timers held in the process's state (docs/ha-design.md, section 12).
+%% It decides nothing.
 -module(evatar_pairing_effects).
 
--export([step/2, run/2, effect/2, inspect/3, next/2, phase/2, mode/1, report_binding/2, reply/3,
-         flush_maybe/1,
-         flush/2, forget/2, timer/3, arm_logic_timers/1, effects/3, reply_held/1, role/1,
-         ha_status/1]).
+-export([rules/2, run/2, effect/2, inspect/3, next/2, phase/2, report_binding/2, reply/3,
+         flush_maybe/1, flush/1, forget/2, timer/3, effects/3, reply_held/1, role/1,
+         ha_status/1, epoch/1]).
 
 -include_lib("kernel/include/logger.hrl").
 -include("evatar_pairing.hrl").
@@ -21,7 +20,8 @@
 -spec inspect(atom(), state(), data()) -> term().
 inspect(ha, _State, Data) ->
     ha_status(Data);
-inspect(What, State, #data{logic = Logic, commit = C} = Data) ->
+inspect(What, State, #data{inst = Inst} = Data) ->
+    Logic = evatar_ha_instance:logic(Inst),
     case What of
         summary -> (evatar_pairing_logic:summary(Logic))#{pid => self(), role => role(Data),
                                                            state => phase(State, Logic)};
@@ -33,7 +33,7 @@ inspect(What, State, #data{logic = Logic, commit = C} = Data) ->
         state -> Logic;
         %% One read of both: a state compared with another instance's
         %% only at the same version (tests).
-        versioned_state -> {evatar_ha_commit:version(C), Logic}
+        versioned_state -> {evatar_ha_instance:version(Inst), Logic}
     end.
 
 %% (Re)arms the timer of `Key'.
@@ -49,31 +49,25 @@ untimer(Key, #data{timers = Timers} = Data) ->
 cancel(undefined) -> ok;
 cancel(TRef) -> erlang:cancel_timer(TRef, [{async, true}, {info, false}]).
 
-%% The logic's timers only: re-armed from its state on a takeover, dropped
-%% on a handover.
-cancel_logic_timers(#data{timers = Timers} = Data) ->
-    {Ha, Logic} = maps:fold(fun({ha, _} = K, T, {H, L}) -> {H#{K => T}, L};
+%% The rules' timers only (every key but `{ha, _}').
+cancel_rule_timers(#data{timers = Timers} = Data) ->
+    {Ha, Rules} = maps:fold(fun({ha, _} = K, T, {H, L}) -> {H#{K => T}, L};
                                (_K, T, {H, L}) -> {H, [T | L]}
                             end, {#{}, []}, Timers),
-    _ = [cancel(T) || T <- Logic],
+    _ = [cancel(T) || T <- Rules],
     Data#data{timers = Ha}.
 
--spec arm_logic_timers(data()) -> data().
-arm_logic_timers(#data{logic = Logic} = Data) ->
-    Now = erlang:system_time(millisecond),
-    lists:foldl(fun({Key, Ms}, D) -> timer(Key, Ms, D) end, cancel_logic_timers(Data),
-                evatar_pairing_logic:timers(Logic, Now)).
-
 %% ---------------------------------------------------------------------------
-%% Running the logic, and the output commit
+%% The client traffic of an active, through the pure instance
 %% ---------------------------------------------------------------------------
 
 %% @doc The state after an event: the instance's role (an active's is its
 %% phase), with the actions to take.
 -spec next(data(), [gen_statem:action()]) -> gen_statem:event_handler_result(state()).
-next(#data{inst = Inst, logic = Logic} = Data, Actions) ->
+next(#data{inst = Inst} = Data, Actions) ->
     case evatar_ha_instance:role(Inst) of
-        active -> {next_state, evatar_pairing_logic:phase(Logic), Data, Actions};
+        active -> {next_state, evatar_pairing_logic:phase(evatar_ha_instance:logic(Inst)), Data,
+                   Actions};
         Role -> {next_state, Role, Data, Actions}
     end.
 
@@ -85,108 +79,40 @@ phase(State, _Logic) ->
 
 -spec run(evatar_pairing_logic:event(), data()) -> data().
 run(Event, Data) ->
-    {_Reply, Data1} = step(Event, Data),
+    {_Reply, Data1} = rules(Event, Data),
     Data1.
 
-%% @doc Applies one event to the logic; returns its reply.
--spec step(evatar_pairing_logic:event(), data()) -> {term(), data()}.
-step(Event, Data) ->
-    step(Event, mode(Data), Data).
+%% @doc One event of a client through the rules; returns their reply.
+-spec rules(evatar_pairing_logic:event(), data()) -> {term(), data()}.
+rules(Event, #data{inst = Inst, pids = Pids} = Data) ->
+    Ctx = #{now => erlang:system_time(millisecond), conns => Pids},
+    {Reply, Inst1, Effects} = evatar_ha_instance:rules(Event, Ctx, Inst),
+    {Reply, execute(Effects, Data#data{inst = Inst1})}.
 
-%% Applies one event to the logic; evatar_ha_commit says what of its
-%% effects goes out now. Returns the logic's reply (`ok' for events that
-%% have none).
-step(Event, Mode, #data{logic = Logic, commit = C, pids = Pids} = Data) ->
-    Now = erlang:system_time(millisecond),
-    {Logic1, Effects} = evatar_pairing_logic:handle(Event, Now, Logic),
-    ok = evatar_metrics:pairing_step(Data#data.metrics, Event, Effects),
-    Watchers = case Data#data.watchers of
-                   [] -> [];
-                   W -> evatar_tap:emit(Data#data.id, Event, Effects, Now, W)
-               end,
-    %% Only held effects are bound to a connection (evatar_ha_commit:step/6):
-    %% a pairing without a standby does not rebuild the map for each signal.
-    Conns = case Mode of
-                direct -> #{};
-                _ -> maps:map(fun(_, {Pid, _}) -> Pid end, Pids)
-            end,
-    {Reply, Out, C1} = evatar_ha_commit:step(Event, Now, Effects, Conns, Mode, C),
-    {Reply, execute(Out, Data#data{logic = Logic1, commit = C1, watchers = Watchers})}.
-
--spec mode(data()) -> evatar_ha_commit:mode().
-mode(#data{inst = Inst}) -> evatar_ha_instance:mode(Inst).
-
-%% A GetBinding (docs/protocol.md section 2): the current report, to that
-%% entity only. It changes no state, so it is not shipped to the standby.
+%% A GetBinding: the current report, to that entity only.
 -spec report_binding(binary(), data()) -> data().
-report_binding(EntityId, #data{logic = Logic, pids = Pids, commit = C} = Data) ->
-    {_, Effects} = evatar_pairing_logic:handle({report_binding, EntityId}, 0, Logic),
-    Sends = [{send, Pid, {bound, R}} || {report, E, R} <- Effects,
-                                        {Pid, _} <- [maps:get(E, Pids, {undefined, x})],
-                                        is_pid(Pid)],
-    {Out, C1} = evatar_ha_commit:report(Sends, mode(Data), C),
-    execute(Out, Data#data{commit = C1}).
+report_binding(EntityId, #data{inst = Inst, pids = Pids} = Data) ->
+    pure(evatar_ha_instance:report_binding(EntityId, Pids, Inst), Data).
 
 %% A call's reply, held like any other effect.
 -spec reply(gen_statem:from(), term(), data()) -> data().
-reply(From, Reply, #data{commit = C} = Data) ->
-    {Out, C1} = evatar_ha_commit:reply(From, Reply, mode(Data), C),
-    execute(Out, Data#data{commit = C1}).
+reply(From, Reply, #data{inst = Inst} = Data) ->
+    pure(evatar_ha_instance:reply(From, Reply, Inst), Data).
 
 -spec flush_maybe(data()) -> data().
-flush_maybe(Data) ->
-    flush_maybe(mode(Data), Data).
-
-flush_maybe(Mode, #data{commit = C} = Data) ->
+flush_maybe(#data{inst = Inst} = Data) ->
     {message_queue_len, N} = erlang:process_info(self(), message_queue_len),
-    commit(evatar_ha_commit:flush_maybe(N, Mode, C), Data).
+    pure(evatar_ha_instance:flush_maybe(N, Inst), Data).
 
--spec flush(evatar_ha_commit:mode(), data()) -> data().
-flush(Mode, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:flush(Mode, C), Data).
+-spec flush(data()) -> data().
+flush(#data{inst = Inst} = Data) ->
+    pure(evatar_ha_instance:flush(Inst), Data).
 
-commit({Out, C}, Data) ->
-    execute(Out, Data#data{commit = C}).
+pure({Inst, Effects}, Data) ->
+    execute(Effects, Data#data{inst = Inst}).
 
-execute([{deliver, EntityId, Signal} | Rest], Data) ->
-    ok = tell(EntityId, {signal, Signal}, Data),
-    execute(Rest, Data);
-execute([{report, EntityId, Report} | Rest], Data) ->
-    ok = tell(EntityId, {bound, Report}, Data),
-    execute(Rest, Data);
-execute([{drop, EntityId, Code, Reason} | Rest], Data) ->
-    ok = tell(EntityId, {dropped, Code, Reason}, Data),
-    execute(Rest, forget(EntityId, Data));
-execute([{send, Pid, Msg} | Rest], #data{id = Id} = Data) ->
-    Pid ! {evatar, Id, Msg},
-    execute(Rest, Data);
-execute([{reply_to, From, R} | Rest], Data) ->
-    gen_statem:reply(From, R),
-    execute(Rest, Data);
-execute([{acks, Acks} | Rest], #data{id = Id, pids = Pids} = Data) ->
-    maps:foreach(fun(EntityId, SignalId) ->
-                         case Pids of
-                             #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
-                             #{} -> ok
-                         end
-                 end, Acks),
-    execute(Rest, Data);
-execute([{ship, Events} | Rest], #data{inst = Inst, logic = Logic} = Data) ->
-    ok = evatar_ha_proto_v1:events(evatar_ha_instance:standby(Inst),
-                                   evatar_pairing_logic:epoch(Logic), Events),
-    execute(Rest, Data);
-execute([flush_later | Rest], Data) ->
-    self() ! evatar_flush,
-    execute(Rest, Data);
-execute([{start_timer, Key, Ms} | Rest], Data) ->
-    execute(Rest, timer(Key, Ms, Data));
-execute([{cancel_timer, Key} | Rest], Data) ->
-    execute(Rest, untimer(Key, Data));
-execute([{log, Level, Report} | Rest], Data) ->
-    ok = log(Level, Report, Data),
-    execute(Rest, Data);
-execute([], Data) ->
-    Data.
+execute(Effects, Data) ->
+    lists:foldl(fun effect/2, Data, Effects).
 
 %% Ids in a report come from clients: cut to 64 bytes (evatar_log).
 log(Level, Report, #data{id = Id}) ->
@@ -211,7 +137,11 @@ forget(EntityId, #data{pids = Pids, refs = Refs} = Data) ->
             Data
     end.
 
-%% @doc Carries out the role machine's effects, in order.
+%% ---------------------------------------------------------------------------
+%% The effects: all I/O
+%% ---------------------------------------------------------------------------
+
+%% @doc Carries out the instance's effects, in order.
 -spec effects([evatar_ha_instance:effect()], data(), [gen_statem:action()]) ->
           gen_statem:event_handler_result(state()).
 effects([{stop, Why}], Data, _Actions) ->
@@ -230,11 +160,40 @@ effects([], Data, Actions) ->
 effect({send, To, Msg}, Data) ->
     ok = send(To, Msg, Data),
     Data;
+effect({tell, EntityId, Msg}, Data) ->
+    ok = tell(EntityId, Msg, Data),
+    Data;
+effect({to_conn, {Pid, _Ref}, Msg}, #data{id = Id} = Data) ->
+    Pid ! {evatar, Id, Msg},
+    Data;
+effect({drop, EntityId, Code, Reason}, Data) ->
+    ok = tell(EntityId, {dropped, Code, Reason}, Data),
+    forget(EntityId, Data);
+effect({reply_to, From, R}, Data) ->
+    gen_statem:reply(From, R),
+    Data;
+effect({acks, Acks}, #data{id = Id, pids = Pids} = Data) ->
+    maps:foreach(fun(EntityId, SignalId) ->
+                         case Pids of
+                             #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
+                             #{} -> ok
+                         end
+                 end, Acks),
+    Data;
+effect(flush_later, Data) ->
+    self() ! evatar_flush,
+    Data;
+effect({stepped, Event, Effects, Now}, #data{id = Id} = Data) ->
+    ok = evatar_metrics:pairing_step(Data#data.metrics, Event, Effects),
+    case Data#data.watchers of
+        [] -> Data;
+        W -> Data#data{watchers = evatar_tap:emit(Id, Event, Effects, Now, W)}
+    end;
 effect({ask, Peers}, #data{id = Id} = Data) ->
     _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
     Data;
-effect({start_standby, Node}, #data{id = Id, config = Config, logic = Logic} = Data) ->
-    ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Logic)),
+effect({start_standby, Node}, #data{id = Id, config = Config} = Data) ->
+    ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Data)),
     Data;
 effect({vote, Node, Ec, Claim, Active, Dead}, #data{id = Id} = Data) ->
     ok = evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead),
@@ -252,46 +211,16 @@ effect({demonitor, Which}, #data{mons = Mons} = Data) ->
     _ = [erlang:demonitor(M, [flush]) || M <- [maps:get(Which, Mons, undefined)], is_reference(M)],
     Data#data{mons = maps:remove(Which, Mons)};
 effect({timer, Key, Ms}, Data) ->
-    timer({ha, Key}, Ms, Data);
+    timer(Key, Ms, Data);
 effect({ensure_timer, Key, Ms}, #data{timers = Timers} = Data) ->
     case Timers of
-        #{{ha, Key} := _} -> Data;
-        #{} -> timer({ha, Key}, Ms, Data)
+        #{Key := _} -> Data;
+        #{} -> timer(Key, Ms, Data)
     end;
 effect({cancel_timer, Key}, Data) ->
-    untimer({ha, Key}, Data);
-effect(new_logic, #data{id = Id, config = Config} = Data) ->
-    Data#data{logic = evatar_pairing_logic:new(Id, Config)};
-effect({install, Version, Logic}, #data{commit = C} = Data) ->
-    Data#data{logic = Logic, commit = evatar_ha_commit:applied(Version, C)};
-effect({apply, Events}, Data) ->
-    apply_events(Events, Data);
-effect({logic, Event, Mode}, Data) ->
-    element(2, step(Event, Mode, Data));
-effect(arm_logic_timers, Data) ->
-    arm_logic_timers(Data);
-effect(cancel_logic_timers, Data) ->
-    cancel_logic_timers(Data);
-effect({release, Version}, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:confirm(Version, C), Data);
-effect(release_all, #data{commit = C} = Data) ->
-    commit(evatar_ha_commit:release_all(C), Data);
-effect({flush, Mode}, Data) ->
-    flush(Mode, Data);
-effect({flush_maybe, Mode}, Data) ->
-    flush_maybe(Mode, Data);
-effect(unsync, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:unsync(C)};
-effect({synced_at, Version}, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:synced_at(Version, C)};
-effect(reset_commit, #data{commit = C} = Data) ->
-    Data#data{commit = evatar_ha_commit:reset(C)};
-effect({snapshot, To, Claim}, #data{logic = Logic, commit = C} = Data) ->
-    ok = evatar_ha_proto_v1:snapshot(To, epoch(Logic), evatar_ha_commit:version(C), Logic, Claim),
-    Data#data{commit = evatar_ha_commit:shipped(C)};
-effect({drop, EntityId, Code, Reason}, Data) ->
-    ok = tell(EntityId, {dropped, Code, Reason}, Data),
-    run({detach, EntityId}, forget(EntityId, Data));
+    untimer(Key, Data);
+effect(cancel_rule_timers, Data) ->
+    cancel_rule_timers(Data);
 effect({disconnect_all, Code, Reason}, #data{id = Id, pids = Pids} = Data) ->
     %% The entities stay in the state, for a resume elsewhere.
     _ = [Pid ! {evatar, Id, {dropped, Code, Reason}} || {Pid, _} <- maps:values(Pids)],
@@ -327,35 +256,22 @@ effect({log, Level, Report}, Data) ->
 send(To, {offer, Version}, _Data) -> evatar_ha_proto_v1:offer(To, self(), Version);
 send(To, dismiss, _Data) -> evatar_ha_proto_v1:dismiss(To, self());
 send(To, {resync, Version}, _Data) -> evatar_ha_proto_v1:resync(To, self(), Version);
-send(To, {confirm, Version}, #data{logic = L}) -> evatar_ha_proto_v1:confirm(To, epoch(L), Version);
+send(To, {confirm, Version}, Data) -> evatar_ha_proto_v1:confirm(To, epoch(Data), Version);
 send(To, {stale, Epoch}, _Data) -> evatar_ha_proto_v1:stale(To, self(), Epoch);
-send(To, {handover, Version}, #data{logic = L}) ->
-    evatar_ha_proto_v1:handover(To, epoch(L), Version);
+send(To, {handover, Version}, Data) -> evatar_ha_proto_v1:handover(To, epoch(Data), Version);
 send(To, {handover_done, Ec, Claim}, _Data) ->
-    evatar_ha_proto_v1:handover_done(To, self(), Ec, Claim).
+    evatar_ha_proto_v1:handover_done(To, self(), Ec, Claim);
+send(To, {events, Events}, Data) -> evatar_ha_proto_v1:events(To, epoch(Data), Events);
+send(To, {snapshot, Version, Logic, Claim}, Data) ->
+    evatar_ha_proto_v1:snapshot(To, epoch(Data), Version, Logic, Claim).
 
-%% evatar_ha_role_machine applies the batch; this confirms it, or asks again.
-apply_events(Events, #data{inst = Inst, logic = Logic0, commit = C0} = Data) ->
-    Apply = fun(Event, Now, L) -> element(1, evatar_pairing_logic:handle(Event, Now, L)) end,
-    {Logic, C, Answer} = evatar_ha_role_machine:apply_events(Events, Apply, Logic0, C0),
-    Active = evatar_ha_instance:active(Inst),
-    ok = case Answer of
-             {confirm, V} -> evatar_ha_proto_v1:confirm(Active, epoch(Logic), V);
-             {resync, Mine} -> evatar_ha_proto_v1:resync(Active, self(), Mine)
-         end,
-    Data1 = Data#data{logic = Logic, commit = C},
-    case epoch(Logic) =:= epoch(Logic0) of
-        true -> Data1;
-        false -> publish(Data1)
-    end.
-
-publish(#data{id = Id, inst = Inst, logic = Logic} = Data) ->
+publish(#data{id = Id, inst = Inst} = Data) ->
     Role = role(Data),
     Peer = case Role of
                standby -> evatar_ha_instance:active(Inst);
                _ -> evatar_ha_instance:standby(Inst)
            end,
-    ok = evatar_registry:set_role(Id, self(), Role, epoch(Logic), Peer),
+    ok = evatar_registry:set_role(Id, self(), Role, epoch(Data), Peer),
     case Data of
         #data{watchers = []} -> Data;
         _ when Role =:= active -> Data;
@@ -380,23 +296,23 @@ reply_held(#data{held = Held, inst = Inst} = Data) ->
 
 %% @doc `evatar:ha_status/1''s answer.
 -spec ha_status(data()) -> map().
-ha_status(#data{inst = Inst, commit = C, logic = Logic} = Data) ->
+ha_status(#data{inst = Inst} = Data) ->
     Role = role(Data),
     {Active, Standby} = case Role of
                             standby -> {evatar_ha_instance:active(Inst), undefined};
                             starting -> {evatar_ha_instance:active(Inst), undefined};
                             _ -> {self(), evatar_ha_instance:standby(Inst)}
                         end,
-    #{role => Role, epoch => epoch(Logic), node => node(), active => Active, standby => Standby,
+    #{role => Role, epoch => epoch(Data), node => node(), active => Active, standby => Standby,
       standby_node => node_of(Standby),
       synced => case Role of
                     standby -> true;
-                    _ -> evatar_ha_commit:synced(C)
+                    _ -> evatar_ha_instance:synced(Inst)
                 end,
-      version => evatar_ha_commit:version(C)}.
+      version => evatar_ha_instance:version(Inst)}.
 
-
-epoch(undefined) -> 0;
-epoch(Logic) -> evatar_pairing_logic:epoch(Logic).
+%% @doc The pairing's epoch (0 while starting).
+-spec epoch(data()) -> non_neg_integer().
+epoch(#data{inst = Inst}) -> evatar_ha_instance:epoch(Inst).
 
 node_of(Pid) -> evatar_ha_instance:node_of(Pid).

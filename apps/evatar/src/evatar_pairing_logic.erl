@@ -2,8 +2,9 @@
 %% one value (Service Registration List, Body Mapping Registry with its
 %% routing index, pending requests with absolute deadlines, per-entity
 %% sequence numbers, counters, epoch) and {@link handle/3} maps an event to
-%% the new state and a list of effects, which are data that
-%% `evatar_pairing' executes (send a message, start a timer, log).
+%% the new state and a list of effects, which are data (send a message,
+%% start a timer, log): `evatar_ha_instance' holds this state and runs its
+%% effects through the output commit, and `evatar_pairing' executes them.
 %%
 %% Nothing here holds a pid, a monitor or a timer reference, and time comes
 %% in as an argument: this value is what a standby holds (the active ships
@@ -45,7 +46,7 @@
 -export([config/1, option_ranges/0, new/2, handle/3]).
 -export([phase/1, summary/1, bindings/1, registration_list/1, stats/1, traffic/1,
          timers/2, pairing_id/1, epoch/1, entity_ids/1, config_of/1,
-         unacked_since/1, attached_ids/1, last_accepted/2]).
+         unacked_since/1, attached_ids/1, last_accepted/2, accepted_ids/2, unacked/2]).
 
 -export_type([state/0, config/0, event/0, effect/0, timer_key/0, phase/0, traffic/0]).
 
@@ -1194,4 +1195,22 @@ last_accepted(#st{entities = Entities}, EntityId) ->
     case Entities of
         #{EntityId := #entity{last_accepted = L}} -> L;
         #{} -> <<>>
+    end.
+
+%% @doc The SignalIDs accepted from an HA entity that its de-duplication
+%% window holds, oldest first (the model's check of accepted signals).
+-spec accepted_ids(state(), binary()) -> [binary()].
+accepted_ids(#st{entities = Entities}, EntityId) ->
+    case Entities of
+        #{EntityId := #entity{seen_q = Q}} -> queue:to_list(Q);
+        #{} -> []
+    end.
+
+%% @doc The signals delivered to an HA entity and not acknowledged, oldest
+%% first, as stamped (Sequence and epoch) when they were routed.
+-spec unacked(state(), binary()) -> [bil:signal()].
+unacked(#st{entities = Entities}, EntityId) ->
+    case Entities of
+        #{EntityId := #entity{out = Out}} -> [Sig || {_, Sig, _} <- queue:to_list(Out)];
+        #{} -> []
     end.

@@ -1,6 +1,8 @@
-%% @doc Unit tests of evatar_ha_instance, the role machine, rule by rule:
-%% each test feeds events and a view and asserts the effects. Instances
-%% are `{Node, N}' as in the model: A on node a, B on b, C on c.
+%% @doc Unit tests of evatar_ha_instance: the role machine rule by rule
+%% (decide/3: each test feeds events and a view and asserts the decisions),
+%% then handle/3, which carries them out with the rules and the commit and
+%% returns only I/O. Instances are `{Node, N}' as in the model: A on node
+%% a, B on b, C on c.
 -module(evatar_ha_instance_tests).
 
 -include_lib("eunit/include/eunit.hrl").
@@ -16,11 +18,11 @@ view(M) ->
                  client_ack_timeout => 5000, handover_on_silent_link => true}, M).
 
 h(Event, S) -> h(Event, #{}, S).
-h(Event, V, S) -> evatar_ha_instance:handle(Event, view(V), S).
+h(Event, V, S) -> evatar_ha_instance:decide(Event, view(V), S).
 
 %% The active on a, after a create.
 active() ->
-    {S, _} = h({start, create, none}, evatar_ha_instance:new(p, ?A, undefined)),
+    {S, _} = h({start, create, none}, evatar_ha_instance:new(p, ?A, #{})),
     S.
 
 %% The active on a with its standby B, synced at version 3.
@@ -30,7 +32,7 @@ active_with_standby() ->
 
 %% The standby on b of the active A.
 standby() ->
-    {S0, _} = h({start, {standby_for, ?A}, none}, evatar_ha_instance:new(p, ?B, undefined)),
+    {S0, _} = h({start, {standby_for, ?A}, none}, evatar_ha_instance:new(p, ?B, #{})),
     {S, _} = h({msg, {snapshot, ?A, 1, 3, logic_state, {1, 1}}}, S0),
     S.
 
@@ -51,7 +53,7 @@ has(Pattern, Effects) -> lists:any(Pattern, Effects).
 %% A new pairing is active at once: a fresh state, published, a standby
 %% placed on the next alive node.
 create_test() ->
-    {S, Es} = h({start, create, none}, evatar_ha_instance:new(p, ?A, undefined)),
+    {S, Es} = h({start, create, none}, evatar_ha_instance:new(p, ?A, #{})),
     ?assertEqual(active, evatar_ha_instance:role(S)),
     ?assertMatch([new_logic, {log, info, #{what := pairing_started}}, serving | _], Es),
     ?assert(lists:member({timer, place, 0}, Es)),
@@ -64,7 +66,7 @@ create_test() ->
 %% A standby started for an active offers itself, postpones anything else,
 %% and becomes the standby on the snapshot (confirming its version).
 standby_start_test() ->
-    {S0, Es0} = h({start, {standby_for, ?A}, none}, evatar_ha_instance:new(p, ?B, undefined)),
+    {S0, Es0} = h({start, {standby_for, ?A}, none}, evatar_ha_instance:new(p, ?B, #{})),
     ?assertMatch([{monitor, active, ?A}, {send, ?A, {offer, 0}}, {timer, offered, 3250}], Es0),
     ?assertEqual({S0, [postpone]}, h({cluster, {quorum, true}}, S0)),
     ?assertMatch({_, [{log, info, _}, {stop, no_snapshot}]}, h({timeout, offered}, S0)),
@@ -305,3 +307,54 @@ rebalance_test() ->
 active_back_test() ->
     {S, _} = h({cluster, {node_down, a}}, standby()),
     ?assertMatch({_, [{send, ?A, {resync, 3}}]}, h({cluster, {node_alive, a}}, #{version => 3}, S)).
+
+%% ---------------------------------------------------------------------------
+%% handle/3: the rules and the commit run inside, only I/O leaves
+%% ---------------------------------------------------------------------------
+
+config() ->
+    {ok, C} = evatar_pairing_logic:config(#{agent_credential => <<"ca">>,
+                                            avatar_credential => <<"cv">>}),
+    C.
+
+ctx() -> #{now => 1000, conns => #{<<"va1">> => va_conn}}.
+
+io(Event, S) -> evatar_ha_instance:handle(Event, maps:merge(view(#{}), ctx()), S).
+
+decision_only(E) ->
+    Kind = case E of
+               _ when is_atom(E) -> E;
+               _ -> element(1, E)
+           end,
+    lists:member(Kind, [new_logic, install, apply, logic, arm_logic_timers, cancel_logic_timers,
+                        release, release_all, flush, flush_maybe, unsync, synced_at,
+                        reset_commit]).
+
+%% A new active makes its rules' state; what leaves is I/O, its timers are
+%% the role machine's ({ha, Key}); a standby offering gets the rules' state.
+only_io_test() ->
+    {S, Es} = io({start, create, none}, evatar_ha_instance:new(p, ?A, config())),
+    ?assertEqual(1, evatar_ha_instance:epoch(S)),
+    ?assertEqual([], [E || E <- Es, decision_only(E)]),
+    ?assertEqual([], [K || {T, K, _} <- Es, T =:= timer, element(1, K) =/= ha]),
+    {S1, Es1} = io({msg, {offer, ?B, 0}}, S),
+    Logic = evatar_ha_instance:logic(S1),
+    ?assertEqual([{monitor, standby, ?B}, {send, ?B, {snapshot, 0, Logic, {1, 1}}}, publish],
+                 Es1).
+
+%% With a standby, an event is shipped in the batch and its reply waits for
+%% the standby's confirmation; the standby applies the batch with the rules
+%% and confirms it.
+replicated_step_test() ->
+    {SA0, _} = io({start, create, none}, evatar_ha_instance:new(p, ?A, config())),
+    {SA1, [_, {send, ?B, {snapshot, 0, Logic, Claim}}, _]} = io({msg, {offer, ?B, 0}}, SA0),
+    {SB0, _} = io({start, {standby_for, ?A}, none}, evatar_ha_instance:new(p, ?B, config())),
+    {SB1, [{send, ?A, {confirm, 0}} | _]} = io({msg, {snapshot, ?A, 1, 0, Logic, Claim}}, SB0),
+    Join = {join, agent, <<"va1">>, authenticated, <<"s">>},
+    {ok, SA2, Es} = evatar_ha_instance:rules(Join, ctx(), SA1),
+    ?assertMatch([{stepped, Join, _, 1000}, {timer, {join, <<"va1">>}, _}, {log, info, _}], Es),
+    {SA3, []} = evatar_ha_instance:reply(from, ok, SA2),
+    {SA4, [{send, ?B, {events, [{1, 1000, Join}] = Events}}]} = evatar_ha_instance:flush(SA3),
+    {SB2, [{send, ?A, {confirm, 1}}]} = io({msg, {events, ?A, 1, Events}}, SB1),
+    ?assertEqual([<<"va1">>], evatar_pairing_logic:entity_ids(evatar_ha_instance:logic(SB2))),
+    ?assertMatch({_, [{reply_to, from, ok}]}, io({msg, {confirm, ?B, 1, 1}}, SA4)).

@@ -6,10 +6,11 @@
 %% partial restart; clocks that start at offsets of their own and run up
 %% to 10 % fast or slow, `{skew, N, Rate}' changing one's rate) for two
 %% and three instances of one pairing
-%% in `evatar_ha_sim', which runs them through the node's own role machine
-%% (`evatar_ha_instance', with `evatar_ha_serving', `evatar_ha_core',
-%% `evatar_ha_role_machine') and output commit (`evatar_ha_commit') and checks after every command that at most one
-%% instance serves at the current epoch and that no accepted signal is lost
+%% in `evatar_ha_sim', which runs them through the node's own pure instance
+%% (`evatar_ha_instance': the role machine with `evatar_ha_serving',
+%% `evatar_ha_core', `evatar_ha_role_machine', the pairing's rules
+%% `evatar_pairing_logic' and the output commit `evatar_ha_commit') and
+%% checks after every command that at most one instance serves at the current epoch and that no accepted signal is lost
 %% or delivered twice, and with three nodes that no two instances serve at
 %% once (the lease).
 %%
@@ -218,8 +219,8 @@ epoch_won_twice_then_old_standby_serves(_Config) ->
     [] = maps:get(violations, W),
     {true, W1} = evatar_ha_sim:settle(W),
     [] = maps:get(violations, W1),
-    [#{state := #{applied := Applied}}] = evatar_ha_sim:serving(W1),
-    true = lists:keymember(1, 1, Applied).
+    [Serving] = evatar_ha_sim:serving(W1),
+    true = lists:keymember(1, 1, evatar_ha_sim:applied(Serving)).
 
 %% @doc The same hole from below, found by the safety property with
 %% schedules of up to 200 commands: n1 is cut off and paused, n2 takes over
@@ -236,8 +237,8 @@ old_epoch_served_after_vote_loss(_Config) ->
     [] = maps:get(violations, W),
     {true, W1} = evatar_ha_sim:settle(W),
     [] = maps:get(violations, W1),
-    [#{state := #{applied := Applied}}] = evatar_ha_sim:serving(W1),
-    true = lists:keymember(1, 1, Applied).
+    [Serving] = evatar_ha_sim:serving(W1),
+    true = lists:keymember(1, 1, evatar_ha_sim:applied(Serving)).
 
 %% @doc Two restorers (docs/ha.md section 6): the active's node crashes
 %% before a standby is placed, boots again, and is cut from n2; each of

@@ -1,12 +1,15 @@
 %% @doc A deterministic simulation of one pairing's instances on two or
 %% three nodes, in one process, running the code the node runs for each
-%% instance: the role machine `evatar_ha_instance' (with `evatar_ha_serving',
-%% `evatar_ha_core', `evatar_ha_role_machine') and the output commit
-%% `evatar_ha_commit'. This module executes their effects on a simulated
-%% world instead of processes, as `evatar_pairing' does in the node; the
-%% pairing's rules are a stand-in: a signal is routed once
-%% (`{deliver, receiver, ...}') and acknowledged to its sender
-%% (`{accepted, sender, Sid}').
+%% instance: the pure `evatar_ha_instance' (the role machine with
+%% `evatar_ha_serving', `evatar_ha_core', `evatar_ha_role_machine', the
+%% pairing's rules `evatar_pairing_logic' and the output commit
+%% `evatar_ha_commit'). This module executes its I/O effects on a simulated
+%% world instead of processes, as `evatar_pairing' does in the node. The
+%% pairing is an agent (the sender, whose component asks the Avatar's) and
+%% an Avatar (the receiver), both joined with a session and described; a
+%% signal is a light request, routed by the rules to the receiver and
+%% acknowledged to the sender; a routing is the signal's epoch and
+%% Sequence as the rules stamped it.
 %%
 %% The world: nodes with a voter record each (what `evatar_cluster' keeps:
 %% in memory, and on disc by `evatar_ha_promises', written before the
@@ -71,13 +74,19 @@
 %% the others for long enough, some instance serves.
 -module(evatar_ha_sim).
 
--export([new/1, new/2, run/2, step/2, check/1, settle/1, serving/1, live/3]).
+-export([new/1, new/2, run/2, step/2, check/1, settle/1, serving/1, live/3, applied/1]).
 -export_type([clocks/0]).
 
 -define(HB, 50).
 -define(SUSPECT, 250).
 -define(LEASE, 150).
+%% No silent links: the receiver never acknowledges, and its link is never
+%% found silent within a run.
+-define(CLIENT_ACK_TIMEOUT, 3600000).
 -define(LATENCY, 3).
+%% The pairing's clients (evatar_ha_logic_tests' fixtures).
+-define(VA, <<"va1">>).
+-define(AV, <<"av1">>).
 
 %% ---------------------------------------------------------------------------
 %% The world
@@ -103,7 +112,7 @@ new(N, Clocks) ->
     W0 = #{now => 0, names => Nodes, insts => #{}, next_ref => 1, msgs => [], seq => 0, cut => [],
            sender => #{next => 1, sent => [], acked => [], degraded => [], epoch => 0},
            receiver => #{got => #{}, epoch => 0, excused => #{}}, violations => [],
-           last_change => 0, seed => Seed, rates => Rates, boots => 0},
+           last_change => 0, seed => Seed, rates => Rates, boots => 0, config => config()},
     W1 = W0#{nodes => maps:from_list([{Nd, node0(Nodes, clock0(Nd, W0))} || Nd <- Nodes])},
     start_active(n1, W1).
 
@@ -483,9 +492,8 @@ inst_on(N, #{nodes := Nodes, insts := Insts}) ->
 new_inst(N, W) ->
     #{next_ref := R, nodes := Nodes, insts := Insts} = W,
     Ref = {N, R},
-    I = sync(#{ref => Ref, node => N, inst => evatar_ha_instance:new(p, Ref, undefined),
-               commit => evatar_ha_commit:new(0), state => #{epoch => 1, applied => []},
-               epoch => 1, timers => #{}, mons => #{}, postponed => []}),
+    Inst = evatar_ha_instance:new(p, Ref, maps:get(config, W)),
+    I = sync(#{ref => Ref, node => N, inst => Inst, timers => #{}, mons => #{}, postponed => []}),
     {I, W#{next_ref := R + 1, insts := Insts#{Ref => I},
            nodes := Nodes#{N := (maps:get(N, Nodes))#{inst := Ref}}}}.
 
@@ -529,8 +537,8 @@ down_later(Ref, Event, #{now := Now} = W) ->
     enqueue_at(Now + ?LATENCY, {inst, Ref}, {event, Event}, W).
 
 start_active(N, W) ->
-    {I, W1} = new_inst(N, W),
-    handle({start, create, none}, I, W1).
+    {#{ref := Ref} = I, W1} = new_inst(N, W),
+    ensure_clients(Ref, handle({start, create, none}, I, W1)).
 
 %% The catalogue of node N restores the pairing: N runs no instance of it
 %% and, from its view, no connected node does (evatar_catalogue). Views
@@ -676,7 +684,11 @@ handle({down, Which, Why, Ref}, #{mons := Mons} = I, W) ->
         #{Which := Ref} -> handle({down, Which, Why}, I#{mons := maps:remove(Which, Mons)}, W);
         #{} -> put_inst(I, W)  % demonitored meanwhile: its DOWN never comes
     end;
-handle(Event, #{inst := Inst, ref := Ref} = I, W) ->
+handle(Event, #{inst := Inst, ref := Ref} = I, W0) ->
+    W = case Event of
+            {msg, {confirm, Sb, _, _}} when Sb =:= map_get(standby, I) -> covered(I, W0);
+            _ -> W0
+        end,
     {Inst1, Effects} = evatar_ha_instance:handle(ha_event(Event), view(I, W), Inst),
     W1 = ha_effects(Effects, Event, sync(I#{inst := Inst1}), W),
     %% As gen_statem does: postponed events come again once the state changed.
@@ -698,20 +710,25 @@ ha_event({instance, _, _} = E) -> E;
 ha_event({down, _, _} = E) -> E;
 ha_event(ClusterEvent) -> {cluster, ClusterEvent}.
 
-%% What the instance sees: this node's view of the cluster (evatar_cluster's).
-view(#{node := N, state := #{epoch := E}, commit := C}, #{names := Names, nodes := Nodes} = W) ->
+%% What the instance sees: this node's view of the cluster (evatar_cluster's),
+%% the time of the rules (the wall clock every node shares: simulated real
+%% time) and the clients, who reach every node.
+view(#{node := N}, #{names := Names, nodes := Nodes} = W) ->
     Alive = maps:get(alive, maps:get(N, Nodes)),
-    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, epoch => E, self => N,
-      version => evatar_ha_commit:version(C), confirmed => evatar_ha_commit:confirmed(C),
-      synced => evatar_ha_commit:synced(C),
+    #{nodes => Names, heartbeat_ms => ?HB, suspect_ms => ?SUSPECT, self => N,
+      now => maps:get(now, W), conns => conns(),
       alive => [M || M <- Names, M =:= N orelse maps:get(M, Alive)],
       majority => majority_now(N, W), heard => [M || M <- Names, heard_within(N, M, ?LEASE, W)],
-      standby_opt => true, client_ack_timeout => 5000, handover_on_silent_link => true}.
+      standby_opt => true, client_ack_timeout => ?CLIENT_ACK_TIMEOUT,
+      handover_on_silent_link => true}.
 
-%% The role, core and peers, as the checks read them.
+conns() -> #{?VA => sender, ?AV => receiver}.
+
+%% The role, core, peers and epoch, as the checks read them.
 sync(#{inst := Inst} = I) ->
     I#{role => evatar_ha_instance:role(Inst), core => evatar_ha_instance:core(Inst),
-       active => evatar_ha_instance:active(Inst), standby => evatar_ha_instance:standby(Inst)}.
+       active => evatar_ha_instance:active(Inst), standby => evatar_ha_instance:standby(Inst),
+       epoch => evatar_ha_instance:epoch(Inst)}.
 
 ha_effects([{stop, _} | _], _Event, I, W) ->
     kill(ref(I), put_inst(I, W));
@@ -752,39 +769,26 @@ ha_effect({ensure_timer, K, Ms}, #{timers := Ts} = I, W) ->
     end;
 ha_effect({cancel_timer, K}, #{timers := Ts} = I, W) ->
     put_inst(I#{timers := maps:remove(K, Ts)}, W);
-ha_effect(new_logic, I, W) ->
-    put_inst(I#{state := #{epoch => 1, applied => []}, epoch := 1}, W);
-ha_effect({install, V, State}, #{commit := C} = I, W) ->
-    put_inst(I#{state := State, epoch := maps:get(epoch, State),
-                commit := evatar_ha_commit:applied(V, C)}, W);
-ha_effect({apply, Events}, I, W) ->
-    apply_events(Events, I, W);
-ha_effect({logic, Event, Mode}, I, W) ->
-    logic_step(Event, Mode, I, W);
-ha_effect({release, V}, I, W) ->
-    release(V, I, W);
-ha_effect(release_all, #{commit := C} = I, W) ->
-    {Out, C1} = evatar_ha_commit:release_all(C),
-    effects(Out, I#{commit := C1}, W);
-ha_effect({flush, Mode}, #{commit := C} = I, W) ->
-    {Out, C1} = evatar_ha_commit:flush(Mode, C),
-    effects(Out, I#{commit := C1}, W);
-ha_effect({flush_maybe, Mode}, #{commit := C} = I, W) ->
-    {Out, C1} = evatar_ha_commit:flush_maybe(0, Mode, C),
-    effects(Out, I#{commit := C1}, W);
-ha_effect(unsync, #{commit := C} = I, W) ->
-    put_inst(I#{commit := evatar_ha_commit:unsync(C)}, W);
-ha_effect({synced_at, V}, #{commit := C} = I, W) ->
-    put_inst(I#{commit := evatar_ha_commit:synced_at(V, C)}, W);
-ha_effect(reset_commit, #{commit := C} = I, W) ->
-    put_inst(I#{commit := evatar_ha_commit:reset(C)}, W);
-ha_effect({snapshot, To, Claim}, #{commit := C, state := State} = I, W) ->
-    Msg = {snapshot, ref(I), maps:get(epoch, State), evatar_ha_commit:version(C), State, Claim},
-    send(node_of(I), {inst, To}, Msg, put_inst(I#{commit := evatar_ha_commit:shipped(C)}, W));
+ha_effect(cancel_rule_timers, #{timers := Ts} = I, W) ->
+    put_inst(I#{timers := maps:filter(fun(K, _) -> element(1, K) =:= ha end, Ts)}, W);
+ha_effect({tell, ?AV, {signal, Signal}}, I, W) ->
+    to_receiver(Signal, I, W);
+ha_effect({to_conn, receiver, {signal, Signal}}, I, W) ->
+    to_receiver(Signal, I, W);
+ha_effect({acks, #{?VA := Sid}}, #{standby := S} = I, W) ->
+    %% Told without a standby that holds it: degraded, not covered by the
+    %% guarantee until a standby is synced again.
+    Acked = binary_to_integer(Sid),
+    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 of
+             true -> degrade(Acked, W);
+             false -> W
+         end,
+    to_sender(Acked, I, W1);
+ha_effect({stepped, Event, _, _}, I, W) ->
+    won(Event, ref(I), W);
 ha_effect(_NothingHere, _I, W) ->
-    %% Clients, logs, metrics, the registry and timers of the rules are not
-    %% modelled: the stand-in rules have no timers, and a client reaches
-    %% whichever instance serves on a node.
+    %% Logs, metrics, the registry, replies, Binding reports and drops are
+    %% not modelled: a client reaches whichever instance serves on a node.
     W.
 
 %% evatar_ha_proto_v1's messages, with the sender and its epoch.
@@ -794,13 +798,15 @@ peer_msg({resync, V}, I) -> {resync, ref(I), V};
 peer_msg({confirm, V}, #{epoch := E} = I) -> {confirm, ref(I), E, V};
 peer_msg({stale, E}, I) -> {stale, ref(I), E};
 peer_msg({handover, V}, #{epoch := E} = I) -> {handover, ref(I), E, V};
-peer_msg({handover_done, Ec, Claim}, I) -> {handover_done, ref(I), Ec, Claim}.
+peer_msg({handover_done, Ec, Claim}, I) -> {handover_done, ref(I), Ec, Claim};
+peer_msg({events, Events}, #{epoch := E} = I) -> {events, ref(I), E, Events};
+peer_msg({snapshot, V, State, Claim}, #{epoch := E} = I) -> {snapshot, ref(I), E, V, State, Claim}.
 
-%% The standby confirmed `V'. A synced standby (running, in touch, not
-%% electing) holds everything applied before: covered again, and one
-%% failure may come again.
-release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender := Snd} = W) ->
-    {Out, C1} = evatar_ha_commit:confirm(V, C),
+%% The standby confirms (what it holds is released next). A synced standby
+%% (running, in touch, not electing) holds everything applied before:
+%% covered again, and one failure may come again.
+covered(#{standby := S} = I, #{sender := Snd} = W) ->
+    A = applied(I),
     Covered = [Sid || {Sid, _} <- A],
     Settled = case maps:get(insts, W) of
                   #{S := #{role := standby, core := SCore}} -> not evatar_ha_core:electing(SCore);
@@ -817,7 +823,7 @@ release(V, #{standby := S, commit := C, state := #{applied := A}} = I, #{sender 
                                       A, W)};
                          false -> {maps:get(degraded, Snd), W}
                      end,
-    effects(Out, I#{commit := C1}, W1#{sender := Snd#{degraded := Degraded}, faults => Faults}).
+    W1#{sender := Snd#{degraded := Degraded}, faults => Faults}.
 
 %% Covered again protects a signal from now on, not backwards: the
 %% routings it got while degraded (outside the guarantee, docs/ha-design.md
@@ -833,18 +839,6 @@ excuse(Sids, Applied, #{receiver := #{got := Got, excused := Ex} = R} = W) ->
                       end, Ex, Sids),
     W#{receiver := R#{excused := Ex1}}.
 
-%% The standby's apply is the pairing's own (evatar_ha_role_machine), over the
-%% stand-in rules.
-apply_events(Events, #{commit := C0, state := S0, active := A} = I, W) ->
-    Apply = fun(Event, _Now, S) -> element(1, logic(Event, S)) end,
-    {S, C, Answer} = evatar_ha_role_machine:apply_events(Events, Apply, S0, C0),
-    I1 = I#{state := S, epoch := maps:get(epoch, S), commit := C},
-    Msg = case Answer of
-              {confirm, V} -> {confirm, ref(I), maps:get(epoch, S), V};
-              {resync, Mine} -> {resync, ref(I), Mine}
-          end,
-    send(node_of(I), {inst, A}, Msg, put_inst(I1, W)).
-
 timer(K, Ms, #{timers := Ts, node := N} = I, W) ->
     I#{timers := Ts#{K => local(N, W) + Ms}}.
 
@@ -852,39 +846,83 @@ ref(#{ref := R}) -> R.
 node_of(#{node := N}) -> N.
 
 %% ---------------------------------------------------------------------------
-%% The pairing's rules (a stand-in) and the output commit
+%% The clients, through the pairing's rules
 %% ---------------------------------------------------------------------------
 
-%% A signal is routed once, with the routing it got (epoch and version:
-%% what the receiver's library tells signals apart by); a resend is only
-%% acknowledged again.
-logic({signal, Sid, Route}, #{applied := Applied} = S) ->
-    case lists:keymember(Sid, 1, Applied) of
-        true -> {S, [{accepted, sender, Sid}]};
-        false -> {S#{applied := Applied ++ [{Sid, Route}]},
-                  [{deliver, receiver, {Sid, Route}}, {accepted, sender, Sid}]}
-    end;
-logic({reelected, Ec}, S) ->
-    {S#{epoch := Ec}, [{log, notice, #{what => reelected}}]};
-logic({takeover, Ec}, S) ->
-    {S#{epoch := Ec}, [{log, notice, #{what => takeover}}]}.
+%% The rules' options: credentials checked before the event (a join
+%% carries the verdict), sessions never given up while the model runs, and
+%% windows that hold every signal of a run (the checks read them).
+config() ->
+    {ok, C} = evatar_pairing_logic:config(#{agent_credential => <<"ca">>,
+                                            avatar_credential => <<"cv">>,
+                                            resume_timeout => 4294967295,
+                                            dedup_window => 1048576,
+                                            max_unacked_out => 1048576}),
+    C.
 
-%% A client's signal: applied, then flushed at once (the mailbox of a
-%% simulated instance is always empty).
-signal_event(Event, #{inst := Inst} = I, W) ->
-    Mode = evatar_ha_instance:mode(Inst),
-    W1 = logic_step(Event, Mode, I, W),
-    #{commit := C} = I1 = maps:get(ref(I), maps:get(insts, W1)),
-    {Out, C1} = evatar_ha_commit:flush(Mode, C),
-    effects(Out, I1#{commit := C1}, W1).
+entry(Cat, Type) -> #{category => Cat, type => Type, parameters => []}.
 
-logic_step(Event, Mode, #{state := S, commit := C} = I, W0) ->
-    W = won(Event, ref(I), W0),
-    {S1, Effects} = logic(Event, S),
-    {_Reply, Out, C1} = evatar_ha_commit:step(Event, local(node_of(I), W), Effects,
-                                              #{sender => sender, receiver => receiver}, Mode, C),
-    I1 = I#{state := S1, epoch := maps:get(epoch, S1), commit := C1},
-    effects(Out, I1, note_degraded(Mode, Effects, W)).
+description(agent) ->
+    #{entity_id => ?VA, api_name => <<"VA">>, entity_type => agent, context => <<>>,
+      components => [#{id => <<"Emu">>, services => [entry(<<"A">>, <<"Feedback">>)],
+                       consumes => [entry(<<"A">>, <<"On">>)]}]};
+description(avatar) ->
+    #{entity_id => ?AV, api_name => <<"AV">>, entity_type => avatar, context => <<>>,
+      components => [#{id => <<"Light">>, services => [entry(<<"A">>, <<"On">>)],
+                       consumes => []}]}.
+
+signal(Sid) ->
+    #{id => integer_to_binary(Sid), context => request_no_feedback, sender => <<"Emu">>,
+      receiver => <<"Light">>, in_reply_to => undefined, timestamp => 1, seq => undefined,
+      epoch => undefined, body => entry(<<"A">>, <<"On">>)}.
+
+%% Both clients join the active instance `Ref' and describe themselves if
+%% its rules do not know them (a new pairing, or one restored afresh), as
+%% a client told its session was not resumed does.
+ensure_clients(Ref, W) ->
+    lists:foldl(fun({Role, Id, Session}, Acc) ->
+                        case maps:get(insts, Acc) of
+                            #{Ref := #{role := active, inst := Inst} = I} ->
+                                Known = evatar_pairing_logic:entity_ids(
+                                          evatar_ha_instance:logic(Inst)),
+                                case lists:member(Id, Known) of
+                                    true -> Acc;
+                                    false ->
+                                        Acc1 = client_event({join, Role, Id, authenticated, Session},
+                                                            I, Acc),
+                                        client_event({describe, Id, description(Role)},
+                                                     maps:get(Ref, maps:get(insts, Acc1)), Acc1)
+                                end;
+                            #{} ->
+                                Acc
+                        end
+                end, W, [{agent, ?VA, <<"sa">>}, {avatar, ?AV, <<"sv">>}]).
+
+%% A client's event on the active: its effects, then the batch flushed at
+%% once (the mailbox of a simulated instance is always empty).
+client_event(Event, #{inst := Inst} = I, W) ->
+    {_Reply, Inst1, Effects} = evatar_ha_instance:rules(Event, #{now => maps:get(now, W),
+                                                                 conns => conns()}, Inst),
+    W1 = ha_effects(Effects, Event, sync(I#{inst := Inst1}), W),
+    #{inst := Inst2} = I2 = maps:get(ref(I), maps:get(insts, W1)),
+    {Inst3, Flush} = evatar_ha_instance:flush(Inst2),
+    ha_effects(Flush, Event, sync(I2#{inst := Inst3}), W1).
+
+%% @doc What an instance's rules hold: each signal accepted from the
+%% sender, with its routing to the receiver (epoch and Sequence, `none'
+%% if it was not routed).
+-spec applied(map()) -> [{pos_integer(), {pos_integer(), pos_integer()} | none}].
+applied(#{inst := Inst}) ->
+    case evatar_ha_instance:logic(Inst) of
+        undefined ->
+            [];
+        L ->
+            Routes = maps:from_list([{binary_to_integer(Id), {E, Seq}}
+                                     || #{id := Id, epoch := E, seq := Seq}
+                                            <- evatar_pairing_logic:unacked(L, ?AV)]),
+            [{Sid, maps:get(Sid, Routes, none)}
+             || Sid <- [binary_to_integer(Id) || Id <- evatar_pairing_logic:accepted_ids(L, ?VA)]]
+    end.
 
 %% Who won each epoch (a takeover or a re-election), for check/1.
 won({Why, Ec}, Ref, W) when Why =:= takeover; Why =:= reelected ->
@@ -896,34 +934,11 @@ won(_Event, _Ref, W) ->
 degrade(Sid, #{sender := #{sent := Sent, degraded := D} = Snd} = W) ->
     W#{sender := Snd#{degraded := lists:usort([X || X <- Sent, X =< Sid] ++ D)}}.
 
-note_degraded(direct, Effects, #{sender := Snd} = W) ->
-    W#{sender := Snd#{degraded := lists:usort([Sid || {accepted, _, Sid} <- Effects]
-                                             ++ maps:get(degraded, Snd))}};
-note_degraded(_Mode, _Effects, W) ->
-    W.
-
-%% What reaches the clients and the standby.
-effects([{deliver, receiver, X} | Rest], I, W) ->
-    effects(Rest, I, to_receiver(X, I, W));
-effects([{send, receiver, {signal, X}} | Rest], I, W) ->
-    effects(Rest, I, to_receiver(X, I, W));
-effects([{acks, #{sender := Sid}} | Rest], #{standby := S} = I, W) ->
-    %% Told without a standby that holds it: degraded, not covered by the
-    %% guarantee until a standby is synced again.
-    W1 = case S =:= undefined orelse maps:get(faults, W, 0) >= 2 of
-             true -> degrade(Sid, W);
-             false -> W
-         end,
-    effects(Rest, I, to_sender(Sid, I, W1));
-effects([{ship, Events} | Rest], #{standby := S, epoch := E} = I, W) ->
-    effects(Rest, I, send(node_of(I), {inst, S}, {events, ref(I), E, Events}, W));
-effects([_ | Rest], I, W) ->
-    effects(Rest, I, W);
-effects([], I, W) ->
-    put_inst(I, W).
-
 %% Clients fence by epoch: nothing from an epoch lower than the highest seen.
-to_receiver({Sid, Route}, #{epoch := E}, #{receiver := #{got := Got, epoch := Seen} = R} = W) ->
+to_receiver(#{id := Id, epoch := SE, seq := Seq}, #{epoch := E},
+            #{receiver := #{got := Got, epoch := Seen} = R} = W) ->
+    Sid = binary_to_integer(Id),
+    Route = {SE, Seq},
     case E >= Seen of
         true ->
             Routes = lists:usort([Route | maps:get(Sid, Got, [])]),
@@ -962,12 +977,11 @@ send_sids(N, Sids, W) ->
         #{role := active, ref := Ref} ->
             lists:foldl(fun(Sid, Acc) ->
                                 case maps:get(insts, Acc) of
-                                    #{Ref := #{role := active, epoch := E, commit := C} = I} ->
-                                        Route = {E, evatar_ha_commit:version(C) + 1},
-                                        signal_event({signal, Sid, Route}, I, Acc);
+                                    #{Ref := #{role := active} = I} ->
+                                        client_event({signal, ?VA, signal(Sid)}, I, Acc);
                                     #{} -> Acc
                                 end
-                        end, W, Sids);
+                        end, ensure_clients(Ref, W), Sids);
         _ ->
             W
     end.
@@ -994,9 +1008,11 @@ check1(#{insts := Insts, sender := #{acked := Acked, degraded := Degraded},
     Serving = [I || #{epoch := E} = I <- serving(W), E =:= MaxE],
     Covered = Acked -- Degraded,
     V1 = [{two_serving, [R || #{ref := R} <- Serving]} || length(Serving) > 1],
+    Applied = maps:from_list([{R, applied(I)} || #{ref := R} = I <- Live]),
     V2 = [{lost, Sid} || Sid <- Covered,
-                         not lists:any(fun(#{state := #{applied := A}}) -> lists:keymember(Sid, 1, A) end, Live)],
-    V3 = [{lost_by_active, Sid, R} || #{ref := R, state := #{applied := A}} <- Serving,
+                         not lists:any(fun(A) -> lists:keymember(Sid, 1, A) end,
+                                       maps:values(Applied))],
+    V3 = [{lost_by_active, Sid, R} || #{ref := R} <- Serving, A <- [maps:get(R, Applied)],
                                       Sid <- Covered, not lists:keymember(Sid, 1, A)],
     V4 = [{twice, Sid, Routes} || {Sid, Routes} <- maps:to_list(Got), lists:member(Sid, Covered),
                                   routed_twice(Routes, maps:get(Sid, Excused, []))],
@@ -1168,6 +1184,7 @@ one_serves(#{sender := #{acked := Acked, degraded := Degraded}} = W) ->
 
 one_holds(Serving, Covered) ->
     case Serving of
-        [#{state := #{applied := A}}] -> [] =:= [Sid || Sid <- Covered, not lists:keymember(Sid, 1, A)];
+        [I] -> A = applied(I),
+               [] =:= [Sid || Sid <- Covered, not lists:keymember(Sid, 1, A)];
         _ -> false
     end.
