@@ -6,7 +6,7 @@
 %% sees ({@link ctx()}) to the new state and a list of effects, in the
 %% manner of `evatar_pairing_logic'. `evatar_ha_serving:core/3' calls it and
 %% turns its decisions (won, lost, registered, fence) into the instance's
-%% effects, which `evatar_pairing_effects' executes (sends the votes, arms
+%% effects, which `evatar_pairing' executes (sends the votes, arms
 %% the timers, takes over, fences); `evatar_cluster' answers votes and
 %% registrations with {@link vote/5} and {@link register/4}.
 %%
