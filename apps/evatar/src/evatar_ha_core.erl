@@ -4,7 +4,7 @@
 %% registration), about fencing, pauses and two instances that meet.
 %% {@link handle/3} maps an event and a snapshot of what the instance is and
 %% sees ({@link ctx()}) to the new state and a list of effects, in the
-%% manner of `evatar_pairing_logic'. `evatar_ha_serving:core/3' calls it and
+%% manner of `evatar_pairing_logic'. `evatar_ha_instance' calls it and
 %% turns its decisions (won, lost, registered, fence) into the instance's
 %% effects, which `evatar_pairing' executes (sends the votes, arms
 %% the timers, takes over, fences); `evatar_cluster' answers votes and

@@ -1,7 +1,6 @@
 %% @doc Internal. The process of one instance of a pairing: a shell around
 %% one pure state, `evatar_ha_instance''s, which holds the instance's role
-%% (with `evatar_ha_serving', `evatar_ha_core' and
-%% `evatar_ha_role_machine'), the pairing's rules (`evatar_pairing_logic')
+%% (with `evatar_ha_core' and `evatar_ha_role_machine'), the pairing's rules (`evatar_pairing_logic')
 %% and the output commit (`evatar_ha_commit': which effects go out now and
 %% which wait for the standby or the cluster), and returns only I/O;
 %% docs/ha-design.md, section 12. Start reading at handle_event/4 here,

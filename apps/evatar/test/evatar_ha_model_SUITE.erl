@@ -7,8 +7,8 @@
 %% to 10 % fast or slow, `{skew, N, Rate}' changing one's rate) for two
 %% and three instances of one pairing
 %% in `evatar_ha_sim', which runs them through the node's own pure instance
-%% (`evatar_ha_instance': the role machine with `evatar_ha_serving',
-%% `evatar_ha_core', `evatar_ha_role_machine', the pairing's rules
+%% (`evatar_ha_instance': the role machine with `evatar_ha_core' and
+%% `evatar_ha_role_machine', the pairing's rules
 %% `evatar_pairing_logic' and the output commit `evatar_ha_commit') and
 %% checks after every command that at most one instance serves at the current epoch and that no accepted signal is lost
 %% or delivered twice, and with three nodes that no two instances serve at

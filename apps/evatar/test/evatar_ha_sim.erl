@@ -1,7 +1,7 @@
 %% @doc A deterministic simulation of one pairing's instances on two or
 %% three nodes, in one process, running the code the node runs for each
 %% instance: the pure `evatar_ha_instance' (the role machine with
-%% `evatar_ha_serving', `evatar_ha_core', `evatar_ha_role_machine', the
+%% `evatar_ha_core' and `evatar_ha_role_machine', the
 %% pairing's rules `evatar_pairing_logic' and the output commit
 %% `evatar_ha_commit'). This module executes its I/O effects on a simulated
 %% world instead of processes, as `evatar_pairing' does in the node. The
