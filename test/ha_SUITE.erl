@@ -284,19 +284,28 @@ kill_active(Config) ->
 
 %% SIGSTOP of the active node (a silent stall: its sockets stay open): the
 %% standby takes over once it hears nothing; after SIGCONT the old active
-%% comes back fenced or as a standby, never as a second active.
+%% comes back fenced or as a standby, never as a second active. The nodes
+%% log what they saw: the standby's node a suspected peer still connected,
+%% the woken node its own pause.
 stall_active(Config) ->
     {C, Id, Pair} = start(Config),
     T = trace(C),
     {ok, 1, #{epoch := E0, standby_node := SN}} = evatar_test_pairing:active(C, Id),
     S = evatar_test_cluster:index(C, SN),
+    Stalled = evatar_test_trace:mark(T),
     ok = evatar_test_cluster:stall(C, 1),
     {ok, S, #{epoch := E1}} = await_takeover(C, Id, E0),
+    _ = evatar_test_trace:wait(T, #{what => node_suspected, node => evatar_test_cluster:node(C, 1),
+                                    connected => true},
+                               #{since => Stalled, node => SN, what => node_1_suspected}),
     {ok, Epoch} = evatar_test_traffic:round_trip(Pair, ?FAILOVER_TIMEOUT),
     ?assert(Epoch >= E1),
     Mark = evatar_test_trace:mark(T),
     ok = evatar_test_cluster:resume(C, 1),
     ok = woken_active_gives_up(T, C, 1, Id, Mark),
+    _ = evatar_test_trace:wait(T, #{what => node_paused},
+                               #{since => Mark, node => evatar_test_cluster:node(C, 1),
+                                 what => node_1_saw_its_pause}),
     ok = evatar_test_pairing:await_healthy(C, Id, ?HEAL_TIMEOUT),
     {ok, S, _} = evatar_test_pairing:active(C, Id),
     ok = never_took_over(T, C, 1, Id, Mark),

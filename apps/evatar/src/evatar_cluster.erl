@@ -285,6 +285,7 @@ handle_info({nodedown, Node}, #s{alive = Alive, heard = Heard} = S) ->
     S1 = S#s{heard = maps:remove(Node, Heard)},
     case Alive of
         #{Node := _} ->
+            ?LOG_WARNING(#{what => node_down, node => Node}),
             true = ets:delete(?TABLE, {alive, Node}),
             broadcast({node_down, Node}),
             {noreply, S1#s{alive = maps:remove(Node, Alive)}};
@@ -322,6 +323,7 @@ tick(#s{nodes = Nodes, last_tick = Last} = S) ->
                 %% whatever their clocks within the drift bound: its
                 %% actives ask the cluster again (evatar_pairing).
                 true = ets:insert(?TABLE, {stall_gen, stall_gen() + 1}),
+                ?LOG_WARNING(#{what => node_paused, tick_late_ms => Now - Last - opt(heartbeat_ms)}),
                 broadcast(stalled);
             false ->
                 ok
@@ -348,10 +350,14 @@ evaluate(Node, Connected, Now, Suspect, #s{alive = Alive, heard = Heard} = S) ->
         Now - maps:get(Node, Heard, Now - Suspect - 1) =< Suspect,
     case {is_map_key(Node, Alive), Fresh} of
         {true, false} ->
+            ?LOG_WARNING(#{what => node_suspected, node => Node,
+                           connected => lists:member(Node, Connected),
+                           silent_ms => Now - maps:get(Node, Heard, Now)}),
             true = ets:delete(?TABLE, {alive, Node}),
             broadcast({node_suspected, Node}),
             S#s{alive = maps:remove(Node, Alive)};
         {false, true} ->
+            ?LOG_NOTICE(#{what => node_alive, node => Node}),
             true = ets:insert(?TABLE, {{alive, Node}, true}),
             ok = evatar_ha_proto_v1:inventory(Node, evatar_registry:roles()),
             broadcast({node_alive, Node}),
@@ -380,7 +386,12 @@ quorum(Now, #s{nodes = Nodes, heard = Heard, quorum = Old} = S) ->
     Q = evatar_ha_membership:majority(Nodes, Recent),
     case Q =:= Old of
         true -> ok;
-        false -> true = ets:insert(?TABLE, {quorum, Q}), broadcast({quorum, Q})
+        false ->
+            ?LOG(case Q of true -> notice; false -> warning end,
+                 #{what => case Q of true -> majority_heard; false -> majority_lost end,
+                   heard => lists:usort(Recent), nodes => Nodes}),
+            true = ets:insert(?TABLE, {quorum, Q}),
+            broadcast({quorum, Q})
     end,
     S#s{quorum = Q}.
 
