@@ -518,7 +518,7 @@ publish_light(Config) ->
     {ok, C} = mqtt_client:start_link(#{host => {127, 0, 0, 1},
                                        port => maps:get(port, ?config(broker, Config)),
                                        client_id => <<"node-config-suite">>}),
-    ok = mqtt_client:await_connected(C, 10000),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
     ok = mqtt_client:publish(C, <<"ha_", P/binary, "/light/", P/binary, "/config">>,
                              evatar_json:encode(Disc), #{qos => 1, retain => true}),
     mqtt_client:stop(C).

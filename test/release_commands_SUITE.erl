@@ -362,9 +362,9 @@ send(S, {description, D}) ->
 close(S) ->
     gen_tcp:close(S).
 
-recv(S) -> evatar_test_fixtures:recv_doc(S, 20000).
+recv(S) -> evatar_test_fixtures:recv_doc(S, evatar_test_time:guard()).
 
-recv_until(S, Pred) -> evatar_test_fixtures:recv_until(S, Pred, 20000).
+recv_until(S, Pred) -> evatar_test_fixtures:recv_until(S, Pred, evatar_test_time:guard()).
 
 va_description(Id) ->
     C = fun evatar_test_fixtures:component/3,

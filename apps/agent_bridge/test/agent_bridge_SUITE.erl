@@ -141,7 +141,7 @@ bye_leaves(Config) ->
     {control, {welcome, _}} = recv_doc(S),
     ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
     {control, {bye, _}} = recv_doc(S),
-    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     {ok, C} = client(Config, agent, <<"va">>),
     ok = agent_bridge_client:close(C).
 
@@ -177,7 +177,7 @@ garbage_bytes(Config) ->
     {ok, S} = gen_tcp:connect(Ip, Port, [binary, {active, false}]),
     ok = gen_tcp:send(S, <<"GET / HTTP/1.1\r\nHost: x\r\n\r\n">>),
     {control, {refused, #{code := <<"FrameTooLarge">>}}} = recv_raw_doc(S),
-    {error, closed} = gen_tcp:recv(S, 0, 5000).
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()).
 
 %% A first frame over the handshake limit (64 KiB) is refused.
 oversize_hello(Config) ->
@@ -255,7 +255,7 @@ join_timeout_drops(Config) ->
 request_feedback(Config) ->
     {Va, _Av} = bound_pair(Config),
     {ok, #{context := feedback, in_reply_to := Id, seq := Seq, epoch := 1}} =
-        agent_bridge_client:request(Va, light_request(), 5000),
+        agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     true = is_binary(Id) andalso is_integer(Seq),
     ok = agent_bridge_client:close(Va).
 
@@ -343,16 +343,16 @@ feedback_timeout(Config) ->
     {Va, Av} = bound_pair(Config),
     Av ! mute,
     {ok, #{context := feedback, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}}} =
-        agent_bridge_client:request(Va, light_request(), 5000),
+        agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     ok = agent_bridge_client:close(Va).
 
 %% A receiver outside the sender's bindings gets a NotBound error back.
 not_bound_error(Config) ->
     {Va, _Av} = bound_pair(Config),
     {error, #{context := error, body := #{type := <<"NotBound">>}}} =
-        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>}, 5000),
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>}, evatar_test_time:guard()),
     {error, #{context := error, body := #{type := <<"UnknownReceiver">>}}} =
-        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Nobody">>}, 5000),
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Nobody">>}, evatar_test_time:guard()),
     ok = agent_bridge_client:close(Va).
 
 %% ---------------------------------------------------------------------------
@@ -415,7 +415,7 @@ request_closed_to_provider(Config) ->
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
     {control, {binding, #{bound := [_ | _]}}} = recv_doc(A),
     Self = self(),
-    spawn_link(fun() -> Self ! {answer, agent_bridge_client:request(Va, light_request(), 10000)} end),
+    spawn_link(fun() -> Self ! {answer, agent_bridge_client:request(Va, light_request(), evatar_test_time:guard())} end),
     {signal, #{context := request, id := ReqId}} = recv_doc(A),
     {signal, #{context := event, sender := <<"EVATAR">>, origin := evatar,
                receiver := <<"Light01">>, in_reply_to := ReqId,
@@ -462,11 +462,11 @@ recv_doc_skipping_acks(S) ->
 re_register(Config) ->
     {Va, Av} = bound_pair(Config),
     {error, #{body := #{type := <<"UnknownReceiver">>}}} =
-        agent_bridge_client:request(Va, door_request(), 5000),
+        agent_bridge_client:request(Va, door_request(), evatar_test_time:guard()),
     Av ! {describe, avatar_description(<<"av">>, true)},
     #{bound := Bound} = wait_binding(Va, fun(#{bound := B}) -> length(B) >= 2 end),
     true = lists:any(fun(#{provider := #{component := C}}) -> C =:= <<"Door01">> end, Bound),
-    {ok, #{context := feedback}} = agent_bridge_client:request(Va, door_request(), 5000),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, door_request(), evatar_test_time:guard()),
     ok = agent_bridge_client:close(Va).
 
 %% Deleting a pairing closes its connections with a reason.
@@ -686,7 +686,7 @@ port_round_trip(Config, Python) ->
                                              backoff_min => 50, backoff_max => 200}),
     _ = wait_binding(Va, fun(#{bound := B}) -> B =/= [] end),
     {ok, #{context := feedback, sender := <<"Light01">>}} =
-        agent_bridge_client:request(Va, light_request(), 5000),
+        agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     receive {stderr_line, <<"port_avatar: answered", _/binary>>} -> ok
     after evatar_test_time:guard() -> ct:fail(no_stderr_logged)
     end,
@@ -738,7 +738,7 @@ busy_pairing_description(Config) ->
     {control, {binding, #{entities := [<<"va">>]}}} = recv_doc(S),
     ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
     {control, {bye, _}} = recv_doc(S),
-    {error, closed} = gen_tcp:recv(S, 0, 5000).
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()).
 
 %% A Bye is answered while the pairing cannot answer anything (the call
 %% timeout here is ten minutes: a connection waiting for the pairing would
@@ -748,7 +748,7 @@ busy_pairing_bye(Config) ->
     Pid = suspend_pairing(Config, 600000),
     ok = gen_tcp:send(S, bil_control:encode({bye, <<>>})),
     {control, {bye, _}} = recv_doc(S),
-    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     true = suspended(Pid),
     ok = sys:resume(Pid),
     ok = until(fun() -> registered_entities(Config) =:= [] end).
@@ -810,18 +810,18 @@ joined_raw(Config, Role, Entity, Cred, Extra) ->
     {control, {welcome, _}} = recv_doc(S),
     S.
 
-recv_doc(S) -> evatar_test_fixtures:recv_doc(S, 5000).
+recv_doc(S) -> evatar_test_fixtures:recv_doc(S, evatar_test_time:guard()).
 
 recv_raw_doc(S) ->
-    {ok, <<Len:32>>} = gen_tcp:recv(S, 4, 5000),
-    {ok, Frame} = gen_tcp:recv(S, Len, 5000),
+    {ok, <<Len:32>>} = gen_tcp:recv(S, 4, evatar_test_time:guard()),
+    {ok, Frame} = gen_tcp:recv(S, Len, evatar_test_time:guard()),
     {ok, Doc} = bil_control:parse_frame(Frame, #{}),
     Doc.
 
 expect_refused(S, Code) ->
     {control, {refused, #{code := Code, message := Message}}} = recv_doc(S),
     true = is_binary(Message) andalso Message =/= <<>>,
-    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     ok.
 
 refused_hello(Config, Hello, Code) ->
@@ -861,7 +861,7 @@ bound_pair(Config) ->
     {Va, Av}.
 
 wait_binding(Va, Pred) ->
-    evatar_test_fixtures:wait_binding(Va, Pred, 5000).
+    evatar_test_fixtures:wait_binding(Va, Pred, evatar_test_time:guard()).
 
 collect_sensor(_Va, 0, Acc) ->
     lists:reverse(Acc);

@@ -215,7 +215,7 @@ slow_consumer_closed(Config) ->
 idle_v1_session(Config) ->
     S = joined_v1(addr(idle, Config), Config),
     ?assertMatch({control, {refused, #{code := <<"IdleTimeout">>}}}, until_not_binding(S)),
-    {error, closed} = gen_tcp:recv(S, 0, 5000).
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()).
 
 %% A version 1 client that sends an empty Ack more often than the idle
 %% timeout (2 s here, on evatar_test_time's scale) keeps its session:
@@ -240,7 +240,7 @@ long_id_hello(Config) ->
     ok = gen_tcp:send(S, hello(Config, agent, Id, ?BAD)),
     {control, {refused, #{code := Code}}} = recv_doc(S),
     ct:log("refused ~s", [Code]),
-    {error, closed} = gen_tcp:recv(S, 0, 5000),
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     ok = until(fun() -> byte_size(read_log(Config)) > Before end),
     Log = read_log(Config),
     Grown = byte_size(Log) - Before,
@@ -300,7 +300,7 @@ raw_connect({Ip, Port}, Extra) ->
     {ok, S} = gen_tcp:connect(Ip, Port, [binary, {packet, 4}, {active, false} | Extra], 10000),
     S.
 
-recv_doc(S) -> recv_doc(S, 5000).
+recv_doc(S) -> recv_doc(S, evatar_test_time:guard()).
 
 recv_doc(S, Timeout) ->
     {ok, Frame} = gen_tcp:recv(S, 0, Timeout),

@@ -224,13 +224,13 @@ accepted_signals_notified(Config) ->
     ok = agent_bridge_client:describe(Av, avatar_description(<<"av">>)),
     {ok, Va} = client(Config, <<"va">>),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, evatar_test_time:guard()),
     Ids = [begin
                Id = <<"reading-", (integer_to_binary(I))/binary>>,
                ok = agent_bridge_client:send(Av, (sensor(I))#{id => Id}),
                Id
            end || I <- lists:seq(1, 20)],
-    ok = agent_bridge_client:await_acks(Av, 10000),
+    ok = agent_bridge_client:await_acks(Av, evatar_test_time:guard()),
     Ids = accepted(Av, length(Ids), []),
     ok = agent_bridge_client:close(Va),
     ok = agent_bridge_client:close(Av).
@@ -254,7 +254,7 @@ bad_signals(Config, Extra) ->
            Good#{body => (maps:get(body, Good))#{parameters => [{<<"bad name">>, <<"v">>}]}}],
     [{error, {bad_signal, _}} = agent_bridge_client:send(C, B) || B <- Bad],
     {error, {bad_signal, _}} = agent_bridge_client:send(C, not_a_map),
-    {error, {bad_signal, _}} = agent_bridge_client:request(C, hd(Bad), 1000),
+    {error, {bad_signal, _}} = agent_bridge_client:request(C, hd(Bad), evatar_test_time:guard()),
     {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
     ok = agent_bridge_client:send(C, Good),
     ok = agent_bridge_client:close(C).

@@ -35,7 +35,7 @@ init_per_suite(Config) ->
     %% A connection's read rate (max_read_rate, 1,000 frames/s by default) is
     %% tested by agent_bridge_SUITE's paced_client_read_at_its_rate; here it
     %% would only pace hold_100000_requests to 100 s.
-    Addr = evatar_test_node:listen(identity, #{conn => #{handshake_timeout => 2000,
+    Addr = evatar_test_node:listen(identity, #{conn => #{handshake_timeout => evatar_test_time:ms(2000),
                                                                linger => 100,
                                                                max_read_rate => infinity},
                                                      handshake => #{rate => infinity,
@@ -69,7 +69,7 @@ end_per_testcase(_Case, Config) ->
     _ = evatar:delete_pairing(?config(pairing, Config)),
     %% The node and the other pairings are unaffected.
     {Va, _, _} = ?config(bystander, Config),
-    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 10000),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -147,7 +147,7 @@ forge_timeout_feedback(Config) ->
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
     S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
     ok = gen_tcp:send(S, bil:encode_description(lamp_description(<<"mallory">>))),
-    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, evatar_test_time:guard()),
     ok = agent_bridge_client:send(Va, (light_request())#{id => <<"req-1">>,
                                                            context => request}),
     Req = recv_until(S, fun({signal, #{context := request}}) -> true; (_) -> false end),
@@ -238,7 +238,7 @@ ids_of_60000_characters(Config) ->
     <<"IdTooLong">> = refused_code(Config, hello(Config, avatar, Long, ?AV_CRED, 1)),
     {ok, Va} = client(Config, agent, <<"va">>, ?VA_CRED),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, 10000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, evatar_test_time:guard()),
     S = joined_raw(Config, avatar, <<"mallory">>, ?AV_CRED),
     Desc = lamp_description(<<"mallory">>),
     [C | _] = maps:get(components, Desc),
@@ -330,7 +330,7 @@ refused_code(Config, Hello) ->
     S = raw_connect(Config),
     ok = gen_tcp:send(S, Hello),
     {control, {refused, #{code := Code}}} = recv_doc(S),
-    {error, closed} = gen_tcp:recv(S, 0, 10000),
+    {error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     Code.
 
 recv_doc(S) -> evatar_test_fixtures:recv_doc(S).

@@ -51,8 +51,9 @@ init_per_suite(Config) ->
     Server = #{certfile => file(Certs, "server.pem"), keyfile => file(Certs, "server.key")},
     %% Long enough for a TLS handshake and a Hello on a loaded machine (at
     %% 1000 ms, session_over_tls was refused HandshakeTimeout in CI at load
-    %% 20); the silent clients of slow_handshakes_do_not_block wait 10 s.
-    Conn = #{handshake_timeout => 5000, linger => 200},
+    %% 20); the silent clients of slow_handshakes_do_not_block wait for it
+    %% to close them.
+    Conn = #{handshake_timeout => evatar_test_time:ms(5000), linger => 200},
     Open = evatar_test_node:listen(tls_open, #{tls => Server, conn => Conn}),
     Mutual = evatar_test_node:listen(
                tls_mutual, #{tls => Server#{cacertfile => file(Certs, "ca.pem")}, conn => Conn}),
@@ -154,7 +155,7 @@ oversize_frame_over_tls(Config) ->
     ok = ssl:send(S, hello(Config, agent, <<"va">>, ?VA_CRED)),
     {control, {welcome, #{max_frame := Max}}} = ssl_recv_doc(S),
     _ = ssl:send(S, binary:copy(<<"x">>, Max + 1)),
-    {error, closed} = ssl:recv(S, 0, 5000),
+    {error, closed} = ssl:recv(S, 0, evatar_test_time:guard()),
     {ok, C} = connect(Config, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
     ok = agent_bridge_client:close(C).
 
@@ -169,7 +170,7 @@ slow_handshakes_do_not_block(Config) ->
               end || _ <- lists:seq(1, 12)],
     {ok, C} = connect(Config, open, agent, <<"va">>, #{cacertfile => cert(Config, "ca.pem")}),
     ok = agent_bridge_client:close(C),
-    [{error, closed} = gen_tcp:recv(S, 0, 10000) || S <- Silent],
+    [{error, closed} = gen_tcp:recv(S, 0, evatar_test_time:guard()) || S <- Silent],
     ok.
 
 %% ---------------------------------------------------------------------------
@@ -550,8 +551,8 @@ bound_session(Config, Listener, VaTls, AvTls, Extra) ->
     receive {avatar, Av} -> ok after evatar_test_time:guard() -> ct:fail(no_avatar) end,
     {ok, Va} = connect(Config, Listener, agent, <<"va">>, VaTls, Extra),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
-    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), 5000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, evatar_test_time:guard()),
+    {ok, #{context := feedback}} = agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     N = 500,
     Av ! {stream, N},
     Got = [begin
@@ -617,7 +618,7 @@ ssl_try(Config, Listener, Extra) ->
                            {cacertfile, cert(Config, "ca.pem")} | Extra], 5000).
 
 ssl_recv_doc(S) ->
-    {ok, Frame} = ssl:recv(S, 0, 5000),
+    {ok, Frame} = ssl:recv(S, 0, evatar_test_time:guard()),
     {ok, Doc} = bil_control:parse_frame(Frame, #{}),
     Doc.
 
@@ -629,7 +630,7 @@ sniffed_session(Config, Listener, Tls) ->
     {ok, C} = agent_bridge_client:connect([RelayAddr], Opts),
     {ok, #{session_id := Sid}} = agent_bridge_client:session(C),
     ok = agent_bridge_client:describe(C, va_description(<<"va">>)),
-    _ = evatar_test_fixtures:wait_binding(C, fun(_) -> true end, 5000),
+    _ = evatar_test_fixtures:wait_binding(C, fun(_) -> true end, evatar_test_time:guard()),
     ok = agent_bridge_client:close(C),
     Relay ! {bytes, self()},
     Bytes = receive {relay_bytes, B} -> B after evatar_test_time:guard() -> ct:fail(no_relay_bytes) end,

@@ -28,7 +28,7 @@ end_per_suite(Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{feedback_timeout => 5000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{feedback_timeout => evatar_test_time:ms(5000)}),
     Home = start_home(Config, Case, Pairing),
     {ok, Va} = agent_bridge_client:connect([?config(addr, Config)],
                                            #{pairing => Pairing, role => agent,

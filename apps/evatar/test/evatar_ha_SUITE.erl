@@ -298,7 +298,7 @@ expect_reconnected_above(C, E) ->
 handover_on_silent_link(Config) ->
     [N1, N2, _N3] = Nodes = handles(Config),
     Id = ?config(pairing, Config),
-    _ = [ok = rpc(N, application, set_env, [evatar, client_ack_timeout, 300]) || N <- Nodes],
+    _ = [ok = rpc(N, application, set_env, [evatar, client_ack_timeout, evatar_test_time:cluster_ms(300)]) || N <- Nodes],
     {ok, _} = rpc(N1, evatar, create_pairing, [Id, pairing_opts()]),
     ok = wait_synced(N1, Id, N2),
     Va = client(Config, Nodes, agent, <<"va1">>, self()),
@@ -378,8 +378,8 @@ wait_synced(N, Id, Standby) ->
 %% ---------------------------------------------------------------------------
 
 pairing_opts() ->
-    #{agent_credential => ?CRED_VA, avatar_credential => ?CRED_AV, join_timeout => 10000,
-      feedback_timeout => 10000}.
+    #{agent_credential => ?CRED_VA, avatar_credential => ?CRED_AV, join_timeout => evatar_test_time:cluster_ms(10000),
+      feedback_timeout => evatar_test_time:cluster_ms(10000)}.
 
 client(Config, _Nodes, Role, Entity, Owner) ->
     Endpoints = evatar_test_cluster:endpoints(?config(cluster, Config)),
@@ -387,8 +387,8 @@ client(Config, _Nodes, Role, Entity, Owner) ->
                 Endpoints,
                 #{pairing => ?config(pairing, Config), role => Role, entity_id => Entity,
                   credential => case Role of agent -> ?CRED_VA; avatar -> ?CRED_AV end,
-                  owner => Owner, ha => true, handshake_timeout => 1000,
-                  reconnect_backoff => {20, 200}, reconnect_limit => 20000}),
+                  owner => Owner, ha => true, handshake_timeout => evatar_test_time:ms(1000),
+                  reconnect_backoff => {20, 200}, reconnect_limit => evatar_test_time:ms(20000)}),
     C.
 
 %% A VA (owned by the test process) and an Avatar (owned by a sink that

@@ -72,7 +72,7 @@ no_path_escapes(_Config) ->
     %% The raw request line, not normalised by a client.
     {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
     ok = gen_tcp:send(S, "GET /../../../../etc/passwd HTTP/1.1\r\nHost: localhost\r\n\r\n"),
-    {ok, Reply} = gen_tcp:recv(S, 0, 10000),
+    {ok, Reply} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     ok = gen_tcp:close(S),
     nomatch = binary:match(Reply, <<"root:">>),
     {match, _} = re:run(Reply, "^HTTP/1.1 4\\d\\d").
@@ -224,7 +224,7 @@ parse_response(Reply) ->
 nodelay(_Config) ->
     {ok, S} = gen_tcp:connect({127, 0, 0, 1}, evatar_web:port(), [binary, {active, false}]),
     ok = gen_tcp:send(S, "GET /api/cluster HTTP/1.1\r\nHost: localhost\r\n\r\n"),
-    {ok, <<"HTTP/1.1 200", _/binary>>} = gen_tcp:recv(S, 0, 10000),
+    {ok, <<"HTTP/1.1 200", _/binary>>} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     {ok, Mine} = inet:sockname(S),
     %% The server's end of this connection: the socket whose peer is us.
     [Server] = [P || P <- erlang:ports(), erlang:port_info(P, name) =:= {name, "tcp_inet"},
@@ -256,13 +256,13 @@ recv_response(S, Acc) ->
             Body = recv_more(S, Rest, Length),
             {Status, Headers, Body};
         [_] ->
-            {ok, More} = gen_tcp:recv(S, 0, 10000),
+            {ok, More} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
             recv_response(S, <<Acc/binary, More/binary>>)
     end.
 
 recv_more(_S, Buf, Length) when byte_size(Buf) >= Length -> Buf;
 recv_more(S, Buf, Length) ->
-    {ok, More} = gen_tcp:recv(S, 0, 10000),
+    {ok, More} = gen_tcp:recv(S, 0, evatar_test_time:guard()),
     recv_more(S, <<Buf/binary, More/binary>>, Length).
 
 %% A client that trickles its request headers (a byte at a time, never

@@ -375,7 +375,7 @@ mqtt_avatar_routes(Config) ->
     %% A device's reading that is not a number, on its numeric stream
     %% (MqttNumeric): not passed on, and listed here.
     {ok, Device} = mqtt_client:start(#{host => {127, 0, 0, 1}, port => element(2, ?config(broker, Config))}),
-    ok = mqtt_client:await_connected(Device, 10000),
+    ok = mqtt_client:await_connected(Device, evatar_test_time:guard()),
     ok = mqtt_client:publish(Device, <<"tele/webplug/POWER_W">>, <<"abc">>, #{qos => 1, retain => true}),
     ok = mqtt_client:stop(Device),
     until(fun() ->

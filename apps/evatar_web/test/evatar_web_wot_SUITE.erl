@@ -48,7 +48,7 @@ init_per_suite(Config) ->
     _ = evatar:delete_pairing(?HOME),
     {ok, _} = evatar:create_pairing(?HOME, #{agent_credential => ?VA_CRED,
                                              avatar_credential => ?AV_CRED,
-                                             feedback_timeout => 2000}),
+                                             feedback_timeout => evatar_test_time:ms(2000)}),
     _ = evatar:delete_pairing(?MQTT),
     _ = evatar:delete_pairing(?BUSY),
     %% ?BUSY: a VA (this suite's process) holds the agent slot before the
@@ -305,7 +305,7 @@ things() ->
 %% temperature sensor and a motion sensor (docs/mqtt.md section 2.1).
 announce(Mqtt) ->
     {ok, C} = mqtt_client:start(Mqtt#{client_id => <<"wot-suite-announcer">>}),
-    ok = mqtt_client:await_connected(C, 10000),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
     Dev = fun(Id) -> #{<<"ids">> => [Id], <<"name">> => Id} end,
     Configs = [{<<"light/kitchen_light">>,
                 #{<<"name">> => <<"Kitchen light">>, <<"uniq_id">> => <<"kitchen_light">>,

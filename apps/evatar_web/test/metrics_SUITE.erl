@@ -26,7 +26,7 @@ init_per_suite(Config) ->
             ok = evatar_test_node:start([]),
             ok = evatar_web_test:start(#{}),
             Addr = evatar_test_node:listen(metrics_test,
-                                                 #{conn => #{handshake_timeout => 2000,
+                                                 #{conn => #{handshake_timeout => evatar_test_time:ms(2000),
                                                              linger => 200}}),
             [{addr, Addr} | Config];
         Out ->
@@ -40,12 +40,10 @@ end_per_suite(_Config) ->
 
 init_per_testcase(Case, Config) ->
     Pairing = atom_to_binary(Case),
-    %% The feedback timeout must pass for the request left unanswered and
-    %% never for the answered one, however slow a loaded, cover-compiled
-    %% node makes its round trip (at 300 ms it could: the counts were then
-    %% one timeout too many). It runs while the case does the rest.
-    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 5000,
-                                                               feedback_timeout => 3000}),
+    %% The feedback timeout is fired by the case (evatar:expire_timer/2) once
+    %% the answered request is through: none that load could reach.
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => evatar_test_time:ms(5000),
+                                                               feedback_timeout => evatar_test_time:guard()}),
     [{pairing, Pairing} | Config].
 
 end_per_testcase(_Case, Config) ->
@@ -66,7 +64,7 @@ traffic_moves_counters(Config) ->
     %% Joins (two accepted connections).
     {Va, Av} = bound_pair(Config),
     %% A feedback timeout: a request the Avatar leaves unanswered, sent
-    %% first (its timeout runs while the rest happens).
+    %% first; its timer is fired once the requests after it are answered.
     Av ! {leave_unanswered, <<"unanswered-1">>, self()},
     receive {leaving_unanswered, Av, _} -> ok after evatar_test_time:guard() -> ct:fail(responder_silent) end,
     ok = agent_bridge_client:send(Va, (light_request())#{id => <<"unanswered-1">>,
@@ -77,14 +75,16 @@ traffic_moves_counters(Config) ->
                   <<"UnknownPairing">>),
     %% A request and the Avatar's feedback.
     {ok, #{context := feedback, sender := <<"Light01">>}} =
-        agent_bridge_client:request(Va, light_request(), 5000),
+        agent_bridge_client:request(Va, light_request(), evatar_test_time:guard()),
     %% Five sensor readings, all received.
     Av ! {stream, 5},
     5 = length(collect_sensor(Va, 5)),
     %% A signal refused: NotBound.
     {error, #{body := #{type := <<"NotBound">>}}} =
-        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>}, 5000),
+        agent_bridge_client:request(Va, (light_request())#{receiver => <<"Thermo01">>},
+                                    evatar_test_time:guard()),
     %% The unanswered request's feedback: EVATAR's Timeout.
+    ok = evatar:expire_timer(P, {feedback, <<"LightEmulator01">>, <<"unanswered-1">>}),
     receive
         {agent_bridge, Va, {signal, #{in_reply_to := <<"unanswered-1">>} = Timeout}} ->
             #{context := feedback, body := #{category := <<"EVATAR">>, type := <<"Timeout">>}} =
@@ -236,7 +236,8 @@ bound_pair(Config) ->
     Av = start_responder(Config, <<"av">>),
     {ok, Va} = client(Config, agent, <<"va">>),
     ok = agent_bridge_client:describe(Va, va_description(<<"va">>)),
-    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end, 5000),
+    _ = evatar_test_fixtures:wait_binding(Va, fun(#{bound := B}) -> B =/= [] end,
+                                             evatar_test_time:guard()),
     {Va, Av}.
 
 collect_sensor(Va, N) ->

@@ -369,5 +369,5 @@ port(Config) ->
 
 wait_signal(Va, Pred) ->
     %% Generous: the machine running the tests may be busy (25 readings).
-    evatar_test_fixtures:wait_signal(Va, Pred, 20000).
+    evatar_test_fixtures:wait_signal(Va, Pred, evatar_test_time:guard()).
 

@@ -687,7 +687,7 @@ category(_) -> <<"ACTUATOR">>.
 %% The Avatar component bound to the VA's request of type `Type'.
 provider(Va, Type) ->
     ok = agent_bridge_client:get_binding(Va),
-    #{bound := B} = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, 10000),
+    #{bound := B} = evatar_test_fixtures:wait_binding(Va, fun(_) -> true end, evatar_test_time:guard()),
     [C] = [C || #{consumer := #{entity := <<"test-va">>}, type := T, provider := #{component := C}} <- B,
                 T =:= Type],
     C.
@@ -714,5 +714,5 @@ stream(Va, Type, Param, Value) ->
     Ps.
 
 wait_signal(Va, Pred) ->
-    evatar_test_fixtures:wait_signal(Va, Pred, 10000).
+    evatar_test_fixtures:wait_signal(Va, Pred, evatar_test_time:guard()).
 

@@ -55,7 +55,7 @@ over_max_frame(Config) ->
 over_max_description_size(Config) ->
     Pairing = ?config(pairing, Config),
     ok = evatar:delete_pairing(Pairing),
-    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => 200}),
+    {ok, _} = evatar_test_fixtures:create_pairing(Pairing, #{join_timeout => evatar_test_time:ms(200)}),
     {ok, Old} = application:get_env(bil, max_description_size),
     ok = application:set_env(bil, max_description_size, 16384),
     try

@@ -180,7 +180,7 @@ birth_message(Config) ->
                                                      zigbee2mqtt => false},
                                       birth => false, settle => 200, discovery_wait => 500}),
     remember(avatars, Quiet),
-    ok = mqtt_avatar:await_ready(Quiet, 10000),
+    ok = mqtt_avatar:await_ready(Quiet, evatar_test_time:guard()),
     [] = maps:get(components, mqtt_avatar:status(Quiet)).
 
 %% A discovery config over max_config_size is a problem as it arrives (no

@@ -79,7 +79,7 @@ port(Config) -> maps:get(port, ?config(broker, Config)).
 client(Config, Extra) ->
     {ok, C} = mqtt_client:start_link(maps:merge(#{host => {127, 0, 0, 1},
                                                   port => port(Config)}, Extra)),
-    ok = mqtt_client:await_connected(C, 5000),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
     C.
 
 recv(C) ->
@@ -191,7 +191,7 @@ will_on_abrupt_close(Config) ->
                                   protocol => v5,
                                   will => #{topic => <<"dev/w/avail">>, payload => <<"offline">>,
                                             qos => 1, retain => true}}),
-    ok = mqtt_client:await_connected(W, 5000),
+    ok = mqtt_client:await_connected(W, evatar_test_time:guard()),
     exit(W, kill),
     #{topic := <<"dev/w/avail">>, payload := <<"offline">>, qos := 1} = recv(Obs),
     ok = mqtt_client:stop(Obs).
@@ -252,7 +252,7 @@ broker_restart(Config) ->
     {connected, #{session_present := false}} = event(Sub, connected),
     %% Resubscribed: the retained state comes again.
     #{topic := <<"home/lamp">>, payload := <<"on">>, retain := true} = recv(Sub),
-    ok = mqtt_client:await_connected(Pub, 5000),
+    ok = mqtt_client:await_connected(Pub, evatar_test_time:guard()),
     ok = mqtt_client:publish(Pub, <<"home/lamp">>, <<"off">>, #{qos => 1}),
     #{payload := <<"off">>, retain := false} = recv(Sub),
     ok = mqtt_client:stop(Pub),
@@ -305,7 +305,7 @@ subscribe_waits_for_connection(_Config) ->
     spawn_link(fun() -> Self ! {subscribed, mqtt_client:subscribe(C, [{<<"w">>, 1}])} end),
     {ok, B} = evatar_test_mosquitto:start(#{port => Port}),
     put(extra_broker, B),
-    ok = mqtt_client:await_connected(C, 5000),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
     receive {subscribed, R} -> {ok, [1]} = R after evatar_test_time:guard() -> ct:fail(no_subscribe) end,
     ok = mqtt_client:publish(C, <<"w">>, <<"x">>, #{qos => 1}),
     #{payload := <<"x">>} = recv(C),
@@ -335,7 +335,7 @@ tls(Config) ->
     %% As long as the client's own first attempt may take (connect_timeout,
     %% 10 s): the VM's first TLS connection loads ssl, public_key and
     %% crypto, and at load 17 that took more than the 5 s waited before.
-    ok = mqtt_client:await_connected(C, 15000),
+    ok = mqtt_client:await_connected(C, evatar_test_time:guard()),
     {ok, [1]} = mqtt_client:subscribe(C, [{<<"tls/#">>, 1}]),
     ok = mqtt_client:publish(C, <<"tls/x">>, <<"secret">>, #{qos => 1}),
     #{payload := <<"secret">>} = recv(C),

@@ -36,10 +36,10 @@ end_per_suite(_Config) ->
 
 init_per_testcase(node_wot_mqtt_lamp, Config) ->
     %% its servient needs the case's broker: started by the case
-    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => evatar_test_time:ms(10000)}),
     Config;
 init_per_testcase(_Case, Config) ->
-    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => 10000}),
+    {ok, _} = evatar_test_fixtures:create_pairing(?PAIRING, #{feedback_timeout => evatar_test_time:ms(10000)}),
     Port = hd(evatar_test_cluster:free_ports(1)),
     Servient = servient(Config, Port),
     [{port, Port}, {servient, Servient} | Config].
