@@ -38,7 +38,7 @@
 -export([role/1, active/1, standby/1, core/1, mode/1, electing/1, reconfirming/1,
          logic/1, epoch/1, version/1, synced/1, silent_poll_ms/1, node_of/1]).
 
--export_type([state/0, role/0, view/0, ctx/0, event/0, effect/0, decision/0, peer_msg/0,
+-export_type([state/0, role/0, view/0, ctx/0, event/0, effect/0, decision/0, peer_msg/0, node_msg/0,
               timer_key/0]).
 
 -type role() :: starting | active | handing_over | standby | fenced.
@@ -86,24 +86,41 @@
                   | {snapshot, non_neg_integer(), evatar_pairing_logic:state(),
                      evatar_ha_core:claim()}.
 
-%% What the executor does, in order: all I/O. `{tell, EntityId, Msg}':
-%% to the entity's current connection; `{to_conn, Conn, Msg}': to the
-%% connection it had when the effect was made (one of `conns'); `{drop,
-%% ..}': tell it and forget its connection; `{stepped, ..}': the rules ran
-%% an event (metrics and the live tail watch it); `flush_later': call
-%% {@link flush/1} once the messages waiting are handled;
-%% `cancel_rule_timers': every timer but the `{ha, _}' ones.
--type effect() :: peer_io()
+%% What the executor does, in order: all I/O, by what it reaches.
+%% `{send, Peer, Msg}': the pairing's other instance;
+%% `{to_node, Node, Msg}': a node's cluster service (its voter, its
+%% standby starter, the instances it runs), for this instance;
+%% `{monitor, active | standby, Peer | none}': watch that instance (none:
+%% stop watching); `{to_client, Who, Msg}': a client's connection, Who
+%% being an entity id (its current connection) or `{conn, Conn}' (the one
+%% it had when the effect was made, one of `conns'); `{drop, Who, Code,
+%% Reason}': close an entity's connection and forget it (`all': every
+%% connection; the entities stay, for a resume elsewhere); timers;
+%% `{reply_to, ..}'; `flush_later': call {@link flush/1} once the messages
+%% waiting are handled; `{stepped, ..}': the rules ran an event (metrics
+%% and the live tail watch it); `cancel_rule_timers': every timer but the
+%% `{ha, _}' ones; and the process's own (shell_io()).
+-type effect() :: {send, peer(), peer_msg()}
+                | {to_node, node(), node_msg()}
+                | {monitor, active | standby, peer() | none}
                 | {timer, timer_key(), non_neg_integer()}
                 | {ensure_timer, timer_key(), non_neg_integer()}
                 | {cancel_timer, timer_key()} | cancel_rule_timers
-                | {tell, binary(), term()} | {to_conn, term(), term()}
-                | {drop, binary(), atom(), binary()}
+                | {to_client, binary() | {conn, term()}, term()}
+                | {drop, binary() | all, atom(), binary()}
                 | {reply_to, term(), term()}
-                | {acks, #{binary() => binary()}} | flush_later
+                | flush_later
                 | {stepped, evatar_pairing_logic:event(), [evatar_pairing_logic:effect()],
                    integer()}
                 | shell_io().
+
+%% What a node's cluster service is asked for this instance
+%% (evatar_ha_proto_v1 in the node): what it runs of the pairing, a
+%% standby, a vote (at an election, or at a restore), to record a claim.
+-type node_msg() :: ask | start_standby
+                  | {vote, pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
+                  | {restore_vote, pos_integer(), [node()]}
+                  | {register, evatar_ha_core:claim()}.
 
 %% What the role machine decides ({@link decide/3}): I/O, and what to do
 %% with the rules and the commit, which {@link handle/3} does.
@@ -118,6 +135,7 @@
                   | unsync | {synced_at, non_neg_integer()} | reset_commit
                   | {snapshot, peer(), evatar_ha_core:claim()}
                   | {drop, binary(), silent_link, binary()}
+                  | {disconnect_all, atom(), binary()}
                   | shell_io().
 
 %% The other instance, the cluster's nodes and the monitors.
@@ -129,8 +147,7 @@
                  | {register, node(), evatar_ha_core:claim()}
                  | {monitor, active | standby, peer()} | {demonitor, active | standby}.
 %% The clients, the registry, the held calls, logs and metrics, the process.
--type shell_io() :: {disconnect_all, atom(), binary()}
-                  | {standby_node, node()}
+-type shell_io() :: {standby_node, node()}
                   | serving | pause_seen | publish | reconfirmed | reply_held | serve_held
                   | {metric, atom()} | {metric, atom(), term()} | {log, logger:level(), map()}
                   | postpone | {stop, term()}.
@@ -320,6 +337,20 @@ carry_out1({ensure_timer, Key, Ms}, _V, S) ->
     {S, [{ensure_timer, {ha, Key}, Ms}]};
 carry_out1({cancel_timer, Key}, _V, S) ->
     {S, [{cancel_timer, {ha, Key}}]};
+carry_out1({disconnect_all, Code, Reason}, _V, S) ->
+    {S, [{drop, all, Code, Reason}]};
+carry_out1({ask, Nodes}, _V, S) ->
+    {S, [{to_node, N, ask} || N <- Nodes]};
+carry_out1({start_standby, Node}, _V, S) ->
+    {S, [{to_node, Node, start_standby}]};
+carry_out1({vote, Node, Ec, Claim, Active, Dead}, _V, S) ->
+    {S, [{to_node, Node, {vote, Ec, Claim, Active, Dead}}]};
+carry_out1({restore_vote, Node, Ec, NoneOn}, _V, S) ->
+    {S, [{to_node, Node, {restore_vote, Ec, NoneOn}}]};
+carry_out1({register, Node, Claim}, _V, S) ->
+    {S, [{to_node, Node, {register, Claim}}]};
+carry_out1({demonitor, Which}, _V, S) ->
+    {S, [{monitor, Which, none}]};
 carry_out1(Effect, _V, S) ->
     {S, [Effect]}.
 
@@ -340,12 +371,13 @@ commit({Out, C}, S) ->
 io(Out, S) ->
     [E || Effect <- Out, E <- io1(Effect, S)].
 
-io1({deliver, EntityId, Signal}, _S) -> [{tell, EntityId, {signal, Signal}}];
-io1({report, EntityId, Report}, _S) -> [{tell, EntityId, {bound, Report}}];
-io1({send, Conn, Msg}, _S) -> [{to_conn, Conn, Msg}];
+io1({deliver, EntityId, Signal}, _S) -> [{to_client, EntityId, {signal, Signal}}];
+io1({report, EntityId, Report}, _S) -> [{to_client, EntityId, {bound, Report}}];
+io1({send, Conn, Msg}, _S) -> [{to_client, {conn, Conn}, Msg}];
+io1({acks, Acks}, _S) -> [{to_client, E, {ack, Sid}} || {E, Sid} <- maps:to_list(Acks)];
 io1({start_timer, Key, Ms}, _S) -> [{timer, Key, Ms}];
 io1({ship, Events}, #inst{standby = Sb}) -> [{send, Sb, {events, Events}} || Sb =/= undefined];
-io1(Effect, _S) -> [Effect].   % drop, cancel_timer, log, reply_to, acks, flush_later
+io1(Effect, _S) -> [Effect].   % drop, cancel_timer, log, reply_to, flush_later
 
 %% The standby applies the active's batch with the rules
 %% (evatar_ha_role_machine), and confirms it or asks again.

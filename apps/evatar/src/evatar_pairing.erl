@@ -598,25 +598,22 @@ effects([], Data, Actions) ->
 effect({send, To, Msg}, Data) ->
     ok = send(To, Msg, Data),
     Data;
-effect({tell, EntityId, Msg}, Data) ->
-    ok = tell(EntityId, Msg, Data),
-    Data;
-effect({to_conn, {Pid, _Ref}, Msg}, #data{id = Id} = Data) ->
+effect({to_client, {conn, {Pid, _Ref}}, Msg}, #data{id = Id} = Data) ->
     Pid ! {evatar, Id, Msg},
     Data;
+effect({to_client, EntityId, Msg}, Data) ->
+    ok = tell(EntityId, Msg, Data),
+    Data;
+effect({drop, all, Code, Reason}, #data{id = Id, pids = Pids} = Data) ->
+    %% The entities stay in the state, for a resume elsewhere.
+    _ = [Pid ! {evatar, Id, {dropped, Code, Reason}} || {Pid, _} <- maps:values(Pids)],
+    _ = [erlang:demonitor(Ref, [flush]) || {_, Ref} <- maps:values(Pids)],
+    Data#data{pids = #{}, refs = #{}};
 effect({drop, EntityId, Code, Reason}, Data) ->
     ok = tell(EntityId, {dropped, Code, Reason}, Data),
     forget(EntityId, Data);
 effect({reply_to, From, R}, Data) ->
     gen_statem:reply(From, R),
-    Data;
-effect({acks, Acks}, #data{id = Id, pids = Pids} = Data) ->
-    maps:foreach(fun(EntityId, SignalId) ->
-                         case Pids of
-                             #{EntityId := {Pid, _}} -> Pid ! {evatar, Id, {ack, SignalId}};
-                             #{} -> ok
-                         end
-                 end, Acks),
     Data;
 effect(flush_later, Data) ->
     self() ! evatar_flush,
@@ -627,27 +624,15 @@ effect({stepped, Event, Effects, Now}, #data{id = Id} = Data) ->
         [] -> Data;
         W -> Data#data{watchers = evatar_tap:emit(Id, Event, Effects, Now, W)}
     end;
-effect({ask, Peers}, #data{id = Id} = Data) ->
-    _ = [evatar_ha_proto_v1:ask(N, Id, self()) || N <- Peers],
-    Data;
-effect({start_standby, Node}, #data{id = Id, config = Config} = Data) ->
-    ok = evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Data)),
-    Data;
-effect({vote, Node, Ec, Claim, Active, Dead}, #data{id = Id} = Data) ->
-    ok = evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead),
-    Data;
-effect({restore_vote, Node, Ec, NoneOn}, #data{id = Id} = Data) ->
-    ok = evatar_ha_proto_v1:restore_vote(Node, Id, Ec, self(), NoneOn),
-    Data;
-effect({register, Node, {E, Seq}}, #data{id = Id} = Data) ->
-    ok = evatar_ha_proto_v1:register(Node, Id, E, Seq, self()),
+effect({to_node, Node, Msg}, Data) ->
+    ok = to_node(Node, Msg, Data),
     Data;
 effect({monitor, Which, Pid}, #data{mons = Mons} = Data) ->
     _ = [erlang:demonitor(M, [flush]) || M <- [maps:get(Which, Mons, undefined)], is_reference(M)],
-    Data#data{mons = Mons#{Which => erlang:monitor(process, Pid)}};
-effect({demonitor, Which}, #data{mons = Mons} = Data) ->
-    _ = [erlang:demonitor(M, [flush]) || M <- [maps:get(Which, Mons, undefined)], is_reference(M)],
-    Data#data{mons = maps:remove(Which, Mons)};
+    case Pid of
+        none -> Data#data{mons = maps:remove(Which, Mons)};
+        _ -> Data#data{mons = Mons#{Which => erlang:monitor(process, Pid)}}
+    end;
 effect({timer, Key, Ms}, Data) ->
     timer(Key, Ms, Data);
 effect({ensure_timer, Key, Ms}, #data{timers = Timers} = Data) ->
@@ -659,11 +644,6 @@ effect({cancel_timer, Key}, Data) ->
     untimer(Key, Data);
 effect(cancel_rule_timers, Data) ->
     cancel_rule_timers(Data);
-effect({disconnect_all, Code, Reason}, #data{id = Id, pids = Pids} = Data) ->
-    %% The entities stay in the state, for a resume elsewhere.
-    _ = [Pid ! {evatar, Id, {dropped, Code, Reason}} || {Pid, _} <- maps:values(Pids)],
-    _ = [erlang:demonitor(Ref, [flush]) || {_, Ref} <- maps:values(Pids)],
-    Data#data{pids = #{}, refs = #{}};
 effect({standby_node, Node}, #data{config = Config} = Data) ->
     Data#data{config = Config#{standby_node => Node}};
 effect(serving, #data{id = Id} = Data) ->
@@ -689,6 +669,18 @@ effect({metric, Name, Label}, Data) ->
 effect({log, Level, Report}, Data) ->
     ok = log(Level, Report, Data),
     Data.
+
+%% The requests to a node's cluster service (evatar_ha_proto_v1).
+to_node(Node, ask, #data{id = Id}) ->
+    evatar_ha_proto_v1:ask(Node, Id, self());
+to_node(Node, start_standby, #data{id = Id, config = Config} = Data) ->
+    evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Data));
+to_node(Node, {vote, Ec, Claim, Active, Dead}, #data{id = Id}) ->
+    evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead);
+to_node(Node, {restore_vote, Ec, NoneOn}, #data{id = Id}) ->
+    evatar_ha_proto_v1:restore_vote(Node, Id, Ec, self(), NoneOn);
+to_node(Node, {register, {E, Seq}}, #data{id = Id}) ->
+    evatar_ha_proto_v1:register(Node, Id, E, Seq, self()).
 
 %% The messages to the other instance (evatar_ha_proto_v1).
 send(To, {offer, Version}, _Data) -> evatar_ha_proto_v1:offer(To, self(), Version);

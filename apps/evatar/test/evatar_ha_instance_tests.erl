@@ -321,14 +321,20 @@ ctx() -> #{now => 1000, conns => #{<<"va1">> => va_conn}}.
 
 io(Event, S) -> evatar_ha_instance:handle(Event, maps:merge(view(#{}), ctx()), S).
 
+kind(E) when is_atom(E) -> E;
+kind(E) -> element(1, E).
+
 decision_only(E) ->
-    Kind = case E of
-               _ when is_atom(E) -> E;
-               _ -> element(1, E)
-           end,
-    lists:member(Kind, [new_logic, install, apply, logic, arm_logic_timers, cancel_logic_timers,
-                        release, release_all, flush, flush_maybe, unsync, synced_at,
-                        reset_commit]).
+    lists:member(kind(E), [new_logic, install, apply, logic, arm_logic_timers, cancel_logic_timers,
+                           release, release_all, flush, flush_maybe, unsync, synced_at,
+                           reset_commit]).
+
+%% The kinds of effect() the process carries out.
+io_kind(E) ->
+    lists:member(kind(E), [send, to_node, monitor, timer, ensure_timer, cancel_timer,
+                           cancel_rule_timers, to_client, drop, reply_to, flush_later, stepped,
+                           standby_node, serving, pause_seen, publish, reconfirmed, reply_held,
+                           serve_held, metric, log, postpone, stop]).
 
 %% A new active makes its rules' state; what leaves is I/O, its timers are
 %% the role machine's ({ha, Key}); a standby offering gets the rules' state.
@@ -336,6 +342,7 @@ only_io_test() ->
     {S, Es} = io({start, create, none}, evatar_ha_instance:new(p, ?A, config())),
     ?assertEqual(1, evatar_ha_instance:epoch(S)),
     ?assertEqual([], [E || E <- Es, decision_only(E)]),
+    ?assertEqual([], [E || E <- Es, not io_kind(E)]),
     ?assertEqual([], [K || {T, K, _} <- Es, T =:= timer, element(1, K) =/= ha]),
     {S1, Es1} = io({msg, {offer, ?B, 0}}, S),
     Logic = evatar_ha_instance:logic(S1),

@@ -742,24 +742,24 @@ ha_effects([], _Event, I, W) ->
 
 ha_effect({send, To, Msg}, I, W) ->
     send(node_of(I), {inst, To}, peer_msg(Msg, I), W);
-ha_effect({start_standby, M}, I, W) ->
+ha_effect({to_node, M, start_standby}, I, W) ->
     send(node_of(I), {node, M}, {start_standby, ref(I)}, W);
-ha_effect({vote, M, Ec, Claim, Active, Dead}, I, W) ->
+ha_effect({to_node, M, {vote, Ec, Claim, Active, Dead}}, I, W) ->
     send(node_of(I), {node, M}, {vote, Ec, ref(I), Claim, Active, Dead}, W);
-ha_effect({restore_vote, M, Ec, NoneOn}, I, W) ->
+ha_effect({to_node, M, {restore_vote, Ec, NoneOn}}, I, W) ->
     send(node_of(I), {node, M}, {restore_vote, Ec, ref(I), NoneOn}, W);
-ha_effect({ask, Peers}, I, W) ->
-    lists:foldl(fun(M, Acc) -> send(node_of(I), {node, M}, {ask, ref(I)}, Acc) end, W, Peers);
-ha_effect({register, M, Claim}, I, W) ->
+ha_effect({to_node, M, ask}, I, W) ->
+    send(node_of(I), {node, M}, {ask, ref(I)}, W);
+ha_effect({to_node, M, {register, Claim}}, I, W) ->
     send(node_of(I), {node, M}, {register, Claim, ref(I)}, W);
+ha_effect({monitor, Which, none}, #{mons := Mons} = I, W) ->
+    put_inst(I#{mons := maps:remove(Which, Mons)}, W);
 ha_effect({monitor, Which, To}, #{mons := Mons} = I, #{insts := Insts} = W) ->
     W1 = put_inst(I#{mons := Mons#{Which => To}}, W),
     case Insts of
         #{To := _} -> W1;
         #{} -> down_later(ref(I), {down, Which, noproc, To}, W1)  % gone already
     end;
-ha_effect({demonitor, Which}, #{mons := Mons} = I, W) ->
-    put_inst(I#{mons := maps:remove(Which, Mons)}, W);
 ha_effect({timer, K, Ms}, I, W) ->
     put_inst(timer(K, Ms, I, W), W);
 ha_effect({ensure_timer, K, Ms}, #{timers := Ts} = I, W) ->
@@ -771,11 +771,11 @@ ha_effect({cancel_timer, K}, #{timers := Ts} = I, W) ->
     put_inst(I#{timers := maps:remove(K, Ts)}, W);
 ha_effect(cancel_rule_timers, #{timers := Ts} = I, W) ->
     put_inst(I#{timers := maps:filter(fun(K, _) -> element(1, K) =:= ha end, Ts)}, W);
-ha_effect({tell, ?AV, {signal, Signal}}, I, W) ->
+ha_effect({to_client, ?AV, {signal, Signal}}, I, W) ->
     to_receiver(Signal, I, W);
-ha_effect({to_conn, receiver, {signal, Signal}}, I, W) ->
+ha_effect({to_client, {conn, receiver}, {signal, Signal}}, I, W) ->
     to_receiver(Signal, I, W);
-ha_effect({acks, #{?VA := Sid}}, #{standby := S} = I, W) ->
+ha_effect({to_client, ?VA, {ack, Sid}}, #{standby := S} = I, W) ->
     %% Told without a standby that holds it: degraded, not covered by the
     %% guarantee until a standby is synced again.
     Acked = binary_to_integer(Sid),
