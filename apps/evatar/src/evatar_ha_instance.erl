@@ -117,7 +117,7 @@
 %% What a node's cluster service is asked for this instance
 %% (evatar_ha_proto_v1 in the node): what it runs of the pairing, a
 %% standby, a vote (at an election, or at a restore), to record a claim.
--type node_msg() :: ask | start_standby
+-type node_msg() :: ask | {start_standby, evatar_pairing_logic:config()}
                   | {vote, pos_integer(), evatar_ha_core:claim(), peer(), boolean()}
                   | {restore_vote, pos_integer(), [node()]}
                   | {register, evatar_ha_core:claim()}.
@@ -147,8 +147,7 @@
                  | {register, node(), evatar_ha_core:claim()}
                  | {monitor, active | standby, peer()} | {demonitor, active | standby}.
 %% The clients, the registry, the held calls, logs and metrics, the process.
--type shell_io() :: {standby_node, node()}
-                  | serving | pause_seen | publish | reconfirmed | reply_held | serve_held
+-type shell_io() :: serving | pause_seen | publish | reconfirmed | reply_held | serve_held
                   | {metric, atom()} | {metric, atom(), term()} | {log, logger:level(), map()}
                   | postpone | {stop, term()}.
 
@@ -341,8 +340,14 @@ carry_out1({disconnect_all, Code, Reason}, _V, S) ->
     {S, [{drop, all, Code, Reason}]};
 carry_out1({ask, Nodes}, _V, S) ->
     {S, [{to_node, N, ask} || N <- Nodes]};
-carry_out1({start_standby, Node}, _V, S) ->
-    {S, [{to_node, Node, start_standby}]};
+carry_out1({start_standby, Node}, _V, #inst{config = Config, standby_node = Preferred} = S) ->
+    %% The standby starts with the pairing's configuration and where its
+    %% standbys go now (a rebalance may have moved it).
+    Start = case Preferred of
+                undefined -> Config;
+                _ -> Config#{standby_node => Preferred}
+            end,
+    {S, [{to_node, Node, {start_standby, Start}}]};
 carry_out1({vote, Node, Ec, Claim, Active, Dead}, _V, S) ->
     {S, [{to_node, Node, {vote, Ec, Claim, Active, Dead}}]};
 carry_out1({restore_vote, Node, Ec, NoneOn}, _V, S) ->
@@ -1005,8 +1010,8 @@ rebalance({standby, Id, Node}, V, #inst{id = Id, standby = Sb, me = Me} = S) ->
         true ->
             {S1, Forget} = forget_standby(S#inst{standby_node = Node}),
             {S2, Effects} = core(standby_node_lost, V, S1),
-            {S2, [{log, notice, #{what => rebalance_standby, from => node_of(Sb), to => Node}},
-                  {standby_node, Node} | Forget] ++ Effects ++ [publish]};
+            {S2, [{log, notice, #{what => rebalance_standby, from => node_of(Sb), to => Node}}
+                  | Forget] ++ Effects ++ [publish]};
         false ->
             {S, []}
     end;

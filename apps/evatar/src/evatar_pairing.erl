@@ -644,8 +644,6 @@ effect({cancel_timer, Key}, Data) ->
     untimer(Key, Data);
 effect(cancel_rule_timers, Data) ->
     cancel_rule_timers(Data);
-effect({standby_node, Node}, #data{config = Config} = Data) ->
-    Data#data{config = Config#{standby_node => Node}};
 effect(serving, #data{id = Id} = Data) ->
     Data#data{gen = evatar_cluster:stall_gen(), metrics = evatar_metrics:pairing(Id)};
 effect(pause_seen, Data) ->
@@ -673,7 +671,7 @@ effect({log, Level, Report}, Data) ->
 %% The requests to a node's cluster service (evatar_ha_proto_v1).
 to_node(Node, ask, #data{id = Id}) ->
     evatar_ha_proto_v1:ask(Node, Id, self());
-to_node(Node, start_standby, #data{id = Id, config = Config} = Data) ->
+to_node(Node, {start_standby, Config}, #data{id = Id} = Data) ->
     evatar_ha_proto_v1:start_standby(Node, Id, Config, self(), epoch(Data));
 to_node(Node, {vote, Ec, Claim, Active, Dead}, #data{id = Id}) ->
     evatar_ha_proto_v1:vote(Node, Id, Ec, self(), Claim, Active, Dead);

@@ -299,7 +299,7 @@ rebalance_test() ->
     ?assertMatch([{log, notice, #{what := rebalance_handover, to := b}} | _], Es),
     {S2, Es2} = h({msg, {rebalance, {standby, p, c}}}, #{synced => true}, S),
     ?assertEqual(held, evatar_ha_instance:mode(S2)),
-    ?assertMatch([{log, notice, #{what := rebalance_standby}}, {standby_node, c},
+    ?assertMatch([{log, notice, #{what := rebalance_standby}},
                   {demonitor, standby}, {send, ?B, dismiss}, unsync | _], Es2),
     ?assertEqual({S, []}, h({msg, {rebalance, {standby, p, b}}}, #{synced => true}, S)).
 
@@ -333,7 +333,7 @@ decision_only(E) ->
 io_kind(E) ->
     lists:member(kind(E), [send, to_node, monitor, timer, ensure_timer, cancel_timer,
                            cancel_rule_timers, to_client, drop, reply_to, flush_later, stepped,
-                           standby_node, serving, pause_seen, publish, reconfirmed, reply_held,
+                           serving, pause_seen, publish, reconfirmed, reply_held,
                            serve_held, metric, log, postpone, stop]).
 
 %% A new active makes its rules' state; what leaves is I/O, its timers are

@@ -742,7 +742,7 @@ ha_effects([], _Event, I, W) ->
 
 ha_effect({send, To, Msg}, I, W) ->
     send(node_of(I), {inst, To}, peer_msg(Msg, I), W);
-ha_effect({to_node, M, start_standby}, I, W) ->
+ha_effect({to_node, M, {start_standby, _Config}}, I, W) ->
     send(node_of(I), {node, M}, {start_standby, ref(I)}, W);
 ha_effect({to_node, M, {vote, Ec, Claim, Active, Dead}}, I, W) ->
     send(node_of(I), {node, M}, {vote, Ec, ref(I), Claim, Active, Dead}, W);
